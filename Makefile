@@ -1,0 +1,42 @@
+# make serve  - local single-user server on http://127.0.0.1:8000 (SQLite, local worker pool)
+# make test   - bootstrap .venv (and the system pieces the tests need) and run the whole suite
+PY ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: serve test venv services system-deps bench clean openapi
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+# Debian packages the browser tests need (chromium; Playwright drives it, no browser download).
+system-deps:
+	@command -v chromium >/dev/null 2>&1 || { \
+	  echo "installing Debian chromium for the browser tests"; \
+	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) || \
+	  { echo "could not install chromium"; exit 1; }; }
+
+# PostgreSQL and Redis on 127.0.0.1 for the scale-out tests: start them if they are not running.
+services:
+	@bash scripts/ensure-services.sh
+
+serve: $(STAMP)
+	$(BIN)/pba serve --host 127.0.0.1 --port 8000
+
+test: $(STAMP) system-deps services
+	$(BIN)/python -m pytest -q
+
+openapi: $(STAMP)
+	$(BIN)/python -m service.openapi_dump > openapi.yaml
+
+bench: $(STAMP)
+	$(BIN)/python bench/bench_solver.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache

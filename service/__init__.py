@@ -1,0 +1,1 @@
+"""HTTP orientation server (OGC API - Processes) wrapping the solver package."""

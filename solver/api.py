@@ -1,0 +1,72 @@
+"""The solver's public entry points, used by the CLI and by the service's workers.
+
+    validate(job)                      -> dict   dry run: schema, references, degrees of freedom
+    run(job, progress=..., cancel=...) -> dict   the adjustment report (JSON-ready)
+    compare(job, models, ...)          -> dict   one report per model plus a side-by-side table
+
+``progress(fraction, message, info)`` is called with ``fraction`` in [0, 1] that never
+decreases, a short human message and a dict (``iteration``, ``cost`` when solving).
+``cancel()`` returns True when the caller wants the solve stopped; the solve then raises
+:class:`solver.errors.Cancelled` within one solver iteration.
+
+Bad input raises :class:`solver.errors.JobError` (with every problem found); a solve that
+does not converge is a normal report with ``adjustment.converged = false``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Protocol
+
+from solver.job import Job, load_job
+
+
+class ProgressFn(Protocol):
+    def __call__(self, fraction: float, message: str, info: dict[str, Any] | None = None) -> None: ...
+
+
+CancelFn = Callable[[], bool]
+
+
+def _as_job(job: Job | dict[str, Any] | str | bytes) -> Job:
+    return job if isinstance(job, Job) else load_job(job)
+
+
+def validate(job: Job | dict[str, Any] | str | bytes) -> dict[str, Any]:
+    """Check a job without solving it.
+
+    Returns ``{"valid": bool, "problems": [...], "n_observations", "n_unknowns", "dof",
+    "images": [{"id", "model", "n_parameters"}]}``. Schema errors raise pydantic's
+    ValidationError (the caller maps it); everything else is reported in ``problems``.
+    """
+    from solver.validate import validate_job
+
+    return validate_job(_as_job(job))
+
+
+def run(
+    job: Job | dict[str, Any] | str | bytes,
+    progress: ProgressFn | None = None,
+    cancel: CancelFn | None = None,
+) -> dict[str, Any]:
+    """Adjust a job and return its report (see :mod:`solver.report` for the fields).
+
+    If ``job.options.models`` is not empty this is a model comparison (same as :func:`compare`).
+    """
+    j = _as_job(job)
+    if j.options.models:
+        return compare(j, j.options.models, progress=progress, cancel=cancel)
+    from solver.adjust import adjust_job
+
+    return adjust_job(j, progress=progress, cancel=cancel)
+
+
+def compare(
+    job: Job | dict[str, Any] | str | bytes,
+    models: list[str],
+    progress: ProgressFn | None = None,
+    cancel: CancelFn | None = None,
+) -> dict[str, Any]:
+    """Adjust the same observations with each platform model; one report per model + a table."""
+    from solver.compare import compare_models
+
+    return compare_models(_as_job(job), models, progress=progress, cancel=cancel)

@@ -1,0 +1,165 @@
+"""Geodesy: any CRS to ECEF and to the Local Geodetic System (one module, pyproj inside).
+
+Units: metres and radians unless a name says ``_deg``. Axis order is decided once, here:
+pyproj transformers are built with ``always_xy=True``, so coordinates are (x, y, z) =
+(easting, northing, height) or (longitude, latitude, height) whatever the CRS definition says.
+
+ECEF is WGS 84 geocentric (EPSG:4978), which coincides with ITRF at the metre level; its
+ellipsoid differs from GRS80 (used by seed 000) by 0.1 mm in the semi-minor axis.
+
+The Local Geodetic System (LGS) is east-north-up, with its origin at a given ECEF point
+(the centroid of the control points) and its axes tangent to the ellipsoid at the geodetic
+latitude/longitude of that point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from pyproj import CRS, Transformer
+from pyproj.exceptions import CRSError, ProjError
+
+ECEF_CRS = "EPSG:4978"
+GEODETIC_CRS = "EPSG:4979"  # WGS 84 lon, lat, ellipsoidal height
+
+# WGS 84 ellipsoid
+A_WGS84_M = 6378137.0
+F_WGS84 = 1.0 / 298.257223563
+E2_WGS84 = F_WGS84 * (2.0 - F_WGS84)
+
+
+class UnknownCRSError(ValueError):
+    """The CRS string is not understood by PROJ."""
+
+
+@lru_cache(maxsize=64)
+def parse_crs(crs: str) -> CRS:
+    """Parse an EPSG code, a PROJ string or WKT; raise :class:`UnknownCRSError` on failure."""
+    try:
+        return CRS.from_user_input(crs)
+    except (CRSError, ProjError, TypeError) as exc:
+        raise UnknownCRSError(f"unknown CRS {crs!r}: {exc}") from None
+
+
+@lru_cache(maxsize=64)
+def _to_ecef(crs: str) -> Transformer:
+    return Transformer.from_crs(parse_crs(crs), parse_crs(ECEF_CRS), always_xy=True)
+
+
+@lru_cache(maxsize=64)
+def _from_ecef(crs: str) -> Transformer:
+    return Transformer.from_crs(parse_crs(ECEF_CRS), parse_crs(crs), always_xy=True)
+
+
+def to_ecef(xyz: np.ndarray, crs: str) -> np.ndarray:
+    """Coordinates (n, 3) in ``crs`` (x/y order, metres or degrees) to ECEF metres (n, 3).
+
+    A 2D CRS takes the third column as ellipsoidal height in metres.
+    """
+    xyz = np.atleast_2d(np.asarray(xyz, dtype=float))
+    src = parse_crs(crs)
+    if src.is_geocentric:
+        tr = _to_ecef(crs)
+        x, y, z = tr.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+        return np.column_stack([x, y, z])
+    if len(src.axis_info) == 2:
+        # 2D CRS: promote to 3D with ellipsoidal height so that z is carried through.
+        crs3d = src.to_3d()
+        tr = Transformer.from_crs(crs3d, parse_crs(ECEF_CRS), always_xy=True)
+    else:
+        tr = _to_ecef(crs)
+    x, y, z = tr.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+    out = np.column_stack([x, y, z])
+    if not np.all(np.isfinite(out)):
+        raise UnknownCRSError(f"coordinates cannot be transformed from {crs!r} to ECEF")
+    return out
+
+
+def from_ecef(ecef: np.ndarray, crs: str) -> np.ndarray:
+    """ECEF metres (n, 3) to ``crs`` (x/y order). Inverse of :func:`to_ecef`."""
+    ecef = np.atleast_2d(np.asarray(ecef, dtype=float))
+    dst = parse_crs(crs)
+    if not dst.is_geocentric and len(dst.axis_info) == 2:
+        tr = Transformer.from_crs(parse_crs(ECEF_CRS), dst.to_3d(), always_xy=True)
+    else:
+        tr = _from_ecef(crs)
+    x, y, z = tr.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])
+    return np.column_stack([x, y, z])
+
+
+def ecef_to_geodetic(ecef: np.ndarray) -> np.ndarray:
+    """ECEF metres (n, 3) to (longitude_deg, latitude_deg, height_m) on WGS 84."""
+    return from_ecef(ecef, GEODETIC_CRS)
+
+
+def geodetic_to_ecef(lon_lat_h: np.ndarray) -> np.ndarray:
+    """(longitude_deg, latitude_deg, ellipsoidal height_m) (n, 3) to ECEF metres."""
+    return to_ecef(lon_lat_h, GEODETIC_CRS)
+
+
+def enu_rotation(lon_rad: float, lat_rad: float) -> np.ndarray:
+    """Rotation matrix taking ECEF vector components to local east, north, up (3 x 3)."""
+    sl, cl = np.sin(lon_rad), np.cos(lon_rad)
+    sp, cp = np.sin(lat_rad), np.cos(lat_rad)
+    return np.array(
+        [
+            [-sl, cl, 0.0],
+            [-sp * cl, -sp * sl, cp],
+            [cp * cl, cp * sl, sp],
+        ]
+    )
+
+
+@dataclass(frozen=True)
+class LocalFrame:
+    """East-north-up Local Geodetic System at ``origin_ecef_m``.
+
+    ``lgs = R (ecef - origin)`` and ``ecef = origin + R^T lgs`` with ``R = rotation_ecef_to_lgs``.
+    """
+
+    origin_ecef_m: np.ndarray
+    rotation_ecef_to_lgs: np.ndarray
+    origin_lon_deg: float
+    origin_lat_deg: float
+    origin_height_m: float
+
+    @classmethod
+    def at(cls, origin_ecef_m: np.ndarray) -> "LocalFrame":
+        origin = np.asarray(origin_ecef_m, dtype=float).reshape(3)
+        lon, lat, h = ecef_to_geodetic(origin[None, :])[0]
+        rot = enu_rotation(np.radians(lon), np.radians(lat))
+        return cls(origin, rot, float(lon), float(lat), float(h))
+
+    @classmethod
+    def at_centroid(cls, points_ecef_m: np.ndarray) -> "LocalFrame":
+        """LGS whose origin is the mean of the given ECEF points (seed 000 section 5.1)."""
+        return cls.at(np.mean(np.atleast_2d(points_ecef_m), axis=0))
+
+    def to_lgs(self, ecef_m: np.ndarray) -> np.ndarray:
+        """ECEF metres (n, 3) or (3,) to LGS east, north, up metres."""
+        e = np.asarray(ecef_m, dtype=float)
+        return (e - self.origin_ecef_m) @ self.rotation_ecef_to_lgs.T
+
+    def to_ecef(self, lgs_m: np.ndarray) -> np.ndarray:
+        """LGS east, north, up metres (n, 3) or (3,) to ECEF metres."""
+        g = np.asarray(lgs_m, dtype=float)
+        return g @ self.rotation_ecef_to_lgs + self.origin_ecef_m
+
+    def vector_to_lgs(self, v_ecef: np.ndarray) -> np.ndarray:
+        """Rotate ECEF vector components (velocity, direction) into LGS axes."""
+        return np.asarray(v_ecef, dtype=float) @ self.rotation_ecef_to_lgs.T
+
+    def vector_to_ecef(self, v_lgs: np.ndarray) -> np.ndarray:
+        """Rotate LGS vector components into ECEF axes."""
+        return np.asarray(v_lgs, dtype=float) @ self.rotation_ecef_to_lgs
+
+    def to_dict(self) -> dict:
+        return {
+            "origin_ecef_m": [float(x) for x in self.origin_ecef_m],
+            "origin_lon_deg": self.origin_lon_deg,
+            "origin_lat_deg": self.origin_lat_deg,
+            "origin_height_m": self.origin_height_m,
+            "axes": "east, north, up",
+        }

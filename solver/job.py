@@ -1,0 +1,226 @@
+"""The job document: one pydantic v2 schema shared by the CLI and the HTTP API.
+
+Units and frames are in the field names: ``_mm`` millimetres in the focal plane, ``_px``
+pixels, ``_s`` seconds, ``_m`` metres, ``_deg`` degrees. Image coordinates are (line, column)
+with the origin at the centre of the top-left pixel (seed 001 Figure 1): the line number grows
+with acquisition time, the column across the CCD.
+
+Ground coordinates are given in any CRS (EPSG code such as ``"EPSG:32722"`` for UTM 22S,
+``"EPSG:4618"`` for SAD69 geographic, ``"EPSG:4978"`` for WGS 84/ITRF ECEF, or a PROJ string);
+axis order is always (x, y[, z]) = (easting, northing) or (longitude, latitude), as pyproj's
+``always_xy``. Heights are ellipsoidal metres unless the CRS says otherwise.
+
+Only structure and value ranges are checked here; cross references (unknown image, point,
+camera), model names and degrees of freedom are checked by :func:`solver.validate.validate_job`
+so that every problem in a document is reported at once.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+SCHEMA_VERSION = "1.0"
+
+Role = Literal["gcp", "check", "tie"]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class Chip(_Strict):
+    """One CCD chip of the focal plane (seed 001 eqs 1-3).
+
+    The chip covers image columns ``first_column .. first_column + columns - 1``. Its scanline
+    coordinate is ``y_s = (C - first_column - (columns - 1)/2) * pixel_mm`` and its camera
+    coordinates ``x_c = dx_mm``, ``y_c = y_s + dy_mm`` (translations from the chip centre to the
+    principal point, in the focal plane, mm).
+    """
+
+    id: str = Field(min_length=1, max_length=64)
+    first_column: int = Field(ge=0)
+    columns: int = Field(gt=0)
+    dx_mm: float = 0.0
+    dy_mm: float = 0.0
+
+
+class CameraRef(_Strict):
+    """Reference to a camera stored in the server's camera library."""
+
+    name: str = Field(min_length=1, max_length=128)
+    version: int | None = Field(default=None, ge=1)
+
+
+class Camera(_Strict):
+    """A linear-array camera: focal plane, chips and timing.
+
+    If ``chips`` is empty the image is one chip centred on the principal point covering every
+    column. ``iop`` holds interior-orientation corrections (seed 001 section 4) by name, used
+    as fixed values unless the job estimates them.
+    """
+
+    id: str = Field(min_length=1, max_length=64)
+    ref: CameraRef | None = None
+    focal_mm: float | None = Field(default=None, gt=0)
+    pixel_mm: float | None = Field(default=None, gt=0)
+    line_time_s: float | None = Field(default=None, gt=0)
+    lines: int | None = Field(default=None, gt=0)
+    columns: int | None = Field(default=None, gt=0)
+    principal_point_mm: tuple[float, float] = (0.0, 0.0)
+    chips: list[Chip] = Field(default_factory=list)
+    mounting_pitch_deg: float = Field(
+        default=0.0,
+        ge=-60,
+        le=60,
+        description="nominal along-track tilt of the camera (backward PRISM -23.8, forward +23.8)",
+    )
+    iop: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _complete_unless_ref(self) -> "Camera":
+        if self.ref is None:
+            missing = [
+                n
+                for n in ("focal_mm", "pixel_mm", "line_time_s", "lines", "columns")
+                if getattr(self, n) is None
+            ]
+            if missing:
+                raise ValueError(f"camera {self.id!r} needs {', '.join(missing)} (or a library ref)")
+        return self
+
+
+class ModelChoice(_Strict):
+    """Platform model of an image: a registered name and its options.
+
+    Options by model (see ``pba models``): ON1/ON2/MT8/MT12 ``omega_deg``/``phi_deg`` (held
+    values; default: 0 and the camera's mounting pitch); GENERAL ``orders`` {X,Y,Z,omega,phi,
+    kappa: 0..3}.
+    """
+
+    name: str = Field(min_length=1, max_length=32)
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class StateVector(_Strict):
+    """Platform state in the Earth-fixed frame (WGS 84 / ITRF ECEF)."""
+
+    time_s: float = Field(description="seconds, on the same time scale as first_line_time_s")
+    position_ecef_m: tuple[float, float, float]
+    velocity_ecef_m_s: tuple[float, float, float]
+
+
+class ApproxState(_Strict):
+    """Approximate perspective-centre state at the image's first line (line 0), ECEF.
+
+    From the image header or ephemeris. Used to initialise every platform model (the angles are
+    then found by a resection on the control points). ``attitude_deg`` optionally gives
+    approximate (omega, phi, kappa) in the local geodetic frame.
+    """
+
+    position_ecef_m: tuple[float, float, float]
+    velocity_ecef_m_s: tuple[float, float, float]
+    attitude_deg: tuple[float, float, float] | None = None
+
+
+class Image(_Strict):
+    """One pushbroom image."""
+
+    id: str = Field(min_length=1, max_length=64)
+    camera: str = Field(min_length=1, max_length=64)
+    model: ModelChoice
+    approx_state: ApproxState | None = None
+    first_line_time_s: float | None = None
+    ephemeris: list[StateVector] = Field(default_factory=list)
+    initial: dict[str, float] = Field(
+        default_factory=dict, description="initial parameter values by model parameter name"
+    )
+
+    @field_validator("initial")
+    @classmethod
+    def _finite(cls, v: dict[str, float]) -> dict[str, float]:
+        for k, x in v.items():
+            if not math.isfinite(x):
+                raise ValueError(f"initial value {k!r} is not finite")
+        return v
+
+
+class GroundPoint(_Strict):
+    """A ground point: control (gcp), check, or tie (unknown coordinates).
+
+    ``coordinates`` in ``crs`` (or the document's default CRS), x/y order; ``sigma_m`` the
+    survey standard deviations along local east, north, up in metres. A gcp with ``sigma_m``
+    enters as a weighted constraint unless the options say ``control: fixed``; a gcp without
+    sigma is fixed. Tie points may omit coordinates (they are then intersected).
+    """
+
+    id: str = Field(min_length=1, max_length=64)
+    role: Role
+    coordinates: tuple[float, float, float] | None = None
+    crs: str | None = None
+    sigma_m: tuple[float, float, float] | None = None
+
+    @field_validator("sigma_m")
+    @classmethod
+    def _positive(cls, v: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
+        if v is not None and any(s <= 0 for s in v):
+            raise ValueError("sigmas must be positive")
+        return v
+
+    @model_validator(mode="after")
+    def _coords_needed(self) -> "GroundPoint":
+        if self.role != "tie" and self.coordinates is None:
+            raise ValueError(f"point {self.id!r} with role {self.role!r} needs coordinates")
+        return self
+
+
+class ImageObservation(_Strict):
+    """A measured image point: (line, column) in pixels with its standard deviation."""
+
+    image: str = Field(min_length=1, max_length=64)
+    point: str = Field(min_length=1, max_length=64)
+    line: float
+    column: float
+    sigma_px: float = Field(default=0.5, gt=0)
+
+
+class SolverOptions(_Strict):
+    """How to solve and what to report."""
+
+    max_iterations: int = Field(default=50, ge=1, le=1000)
+    function_tolerance: float = Field(default=1e-10, gt=0)
+    parameter_tolerance: float = Field(default=1e-10, gt=0)
+    control: Literal["weighted", "fixed"] = "weighted"
+    sigma0_apriori: float = Field(default=1.0, gt=0)
+    alpha: float = Field(default=0.05, gt=0, lt=0.5)
+    correlation_threshold: float = Field(default=0.75, gt=0, le=1)
+    covariance: bool = True
+    loss: Literal["none", "huber", "cauchy"] = "none"
+    loss_scale: float = Field(default=3.0, gt=0)
+    kernel: Literal["auto", "python"] = "auto"
+    models: list[str] = Field(
+        default_factory=list,
+        description="model comparison: adjust the same observations with each of these models",
+    )
+
+
+class Job(_Strict):
+    """A complete adjustment job."""
+
+    schema_version: Literal["1.0"] = SCHEMA_VERSION
+    name: str = Field(default="job", max_length=200)
+    crs: str = Field(default="EPSG:4326", description="default CRS of ground coordinates")
+    cameras: list[Camera] = Field(min_length=1)
+    images: list[Image] = Field(min_length=1)
+    points: list[GroundPoint] = Field(min_length=1)
+    observations: list[ImageObservation] = Field(min_length=1)
+    options: SolverOptions = Field(default_factory=SolverOptions)
+
+
+def load_job(data: dict[str, Any] | str | bytes) -> Job:
+    """Parse a job from a dict or JSON text (raises pydantic.ValidationError)."""
+    if isinstance(data, (str, bytes)):
+        return Job.model_validate_json(data)
+    return Job.model_validate(data)
