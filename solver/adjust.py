@@ -1,0 +1,310 @@
+"""The adjustment driver: validate, build, initialise, check rank, solve, assess, report.
+
+Small verbs, one per step; pyceres is used only through :mod:`solver.backend`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from solver.errors import Cancelled, JobError, Problem as JobProblem, RankDeficientError
+from solver.geodesy import ecef_to_geodetic
+from solver.initialize import initialise
+from solver.job import Job
+from solver.kernels import platform_state
+from solver.linalg import Covariance, check_rank, covariance, linearise, schur
+from solver.problem import Problem, build_problem
+from solver.statistics import chi2_test
+from solver.checkpoints import compute_checkpoints
+from solver.validate import require_valid
+
+REPORT_SCHEMA_VERSION = "1.0"
+
+
+def _progress(progress, fraction: float, message: str, info: dict | None = None) -> None:
+    if progress is not None:
+        progress(fraction, message, info or {})
+
+
+def parameter_names(problem: Problem) -> list[str]:
+    names = []
+    for img in problem.images:
+        names += [f"{img.id}/{p.name}" for p in img.model.parameters(img.options)]
+    return names
+
+
+def prepare(job: Job, models: dict[str, str] | None = None) -> Problem:
+    """Validated, assembled and initialised problem (raises JobError on bad input)."""
+    require_valid(job)
+    problem = build_problem(job, models)
+    initialise(problem)
+    return problem
+
+
+def assert_full_rank(problem: Problem) -> None:
+    """Raise RankDeficientError naming the parameters the control geometry does not fix."""
+    lin = linearise(problem)
+    parts = schur(lin, problem)
+    issues = []
+    for q in np.flatnonzero(parts.point_singular):
+        p = problem.points[parts.est_points[q]]
+        issues.append(
+            JobProblem(
+                "point_geometry_singular",
+                f"point {p.id!r}: its rays are (nearly) parallel, its coordinates cannot be determined",
+                ("points", p.index),
+            )
+        )
+    rank = check_rank(parts, parameter_names(problem))
+    if rank.deficient:
+        names = ", ".join(n for n, _ in rank.null_parameters) or "(spread over many parameters)"
+        issues.append(
+            JobProblem(
+                "rank_deficient",
+                "the control geometry leaves these parameters undetermined (the normal matrix is "
+                f"singular, condition {rank.condition:.3g}): {names}. Add or spread control points, "
+                "or choose a model with fewer parameters.",
+                ("images",),
+                {"parameters": [n for n, _ in rank.null_parameters], "condition": rank.condition},
+            )
+        )
+    if issues:
+        raise RankDeficientError(issues)
+
+
+def adjust_job(
+    job: Job,
+    progress: Callable[..., None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+    models: dict[str, str] | None = None,
+    fraction_range: tuple[float, float] = (0.0, 1.0),
+) -> dict[str, Any]:
+    """Run the whole adjustment of ``job`` and return the report (docs/report-contract.md).
+
+    ``models`` optionally overrides the platform model per image id (model comparison).
+    """
+    from solver.backend import SolveControl, solve  # imports pyceres: workers only
+
+    f0, f1 = fraction_range
+
+    def frac(x: float) -> float:
+        return f0 + (f1 - f0) * x
+
+    t_start = time.perf_counter()
+    _progress(progress, frac(0.01), "validating")
+    problem = prepare(job, models)
+    _progress(progress, frac(0.05), "initial values computed")
+    assert_full_rank(problem)
+    if cancel is not None and cancel():
+        raise Cancelled("cancelled before the solve")
+    control = SolveControl(progress, cancel, job.options.max_iterations, (frac(0.08), frac(0.9)))
+    outcome = solve(problem, job.options, control)
+    if outcome.cancelled:
+        raise Cancelled(f"cancelled after {outcome.iterations} iterations")
+    _progress(progress, frac(0.92), "assessing the solution")
+    report = assess(problem, outcome)
+    report["adjustment"]["total_time_s"] = time.perf_counter() - t_start
+    _progress(progress, frac(1.0), "done", {"sigma0": report["adjustment"]["sigma0_aposteriori"]})
+    return report
+
+
+def assess(problem: Problem, outcome) -> dict[str, Any]:
+    """Statistics, covariance, check points and the report, at the current parameters."""
+    job = problem.job
+    opts = job.options
+    lin = linearise(problem)
+    n_obs = len(lin.residuals)
+    n_unk = lin.layout.n_params
+    dof = n_obs - n_unk
+    vtpv = float(lin.residuals @ lin.residuals)
+    sigma0 = math.sqrt(vtpv / dof) if dof > 0 else None
+    warnings: list[str] = []
+    if dof == 0:
+        warnings.append("zero degrees of freedom: no a-posteriori variance; sigmas use sigma0 a priori")
+    var_factor = (sigma0**2) if sigma0 is not None else opts.sigma0_apriori**2
+    cov: Covariance | None = None
+    if opts.covariance and outcome.usable:
+        parts = schur(lin, problem)
+        try:
+            cov = covariance(lin, parts, problem)
+        except np.linalg.LinAlgError:
+            warnings.append("the normal matrix is singular at the solution: no covariance")
+    if not lin.ok.all():
+        warnings.append(f"{int((~lin.ok).sum())} projections did not converge at the solution")
+    if not outcome.converged:
+        warnings.append(f"the solver did not converge: {outcome.message}")
+
+    adjustment = {
+        "n_observations": n_obs,
+        "n_unknowns": n_unk,
+        "dof": dof,
+        "iterations": outcome.iterations,
+        "converged": outcome.converged,
+        "termination": outcome.termination,
+        "message": outcome.message,
+        "linear_solver": outcome.linear_solver,
+        "sigma0_apriori": opts.sigma0_apriori,
+        "sigma0_aposteriori": sigma0,
+        "chi2": chi2_test(vtpv, dof, opts.alpha, opts.sigma0_apriori),
+        "solve_time_s": outcome.time_s,
+        "initial_cost": outcome.initial_cost,
+        "final_cost": outcome.final_cost,
+        "cost_history": outcome.history,
+    }
+    images, gsds = _images_report(problem, lin, cov, var_factor)
+    gsd = float(np.mean(gsds)) if gsds else None
+    return {
+        "schema_version": REPORT_SCHEMA_VERSION,
+        "kind": "adjustment",
+        "job_name": job.name,
+        "frames": {"lgs": problem.frame.to_dict(), "ecef": "EPSG:4978"},
+        "adjustment": adjustment,
+        "images": images,
+        "correlations": _correlations(problem, cov, opts.correlation_threshold),
+        "observations": _observations_report(problem, lin, cov),
+        "tie_points": _points_report(problem, cov, var_factor, role="tie"),
+        "control_points": _points_report(problem, cov, var_factor, role="gcp"),
+        "checkpoints": compute_checkpoints(problem, opts.alpha, gsd),
+        "warnings": warnings,
+    }
+
+
+def _images_report(problem: Problem, lin, cov: Covariance | None, var_factor: float):
+    out = []
+    gsds = []
+    lay = lin.layout
+    res = lin.residuals[: lin.n_obs_rows]
+    obs = problem.obs
+    sel = lin.obs_sel
+    for img in problem.images:
+        specs = img.model.parameters(img.options)
+        c = img.coef()
+        c0 = lay.img_col[img.index]
+        block = None
+        if cov is not None:
+            block = cov.images[c0 : c0 + img.nfree, c0 : c0 + img.nfree] * var_factor
+        scale = np.array([s.to_report for s in specs])
+        params = []
+        for k, s in enumerate(specs):
+            sigma = float(math.sqrt(max(block[k, k], 0.0)) * abs(s.to_report)) if block is not None else None
+            params.append(
+                {"name": s.name, "value": float(c[s.index] * s.to_report), "sigma": sigma, "unit": s.unit, "estimated": True}
+            )
+        held = img.model.held_values_rad(img.options, img.camera.mounting_pitch_deg)
+        for e, val in held.items():
+            params.append({"name": e, "value": math.degrees(val), "sigma": None, "unit": "deg", "estimated": False})
+        mine = np.flatnonzero(obs.img[sel] == img.index)
+        sig = obs.oc[sel][mine, 2]
+        rl = res[2 * mine] * sig
+        rc = res[2 * mine + 1] * sig
+        px = img.camera.pixel_mm
+        rms = lambda v: float(np.sqrt(np.mean(v**2))) if len(v) else None  # noqa: E731
+        # ground sample distance: range to the observed points x pixel / focal length
+        ranges = []
+        for k in np.flatnonzero(obs.img == img.index)[:200]:
+            s = platform_state(img.kind, c, img.kc, obs.oc[k, 0] * obs.oc[k, 8])[0]
+            ranges.append(np.linalg.norm(problem.points[obs.pt[k]].xyz - s))
+        gsd = float(np.mean(ranges) * px / img.camera.focal_mm) if ranges else None
+        if gsd:
+            gsds.append(gsd)
+        out.append(
+            {
+                "id": img.id,
+                "camera": img.camera.id,
+                "model": img.model.name,
+                "frame": img.model.frame,
+                "time_variable": img.model.time_variable,
+                "parameters": params,
+                "covariance": None
+                if block is None
+                else {"names": [s.name for s in specs], "matrix": (block * np.outer(scale, scale)).tolist()},
+                "residual_rmse": {
+                    "line_px": rms(rl),
+                    "column_px": rms(rc),
+                    "x_mm": None if rms(rl) is None else rms(rl) * px,
+                    "y_mm": None if rms(rc) is None else rms(rc) * px,
+                },
+                "n_observations": int(len(mine)),
+                "gsd_m": gsd,
+                "lines": img.camera.lines,
+                "columns": img.camera.columns,
+            }
+        )
+    return out, gsds
+
+
+def _correlations(problem: Problem, cov: Covariance | None, threshold: float, limit: int = 2000) -> dict[str, Any]:
+    out: dict[str, Any] = {"threshold": threshold, "pairs": []}
+    if cov is None or cov.images.size == 0:
+        return out
+    names = parameter_names(problem)
+    d = np.sqrt(np.clip(np.diag(cov.images), 1e-300, None))
+    rho = cov.images / np.outer(d, d)
+    iu = np.triu_indices_from(rho, k=1)
+    vals = rho[iu]
+    big = np.flatnonzero(np.abs(vals) > threshold)
+    big = big[np.argsort(-np.abs(vals[big]))][:limit]
+    out["pairs"] = [{"a": names[iu[0][k]], "b": names[iu[1][k]], "rho": float(vals[k])} for k in big]
+    out["truncated"] = bool(len(np.flatnonzero(np.abs(vals) > threshold)) > limit)
+    return out
+
+
+def _observations_report(problem: Problem, lin, cov: Covariance | None) -> list[dict[str, Any]]:
+    obs = problem.obs
+    sel = lin.obs_sel
+    res = lin.residuals[: lin.n_obs_rows]
+    lev = cov.leverage if cov is not None else None
+    s0 = problem.job.options.sigma0_apriori
+    out = []
+    for q, k in enumerate(sel):
+        sig = obs.oc[k, 2]
+        rl, rc = res[2 * q], res[2 * q + 1]
+        item = {
+            "image": problem.images[obs.img[k]].id,
+            "point": problem.points[obs.pt[k]].id,
+            "role": problem.points[obs.pt[k]].role,
+            "line": float(obs.oc[k, 0]),
+            "column": float(obs.oc[k, 1]),
+            "sigma_px": float(sig),
+            "residual_line_px": float(rl * sig),
+            "residual_column_px": float(rc * sig),
+            "standardized_line": None,
+            "standardized_column": None,
+        }
+        if lev is not None:
+            r1 = 1.0 - lev[2 * q]
+            r2 = 1.0 - lev[2 * q + 1]
+            item["standardized_line"] = float(rl / (s0 * math.sqrt(r1))) if r1 > 1e-9 else None
+            item["standardized_column"] = float(rc / (s0 * math.sqrt(r2))) if r2 > 1e-9 else None
+        out.append(item)
+    return out
+
+
+def _points_report(problem: Problem, cov: Covariance | None, var_factor: float, role: str) -> list[dict[str, Any]]:
+    pts = [p for p in problem.points if p.estimated and p.role == role]
+    if not pts:
+        return []
+    ecef = problem.frame.to_ecef(np.array([p.xyz for p in pts]))
+    geo = ecef_to_geodetic(ecef)
+    out = []
+    for p, e, g in zip(pts, ecef, geo):
+        sigma = None
+        if cov is not None and p.index in cov.points:
+            sigma = [float(math.sqrt(max(v, 0.0) * var_factor)) for v in np.diag(cov.points[p.index])]
+        item = {
+            "id": p.id,
+            "lgs_m": [float(x) for x in p.xyz],
+            "sigma_m": sigma,
+            "ecef_m": [float(x) for x in e],
+            "lon_deg": float(g[0]),
+            "lat_deg": float(g[1]),
+            "height_m": float(g[2]),
+        }
+        if role == "gcp" and p.known_lgs is not None:
+            item["correction_m"] = [float(x) for x in (p.xyz - p.known_lgs)]
+        out.append(item)
+    return out

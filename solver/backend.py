@@ -1,0 +1,256 @@
+"""Ceres backend: the only module that imports pyceres.
+
+Residual-block design (measured in ../shared/PYCERES_NOTES.md): every Python cost function
+costs a trampoline call, so
+
+* observations of *fixed* ground points of one image form one vectorised block per image
+  (resection block: one call for all of them);
+* each *estimated* point (tie point, weighted control point) has one block holding all its
+  observations, with the point and the images that see it as parameter blocks (Schur
+  elimination keeps working: one e-block per residual block);
+* survey priors of weighted control points are Ceres' built-in ``NormalPrior`` (no trampoline).
+
+The arithmetic is in :mod:`solver.kernels` (numba). Cancellation: the cost functions return
+False once the cancel hook said so (Ceres then stops within the iteration), and an iteration
+callback stops the solve cleanly between iterations; progress is reported from that callback.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import pyceres
+
+from solver.job import SolverOptions
+from solver.kernels import residuals_image_batch, residuals_point_multi
+from solver.problem import Problem
+
+
+class SolveControl:
+    """Progress and cancellation shared by the cost functions and the iteration callback."""
+
+    def __init__(
+        self,
+        progress: Callable[..., None] | None,
+        cancel: Callable[[], bool] | None,
+        max_iterations: int,
+        fraction_range: tuple[float, float] = (0.1, 0.9),
+        poll_interval_s: float = 0.1,
+    ):
+        self.progress = progress
+        self.cancel = cancel
+        self.max_iterations = max_iterations
+        self.lo, self.hi = fraction_range
+        self.poll_interval_s = poll_interval_s
+        self.cancelled = False
+        self._next_poll = 0.0
+        self.history: list[dict[str, float]] = []
+        self._last_fraction = self.lo
+
+    def poll(self) -> bool:
+        """True once cancellation was requested (cheap; the hook is called at most every 0.1 s)."""
+        if self.cancelled or self.cancel is None:
+            return self.cancelled
+        now = time.monotonic()
+        if now >= self._next_poll:
+            self._next_poll = now + self.poll_interval_s
+            if self.cancel():
+                self.cancelled = True
+        return self.cancelled
+
+    def iteration(self, it: int, cost: float) -> None:
+        self.history.append({"iteration": it, "cost": cost})
+        if self.progress is not None:
+            # progress grows with iterations and never decreases
+            frac = self.lo + (self.hi - self.lo) * (1.0 - math.exp(-(it + 1) / 6.0))
+            self._last_fraction = max(self._last_fraction, frac)
+            self.progress(self._last_fraction, f"iteration {it}, cost {cost:.6g}", {"iteration": it, "cost": cost})
+
+
+class ImageBatchCost(pyceres.CostFunction):
+    """Observations of fixed ground points in one image: residuals (2m) wrt the image block."""
+
+    def __init__(self, problem: Problem, image_index: int, obs_rows: np.ndarray, control: SolveControl):
+        pyceres.CostFunction.__init__(self)
+        img = problem.images[image_index]
+        self.kind = img.kind
+        self.base = img.base
+        self.kc = img.kc
+        self.free = img.free_idx
+        self.pts = np.ascontiguousarray([problem.points[problem.obs.pt[k]].xyz for k in obs_rows], dtype=float)
+        self.ocs = np.ascontiguousarray(problem.obs.oc[obs_rows])
+        m = len(obs_rows)
+        self.jac = np.zeros((2 * m, img.nfree))
+        self.control = control
+        self.set_num_residuals(2 * m)
+        self.set_parameter_block_sizes([img.nfree])
+
+    def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API)
+        if self.control.poll():
+            return False
+        want = jacobians is not None and jacobians[0] is not None
+        ok = residuals_image_batch(
+            self.kind, self.base, parameters[0], self.kc, self.pts, self.ocs, self.free, residuals, self.jac, want
+        )
+        if want:
+            jacobians[0][:] = self.jac.ravel()
+        return bool(ok)
+
+
+class PointCost(pyceres.CostFunction):
+    """All observations of one estimated ground point: blocks [point(3), image_1, ..., image_k]."""
+
+    def __init__(self, problem: Problem, point_index: int, obs_rows: np.ndarray, control: SolveControl):
+        pyceres.CostFunction.__init__(self)
+        k = len(obs_rows)
+        imgs = [problem.images[problem.obs.img[r]] for r in obs_rows]
+        self.k = k
+        self.kinds = np.array([im.kind for im in imgs], dtype=np.int64)
+        self.bases = np.ascontiguousarray([im.base for im in imgs])
+        self.kcs = np.ascontiguousarray([im.kc for im in imgs])
+        self.ocs = np.ascontiguousarray(problem.obs.oc[obs_rows])
+        self.nfree = np.array([im.nfree for im in imgs], dtype=np.int64)
+        self.free = np.zeros((k, 24), dtype=np.int64)
+        for i, im in enumerate(imgs):
+            self.free[i, : im.nfree] = im.free_idx
+        self.pimg = np.zeros((k, 24))
+        self.res_jp = np.zeros((2 * k, 3))
+        self.res_ji = np.zeros((k, 2, 24))
+        self.control = control
+        self.set_num_residuals(2 * k)
+        self.set_parameter_block_sizes([3] + [im.nfree for im in imgs])
+
+    def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API)
+        if self.control.poll():
+            return False
+        pimg = self.pimg
+        nfree = self.nfree
+        for i in range(self.k):
+            pimg[i, : nfree[i]] = parameters[i + 1]
+        want = jacobians is not None
+        ok = residuals_point_multi(
+            parameters[0], self.kinds, self.bases, pimg, self.kcs, self.ocs, self.free, nfree,
+            residuals, self.res_jp, self.res_ji, want,
+        )
+        if want:
+            if jacobians[0] is not None:
+                jacobians[0][:] = self.res_jp.ravel()
+            for i in range(self.k):
+                if jacobians[i + 1] is not None:
+                    jacobians[i + 1][:] = self.res_ji[i, :, : nfree[i]].ravel()
+        return bool(ok)
+
+
+class _Callback(pyceres.IterationCallback):
+    def __init__(self, control: SolveControl):
+        pyceres.IterationCallback.__init__(self)
+        self.control = control
+
+    def __call__(self, summary):
+        self.control.iteration(int(summary.iteration), float(summary.cost))
+        if self.control.poll():
+            return pyceres.CallbackReturnType.SOLVER_TERMINATE_SUCCESSFULLY
+        return pyceres.CallbackReturnType.SOLVER_CONTINUE
+
+
+@dataclass
+class SolveOutcome:
+    iterations: int
+    termination: str
+    converged: bool
+    usable: bool
+    message: str
+    initial_cost: float
+    final_cost: float
+    time_s: float
+    linear_solver: str
+    history: list[dict[str, float]] = field(default_factory=list)
+    cancelled: bool = False
+
+
+def _loss(options: SolverOptions) -> Any:
+    if options.loss == "huber":
+        return pyceres.HuberLoss(options.loss_scale)
+    if options.loss == "cauchy":
+        return pyceres.CauchyLoss(options.loss_scale)
+    return None
+
+
+def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> SolveOutcome:
+    """Build the Ceres problem from ``problem`` (parameters updated in place) and solve it."""
+    t0 = time.perf_counter()
+    cp = pyceres.Problem()
+    keep: list[Any] = []  # cost functions must outlive the solve
+    for img in problem.images:
+        cp.add_parameter_block(img.params, img.nfree)
+    mask = problem.adjusted_mask
+    obs = problem.obs
+    loss = _loss(options)
+    has_points = False
+    # fixed ground points: one block per image
+    fixed_obs = np.array(
+        [k for k in range(len(obs.img)) if mask[k] and not problem.points[obs.pt[k]].estimated], dtype=np.int64
+    )
+    for img in problem.images:
+        rows = fixed_obs[obs.img[fixed_obs] == img.index] if len(fixed_obs) else fixed_obs
+        if len(rows):
+            cf = ImageBatchCost(problem, img.index, rows, control)
+            keep.append(cf)
+            cp.add_residual_block(cf, loss, [img.params])
+    # estimated points
+    order = np.argsort(obs.pt, kind="stable")
+    pts_sorted = obs.pt[order]
+    bounds = np.searchsorted(pts_sorted, np.arange(len(problem.points) + 1))
+    for p in problem.points:
+        if not p.estimated:
+            continue
+        rows = order[bounds[p.index] : bounds[p.index + 1]]
+        rows = rows[mask[rows]]
+        if len(rows) == 0:
+            continue
+        has_points = True
+        cf = PointCost(problem, p.index, rows, control)
+        keep.append(cf)
+        cp.add_residual_block(cf, loss, [p.xyz] + [problem.images[obs.img[r]].params for r in rows])
+        if p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
+            prior = pyceres.factors.NormalPrior(p.known_lgs.copy(), np.diag(p.sigma_m**2))
+            keep.append(prior)
+            cp.add_residual_block(prior, None, [p.xyz])
+
+    so = pyceres.SolverOptions()
+    so.max_num_iterations = options.max_iterations
+    so.function_tolerance = options.function_tolerance
+    so.parameter_tolerance = options.parameter_tolerance
+    so.gradient_tolerance = 1e-14
+    so.num_threads = 1
+    so.logging_type = pyceres.LoggingType.SILENT
+    so.minimizer_progress_to_stdout = False
+    if has_points:
+        so.linear_solver_type = pyceres.LinearSolverType.SPARSE_SCHUR
+    else:
+        so.linear_solver_type = pyceres.LinearSolverType.DENSE_QR
+    so.update_state_every_iteration = False
+    cb = _Callback(control)
+    so.callbacks = [cb]
+    summary = pyceres.SolverSummary()
+    pyceres.solve(so, cp, summary)
+    term = str(summary.termination_type).split(".")[-1]
+    usable = bool(summary.IsSolutionUsable())
+    converged = term == "CONVERGENCE"
+    return SolveOutcome(
+        iterations=int(summary.num_successful_steps + summary.num_unsuccessful_steps),
+        termination=term,
+        converged=converged,
+        usable=usable,
+        message=str(summary.message),
+        initial_cost=float(summary.initial_cost),
+        final_cost=float(summary.final_cost),
+        time_s=time.perf_counter() - t0,
+        linear_solver=str(summary.linear_solver_type_used).split(".")[-1],
+        history=list(control.history),
+        cancelled=control.cancelled,
+    )

@@ -1,0 +1,185 @@
+"""Initial values: platform state from the header/ephemeris, attitude by a closed-form resection.
+
+1. Position coefficients from the image's approximate state at line 0 (ECEF position, velocity,
+   and the rotating-frame acceleration of a J2 orbit), converted to each model's frame and time
+   variable; or from the job's ``initial`` values.
+2. Attitude: the rotation that best aligns the image rays of the control points with their
+   object-space directions (Wahba's problem, solved by SVD), converted to (omega, phi, kappa);
+   without control on the image, the nominal attitude from the flight direction and the
+   camera's mounting pitch.
+3. ``initial`` values given in the job override everything (report units).
+4. Tie points: least-squares intersection of their rays.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from solver.errors import JobError, Problem as JobProblem
+from solver.kernels import gravity_and_gradient, platform_state, ray
+from solver.models import ANGLES, ELEMENTS, HELD, coef_index
+from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
+from solver.problem import ImageState, Problem, is_kepler
+
+
+def angles_from_matrix(m: np.ndarray) -> tuple[float, float, float]:
+    """(omega, phi, kappa) in rad of M = Rx(omega) Ry(phi) Rz(kappa)."""
+    phi = math.asin(max(-1.0, min(1.0, m[0, 2])))
+    kappa = math.atan2(-m[0, 1], m[0, 0])
+    omega = math.atan2(-m[1, 2], m[2, 2])
+    return omega, phi, kappa
+
+
+def _rotating_frame_acceleration(r: np.ndarray, v: np.ndarray) -> np.ndarray:
+    g, _ = gravity_and_gradient(r, GM_M3_S2, J2, AE_M)
+    return g + np.array(
+        [OMEGA_RAD_S**2 * r[0] + 2 * OMEGA_RAD_S * v[1], OMEGA_RAD_S**2 * r[1] - 2 * OMEGA_RAD_S * v[0], 0.0]
+    )
+
+
+def _set_position_from_state(img: ImageState, frame, r_ecef: np.ndarray, v_ecef: np.ndarray) -> None:
+    c = img.base
+    if is_kepler(img):
+        for e in range(3):
+            c[e * 4] = r_ecef[e]
+            c[e * 4 + 1] = v_ecef[e]
+        return
+    dt_dtau = img.tau_per_line and (img.camera.line_time_s / img.tau_per_line)
+    a = _rotating_frame_acceleration(r_ecef, v_ecef)
+    s = frame.to_lgs(r_ecef)
+    v = frame.vector_to_lgs(v_ecef)
+    a = frame.vector_to_lgs(a)
+    orders = img.model.effective_orders(img.options)
+    for e in range(3):
+        c[e * 4] = s[e]
+        if orders[e] >= 1:
+            c[e * 4 + 1] = v[e] * dt_dtau
+        if orders[e] >= 2:
+            c[e * 4 + 2] = 0.5 * a[e] * dt_dtau**2
+
+
+def _apply_initial(img: ImageState) -> None:
+    """Overwrite coefficients with the job's ``initial`` values (report units)."""
+    specs = {p.name: p for p in img.model.parameters(img.options)}
+    for name, value in img.initial.items():
+        spec = specs[name]
+        img.base[spec.index] = value / spec.to_report
+
+
+def _wahba(obj_dirs: np.ndarray, cam_dirs: np.ndarray) -> np.ndarray:
+    """Rotation M minimising sum |c_i - M d_i|^2 (unit vectors as rows)."""
+    h = obj_dirs.T @ cam_dirs
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+
+
+def _nominal_attitude(img: ImageState, frame, v_ecef: np.ndarray | None) -> tuple[float, float, float]:
+    if v_ecef is None:
+        return 0.0, math.radians(img.camera.mounting_pitch_deg), 0.0
+    v = frame.vector_to_lgs(v_ecef)
+    kappa = math.atan2(-v[1], v[0])
+    return 0.0, math.radians(img.camera.mounting_pitch_deg), kappa
+
+
+def initialise(problem: Problem) -> None:
+    """Fill every image's parameters and every estimated point's coordinates (in place)."""
+    job = problem.job
+    frame = problem.frame
+    issues: list[JobProblem] = []
+    for img, im_doc in zip(problem.images, job.images):
+        specs = {p.name: p for p in img.model.parameters(img.options)}
+        unknown = sorted(set(im_doc.initial) - set(specs))
+        if unknown:
+            issues.append(
+                JobProblem(
+                    "unknown_parameter",
+                    f"image {img.id!r}: model {img.model.name} has no parameter(s) {', '.join(unknown)}",
+                    ("images", img.index, "initial"),
+                )
+            )
+            continue
+        v_ecef = None
+        if im_doc.approx_state is not None:
+            r_ecef = np.array(im_doc.approx_state.position_ecef_m, dtype=float)
+            v_ecef = np.array(im_doc.approx_state.velocity_ecef_m_s, dtype=float)
+            _set_position_from_state(img, frame, r_ecef, v_ecef)
+        else:
+            pos_names = {"X0", "Y0", "Z0"}
+            if not pos_names <= set(im_doc.initial):
+                issues.append(
+                    JobProblem(
+                        "no_initial_position",
+                        f"image {img.id!r} needs approx_state (position/velocity at line 0) or "
+                        "initial values for its position parameters",
+                        ("images", img.index, "approx_state"),
+                    )
+                )
+                continue
+        # held angles
+        held = img.model.held_values_rad(img.options, img.camera.mounting_pitch_deg)
+        for e, val in held.items():
+            img.base[coef_index(e, 0)] = val
+        # user-given position-related values before the attitude resection
+        _apply_initial(img)
+        img.params[:] = img.base[img.free_idx]
+        omega, phi, kappa = _attitude_by_resection(problem, img, v_ecef)
+        orders = img.model.effective_orders(img.options)
+        for e, val in zip(ANGLES, (omega, phi, kappa)):
+            if orders[ELEMENTS.index(e)] != HELD:
+                img.base[coef_index(e, 0)] = val
+        if im_doc.approx_state is not None and im_doc.approx_state.attitude_deg is not None:
+            for e, val in zip(ANGLES, im_doc.approx_state.attitude_deg):
+                if orders[ELEMENTS.index(e)] != HELD:
+                    img.base[coef_index(e, 0)] = math.radians(val)
+        _apply_initial(img)
+        img.params[:] = img.base[img.free_idx]
+    if issues:
+        raise JobError(issues)
+    _intersect_estimated_points(problem)
+
+
+def _attitude_by_resection(problem: Problem, img: ImageState, v_ecef) -> tuple[float, float, float]:
+    obs = problem.obs
+    sel = [
+        k
+        for k in np.flatnonzero(obs.img == img.index)
+        if problem.points[obs.pt[k]].role == "gcp" and problem.points[obs.pt[k]].known_lgs is not None
+    ]
+    if len(sel) < 3:
+        return _nominal_attitude(img, problem.frame, v_ecef)
+    coef = img.coef()
+    obj = []
+    cam = []
+    for k in sel:
+        oc = obs.oc[k]
+        s = platform_state(img.kind, coef, img.kc, oc[0] * oc[8])[0]
+        d = problem.points[obs.pt[k]].known_lgs - s
+        obj.append(d / np.linalg.norm(d))
+        y = (oc[1] - oc[7]) * oc[4] + oc[6]
+        c = np.array([oc[5], y, -oc[3]])
+        cam.append(c / np.linalg.norm(c))
+    m = _wahba(np.array(obj), np.array(cam))
+    return angles_from_matrix(m)
+
+
+def _intersect_estimated_points(problem: Problem) -> None:
+    obs = problem.obs
+    coefs = [img.coef() for img in problem.images]
+    for p in problem.points:
+        if not p.estimated or p.known_lgs is not None:
+            continue
+        a = np.zeros((3, 3))
+        b = np.zeros(3)
+        for k in np.flatnonzero(obs.pt == p.index):
+            img = problem.images[obs.img[k]]
+            s, d = ray(img.kind, coefs[img.index], img.kc, obs.oc[k])
+            q = np.eye(3) - np.outer(d, d)
+            a += q
+            b += q @ s
+        try:
+            p.xyz = np.linalg.solve(a, b)
+        except np.linalg.LinAlgError:
+            p.xyz = np.zeros(3)  # validation reports points seen in fewer than two images

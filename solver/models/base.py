@@ -1,0 +1,208 @@
+"""Platform-model registry: each model declares its parameters, units, frame and time variable.
+
+A platform model maps the scaled time ``tau`` of an image line to the perspective-centre
+position and the attitude angles (omega, phi, kappa). All models share one numerical form (see
+:mod:`solver.kernels`): a full coefficient vector ``coef[6, 4]`` for the elements
+(X, Y, Z, omega, phi, kappa) and powers tau^0..tau^3, of which a model frees a subset, holds some
+at given values, and (Kepler kind) interprets coef[0:3, 0:2] as the Earth-fixed state vector.
+
+Adding a model: one module defining a :class:`PlatformModel`, ``register(model)``, an entry in
+docs/models.md, and a test in tests/test_models.py (the parametrised tests pick it up).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from solver.kernels import KIND_KEPLER, KIND_POLYNOMIAL
+
+ELEMENTS = ("X", "Y", "Z", "omega", "phi", "kappa")
+ANGLES = ("omega", "phi", "kappa")
+HELD = -1  # order value meaning "held at a given value, not estimated"
+POLY_TIME_SCALE_LINES = 1000.0  # tau = L / 1000 for polynomial models (conditioning)
+
+
+def coef_index(element: str, power: int) -> int:
+    """Index of coefficient (element, power) in the flattened full vector."""
+    return ELEMENTS.index(element) * 4 + power
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """One estimated parameter: its name, report unit and place in the full vector.
+
+    ``to_report`` multiplies the internal value (m or rad per tau^k) to give the report value.
+    """
+
+    name: str
+    unit: str
+    index: int
+    to_report: float
+
+
+@dataclass(frozen=True)
+class PlatformModel:
+    """A registered platform model.
+
+    ``orders`` gives for each element (X, Y, Z, omega, phi, kappa) the polynomial order that is
+    estimated, or HELD (-1) for an element held at a given value (``held_defaults``, degrees, or
+    a callable of the camera returning degrees). For the Kepler kind the X, Y, Z orders are
+    ignored: the state vector (X0, Y0, Z0, ux, uy, uz) is always estimated.
+    """
+
+    name: str
+    title: str
+    kind: int
+    frame: str  # "LGS" or "ECEF"
+    orders: tuple[int, int, int, int, int, int]
+    reference: str
+    equations: str
+    j2: bool = False
+    held_defaults: dict[str, Any] = field(default_factory=dict)
+    options_doc: dict[str, str] = field(default_factory=dict)
+    order_option: bool = False  # GENERAL: orders come from job options
+
+    # ---- time ---------------------------------------------------------------------------
+    @property
+    def time_variable(self) -> str:
+        if self.kind == KIND_KEPLER:
+            return "t = L * line_time (s) since the first line"
+        return "L (image line number); internally tau = L / 1000"
+
+    def tau_per_line(self, line_time_s: float) -> float:
+        """d tau / d L for this model."""
+        return line_time_s if self.kind == KIND_KEPLER else 1.0 / POLY_TIME_SCALE_LINES
+
+    # ---- parameters -----------------------------------------------------------------------
+    def effective_orders(self, options: dict[str, Any]) -> tuple[int, ...]:
+        if not self.order_option:
+            return self.orders
+        given = dict(zip(ELEMENTS, self.orders))
+        for k, v in (options.get("orders") or {}).items():
+            if k not in given:
+                raise ValueError(f"unknown element {k!r} in orders (use {', '.join(ELEMENTS)})")
+            if not isinstance(v, int) or not (HELD <= v <= 3):
+                raise ValueError(f"order of {k} must be an integer from -1 (held) to 3")
+            given[k] = v
+        return tuple(given[e] for e in ELEMENTS)
+
+    def parameters(self, options: dict[str, Any] | None = None) -> list[ParameterSpec]:
+        """The estimated parameters, in report order."""
+        orders = self.effective_orders(options or {})
+        specs: list[ParameterSpec] = []
+        deg = 180.0 / math.pi
+        if self.kind == KIND_KEPLER:
+            for e in ("X", "Y", "Z"):
+                specs.append(ParameterSpec(f"{e}0", "m", coef_index(e, 0), 1.0))
+            for e, u in zip(("X", "Y", "Z"), ("ux", "uy", "uz")):
+                specs.append(ParameterSpec(u, "m/s", coef_index(e, 1), 1.0))
+            for e in ANGLES:
+                for k in range(orders[ELEMENTS.index(e)] + 1):
+                    name = e if k == 0 else (f"d{k}" if e == "kappa" else f"{e}{k}")
+                    unit = "deg" if k == 0 else f"deg/s^{k}" if k > 1 else "deg/s"
+                    specs.append(ParameterSpec(name, unit, coef_index(e, k), deg))
+            return specs
+        for e in ELEMENTS:
+            order = orders[ELEMENTS.index(e)]
+            is_angle = e in ANGLES
+            for k in range(order + 1):
+                name = (e if k == 0 else f"{e}{k}") if is_angle else f"{e}{k}"
+                base = "deg" if is_angle else "m"
+                unit = base if k == 0 else (f"{base}/line" if k == 1 else f"{base}/line^{k}")
+                scale = (deg if is_angle else 1.0) / POLY_TIME_SCALE_LINES**k
+                specs.append(ParameterSpec(name, unit, coef_index(e, k), scale))
+        return specs
+
+    def free_indices(self, options: dict[str, Any] | None = None) -> np.ndarray:
+        return np.array([p.index for p in self.parameters(options)], dtype=np.int64)
+
+    def held_values_rad(self, options: dict[str, Any], camera_pitch_deg: float) -> dict[str, float]:
+        """Values (rad) of the held angle elements, from options ``<angle>_deg`` or defaults."""
+        orders = self.effective_orders(options)
+        out = {}
+        for e in ANGLES:
+            if orders[ELEMENTS.index(e)] != HELD:
+                continue
+            default = self.held_defaults.get(e, 0.0)
+            if callable(default):
+                default = default(camera_pitch_deg)
+            value = options.get(f"{e}_deg", default)
+            out[e] = math.radians(float(value))
+        return out
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "title": self.title,
+            "frame": self.frame,
+            "time_variable": self.time_variable,
+            "parameters": [{"name": p.name, "unit": p.unit} for p in self.parameters({})],
+            "held": sorted(self.held_defaults),
+            "options": self.options_doc,
+            "reference": self.reference,
+            "equations": self.equations,
+        }
+
+
+_REGISTRY: dict[str, PlatformModel] = {}
+
+
+def register(model: PlatformModel, aliases: tuple[str, ...] = ()) -> PlatformModel:
+    for key in (model.name, *aliases):
+        k = key.upper()
+        if k in _REGISTRY:
+            raise ValueError(f"platform model {key!r} registered twice")
+        _REGISTRY[k] = model
+    return model
+
+
+def get_model(name: str) -> PlatformModel:
+    """Look a model up by name (case-insensitive); KeyError lists the known names."""
+    _ensure_loaded()
+    try:
+        return _REGISTRY[name.upper()]
+    except KeyError:
+        raise KeyError(f"unknown platform model {name!r}; known: {', '.join(model_names())}") from None
+
+
+def model_names() -> list[str]:
+    _ensure_loaded()
+    seen: dict[str, None] = {}
+    for m in _REGISTRY.values():
+        seen.setdefault(m.name, None)
+    return list(seen)
+
+
+def all_models() -> list[PlatformModel]:
+    return [get_model(n) for n in model_names()]
+
+
+_LOADED = False
+
+
+def _ensure_loaded() -> None:
+    global _LOADED
+    if not _LOADED:
+        _LOADED = True
+        import solver.models.kepler  # noqa: F401
+        import solver.models.polynomial  # noqa: F401
+
+
+__all__ = [
+    "ANGLES",
+    "ELEMENTS",
+    "HELD",
+    "KIND_KEPLER",
+    "KIND_POLYNOMIAL",
+    "ParameterSpec",
+    "PlatformModel",
+    "all_models",
+    "coef_index",
+    "get_model",
+    "model_names",
+    "register",
+]

@@ -1,0 +1,214 @@
+"""From a validated job document to the solver's arrays (the one place where conversion happens).
+
+Frames: ground points are carried in the LGS (east, north, up at the centroid of the control
+points, metres) whatever the platform model; an ECEF model rotates its Earth-fixed position
+into the LGS inside the kernel (:mod:`solver.kernels`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver.geodesy import LocalFrame, to_ecef
+from solver.job import Camera, Job
+from solver.kernels import KIND_KEPLER, N_COEF, N_KEPLER_CONST, N_OBS_CONST
+from solver.models import PlatformModel, get_model
+from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
+
+
+@dataclass
+class ImageState:
+    """One image in the adjustment: model, constants, and current parameter values."""
+
+    id: str
+    index: int
+    camera: Camera
+    model: PlatformModel
+    options: dict
+    kc: np.ndarray  # (16,) Kepler constants (also set, unused, for polynomial models)
+    base: np.ndarray  # (24,) full coefficients (held values and current free values)
+    free_idx: np.ndarray  # (nfree,) int64
+    params: np.ndarray  # (nfree,) the parameter block handed to Ceres (C-contiguous)
+    tau_per_line: float
+    initial: dict = field(default_factory=dict)  # job's initial values, report units
+
+    @property
+    def kind(self) -> int:
+        return self.model.kind
+
+    @property
+    def nfree(self) -> int:
+        return int(self.free_idx.shape[0])
+
+    def coef(self) -> np.ndarray:
+        """Current full coefficient vector."""
+        c = self.base.copy()
+        c[self.free_idx] = self.params
+        return c
+
+
+@dataclass
+class PointState:
+    """A ground point: known LGS coordinates (gcp/check), estimated parameter block (tie or
+    weighted gcp), or both."""
+
+    id: str
+    index: int
+    role: str
+    known_lgs: np.ndarray | None
+    sigma_m: np.ndarray | None  # survey sigmas (east, north, up) for weighted gcps
+    estimated: bool  # True: a 3-parameter block in the adjustment
+    xyz: np.ndarray = field(default_factory=lambda: np.zeros(3))  # current LGS (parameter block)
+
+
+@dataclass
+class Observations:
+    """Image observations as arrays (one row each)."""
+
+    img: np.ndarray  # (n,) image index
+    pt: np.ndarray  # (n,) point index
+    oc: np.ndarray  # (n, 9) observation constants (see solver.kernels)
+    chip: list[str]
+    source_index: np.ndarray  # (n,) index in job.observations
+
+
+@dataclass
+class Problem:
+    job: Job
+    frame: LocalFrame
+    images: list[ImageState]
+    points: list[PointState]
+    obs: Observations
+
+    @property
+    def adjusted_mask(self) -> np.ndarray:
+        """Observations that enter the adjustment (not of check points)."""
+        roles = np.array([self.points[i].role for i in self.obs.pt])
+        return roles != "check"
+
+
+def kepler_constants(model: PlatformModel, frame: LocalFrame) -> np.ndarray:
+    kc = np.zeros(N_KEPLER_CONST)
+    kc[0:9] = frame.rotation_ecef_to_lgs.ravel()
+    kc[9:12] = frame.origin_ecef_m
+    kc[12] = GM_M3_S2
+    kc[13] = OMEGA_RAD_S
+    kc[14] = J2 if model.j2 else 0.0
+    kc[15] = AE_M
+    return kc
+
+
+def camera_chip(camera: Camera, column: float) -> tuple[str, float, float, float]:
+    """(chip id, dx_mm, dy_mm, centre column) of the chip containing ``column``; KeyError if none.
+
+    A camera without chips is one chip centred on the principal point.
+    """
+    ncols = camera.columns or 0
+    if not camera.chips:
+        if -0.5 <= column <= ncols - 0.5:
+            return "1", 0.0, 0.0, (ncols - 1) / 2.0
+        raise KeyError(column)
+    for chip in camera.chips:
+        if chip.first_column - 0.5 <= column <= chip.first_column + chip.columns - 0.5:
+            return chip.id, chip.dx_mm, chip.dy_mm, chip.first_column + (chip.columns - 1) / 2.0
+    raise KeyError(column)
+
+
+def control_frame(job: Job, points_ecef: dict[str, np.ndarray]) -> LocalFrame:
+    """LGS at the centroid of the control points (all known points if there are none)."""
+    gcps = [points_ecef[p.id] for p in job.points if p.role == "gcp"]
+    if not gcps:
+        gcps = list(points_ecef.values())
+    return LocalFrame.at_centroid(np.array(gcps))
+
+
+def ground_points_ecef(job: Job) -> dict[str, np.ndarray]:
+    """ECEF coordinates of every point that has coordinates, converted per CRS in batches."""
+    by_crs: dict[str, list] = {}
+    for p in job.points:
+        if p.coordinates is not None:
+            by_crs.setdefault(p.crs or job.crs, []).append(p)
+    out: dict[str, np.ndarray] = {}
+    for crs, pts in by_crs.items():
+        xyz = to_ecef(np.array([p.coordinates for p in pts], dtype=float), crs)
+        for p, e in zip(pts, xyz):
+            out[p.id] = e
+    return out
+
+
+def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
+    """Assemble arrays from a job that passed :func:`solver.validate.validate_job`.
+
+    Parameter values are zero here; :mod:`solver.initialize` fills them.
+    """
+    cameras = {c.id: c for c in job.cameras}
+    ecef = ground_points_ecef(job)
+    frame = control_frame(job, ecef)
+    weighted = job.options.control == "weighted"
+
+    images: list[ImageState] = []
+    for i, im in enumerate(job.images):
+        model = get_model((models or {}).get(im.id, im.model.name))
+        opts = dict(im.model.options)
+        free = model.free_indices(opts)
+        cam = cameras[im.camera]
+        images.append(
+            ImageState(
+                id=im.id,
+                index=i,
+                camera=cam,
+                model=model,
+                options=opts,
+                kc=kepler_constants(model, frame),
+                base=np.zeros(N_COEF),
+                free_idx=free,
+                params=np.zeros(free.shape[0]),
+                tau_per_line=model.tau_per_line(cam.line_time_s or 0.0),
+                initial=dict(im.initial),
+            )
+        )
+
+    points: list[PointState] = []
+    for j, p in enumerate(job.points):
+        known = frame.to_lgs(ecef[p.id]) if p.id in ecef else None
+        sigma = np.array(p.sigma_m, dtype=float) if p.sigma_m is not None else None
+        estimated = p.role == "tie" or (p.role == "gcp" and weighted and sigma is not None)
+        pt = PointState(p.id, j, p.role, known, sigma, estimated)
+        if known is not None:
+            pt.xyz = known.copy()
+        points.append(pt)
+
+    img_index = {im.id: im.index for im in images}
+    pt_index = {p.id: p.index for p in points}
+    n = len(job.observations)
+    obs_img = np.empty(n, dtype=np.int64)
+    obs_pt = np.empty(n, dtype=np.int64)
+    oc = np.empty((n, N_OBS_CONST))
+    chips: list[str] = []
+    for k, o in enumerate(job.observations):
+        im = images[img_index[o.image]]
+        cam = im.camera
+        chip_id, dx, dy, centre = camera_chip(cam, o.column)
+        x0, y0 = cam.principal_point_mm
+        obs_img[k] = im.index
+        obs_pt[k] = pt_index[o.point]
+        oc[k] = (
+            o.line,
+            o.column,
+            o.sigma_px,
+            cam.focal_mm,
+            cam.pixel_mm,
+            dx - x0,
+            dy - y0,
+            centre,
+            im.tau_per_line,
+        )
+        chips.append(chip_id)
+    obs = Observations(obs_img, obs_pt, oc, chips, np.arange(n))
+    return Problem(job, frame, images, points, obs)
+
+
+def is_kepler(image: ImageState) -> bool:
+    return image.kind == KIND_KEPLER

@@ -1,0 +1,181 @@
+"""Linear-array cameras: focal plane, CCD chips and line timing.
+
+Conventions shared with the solver (:mod:`solver.job`): camera axes x_c along track (flight
+direction), z_c away from the scene, y_c = z_c x x_c. A point with camera coordinates
+(X, Y, Z), Z < 0, images at focal-plane coordinates x = -f X / Z, y = -f Y / Z (mm). A chip
+covers image columns ``first_column .. first_column + columns - 1``; its pixels lie at
+x = dx_mm (along-track stagger) and y = dy_mm + (C - first_column - (columns - 1)/2) * pixel_mm,
+so the column of a focal-plane y is ``C = first_column + (columns - 1)/2 + (y - dy_mm) / pixel_mm``.
+Lines grow with time: t(L) = first_line_time + L * line_time (L continuous). The origin of
+(line, column) is the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# Seed 001 Table 1: calibrated focal lengths of the PRISM cameras (mm)
+PRISM_FOCAL_MM = {"backward": 1999.8762715, "nadir": 1999.8630195, "forward": 2000.0645632}
+PRISM_PITCH_DEG = {"backward": -23.8, "nadir": 0.0, "forward": 23.8}
+PRISM_PIXEL_MM = 0.0071
+PRISM_LINE_TIME_S = 0.00037
+PRISM_LINES = 16000
+PRISM_COLUMNS = 14496
+# Four chips assembled into the 14496-column image (seed 001 section 3, Figure 4).
+PRISM_CHIP_COLUMNS = (3616, 3632, 3632, 3616)
+# Small departures of each chip from its nominal place (mm): along-track stagger dx and an
+# across-track shift added to the nominal dy. Fixed "calibration" values, per camera.
+_PRISM_CHIP_DX_MM = {
+    "backward": (0.0142, -0.0035, 0.0213, -0.0071),
+    "nadir": (-0.0107, 0.0036, 0.0178, -0.0142),
+    "forward": (0.0071, -0.0178, 0.0036, 0.0249),
+}
+_PRISM_CHIP_DY_SHIFT_MM = {
+    "backward": (0.0012, -0.0007, 0.0004, -0.0010),
+    "nadir": (-0.0009, 0.0011, -0.0005, 0.0008),
+    "forward": (0.0006, -0.0012, 0.0010, -0.0004),
+}
+
+
+@dataclass(frozen=True)
+class ChipSpec:
+    """One CCD chip: its image columns and its offsets from the principal point (mm)."""
+
+    id: str
+    first_column: int
+    columns: int
+    dx_mm: float = 0.0
+    dy_mm: float = 0.0
+
+    @property
+    def centre_column(self) -> float:
+        return self.first_column + (self.columns - 1) / 2.0
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """A pushbroom camera (see module docstring for the conventions)."""
+
+    id: str
+    focal_mm: float
+    pixel_mm: float
+    line_time_s: float
+    lines: int
+    columns: int
+    chips: tuple[ChipSpec, ...]
+    mounting_pitch_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        cols = sorted((c.first_column, c.columns) for c in self.chips)
+        expect = 0
+        for first, n in cols:
+            if first != expect:
+                raise ValueError(f"camera {self.id}: chip column ranges must partition 0..{self.columns - 1}")
+            expect = first + n
+        if expect != self.columns:
+            raise ValueError(f"camera {self.id}: chips cover {expect} columns, image has {self.columns}")
+
+    def column_from_y(self, y_mm: np.ndarray, chip: int) -> np.ndarray:
+        """Image column of focal-plane y (mm) on chip index ``chip``."""
+        c = self.chips[chip]
+        return c.centre_column + (np.asarray(y_mm) - c.dy_mm) / self.pixel_mm
+
+    def chip_of_column(self, column: np.ndarray) -> np.ndarray:
+        """Chip index whose column range contains round(column); -1 outside the image."""
+        col = np.floor(np.asarray(column, dtype=float) + 0.5)
+        out = np.full(col.shape, -1, dtype=int)
+        for k, c in enumerate(self.chips):
+            out[(col >= c.first_column) & (col < c.first_column + c.columns)] = k
+        return out
+
+    def focal_from_image(self, column: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x_mm, y_mm, chip index) of image columns (the line only gives the time)."""
+        col = np.asarray(column, dtype=float)
+        k = self.chip_of_column(col)
+        if np.any(k < 0):
+            raise ValueError("column outside the image")
+        dx = np.array([c.dx_mm for c in self.chips])[k]
+        dy = np.array([c.dy_mm for c in self.chips])[k]
+        cc = np.array([c.centre_column for c in self.chips])[k]
+        return dx, dy + (col - cc) * self.pixel_mm, k
+
+    def gsd_nadir_m(self, height_m: float) -> float:
+        return self.pixel_mm / self.focal_mm * height_m
+
+    def to_job(self) -> dict:
+        """The camera as a :class:`solver.job.Camera` document."""
+        return {
+            "id": self.id,
+            "focal_mm": self.focal_mm,
+            "pixel_mm": self.pixel_mm,
+            "line_time_s": self.line_time_s,
+            "lines": self.lines,
+            "columns": self.columns,
+            "mounting_pitch_deg": self.mounting_pitch_deg,
+            "chips": [
+                {"id": c.id, "first_column": c.first_column, "columns": c.columns, "dx_mm": c.dx_mm, "dy_mm": c.dy_mm}
+                for c in self.chips
+            ],
+        }
+
+
+def chips_partition(
+    widths: tuple[int, ...], pixel_mm: float, dx_mm: tuple[float, ...], dy_shift_mm: tuple[float, ...]
+) -> tuple[ChipSpec, ...]:
+    """Chips side by side over ``sum(widths)`` columns; dy is the chip centre's nominal offset
+    from the image centre plus ``dy_shift_mm``."""
+    total = sum(widths)
+    chips, first = [], 0
+    for i, (w, dx, sh) in enumerate(zip(widths, dx_mm, dy_shift_mm, strict=True)):
+        nominal = (first + (w - 1) / 2.0 - (total - 1) / 2.0) * pixel_mm
+        chips.append(ChipSpec(str(i + 1), first, w, float(dx), float(nominal + sh)))
+        first += w
+    return tuple(chips)
+
+
+def prism_camera(view: str) -> CameraSpec:
+    """A PRISM-like camera: ``backward``, ``nadir`` or ``forward`` (seed 001 Table 1)."""
+    if view not in PRISM_FOCAL_MM:
+        raise ValueError(f"unknown PRISM view {view!r}")
+    return CameraSpec(
+        id=f"prism-{view}",
+        focal_mm=PRISM_FOCAL_MM[view],
+        pixel_mm=PRISM_PIXEL_MM,
+        line_time_s=PRISM_LINE_TIME_S,
+        lines=PRISM_LINES,
+        columns=PRISM_COLUMNS,
+        chips=chips_partition(PRISM_CHIP_COLUMNS, PRISM_PIXEL_MM, _PRISM_CHIP_DX_MM[view], _PRISM_CHIP_DY_SHIFT_MM[view]),
+        mounting_pitch_deg=PRISM_PITCH_DEG[view],
+    )
+
+
+def cbers_camera() -> CameraSpec:
+    """A CBERS-like CCD camera: ~20 m GSD from ~778 km, 5812 columns of 13 um, f = 520 mm.
+
+    The line time (2.92 ms) gives square ground pixels at the ~6.65 km/s ground speed.
+    """
+    return CameraSpec(
+        id="cbers-ccd",
+        focal_mm=520.0,
+        pixel_mm=0.013,
+        line_time_s=0.00292,
+        lines=5812,
+        columns=5812,
+        chips=(ChipSpec("1", 0, 5812, 0.0, 0.0),),
+        mounting_pitch_deg=0.0,
+    )
+
+
+def simple_camera(
+    id: str,
+    focal_mm: float,
+    pixel_mm: float,
+    line_time_s: float,
+    lines: int,
+    columns: int,
+    mounting_pitch_deg: float = 0.0,
+) -> CameraSpec:
+    """Any other single-chip sensor, by its parameters."""
+    return CameraSpec(id, focal_mm, pixel_mm, line_time_s, lines, columns, (ChipSpec("1", 0, columns),), mounting_pitch_deg)

@@ -1,0 +1,249 @@
+"""Model-consistent synthetic scenes: observations generated *by a platform model itself*.
+
+For unit tests (a model must recover its own truth), Monte Carlo checks of the covariance and
+benchmarks. This is deliberately not the physical simulator (:mod:`solver.simulate`), which
+integrates an orbit independently of every platform model and is what tests model fidelity.
+
+Geometry: an ALOS-like pass (about 692 km high, flying south-south-west at ~7.5 km/s) over a
+scene centre (default Presidente Prudente, 22.12 S 51.39 W); ground points are found by
+intersecting the rays of chosen pixels with a smooth terrain, so their projections are exact.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from solver.geodesy import LocalFrame, ecef_to_geodetic, geodetic_to_ecef
+from solver.kernels import N_COEF, platform_state, project, ray
+from solver.models import ANGLES, ELEMENTS, HELD, coef_index, get_model
+from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
+from solver.problem import kepler_constants
+
+PRISM_NADIR = {
+    "focal_mm": 1999.8630195,
+    "pixel_mm": 0.0071,
+    "line_time_s": 0.00037,
+    "lines": 16000,
+    "columns": 14496,
+}
+
+
+@dataclass
+class SyntheticImage:
+    id: str
+    model: str
+    pitch_deg: float
+    coef: np.ndarray  # true full coefficients
+    kc: np.ndarray
+    tau_per_line: float
+    r0_ecef: np.ndarray
+    v0_ecef: np.ndarray
+
+
+def terrain_height(e: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Smooth terrain (m above the LGS origin plane), about +-100 m."""
+    return 60.0 * np.sin(e / 7000.0) * np.cos(n / 9000.0) + 40.0 * np.sin((e + n) / 13000.0)
+
+
+def _state_for_pass(frame: LocalFrame, t_mid: float, pitch_deg: float, altitude_m: float, heading_deg: float, along_offset_m: float = 0.0):
+    """ECEF position/velocity at line 0 of an image whose middle line looks at the scene centre."""
+    h = math.radians(heading_deg)
+    speed = 7560.0 * (6378137.0 + 0.0) / (6378137.0 + altitude_m) * 1.0
+    vdir = np.array([math.sin(h), math.cos(h), 0.0])  # east, north
+    look_back = math.tan(math.radians(-pitch_deg)) * altitude_m  # backward camera is ahead
+    s_mid = vdir * (look_back + along_offset_m) + np.array([0.0, 0.0, altitude_m])
+    v = vdir * speed
+    s0 = s_mid - v * t_mid
+    return frame.to_ecef(s0), frame.vector_to_ecef(v)
+
+
+def true_coefficients(model_name: str, frame: LocalFrame, r0: np.ndarray, v0: np.ndarray, line_time: float,
+                      angles: tuple[float, float, float], rates: tuple[float, float], options: dict | None = None) -> np.ndarray:
+    """Full coefficient vector of ``model_name`` for the given state and attitude (rad, rad/s)."""
+    model = get_model(model_name)
+    opts = options or {}
+    coef = np.zeros(N_COEF)
+    tpl = model.tau_per_line(line_time)
+    dt_dtau = line_time / tpl
+    if model.kind == 1:
+        for e in range(3):
+            coef[e * 4] = r0[e]
+            coef[e * 4 + 1] = v0[e]
+    else:
+        from solver.initialize import _rotating_frame_acceleration
+
+        a = frame.vector_to_lgs(_rotating_frame_acceleration(r0, v0))
+        s = frame.to_lgs(r0)
+        v = frame.vector_to_lgs(v0)
+        orders = model.effective_orders(opts)
+        for e in range(3):
+            coef[e * 4] = s[e]
+            if orders[e] >= 1:
+                coef[e * 4 + 1] = v[e] * dt_dtau
+            if orders[e] >= 2:
+                coef[e * 4 + 2] = 0.5 * a[e] * dt_dtau**2
+    orders = model.effective_orders(opts)
+    for e, val in zip(ANGLES, angles):
+        coef[coef_index(e, 0)] = val
+    ko = orders[ELEMENTS.index("kappa")]
+    if ko >= 1:
+        coef[coef_index("kappa", 1)] = rates[0] * dt_dtau
+    if ko >= 2:
+        coef[coef_index("kappa", 2)] = rates[1] * dt_dtau**2
+    for e in ANGLES:
+        if orders[ELEMENTS.index(e)] == HELD:
+            pass  # held values are whatever the caller passes in angles
+    return coef
+
+
+def _obs_consts(cam: dict, line: float, col: float, sigma: float, tpl: float) -> np.ndarray:
+    return np.array([line, col, sigma, cam["focal_mm"], cam["pixel_mm"], 0.0, 0.0, (cam["columns"] - 1) / 2.0, tpl])
+
+
+def ground_point_of_pixel(img: SyntheticImage, cam: dict, line: float, col: float) -> np.ndarray:
+    """LGS point on the terrain seen by pixel (line, col) with the true orientation."""
+    oc = _obs_consts(cam, line, col, 1.0, img.tau_per_line)
+    kind = get_model(img.model).kind
+    s, d = ray(kind, img.coef, img.kc, oc)
+    z = 0.0
+    for _ in range(20):
+        lam = (z - s[2]) / d[2]
+        p = s + lam * d
+        z_new = float(terrain_height(np.array([p[0]]), np.array([p[1]]))[0])
+        if abs(z_new - z) < 1e-6:
+            break
+        z = z_new
+    lam = (z - s[2]) / d[2]
+    return s + lam * d
+
+
+def project_point(img: SyntheticImage, cam: dict, p: np.ndarray, line_guess: float) -> tuple[float, float]:
+    kind = get_model(img.model).kind
+    oc = _obs_consts(cam, line_guess, (cam["columns"] - 1) / 2.0, 1.0, img.tau_per_line)
+    ok, line, col, *_ = project(kind, img.coef, img.kc, p, oc, False)
+    return float(line), float(col)
+
+
+def single_image_job(
+    model: str = "K2",
+    n_gcp: int = 14,
+    n_check: int = 9,
+    noise_px: float = 0.5,
+    pitch_deg: float = 0.0,
+    seed: int = 0,
+    gcp_sigma_m: float | None = None,
+    control: str = "weighted",
+    approx_error_m: float = 20.0,
+    camera: dict | None = None,
+    options: dict | None = None,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A one-image job generated by ``model`` itself, and its truth (coefficients, points)."""
+    rng = np.random.default_rng(seed)
+    cam = dict(PRISM_NADIR if camera is None else camera)
+    centre = geodetic_to_ecef(np.array([[-51.39, -22.12, 450.0]]))[0]
+    frame = LocalFrame.at(centre)
+    lt = cam["line_time_s"]
+    t_mid = lt * (cam["lines"] - 1) / 2.0
+    r0, v0 = _state_for_pass(frame, t_mid, pitch_deg, 692e3, 190.0)
+    h = math.radians(190.0)
+    kappa0 = math.atan2(-math.cos(h), math.sin(h))
+    angles = (math.radians(0.02), math.radians(pitch_deg), kappa0 + math.radians(0.1))
+    m = get_model(model)
+    mopts = dict(options or {})
+    held = {}
+    for e in ANGLES:
+        if m.effective_orders(mopts)[ELEMENTS.index(e)] == HELD:
+            held[e] = math.degrees(angles[ANGLES.index(e)])
+            mopts[f"{e}_deg"] = held[e]
+    rates = (math.radians(30 / 3600), math.radians(0.05 / 3600))
+    n = n_gcp + n_check
+    # well spread pixels: jittered grid
+    g = int(math.ceil(math.sqrt(n)))
+    pix = []
+    for i in range(g):
+        for j in range(g):
+            pix.append(((i + 0.2 + 0.6 * rng.random()) / g * (cam["lines"] - 1), (j + 0.2 + 0.6 * rng.random()) / g * (cam["columns"] - 1)))
+    rng.shuffle(pix)
+    pix = pix[:n]
+    # The solver's LGS is centred on the control points, which depend on the truth: iterate
+    # until the truth is expressed in exactly the frame the solver will build.
+    for _ in range(12):
+        coef = true_coefficients(model, frame, r0, v0, lt, angles, rates, mopts)
+        img = SyntheticImage("img-1", model, pitch_deg, coef, kepler_constants(m, frame), m.tau_per_line(lt), r0, v0)
+        pts_lgs = np.array([ground_point_of_pixel(img, cam, l, c) for l, c in pix])
+        ecef_pts = frame.to_ecef(pts_lgs)
+        new_origin = ecef_pts[:n_gcp].mean(axis=0)
+        if np.linalg.norm(new_origin - frame.origin_ecef_m) < 1e-7:
+            break
+        frame = LocalFrame.at(new_origin)
+        # pixels keep their ground points' physical meaning only approximately; re-derive them
+    ecef = frame.to_ecef(pts_lgs)
+    geo = ecef_to_geodetic(ecef)
+    points = []
+    observations = []
+    roles = ["gcp"] * n_gcp + ["check"] * n_check
+    for k, ((l, c), role, gp) in enumerate(zip(pix, roles, geo)):
+        pid = f"{'G' if role == 'gcp' else 'C'}{k:03d}"
+        coords = gp.copy()
+        pt: dict[str, Any] = {"id": pid, "role": role}
+        if role == "gcp" and gcp_sigma_m:
+            # survey noise along east/north/up, converted back to geographic
+            noisy = frame.to_ecef(pts_lgs[k] + rng.normal(0, gcp_sigma_m, 3))
+            coords = ecef_to_geodetic(noisy[None, :])[0]
+            pt["sigma_m"] = [gcp_sigma_m] * 3
+        pt["coordinates"] = [float(x) for x in coords]
+        points.append(pt)
+        observations.append(
+            {
+                "image": img.id,
+                "point": pid,
+                "line": float(l + rng.normal(0, noise_px)),
+                "column": float(c + rng.normal(0, noise_px)),
+                "sigma_px": noise_px,
+            }
+        )
+    r_err = rng.normal(0, approx_error_m / math.sqrt(3), 3)
+    v_err = rng.normal(0, 0.05, 3)
+    job = {
+        "schema_version": "1.0",
+        "name": f"synthetic {model}",
+        "crs": "EPSG:4979",
+        "cameras": [{"id": "cam", **cam, "mounting_pitch_deg": pitch_deg}],
+        "images": [
+            {
+                "id": img.id,
+                "camera": "cam",
+                "model": {"name": model, "options": {k: v for k, v in mopts.items()}},
+                "approx_state": {
+                    "position_ecef_m": [float(x) for x in r0 + r_err],
+                    "velocity_ecef_m_s": [float(x) for x in v0 + v_err],
+                },
+            }
+        ],
+        "points": points,
+        "observations": observations,
+        "options": {"control": control},
+    }
+    truth = {
+        "coef": coef.tolist(),
+        "model": model,
+        "points_lgs": {p["id"]: pts_lgs[k].tolist() for k, p in enumerate(points)},
+        "frame_origin_ecef": frame.origin_ecef_m.tolist(),
+    }
+    return job, truth
+
+
+def truth_parameters(model: str, coef: np.ndarray, options: dict | None = None) -> dict[str, float]:
+    """True values of a model's parameters, in report units."""
+    return {p.name: float(coef[p.index] * p.to_report) for p in get_model(model).parameters(options or {})}
+
+
+def position_at_line(model: str, coef: np.ndarray, kc: np.ndarray, line: float, tau_per_line: float) -> np.ndarray:
+    return platform_state(get_model(model).kind, coef, kc, line * tau_per_line)[0]
+
+
+__all__ = ["single_image_job", "truth_parameters", "PRISM_NADIR", "terrain_height", "AE_M", "GM_M3_S2", "J2", "OMEGA_RAD_S"]

@@ -1,0 +1,233 @@
+"""Dry-run checks of a job: references, models, CRSs, image bounds, counts and degrees of freedom.
+
+Cheap and free of numerical libraries beyond numpy/pyproj, so a server can call it in its own
+process. Every problem found is reported at once, each with its location in the document.
+The numerical rank check (which parameters the control geometry leaves undetermined) needs the
+linearised problem and runs at the start of the adjustment (:mod:`solver.adjust`).
+"""
+
+from __future__ import annotations
+
+from collections import Counter, defaultdict
+from typing import Any
+
+from solver.errors import JobError, Problem
+from solver.geodesy import UnknownCRSError, parse_crs
+from solver.job import Job
+from solver.models import get_model
+from solver.problem import camera_chip
+
+
+def _duplicates(items: list[Any], what: str, key: str) -> list[Problem]:
+    counts = Counter(getattr(x, "id") for x in items)
+    return [
+        Problem("duplicate_id", f"{what} id {i!r} is used {n} times", (key,))
+        for i, n in counts.items()
+        if n > 1
+    ]
+
+
+def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
+    """All problems of a job plus the counts (observations, unknowns, dof) when computable."""
+    problems: list[Problem] = []
+    problems += _duplicates(job.cameras, "camera", "cameras")
+    problems += _duplicates(job.images, "image", "images")
+    problems += _duplicates(job.points, "point", "points")
+
+    cameras = {c.id: c for c in job.cameras}
+    for i, cam in enumerate(job.cameras):
+        if cam.focal_mm is None:
+            problems.append(
+                Problem(
+                    "camera_ref_unresolved",
+                    f"camera {cam.id!r} refers to library camera {cam.ref.name!r} "  # type: ignore[union-attr]
+                    "which must be resolved by the server before solving",
+                    ("cameras", i, "ref"),
+                )
+            )
+            continue
+        used = []
+        for k, chip in enumerate(cam.chips):
+            end = chip.first_column + chip.columns
+            if end > (cam.columns or 0):
+                problems.append(
+                    Problem(
+                        "chip_outside_image",
+                        f"camera {cam.id!r} chip {chip.id!r} ends at column {end - 1}, "
+                        f"beyond the image's {cam.columns} columns",
+                        ("cameras", i, "chips", k),
+                    )
+                )
+            used.append((chip.first_column, end, k))
+        used.sort()
+        for (a0, a1, ka), (b0, b1, kb) in zip(used, used[1:]):
+            if b0 < a1:
+                problems.append(
+                    Problem(
+                        "chips_overlap",
+                        f"camera {cam.id!r}: chips {cam.chips[ka].id!r} and {cam.chips[kb].id!r} "
+                        "cover the same image columns (each image column belongs to one chip)",
+                        ("cameras", i, "chips", kb),
+                    )
+                )
+
+    n_unknowns = 0
+    image_info = []
+    for i, im in enumerate(job.images):
+        if im.camera not in cameras:
+            problems.append(
+                Problem("unknown_camera", f"image {im.id!r} uses unknown camera {im.camera!r}", ("images", i, "camera"))
+            )
+        try:
+            model = get_model(im.model.name)
+        except KeyError as exc:
+            problems.append(Problem("unknown_model", str(exc.args[0]), ("images", i, "model", "name")))
+            continue
+        try:
+            params = model.parameters(im.model.options)
+        except ValueError as exc:
+            problems.append(Problem("invalid_model_options", str(exc), ("images", i, "model", "options")))
+            continue
+        names = {p.name for p in params}
+        unknown = sorted(set(im.initial) - names)
+        if unknown:
+            problems.append(
+                Problem(
+                    "unknown_parameter",
+                    f"image {im.id!r}: model {model.name} has no parameter(s) {', '.join(unknown)}",
+                    ("images", i, "initial"),
+                )
+            )
+        if im.approx_state is None and not {"X0", "Y0", "Z0"} <= set(im.initial):
+            problems.append(
+                Problem(
+                    "no_initial_position",
+                    f"image {im.id!r} needs approx_state (position/velocity at line 0) or initial "
+                    "values for X0, Y0, Z0 (and the other position terms)",
+                    ("images", i, "approx_state"),
+                )
+            )
+        n_unknowns += len(params)
+        image_info.append({"id": im.id, "model": model.name, "n_parameters": len(params)})
+
+    crs_checked: dict[str, bool] = {}
+    for j, p in enumerate(job.points):
+        crs = p.crs or job.crs
+        if crs not in crs_checked:
+            try:
+                parse_crs(crs)
+                crs_checked[crs] = True
+            except UnknownCRSError as exc:
+                crs_checked[crs] = False
+                problems.append(Problem("unknown_crs", str(exc), ("points", j, "crs") if p.crs else ("crs",)))
+
+    images = {im.id: im for im in job.images}
+    points = {p.id: p for p in job.points}
+    seen_pairs: set[tuple[str, str]] = set()
+    images_of_point: dict[str, set[str]] = defaultdict(set)
+    obs_per_image: Counter[str] = Counter()
+    for k, o in enumerate(job.observations):
+        loc = ("observations", k)
+        bad = False
+        if o.image not in images:
+            problems.append(Problem("unknown_image", f"observation {k} refers to unknown image {o.image!r}", loc + ("image",)))
+            bad = True
+        if o.point not in points:
+            problems.append(Problem("unknown_point", f"observation {k} refers to unknown point {o.point!r}", loc + ("point",)))
+            bad = True
+        if bad:
+            continue
+        if (o.image, o.point) in seen_pairs:
+            problems.append(
+                Problem("duplicate_observation", f"point {o.point!r} is measured twice in image {o.image!r}", loc)
+            )
+            continue
+        seen_pairs.add((o.image, o.point))
+        cam = cameras.get(images[o.image].camera)
+        if cam is not None and cam.lines is not None:
+            if not (-0.5 <= o.line <= cam.lines - 0.5):
+                problems.append(
+                    Problem(
+                        "outside_image",
+                        f"observation {k} ({o.point!r} in {o.image!r}): line {o.line} is outside "
+                        f"0..{cam.lines - 1}",
+                        loc + ("line",),
+                    )
+                )
+                continue
+            try:
+                camera_chip(cam, o.column)
+            except KeyError:
+                problems.append(
+                    Problem(
+                        "outside_image",
+                        f"observation {k} ({o.point!r} in {o.image!r}): column {o.column} is on no "
+                        f"CCD chip of camera {cam.id!r} (0..{(cam.columns or 0) - 1})",
+                        loc + ("column",),
+                    )
+                )
+                continue
+        images_of_point[o.point].add(o.image)
+        if points[o.point].role != "check":
+            obs_per_image[o.image] += 1
+
+    weighted = job.options.control == "weighted"
+    n_obs = 0
+    for j, p in enumerate(job.points):
+        seen = images_of_point.get(p.id, set())
+        if p.role != "check":
+            n_obs += 2 * sum(1 for _ in seen)
+        if p.role == "tie":
+            n_unknowns += 3
+            if len(seen) < 2:
+                problems.append(
+                    Problem(
+                        "tie_point_underdetermined",
+                        f"tie point {p.id!r} is seen in {len(seen)} image(s); it needs at least two",
+                        ("points", j),
+                    )
+                )
+        elif p.role == "gcp" and weighted and p.sigma_m is not None:
+            n_unknowns += 3
+            n_obs += 3
+    for i, im in enumerate(job.images):
+        if obs_per_image[im.id] == 0:
+            problems.append(
+                Problem("image_without_observations", f"image {im.id!r} has no control or tie observations", ("images", i))
+            )
+    if not any(p.role == "gcp" for p in job.points):
+        problems.append(
+            Problem(
+                "no_control",
+                "the job has no control points (role gcp): the datum is undefined",
+                ("points",),
+            )
+        )
+    dof = n_obs - n_unknowns
+    if dof < 0:
+        problems.append(
+            Problem(
+                "insufficient_observations",
+                f"{n_obs} observations for {n_unknowns} unknowns: {-dof} more observation equations "
+                "are needed (add control points or choose a model with fewer parameters)",
+                ("observations",),
+                {"n_observations": n_obs, "n_unknowns": n_unknowns},
+            )
+        )
+    counts = {"n_observations": n_obs, "n_unknowns": n_unknowns, "dof": dof, "images": image_info}
+    return problems, counts
+
+
+def validate_job(job: Job) -> dict[str, Any]:
+    """Dry run: ``{"valid", "problems", "n_observations", "n_unknowns", "dof", "images"}``."""
+    problems, counts = collect_problems(job)
+    return {"valid": not problems, "problems": [p.to_dict() for p in problems], **counts}
+
+
+def require_valid(job: Job) -> dict[str, Any]:
+    """Raise :class:`JobError` with every problem, or return the counts."""
+    problems, counts = collect_problems(job)
+    if problems:
+        raise JobError(problems)
+    return counts
+
