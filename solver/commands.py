@@ -1,0 +1,208 @@
+"""``pba run``, ``pba validate``, ``pba models`` and ``pba compare``: the solver's own commands."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any, TextIO
+
+from pydantic import ValidationError
+
+from solver.errors import Cancelled, JobError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="adjust a job document and write its report")
+    p.add_argument("job", type=Path, help="job document (JSON)")
+    p.add_argument("-o", "--output", type=Path, help="report file (JSON); default: stdout summary only")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("validate", help="check a job document without solving it")
+    p.add_argument("job", type=Path)
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("models", help="list the platform models and their parameters")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_models)
+
+    p = sub.add_parser("compare", help="adjust one job with several platform models side by side")
+    p.add_argument("job", type=Path)
+    p.add_argument("--models", required=True, help="comma-separated, e.g. K1,K2,J2-1,J2-2,ON1,ON2,P1,P2")
+    p.add_argument("-o", "--output", type=Path, help="comparison report (JSON)")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(func=cmd_compare)
+
+
+class ProgressBar:
+    """A one-line text progress bar on stderr (fraction 0..1 with a message)."""
+
+    def __init__(self, stream: TextIO = sys.stderr, width: int = 30, enabled: bool = True):
+        self.stream = stream
+        self.width = width
+        self.enabled = enabled and stream.isatty() or enabled == "force"
+        self.t0 = time.perf_counter()
+
+    def __call__(self, fraction: float, message: str, info: dict[str, Any] | None = None) -> None:
+        if not self.enabled:
+            return
+        n = int(round(fraction * self.width))
+        bar = "#" * n + "-" * (self.width - n)
+        self.stream.write(f"\r[{bar}] {fraction * 100:5.1f}% {time.perf_counter() - self.t0:6.1f}s {message[:50]:<50}")
+        self.stream.flush()
+        if fraction >= 1.0:
+            self.stream.write("\n")
+
+
+def _load(path: Path) -> Any:
+    from solver.job import load_job
+
+    try:
+        return load_job(path.read_text())
+    except ValidationError as exc:
+        print(f"{path}: invalid job document:", file=sys.stderr)
+        for err in exc.errors():
+            loc = "/".join(str(x) for x in err["loc"])
+            print(f"  {loc}: {err['msg']}", file=sys.stderr)
+        raise SystemExit(2) from None
+    except OSError as exc:
+        print(f"cannot read {path}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def _print_problems(exc: JobError) -> None:
+    print("the job cannot be solved:", file=sys.stderr)
+    for p in exc.problems:
+        loc = "/".join(str(x) for x in p.location)
+        print(f"  [{p.code}] {loc}: {p.message}", file=sys.stderr)
+
+
+def _fmt(x: Any, spec: str = ".4g") -> str:
+    return "-" if x is None else format(x, spec)
+
+
+def summary_text(report: dict[str, Any]) -> str:
+    """Human summary of an adjustment report (the table printed by ``pba run``)."""
+    a = report["adjustment"]
+    lines = [
+        f"job: {report.get('job_name')}",
+        f"observations {a['n_observations']}  unknowns {a['n_unknowns']}  dof {a['dof']}  "
+        f"iterations {a['iterations']}  {a['termination']}  solve {a['solve_time_s']:.3f} s",
+    ]
+    chi = a.get("chi2")
+    s0 = a.get("sigma0_aposteriori")
+    lines.append(
+        f"sigma0 a posteriori {_fmt(s0)}"
+        + (
+            f"   chi2 {chi['statistic']:.3f} vs [{chi['critical_lower']:.2f}, {chi['critical']:.2f}] "
+            f"({'passed' if chi['passed'] else 'REJECTED'})"
+            if chi
+            else ""
+        )
+    )
+    for img in report["images"]:
+        r = img["residual_rmse"]
+        lines.append(
+            f"\nimage {img['id']} ({img['model']}, {img['frame']})  residual RMSE line {_fmt(r['line_px'], '.3f')} px, "
+            f"column {_fmt(r['column_px'], '.3f')} px"
+        )
+        lines.append(f"  {'parameter':<10} {'value':>20} {'sigma':>12}  unit")
+        for p in img["parameters"]:
+            flag = "" if p["estimated"] else "  (held)"
+            lines.append(f"  {p['name']:<10} {p['value']:>20.10g} {_fmt(p['sigma'], '12.4g'):>12}  {p['unit']}{flag}")
+    cp = report.get("checkpoints") or {}
+    if cp.get("n"):
+        rm = cp["rmse_m"]
+        lines.append(
+            f"\ncheck points ({cp['n']}, {cp['method']}): RMSE E {_fmt(rm['e'], '.3f')} m  N {_fmt(rm['n'], '.3f')} m  "
+            f"U {_fmt(rm['u'], '.3f')} m  planimetric {_fmt(rm['planimetric'], '.3f')} m"
+            + (f"  ({rm['planimetric'] / cp['gsd_m']:.2f} GSD)" if cp.get("gsd_m") and rm.get("planimetric") else "")
+        )
+        for axis in ("e", "n", "u"):
+            t = cp["t_test"].get(axis)
+            if t:
+                lines.append(
+                    f"  t-test {axis}: t={t['statistic']:.3f} critical {t['critical']:.3f} "
+                    f"({'no bias' if t['passed'] else 'BIASED'})"
+                )
+    for w in report.get("warnings", []):
+        lines.append(f"warning: {w}")
+    return "\n".join(lines)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from solver import api
+
+    job = _load(args.job)
+    bar = ProgressBar(enabled=not args.quiet)
+    try:
+        report = api.run(job, progress=bar)
+    except JobError as exc:
+        _print_problems(exc)
+        return 2
+    except Cancelled as exc:
+        print(f"cancelled: {exc}", file=sys.stderr)
+        return 3
+    if args.output:
+        args.output.write_text(json.dumps(report, indent=1))
+    if report.get("kind") == "comparison":
+        from solver.compare import comparison_table_text
+
+        print(comparison_table_text(report))
+    else:
+        print(summary_text(report))
+    return 0
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    from solver import api
+
+    job = _load(args.job)
+    result = api.validate(job)
+    if result["valid"]:
+        print(
+            f"valid: {result['n_observations']} observations, {result['n_unknowns']} unknowns, "
+            f"{result['dof']} degrees of freedom"
+        )
+        return 0
+    for p in result["problems"]:
+        print(f"[{p['code']}] {'/'.join(str(x) for x in p['location'])}: {p['message']}")
+    return 2
+
+
+def cmd_models(args: argparse.Namespace) -> int:
+    from solver.models import all_models
+
+    models = [m.describe() for m in all_models()]
+    if args.json:
+        print(json.dumps(models, indent=1))
+        return 0
+    for m in models:
+        print(f"{m['name']:<8} {m['title']}")
+        print(f"         frame {m['frame']}; time {m['time_variable']}")
+        print("         parameters: " + ", ".join(f"{p['name']} [{p['unit']}]" for p in m["parameters"]))
+        if m["held"]:
+            print("         held: " + ", ".join(m["held"]) + "  options: " + "; ".join(f"{k}: {v}" for k, v in m["options"].items()))
+        print(f"         {m['reference']}")
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from solver import api
+    from solver.compare import comparison_table_text
+
+    job = _load(args.job)
+    models = [m.strip() for m in args.models.split(",") if m.strip()]
+    bar = ProgressBar(enabled=not args.quiet)
+    try:
+        report = api.compare(job, models, progress=bar)
+    except JobError as exc:
+        _print_problems(exc)
+        return 2
+    if args.output:
+        args.output.write_text(json.dumps(report, indent=1))
+    print(comparison_table_text(report))
+    return 0
