@@ -120,6 +120,8 @@ class PointCost(pyceres.CostFunction):
         self.pimg = np.zeros((k, 24))
         self.res_jp = np.zeros((2 * k, 3))
         self.res_ji = np.zeros((k, 2, 24))
+        # Ceres wants each image block's Jacobian over all 2k rows; only rows 2i, 2i+1 are non-zero
+        self.jfull = [np.zeros((2 * k, im.nfree)) for im in imgs]
         self.control = control
         self.set_num_residuals(2 * k)
         self.set_parameter_block_sizes([3] + [im.nfree for im in imgs])
@@ -141,7 +143,9 @@ class PointCost(pyceres.CostFunction):
                 jacobians[0][:] = self.res_jp.ravel()
             for i in range(self.k):
                 if jacobians[i + 1] is not None:
-                    jacobians[i + 1][:] = self.res_ji[i, :, : nfree[i]].ravel()
+                    jf = self.jfull[i]
+                    jf[2 * i : 2 * i + 2] = self.res_ji[i, :, : nfree[i]]
+                    jacobians[i + 1][:] = jf.ravel()
         return bool(ok)
 
 

@@ -153,7 +153,7 @@ class RankReport:
     null_parameters: list[tuple[str, float]]  # (image/param, weight in the null direction)
 
 
-def check_rank(parts: SchurParts, names: list[str], tol: float = 1e-11) -> RankReport:
+def check_rank(parts: SchurParts, names: list[str], tol: float = 1e-14) -> RankReport:
     """Eigen-analysis of the Jacobi-scaled reduced normal matrix S."""
     s = parts.s
     if s.size == 0:
