@@ -180,7 +180,7 @@ def circular_state_over(
     """
     r0 = semi_major_axis_m
     h = r0 - np.linalg.norm(geodetic_to_ecef(np.array([[lon_deg, lat_deg, 0.0]]))[0])
-    for _ in range(3):  # put the point on the normal at the height that gives radius r0
+    for _ in range(6):  # put the point on the normal at the height that gives radius r0
         p = geodetic_to_ecef(np.array([[lon_deg, lat_deg, h]]))[0]
         h += r0 - np.linalg.norm(p)
     lat_c = np.arcsin(p[2] / np.linalg.norm(p))

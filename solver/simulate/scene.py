@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from solver.geodesy import LocalFrame, ecef_to_geodetic, enu_rotation, from_ecef, geodetic_to_ecef
+from solver.geodesy import LocalFrame, ecef_to_geodetic, enu_rotation, from_ecef
 from solver.simulate.attitude import AttitudeModel, Platform, opk_from_matrix
 from solver.simulate.camera import CameraSpec
 from solver.simulate.orbit import EarthModel, Orbit, circular_state_over, sun_synchronous_semi_major_axis
@@ -145,8 +145,10 @@ class Scene:
                 self.images.append(ImageGeometry(f"{cam.id}{suffix}", cam, self.platform, float(first)))
 
     # -- 3. points ----------------------------------------------------------------------------
-    def _candidates(self, group: Group, n: int) -> tuple[np.ndarray, list]:
-        """Ground points (m, 3) seen by every image of the group, with their projections."""
+    def _candidates(self, group: Group, n: int) -> tuple[np.ndarray, list, np.ndarray, np.ndarray]:
+        """Candidate ground points (n, 3), their projections into each image of the group, a mask
+        of those seen by every image clear of chip seams, and their normalised (line, column)
+        in the reference image (for spreading control points)."""
         imgs = [self.images[i] for i in group.images]
         ref = min(imgs, key=lambda im: abs(im.camera.mounting_pitch_deg))
         m = self.settings.point_margin
@@ -303,7 +305,7 @@ class Scene:
                 }
             )
         observations = [
-            {"image": self.images[o.image].id, "point": self.points[o.point].id, "line": line, "column": col, "sigma_px": max(s.noise_px, 1e-3)}
+            {"image": self.images[o.image].id, "point": self.points[o.point].id, "line": float(line), "column": float(col), "sigma_px": max(s.noise_px, 1e-3)}
             for o, line, col in self.noisy_observations()
         ]
         return {
