@@ -148,7 +148,7 @@ def test_nadir_gsd_matches_pixel_over_focal_times_height():
 def test_omega_phi_kappa_round_trip():
     rng = np.random.default_rng(2)
     for w, p, k in rng.uniform(-1.2, 1.2, (20, 3)):
-        np.testing.assert_allclose(opk_from_matrix(rz(k) @ ry(p) @ rx(w)), (w, p, k), atol=1e-12)
+        np.testing.assert_allclose(opk_from_matrix(rx(w) @ ry(p) @ rz(k)), (w, p, k), atol=1e-12)
 
 
 def test_terrain_stays_in_its_height_range():

@@ -171,28 +171,32 @@ class Platform:
 
 
 def rx(a: float) -> np.ndarray:
+    """Active (right-handed) rotation about x by ``a`` rad."""
     c, s = np.cos(a), np.sin(a)
-    return np.array([[1, 0, 0], [0, c, s], [0, -s, c]])
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
 
 
 def ry(a: float) -> np.ndarray:
+    """Active (right-handed) rotation about y by ``a`` rad."""
     c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0, -s], [0, 1, 0], [s, 0, c]])
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
 
 
 def rz(a: float) -> np.ndarray:
+    """Active (right-handed) rotation about z by ``a`` rad."""
     c, s = np.cos(a), np.sin(a)
-    return np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
 
 
 def opk_from_matrix(m: np.ndarray) -> tuple[float, float, float]:
-    """(omega, phi, kappa) in radians with ``m = Rz(kappa) Ry(phi) Rx(omega)``.
+    """(omega, phi, kappa) in radians with ``m = Rx(omega) Ry(phi) Rz(kappa)`` (active matrices).
 
-    The elementary matrices are the photogrammetric (passive) ones: Rx(w) = [[1,0,0],[0,c,s],
-    [0,-s,c]], Ry(p) = [[c,0,-s],[0,1,0],[s,0,c]], Rz(k) = [[c,s,0],[-s,c,0],[0,0,1]]. ``m``
-    maps object-frame components to camera components (seed 000 eqs 14-15, seed 001 eq 26).
+    This is the solver's convention (:mod:`solver.kernels`): ``m`` maps object-frame (LGS)
+    components to camera components; kappa turns about the object vertical, phi about the
+    camera's cross-track axis (a backward-looking camera has phi < 0), omega about its
+    along-track axis. Valid for |phi| < 90 deg.
     """
-    phi = float(np.arcsin(np.clip(m[2, 0], -1.0, 1.0)))
-    omega = float(np.arctan2(-m[2, 1], m[2, 2]))
-    kappa = float(np.arctan2(-m[1, 0], m[0, 0]))
+    phi = float(np.arcsin(np.clip(m[0, 2], -1.0, 1.0)))
+    omega = float(np.arctan2(-m[1, 2], m[2, 2]))
+    kappa = float(np.arctan2(-m[0, 1], m[0, 0]))
     return omega, phi, kappa

@@ -358,7 +358,7 @@ class Scene:
             "conventions": {
                 "time": "seconds of the UTC day: job time = epoch_s + simulator time",
                 "camera_from_ecef": "rows x_c, y_c, z_c in ECEF: p_cam = M (p - S); x = -f X/Z, y = -f Y/Z",
-                "omega_phi_kappa_lgs_deg": "M R_lgs^T = Rz(kappa) Ry(phi) Rx(omega) (photogrammetric matrices)",
+                "omega_phi_kappa_lgs_deg": "M R_lgs^T = Rx(omega) Ry(phi) Rz(kappa), active matrices (solver.kernels convention)",
                 "lgs": "east-north-up at the centroid of the written gcp coordinates",
             },
             "earth": {"gm_m3_s2": self.earth.gm_m3_s2, "radius_m": self.earth.radius_m, "omega_rad_s": self.earth.omega_rad_s, "zonal": {str(k): float(v) for k, v in self.earth.zonal.items()}},
