@@ -1,0 +1,122 @@
+"""The FastAPI application: :func:`create_app` gathers the routers and wires the services.
+
+Routers live in ``service/routes/``, one module per resource, and are listed once in
+:data:`ROUTER_MODULES`; optional ones (the web page, plots) are included when their module
+exists. Services (store, queue backend, job service, metrics) are created at start-up (the
+lifespan), so building the app - e.g. for ``make openapi`` - touches nothing on disk.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from fastapi.middleware.cors import CORSMiddleware
+from fastapi.routing import APIRoute
+
+from service.auth import local_user
+from service.deps import Services
+from service.errors import install_error_handlers
+from service.jobs import JobService
+from service.metrics import Metrics
+from service.middleware import AccessLogMiddleware, BodyLimitMiddleware, ServicesContextMiddleware
+from service.queue import make_backend
+from service.settings import Settings
+from service.store import open_store
+
+log = logging.getLogger("pba.service")
+
+# every router module, in the order their routes are matched; optional ones may be absent
+ROUTER_MODULES: tuple[str, ...] = ("landing", "processes", "jobs", "cameras", "ops", "ui", "plots")
+OPTIONAL_ROUTERS = frozenset({"ui", "plots"})
+
+API_VERSION = "1.0.0"
+
+
+def _operation_id(route: APIRoute) -> str:
+    """Stable operation ids: ``<tag>-<function name>``."""
+    tag = route.tags[0] if route.tags else "default"
+    return f"{tag}-{route.name}"
+
+
+def _start_services(settings: Settings) -> Services:
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    store = open_store(settings.resolved_database_url)
+    backend = make_backend(settings, store)
+    services = Services(
+        settings=settings,
+        store=store,
+        backend=backend,
+        jobs=JobService(settings, store, backend),
+        metrics=Metrics(store, backend),
+        local_user=None if settings.auth_required else local_user(store),
+    )
+    backend.start()
+    return services
+
+
+@asynccontextmanager
+async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+    """Start the store and the queue backend; stop the workers on shutdown."""
+    settings: Settings = app.state.settings
+    services = _start_services(settings)
+    app.state.services = services
+    log.info(
+        "server ready: store %s, queue %s, %d workers, keys %s",
+        settings.resolved_database_url.split("://")[0],
+        settings.queue,
+        settings.workers,
+        "required" if settings.auth_required else "optional (local mode)",
+    )
+    try:
+        yield
+    finally:
+        app.state.services = None
+        services.backend.stop()
+        services.store.close()
+        log.info("server stopped")
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the application (nothing starts until the ASGI lifespan runs)."""
+    settings = settings or Settings()
+    app = FastAPI(
+        title="Pushbroom orientation server",
+        version=API_VERSION,
+        description=(
+            "OGC API - Processes 1.0 server for bundle adjustment of pushbroom (linear-array) "
+            "satellite images. Errors are RFC 7807 problem documents. Authenticate with an API "
+            "key in `X-API-Key` (or `Authorization: Bearer`); a server bound to 127.0.0.1 may "
+            "run without keys (local single-user mode)."
+        ),
+        lifespan=lifespan,
+        generate_unique_id_function=_operation_id,
+    )
+    app.state.settings = settings
+    app.state.services = None
+    install_error_handlers(app)
+    for name in ROUTER_MODULES:
+        module_name = f"service.routes.{name}"
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if name in OPTIONAL_ROUTERS and exc.name == module_name:
+                continue
+            raise
+        app.include_router(module.router)
+    # middlewares: the last added runs first
+    app.add_middleware(ServicesContextMiddleware)
+    app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+    if settings.cors_origins:
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_methods=["GET", "POST", "DELETE", "OPTIONS"],
+            allow_headers=["X-API-Key", "Authorization", "Content-Type", "Prefer", "Last-Event-ID"],
+            expose_headers=["Location", "Preference-Applied"],
+        )
+    app.add_middleware(AccessLogMiddleware)
+    return app

@@ -1,0 +1,129 @@
+"""FastAPI dependencies shared by every router (and the plug points for later routers).
+
+* :data:`CurrentUser` - the user of the request's API key (``X-API-Key`` header,
+  ``Authorization: Bearer``, or ``?api_key=`` for browser EventSource), or the local user in
+  local single-user mode;
+* :func:`get_settings`, :data:`SettingsDep`, :data:`ServicesDep`;
+* :func:`get_job_for_user` - a job the user may see (404 otherwise); its record exposes
+  ``.id``, ``.status`` and ``.results`` (the report dict, None unless successful). It reads
+  the store, so call it from ``def`` (thread-pool) handlers;
+* :data:`VisibleJob` - the same as a dependency on the ``jobId`` path parameter.
+"""
+
+from __future__ import annotations
+
+from contextvars import ContextVar
+from dataclasses import dataclass
+from typing import Annotated
+
+from fastapi import Depends, Path, Request, Security
+from fastapi.security import APIKeyHeader, APIKeyQuery, HTTPAuthorizationCredentials, HTTPBearer
+
+from service.auth import user_for_key
+from service.errors import NotReady, Unauthorized
+from service.jobs import JobService
+from service.metrics import Metrics
+from service.queue import QueueBackend
+from service.settings import Settings
+from service.store import JobRecord, Store, UserRecord
+
+
+@dataclass
+class Services:
+    """What the running app holds (``app.state.services``, set at start-up)."""
+
+    settings: Settings
+    store: Store
+    backend: QueueBackend
+    jobs: JobService
+    metrics: Metrics
+    local_user: UserRecord | None
+
+
+_current: ContextVar[Services | None] = ContextVar("pba_services", default=None)
+
+
+def set_current_services(services: Services | None) -> object:
+    """Bind the services of the app handling this request (done by a middleware)."""
+    return _current.set(services)
+
+
+def reset_current_services(token: object) -> None:
+    """Undo :func:`set_current_services`."""
+    _current.reset(token)  # type: ignore[arg-type]
+
+
+def current_services() -> Services:
+    """The services of the app handling the current request."""
+    services = _current.get()
+    if services is None:
+        raise NotReady("the server is starting or stopping")
+    return services
+
+
+def get_services(request: Request) -> Services:
+    """Dependency: the app's services."""
+    services = getattr(request.app.state, "services", None)
+    if services is None:
+        raise NotReady("the server is starting or stopping")
+    return services
+
+
+def get_settings(request: Request) -> Settings:
+    """Dependency: the app's settings."""
+    return request.app.state.settings
+
+
+ServicesDep = Annotated[Services, Depends(get_services)]
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+
+_key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="API key")
+_bearer = HTTPBearer(auto_error=False, description="API key as a bearer token")
+_key_query = APIKeyQuery(
+    name="api_key", auto_error=False, description="API key in the URL (for EventSource)"
+)
+
+
+def current_user(
+    services: ServicesDep,
+    header_key: Annotated[str | None, Security(_key_header)] = None,
+    bearer: Annotated[HTTPAuthorizationCredentials | None, Security(_bearer)] = None,
+    query_key: Annotated[str | None, Security(_key_query)] = None,
+) -> UserRecord:
+    """Resolve the request's API key; without one, the local user when keys are optional."""
+    key = header_key or (bearer.credentials if bearer else None) or query_key
+    if key:
+        user = user_for_key(services.store, key)
+        if user is None:
+            raise Unauthorized("the API key is not valid")
+        return user
+    if services.local_user is None or services.settings.auth_required:
+        raise Unauthorized("an API key is required (X-API-Key header or Authorization: Bearer)")
+    return services.local_user
+
+
+CurrentUser = Annotated[UserRecord, Depends(current_user)]
+
+
+def get_job_for_user(job_id: str, user: UserRecord) -> JobRecord:
+    """The job ``job_id`` if ``user`` owns it or is an admin; NoSuchJob (404) otherwise."""
+    return current_services().jobs.get_visible(job_id, user)
+
+
+def visible_job(
+    jobId: Annotated[str, Path(max_length=64, description="job id")], user: CurrentUser
+) -> JobRecord:
+    """Dependency: the path's job, visible to the current user."""
+    return get_job_for_user(jobId, user)
+
+
+VisibleJob = Annotated[JobRecord, Depends(visible_job)]
+
+
+def base_url(request: Request) -> str:
+    """Base URL for links, ending with ``/`` (``PBA_PUBLIC_URL`` or the request's)."""
+    public = request.app.state.settings.public_url
+    return (public.rstrip("/") + "/") if public else str(request.base_url)
+
+
+BaseUrl = Annotated[str, Depends(base_url)]

@@ -1,0 +1,82 @@
+"""The local worker process: claim accepted jobs from the store and solve them, one at a time.
+
+Started by :class:`service.queue.local.LocalPoolBackend` with the ``spawn`` start method, so
+nothing of the server (its event loop, sockets or signal handlers) is inherited. ``pyceres``
+is imported here, never in the server process (../shared/PYCERES_NOTES.md).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import socket
+from dataclasses import dataclass
+from typing import Any
+
+from service.execution import SHUTDOWN, RunLimits, run_claimed_job
+
+log = logging.getLogger("pba.worker")
+
+
+@dataclass(frozen=True)
+class WorkerConfig:
+    """Everything a worker needs, picklable."""
+
+    database_url: str
+    parent_pid: int
+    poll_interval_s: float
+    limits: RunLimits
+    log_level: str = "INFO"
+    log_format: str = "json"
+
+
+def worker_id(pid: int | None = None) -> str:
+    """The name a worker writes into the jobs it runs: ``host:pid``."""
+    return f"{socket.gethostname()}:{pid if pid is not None else os.getpid()}"
+
+
+def _warm_up() -> None:
+    """Import the solver (and pyceres) before the first job, so its latency is not paid then."""
+    import solver.api  # noqa: F401
+
+    try:
+        import solver.adjust  # noqa: F401
+    except ImportError as exc:
+        log.warning("solver engine not importable yet: %s", exc)
+
+
+def worker_main(cfg: WorkerConfig, stop: Any, wake: Any) -> None:
+    """Process entry point: loop until ``stop`` is set or the server process is gone."""
+    from service.logs import configure_logging
+    from service.store import open_store
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the server, which stops us
+    configure_logging(cfg.log_level, cfg.log_format)
+    me = worker_id()
+    store = open_store(cfg.database_url, create=False)
+    _warm_up()
+    log.info("worker ready", extra={"worker": me})
+
+    def stop_reason() -> str | None:
+        if stop.is_set() or os.getppid() != cfg.parent_pid:
+            return SHUTDOWN
+        return None
+
+    try:
+        while stop_reason() is None:
+            try:
+                job = store.claim_next(me)
+            except Exception:
+                log.exception("could not claim a job", extra={"worker": me})
+                stop.wait(1.0)
+                continue
+            if job is None:
+                if wake.wait(cfg.poll_interval_s):
+                    wake.clear()
+                continue
+            log.info("claimed job", extra={"worker": me, "job_id": job.id})
+            run_claimed_job(store, job, me, cfg.limits, stop_reason)
+    finally:
+        store.close()
+        log.info("worker stopped", extra={"worker": me})

@@ -1,0 +1,231 @@
+"""Public request and response models (OGC API - Processes 1.0 names where it defines them).
+
+The job document itself is :class:`solver.job.Job`, defined once and used here unchanged.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from service.states import JobStatus
+from solver.job import Camera, Job
+
+
+class Link(BaseModel):
+    """A web link (OGC link.yaml)."""
+
+    href: str
+    rel: str
+    type: str | None = None
+    title: str | None = None
+
+
+class LandingPage(BaseModel):
+    """``GET /``."""
+
+    title: str
+    description: str
+    links: list[Link]
+
+
+class Conformance(BaseModel):
+    """``GET /conformance``."""
+
+    conformsTo: list[str]
+
+
+class ProcessSummary(BaseModel):
+    """One process in ``GET /processes``."""
+
+    id: str
+    title: str
+    description: str
+    version: str
+    jobControlOptions: list[Literal["sync-execute", "async-execute", "dismiss"]]
+    outputTransmission: list[Literal["value", "reference"]]
+    links: list[Link] = Field(default_factory=list)
+
+
+class ProcessList(BaseModel):
+    """``GET /processes``."""
+
+    processes: list[ProcessSummary]
+    links: list[Link]
+
+
+class InputDescription(BaseModel):
+    """An input of a process (OGC inputDescription.yaml)."""
+
+    model_config = ConfigDict(populate_by_name=True)
+
+    title: str
+    description: str
+    minOccurs: int = 1
+    maxOccurs: int = 1
+    schema_: dict[str, Any] = Field(alias="schema")
+
+
+class OutputDescription(BaseModel):
+    """An output of a process (OGC outputDescription.yaml)."""
+
+    model_config = ConfigDict(populate_by_name=True)
+
+    title: str
+    description: str
+    schema_: dict[str, Any] = Field(alias="schema")
+
+
+class ProcessDescription(ProcessSummary):
+    """``GET /processes/{processId}``."""
+
+    inputs: dict[str, InputDescription]
+    outputs: dict[str, OutputDescription]
+
+
+class ExecuteInputs(BaseModel):
+    """Inputs of both processes: the job document, and for a comparison the model names."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    job: Job
+    models: list[str] | None = Field(
+        default=None,
+        description="model-comparison only: platform models to compare (default: the job's "
+        "options.models)",
+    )
+
+
+class Execute(BaseModel):
+    """Body of ``POST /processes/{processId}/execution`` (OGC execute.yaml)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    inputs: ExecuteInputs
+    outputs: dict[str, Any] | None = Field(default=None, description="accepted and ignored")
+    response: Literal["raw", "document"] = Field(
+        default="raw",
+        description="synchronous answer: the report itself (raw) or {'report': ...} (document)",
+    )
+    mode: Literal["sync", "async", "auto"] | None = Field(
+        default=None, description="pre-1.0 alternative to the Prefer header"
+    )
+    subscriber: dict[str, Any] | None = Field(default=None, description="not supported; ignored")
+
+
+class StatusInfo(BaseModel):
+    """The status of a job (OGC statusInfo.yaml) plus the job's ``problems`` when it failed."""
+
+    jobID: str
+    processID: str
+    type: Literal["process"] = "process"
+    status: JobStatus
+    message: str
+    created: datetime
+    started: datetime | None = None
+    finished: datetime | None = None
+    updated: datetime
+    progress: int = Field(ge=0, le=100)
+    problems: list[dict[str, Any]] | None = None
+    links: list[Link]
+
+
+class JobList(BaseModel):
+    """``GET /jobs``."""
+
+    jobs: list[StatusInfo]
+    numberMatched: int
+    links: list[Link]
+
+
+class ValidationReport(BaseModel):
+    """``POST /jobs/validate``: the solver's dry-run summary of a valid job."""
+
+    model_config = ConfigDict(extra="allow")
+
+    valid: bool
+    n_observations: int | None = None
+    n_unknowns: int | None = None
+    dof: int | None = None
+    images: list[dict[str, Any]] = Field(default_factory=list)
+    problems: list[dict[str, Any]] = Field(default_factory=list)
+
+
+class IopCovariance(BaseModel):
+    """Covariance of interior-orientation values, rows and columns in ``names`` order."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    names: list[str] = Field(min_length=1, max_length=64)
+    matrix: list[list[float]]
+
+    @model_validator(mode="after")
+    def _square(self) -> "IopCovariance":
+        n = len(self.names)
+        if len(self.matrix) != n or any(len(row) != n for row in self.matrix):
+            raise ValueError(f"matrix must be {n} x {n} (one row and column per name)")
+        return self
+
+
+class CameraDefinition(Camera):
+    """A library camera: the job's camera fields (no ``ref``), ``id`` optional, plus the
+    covariance of its interior orientation."""
+
+    id: str = Field(default="camera", min_length=1, max_length=64)
+    iop_covariance: IopCovariance | None = None
+
+    @model_validator(mode="after")
+    def _no_ref(self) -> "CameraDefinition":
+        if self.ref is not None:
+            raise ValueError("a library camera cannot itself refer to the library")
+        return self
+
+
+class CameraCreate(BaseModel):
+    """Body of ``POST /cameras``: a new version of a named camera."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(min_length=1, max_length=128, pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+    description: str = Field(default="", max_length=2000)
+    definition: CameraDefinition
+
+
+class CameraFromJob(BaseModel):
+    """Body of ``POST /cameras/from-job``: save a camera estimated by a self-calibration job."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    job_id: str = Field(min_length=1, max_length=64)
+    camera: str = Field(min_length=1, max_length=64, description="camera id inside the job")
+    name: str = Field(min_length=1, max_length=128, pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+    description: str = Field(default="", max_length=2000)
+
+
+class CameraPublic(BaseModel):
+    """One version of a library camera."""
+
+    name: str
+    version: int
+    description: str
+    definition: dict[str, Any]
+    created: datetime
+    source_job: str | None = None
+    links: list[Link]
+
+
+class CameraList(BaseModel):
+    """``GET /cameras``."""
+
+    cameras: list[CameraPublic]
+    numberMatched: int
+    links: list[Link]
+
+
+class Health(BaseModel):
+    """``/healthz`` and ``/readyz``."""
+
+    status: Literal["ok", "unavailable"]
+    checks: dict[str, str] = Field(default_factory=dict)

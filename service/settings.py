@@ -1,0 +1,97 @@
+"""Server settings: one pydantic-settings object read from ``PBA_*`` environment variables.
+
+Every setting is documented in README's settings table (``make openapi`` does not touch it;
+keep the two in step). Units are in the names (``_s`` seconds, ``_bytes`` bytes).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+from functools import cached_property
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1", "ip6-localhost"})
+
+
+def is_loopback(host: str) -> bool:
+    """True when ``host`` only accepts connections from this machine."""
+    if host in LOOPBACK_NAMES:
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+class Settings(BaseSettings):
+    """All server settings (environment prefix ``PBA_``)."""
+
+    model_config = SettingsConfigDict(env_prefix="PBA_", extra="ignore")
+
+    data_dir: Path = Field(Path("data"), description="directory of the SQLite file and logs")
+    database_url: str | None = Field(
+        None, description="SQLAlchemy URL of the job store (default: SQLite in data_dir)"
+    )
+    host: str = Field("127.0.0.1", description="address the server binds to (pba serve --host)")
+    port: int = Field(8000, ge=0, le=65535, description="port (pba serve --port)")
+    public_url: str | None = Field(
+        None, description="base URL used in links (default: taken from each request)"
+    )
+    queue: Literal["local", "celery"] = Field("local", description="queue backend")
+    workers: int = Field(2, ge=0, le=64, description="local worker processes (0: API only)")
+    job_time_limit_s: float = Field(3600.0, gt=0, description="wall-clock limit of one solve")
+    kill_grace_s: float = Field(
+        10.0, gt=0, description="after the time limit, how long a worker may take to stop"
+    )
+    max_attempts: int = Field(
+        2, ge=1, description="runs of a job interrupted by a server stop before it is failed"
+    )
+    sync_timeout_s: float = Field(
+        60.0, ge=0, description="a synchronous execution waits this long, then answers 201"
+    )
+    sync_max_observations: int = Field(
+        20000, ge=0, description="larger jobs always run asynchronously"
+    )
+    max_body_bytes: int = Field(64 * 1024 * 1024, gt=0, description="request body size limit")
+    max_job_observations: int = Field(
+        2_000_000, gt=0, description="default per-user limit on observations in one job"
+    )
+    max_queued_jobs: int = Field(
+        1000, gt=0, description="default per-user limit on accepted + running jobs"
+    )
+    require_api_keys: bool = Field(
+        False, description="require keys even on 127.0.0.1 (always required on other binds)"
+    )
+    cors_origins: Annotated[list[str], NoDecode] = Field(
+        default_factory=list, description="comma-separated origins allowed by CORS"
+    )
+    poll_interval_s: float = Field(0.2, gt=0, description="idle worker's store poll interval")
+    progress_interval_s: float = Field(0.5, gt=0, description="progress writes, at most every")
+    cancel_poll_interval_s: float = Field(0.2, gt=0, description="cancel flag reads, at most every")
+    sse_interval_s: float = Field(0.5, gt=0, description="SSE stream's status poll interval")
+    shutdown_grace_s: float = Field(10.0, ge=0, description="stop: wait for workers this long")
+    log_level: str = Field("INFO", description="logging level")
+    log_format: Literal["json", "text"] = Field("json", description="log line format")
+
+    @field_validator("cors_origins", mode="before")
+    @classmethod
+    def _split_origins(cls, v: object) -> object:
+        if isinstance(v, str):
+            return [o.strip() for o in v.split(",") if o.strip()]
+        return v
+
+    @cached_property
+    def resolved_database_url(self) -> str:
+        """The store URL: ``database_url`` or ``sqlite:///<data_dir>/pba.sqlite3``."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'pba.sqlite3').resolve()}"
+
+    @property
+    def auth_required(self) -> bool:
+        """API keys are required unless the server only listens on loopback (local mode)."""
+        return self.require_api_keys or not is_loopback(self.host)

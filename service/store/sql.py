@@ -1,0 +1,784 @@
+"""SQLAlchemy 2.0 implementation of :class:`service.store.base.Store` (SQLite and PostgreSQL).
+
+Status changes are single conditional ``UPDATE`` statements (compare-and-set), atomic on both
+databases without explicit locks; claiming the next job adds ``FOR UPDATE SKIP LOCKED`` on
+PostgreSQL so that concurrent workers do not queue up on one row. SQLite runs in WAL mode
+with a busy timeout so the server and its worker processes can share the file.
+"""
+
+from __future__ import annotations
+
+import json
+import uuid
+from datetime import datetime, timezone
+from typing import Any, Iterable
+
+from sqlalchemy import (
+    Boolean,
+    DateTime,
+    ForeignKey,
+    Index,
+    Integer,
+    String,
+    Text,
+    TypeDecorator,
+    UniqueConstraint,
+    case,
+    create_engine,
+    delete,
+    event,
+    func,
+    insert,
+    select,
+    text,
+    update,
+)
+from sqlalchemy.engine import Connection, Engine
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+from sqlalchemy.pool import NullPool
+
+from service.states import JobStatus, check_transition, sources_of
+from service.store.base import CameraRecord, FinishedRun, JobRecord, UserRecord
+
+
+def utcnow() -> datetime:
+    """The current time, timezone-aware UTC."""
+    return datetime.now(timezone.utc)
+
+
+class UTCDateTime(TypeDecorator[datetime]):
+    """Timezone-aware UTC datetimes on every backend (SQLite keeps no zone)."""
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Any) -> datetime | None:
+        if value is not None and value.tzinfo is not None:
+            value = value.astimezone(timezone.utc)
+            if dialect.name == "sqlite":
+                value = value.replace(tzinfo=None)
+        return value
+
+    def process_result_value(self, value: datetime | None, dialect: Any) -> datetime | None:
+        if value is not None and value.tzinfo is None:
+            value = value.replace(tzinfo=timezone.utc)
+        return value
+
+
+class Base(DeclarativeBase):
+    """Declarative base of the store's tables."""
+
+
+class JobRow(Base):
+    """``jobs``: one row per job; the big payloads live in :class:`JobPayloadRow`."""
+
+    __tablename__ = "jobs"
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    owner: Mapped[str] = mapped_column(String(36), index=True)
+    process_id: Mapped[str] = mapped_column(String(64))
+    name: Mapped[str] = mapped_column(String(200), default="")
+    status: Mapped[str] = mapped_column(String(16))
+    progress: Mapped[int] = mapped_column(Integer, default=0)
+    message: Mapped[str] = mapped_column(Text, default="")
+    created: Mapped[datetime] = mapped_column(UTCDateTime)
+    updated: Mapped[datetime] = mapped_column(UTCDateTime)
+    started: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    finished: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True, index=True)
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    worker: Mapped[str | None] = mapped_column(String(128), nullable=True, index=True)
+    cancel_requested: Mapped[str | None] = mapped_column(String(32), nullable=True)
+    n_observations: Mapped[int] = mapped_column(Integer, default=0)
+    error: Mapped[str | None] = mapped_column(Text, nullable=True)
+
+    __table_args__ = (
+        Index("ix_jobs_status_created", "status", "created"),
+        Index("ix_jobs_owner_created", "owner", "created"),
+    )
+
+
+class JobPayloadRow(Base):
+    """``job_payloads``: the execute inputs and the report, as JSON text."""
+
+    __tablename__ = "job_payloads"
+    job_id: Mapped[str] = mapped_column(
+        String(36), ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True
+    )
+    document: Mapped[str | None] = mapped_column(Text, nullable=True)
+    results: Mapped[str | None] = mapped_column(Text, nullable=True)
+
+
+class UserRow(Base):
+    """``users``."""
+
+    __tablename__ = "users"
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    name: Mapped[str] = mapped_column(String(128), unique=True)
+    is_admin: Mapped[bool] = mapped_column(Boolean, default=False)
+    created: Mapped[datetime] = mapped_column(UTCDateTime)
+    max_queued_jobs: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    max_job_observations: Mapped[int | None] = mapped_column(Integer, nullable=True)
+
+
+class ApiKeyRow(Base):
+    """``api_keys``: SHA-256 of each key (keys are 256-bit random), never the key."""
+
+    __tablename__ = "api_keys"
+    key_hash: Mapped[str] = mapped_column(String(64), primary_key=True)
+    prefix: Mapped[str] = mapped_column(String(16), index=True)
+    user_id: Mapped[str] = mapped_column(String(36), ForeignKey("users.id", ondelete="CASCADE"))
+    created: Mapped[datetime] = mapped_column(UTCDateTime)
+
+
+class CameraRow(Base):
+    """``cameras``: named, versioned camera definitions."""
+
+    __tablename__ = "cameras"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    name: Mapped[str] = mapped_column(String(128))
+    version: Mapped[int] = mapped_column(Integer)
+    description: Mapped[str] = mapped_column(Text, default="")
+    definition: Mapped[str] = mapped_column(Text)
+    created: Mapped[datetime] = mapped_column(UTCDateTime)
+    created_by: Mapped[str] = mapped_column(String(36))
+    source_job: Mapped[str | None] = mapped_column(String(36), nullable=True)
+
+    __table_args__ = (UniqueConstraint("name", "version", name="uq_cameras_name_version"),)
+
+
+def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
+    cur = dbapi_connection.cursor()
+    cur.execute("PRAGMA journal_mode=WAL")
+    cur.execute("PRAGMA busy_timeout=30000")
+    cur.execute("PRAGMA synchronous=NORMAL")
+    cur.execute("PRAGMA foreign_keys=ON")
+    cur.close()
+
+
+def make_engine(url: str) -> Engine:
+    """An engine for ``url`` with the settings this store relies on."""
+    if url.startswith("sqlite"):
+        engine = create_engine(
+            url, connect_args={"check_same_thread": False, "timeout": 30}, poolclass=NullPool
+        )
+        event.listen(engine, "connect", _sqlite_pragmas)
+        return engine
+    return create_engine(url, pool_pre_ping=True, pool_size=5, max_overflow=10)
+
+
+def _status_change(target: JobStatus, allowed_from: Iterable[JobStatus]) -> list[str]:
+    """The source states of a compare-and-set, each checked against the state machine."""
+    sources = list(allowed_from)
+    for s in sources:
+        check_transition(s, target)
+    return [s.value for s in sources]
+
+
+class SqlStore:
+    """The job store on SQLAlchemy Core (see module docstring)."""
+
+    def __init__(self, url: str, create: bool = True) -> None:
+        self.url = url
+        self.engine = make_engine(url)
+        if create:
+            self.create_schema()
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def create_schema(self) -> None:
+        """Create missing tables (idempotent)."""
+        Base.metadata.create_all(self.engine)
+
+    def ping(self) -> None:
+        """Raise if the database does not answer."""
+        with self.engine.connect() as conn:
+            conn.execute(text("SELECT 1"))
+
+    def close(self) -> None:
+        """Release connections."""
+        self.engine.dispose()
+
+    # -- helpers ---------------------------------------------------------------------------
+    def _record(self, row: Any) -> JobRecord:
+        return JobRecord(
+            id=row.id,
+            owner=row.owner,
+            process_id=row.process_id,
+            name=row.name,
+            status=JobStatus(row.status),
+            progress=row.progress,
+            message=row.message,
+            created=row.created,
+            updated=row.updated,
+            started=row.started,
+            finished=row.finished,
+            attempts=row.attempts,
+            worker=row.worker,
+            cancel_requested=row.cancel_requested,
+            n_observations=row.n_observations,
+            error=json.loads(row.error) if row.error else None,
+            _load_results=self.get_results_text,
+            _load_document=self.get_document,
+        )
+
+    def _fetch(self, conn: Connection, job_id: str) -> JobRecord | None:
+        row = conn.execute(select(JobRow).where(JobRow.id == job_id)).first()
+        return self._record(row) if row else None
+
+    def _cas(
+        self,
+        conn: Connection,
+        job_id: str,
+        target: JobStatus,
+        allowed_from: Iterable[JobStatus],
+        worker: str | None = None,
+        **values: Any,
+    ) -> bool:
+        """Compare-and-set the status of one job; True when this call changed it."""
+        sources = _status_change(target, allowed_from)
+        stmt = update(JobRow).where(JobRow.id == job_id, JobRow.status.in_(sources))
+        if worker is not None:
+            stmt = stmt.where(JobRow.worker == worker)
+        now = utcnow()
+        values.setdefault("updated", now)
+        if target in (JobStatus.successful, JobStatus.failed, JobStatus.dismissed):
+            values.setdefault("finished", now)
+        res = conn.execute(stmt.values(status=target.value, **values))
+        return res.rowcount == 1
+
+    # -- jobs: API side --------------------------------------------------------------------
+    def create_job(
+        self, owner: str, process_id: str, document: dict[str, Any], n_observations: int, name: str
+    ) -> JobRecord:
+        """Insert an ``accepted`` job with its execute inputs."""
+        now = utcnow()
+        job_id = str(uuid.uuid4())
+        with self.engine.begin() as conn:
+            conn.execute(
+                insert(JobRow).values(
+                    id=job_id,
+                    owner=owner,
+                    process_id=process_id,
+                    name=name[:200],
+                    status=JobStatus.accepted.value,
+                    progress=0,
+                    message="queued",
+                    created=now,
+                    updated=now,
+                    attempts=0,
+                    n_observations=n_observations,
+                )
+            )
+            conn.execute(
+                insert(JobPayloadRow).values(job_id=job_id, document=json.dumps(document))
+            )
+            rec = self._fetch(conn, job_id)
+        assert rec is not None
+        return rec
+
+    def get_job(self, job_id: str) -> JobRecord | None:
+        """One job or None."""
+        with self.engine.connect() as conn:
+            return self._fetch(conn, job_id)
+
+    def list_jobs(
+        self,
+        owner: str | None,
+        statuses: Iterable[JobStatus] | None = None,
+        process_id: str | None = None,
+        limit: int = 10,
+        offset: int = 0,
+    ) -> tuple[list[JobRecord], int]:
+        """Jobs newest first (of ``owner``, or all when None), and the total matching."""
+        conds = []
+        if owner is not None:
+            conds.append(JobRow.owner == owner)
+        if statuses:
+            conds.append(JobRow.status.in_([JobStatus(s).value for s in statuses]))
+        if process_id is not None:
+            conds.append(JobRow.process_id == process_id)
+        with self.engine.connect() as conn:
+            total = conn.execute(select(func.count()).select_from(JobRow).where(*conds)).scalar_one()
+            rows = conn.execute(
+                select(JobRow)
+                .where(*conds)
+                .order_by(JobRow.created.desc(), JobRow.id.desc())
+                .limit(limit)
+                .offset(offset)
+            ).all()
+        return [self._record(r) for r in rows], int(total)
+
+    def count_queued(self, owner: str) -> int:
+        """Accepted + running jobs of a user."""
+        with self.engine.connect() as conn:
+            return int(
+                conn.execute(
+                    select(func.count())
+                    .select_from(JobRow)
+                    .where(
+                        JobRow.owner == owner,
+                        JobRow.status.in_([JobStatus.accepted.value, JobStatus.running.value]),
+                    )
+                ).scalar_one()
+            )
+
+    def request_cancel(self, job_id: str, reason: str = "user") -> JobRecord | None:
+        """Dismiss an accepted or finished job (dropping its payloads) or flag a running one."""
+        with self.engine.begin() as conn:
+            rec = self._fetch(conn, job_id)
+            if rec is None:
+                return None
+            if self._cas(
+                conn,
+                job_id,
+                JobStatus.dismissed,
+                [JobStatus.accepted],
+                message="dismissed before it started",
+            ):
+                pass
+            elif self._cas(
+                conn,
+                job_id,
+                JobStatus.dismissed,
+                [JobStatus.successful, JobStatus.failed],
+                message="dismissed; results deleted",
+                finished=rec.finished,
+            ):
+                conn.execute(
+                    update(JobPayloadRow)
+                    .where(JobPayloadRow.job_id == job_id)
+                    .values(document=None, results=None)
+                )
+            else:
+                conn.execute(
+                    update(JobRow)
+                    .where(
+                        JobRow.id == job_id,
+                        JobRow.status == JobStatus.running.value,
+                        JobRow.cancel_requested.is_(None),
+                    )
+                    .values(
+                        cancel_requested=reason, message="cancellation requested", updated=utcnow()
+                    )
+                )
+            return self._fetch(conn, job_id)
+
+    # -- jobs: worker side -----------------------------------------------------------------
+    def _claim_values(self, worker: str) -> dict[str, Any]:
+        now = utcnow()
+        return dict(
+            status=JobStatus.running.value,
+            worker=worker,
+            started=now,
+            updated=now,
+            attempts=JobRow.attempts + 1,
+            message="running",
+            cancel_requested=None,
+        )
+
+    def claim_next(self, worker: str) -> JobRecord | None:
+        """Move the oldest accepted job to running for ``worker`` (atomic), or None."""
+        _status_change(JobStatus.running, [JobStatus.accepted])
+        for _ in range(20):
+            with self.engine.begin() as conn:
+                candidate = (
+                    select(JobRow.id)
+                    .where(JobRow.status == JobStatus.accepted.value)
+                    .order_by(JobRow.created, JobRow.id)
+                    .limit(1)
+                )
+                if conn.dialect.name == "postgresql":
+                    candidate = candidate.with_for_update(skip_locked=True)
+                job_id = conn.execute(
+                    update(JobRow)
+                    .where(
+                        JobRow.id == candidate.scalar_subquery(),
+                        JobRow.status == JobStatus.accepted.value,
+                    )
+                    .values(**self._claim_values(worker))
+                    .returning(JobRow.id)
+                ).scalar_one_or_none()
+                if job_id is not None:
+                    return self._fetch(conn, job_id)
+                exists = conn.execute(
+                    select(JobRow.id).where(JobRow.status == JobStatus.accepted.value).limit(1)
+                ).first()
+                if exists is None:
+                    return None
+        return None
+
+    def claim(self, job_id: str, worker: str) -> JobRecord | None:
+        """Move this accepted job to running for ``worker``; None if it is not accepted."""
+        _status_change(JobStatus.running, [JobStatus.accepted])
+        with self.engine.begin() as conn:
+            res = conn.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.status == JobStatus.accepted.value)
+                .values(**self._claim_values(worker))
+            )
+            return self._fetch(conn, job_id) if res.rowcount == 1 else None
+
+    def cancel_requested(self, job_id: str) -> str | None:
+        """The cancel reason of a job (``"user"``, ``"time_limit"``) or None."""
+        with self.engine.connect() as conn:
+            return conn.execute(
+                select(JobRow.cancel_requested).where(JobRow.id == job_id)
+            ).scalar_one_or_none()
+
+    def set_progress(self, job_id: str, worker: str, progress: int, message: str) -> bool:
+        """Raise the progress of a job this worker runs; never lowers it."""
+        progress = max(0, min(100, int(progress)))
+        with self.engine.begin() as conn:
+            res = conn.execute(
+                update(JobRow)
+                .where(
+                    JobRow.id == job_id,
+                    JobRow.worker == worker,
+                    JobRow.status == JobStatus.running.value,
+                )
+                .values(
+                    progress=case((JobRow.progress < progress, progress), else_=JobRow.progress),
+                    message=message[:2000],
+                    updated=utcnow(),
+                )
+            )
+            return res.rowcount == 1
+
+    def complete(self, job_id: str, worker: str, results_text: str, message: str) -> bool:
+        """running -> successful, storing the report; only for the worker that runs it."""
+        with self.engine.begin() as conn:
+            ok = self._cas(
+                conn,
+                job_id,
+                JobStatus.successful,
+                [JobStatus.running],
+                worker=worker,
+                progress=100,
+                message=message,
+            )
+            if ok:
+                conn.execute(
+                    update(JobPayloadRow)
+                    .where(JobPayloadRow.job_id == job_id)
+                    .values(results=results_text)
+                )
+            return ok
+
+    def fail(
+        self,
+        job_id: str,
+        message: str,
+        error: dict[str, Any] | None = None,
+        worker: str | None = None,
+    ) -> bool:
+        """accepted/running -> failed (only this worker's run when ``worker`` is given)."""
+        sources = [JobStatus.running] if worker else [JobStatus.accepted, JobStatus.running]
+        with self.engine.begin() as conn:
+            return self._cas(
+                conn,
+                job_id,
+                JobStatus.failed,
+                sources,
+                worker=worker,
+                message=message[:4000],
+                error=json.dumps(error) if error else None,
+            )
+
+    def finish_cancelled(self, job_id: str, worker: str, message: str) -> bool:
+        """running -> dismissed after a cancel request, for the worker that ran it."""
+        with self.engine.begin() as conn:
+            return self._cas(
+                conn, job_id, JobStatus.dismissed, [JobStatus.running], worker=worker, message=message
+            )
+
+    def requeue(self, job_id: str, worker: str, message: str, count_attempt: bool = True) -> bool:
+        """running -> accepted for this worker's run (``count_attempt=False`` forgives the run)."""
+        extra: dict[str, Any] = {} if count_attempt else {"attempts": JobRow.attempts - 1}
+        with self.engine.begin() as conn:
+            return self._requeue(conn, job_id, worker, message, extra)
+
+    def _requeue(
+        self, conn: Connection, job_id: str, worker: str | None, message: str, extra: dict[str, Any]
+    ) -> bool:
+        sources = _status_change(JobStatus.accepted, [JobStatus.running])
+        stmt = update(JobRow).where(JobRow.id == job_id, JobRow.status.in_(sources))
+        if worker is not None:
+            stmt = stmt.where(JobRow.worker == worker)
+        res = conn.execute(
+            stmt.values(
+                status=JobStatus.accepted.value,
+                worker=None,
+                started=None,
+                cancel_requested=None,
+                message=message,
+                updated=utcnow(),
+                **extra,
+            )
+        )
+        return res.rowcount == 1
+
+    def recover_interrupted(self, max_attempts: int) -> tuple[list[str], list[str]]:
+        """Running jobs (their workers are gone) back to accepted, or failed after
+        ``max_attempts`` runs. Returns (re-queued ids, failed ids)."""
+        requeued: list[str] = []
+        failed: list[str] = []
+        with self.engine.begin() as conn:
+            rows = conn.execute(
+                select(JobRow.id, JobRow.attempts, JobRow.worker).where(
+                    JobRow.status == JobStatus.running.value
+                )
+            ).all()
+            for job_id, attempts, worker in rows:
+                if attempts < max_attempts:
+                    if self._requeue(
+                        conn,
+                        job_id,
+                        worker,
+                        f"re-queued after the server restarted during run {attempts}",
+                        {},
+                    ):
+                        requeued.append(job_id)
+                elif self._cas(
+                    conn,
+                    job_id,
+                    JobStatus.failed,
+                    [JobStatus.running],
+                    worker=worker,
+                    message=(
+                        f"interrupted by a server restart {attempts} times "
+                        f"(limit {max_attempts}); not retried again"
+                    ),
+                    error=json.dumps({"status": 500, "code": "interrupted"}),
+                ):
+                    failed.append(job_id)
+        return requeued, failed
+
+    def fail_jobs_of_worker(self, worker: str, message: str) -> list[str]:
+        """Fail every job a (dead) worker was running."""
+        with self.engine.begin() as conn:
+            ids = conn.execute(
+                select(JobRow.id).where(
+                    JobRow.worker == worker, JobRow.status == JobStatus.running.value
+                )
+            ).scalars().all()
+            done = []
+            for job_id in ids:
+                if self._cas(
+                    conn,
+                    job_id,
+                    JobStatus.failed,
+                    [JobStatus.running],
+                    worker=worker,
+                    message=message,
+                    error=json.dumps({"status": 500, "code": "worker_died"}),
+                ):
+                    done.append(job_id)
+            return done
+
+    def running_jobs(self) -> list[JobRecord]:
+        """All running jobs."""
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                select(JobRow).where(JobRow.status == JobStatus.running.value)
+            ).all()
+        return [self._record(r) for r in rows]
+
+    # -- jobs: reading ---------------------------------------------------------------------
+    def get_results_text(self, job_id: str) -> str | None:
+        """The stored report as JSON text."""
+        with self.engine.connect() as conn:
+            return conn.execute(
+                select(JobPayloadRow.results).where(JobPayloadRow.job_id == job_id)
+            ).scalar_one_or_none()
+
+    def get_document(self, job_id: str) -> dict[str, Any] | None:
+        """The stored execute inputs."""
+        with self.engine.connect() as conn:
+            doc = conn.execute(
+                select(JobPayloadRow.document).where(JobPayloadRow.job_id == job_id)
+            ).scalar_one_or_none()
+        return json.loads(doc) if doc else None
+
+    def counts_by_status(self) -> dict[JobStatus, int]:
+        """Jobs per status, every status present (zero when none)."""
+        with self.engine.connect() as conn:
+            rows = conn.execute(select(JobRow.status, func.count()).group_by(JobRow.status)).all()
+        counts = {s: 0 for s in JobStatus}
+        for status, n in rows:
+            counts[JobStatus(status)] = int(n)
+        return counts
+
+    def finished_since(self, after: datetime) -> list[FinishedRun]:
+        """Solves that finished after ``after`` (with a start time), oldest first."""
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                select(JobRow.id, JobRow.status, JobRow.started, JobRow.finished)
+                .where(JobRow.finished > after, JobRow.started.is_not(None))
+                .order_by(JobRow.finished)
+            ).all()
+        return [FinishedRun(r.id, JobStatus(r.status), r.started, r.finished) for r in rows]
+
+    # -- users and keys --------------------------------------------------------------------
+    @staticmethod
+    def _user(row: Any) -> UserRecord:
+        return UserRecord(
+            id=row.id,
+            name=row.name,
+            is_admin=row.is_admin,
+            created=row.created,
+            max_queued_jobs=row.max_queued_jobs,
+            max_job_observations=row.max_job_observations,
+        )
+
+    def create_user(
+        self,
+        name: str,
+        is_admin: bool = False,
+        max_queued_jobs: int | None = None,
+        max_job_observations: int | None = None,
+    ) -> UserRecord:
+        """Create a user, or update the flags of the existing one of that name."""
+        with self.engine.begin() as conn:
+            row = conn.execute(select(UserRow).where(UserRow.name == name)).first()
+            if row is None:
+                try:
+                    with conn.begin_nested():
+                        conn.execute(
+                            insert(UserRow).values(
+                                id=str(uuid.uuid4()),
+                                name=name,
+                                is_admin=is_admin,
+                                created=utcnow(),
+                                max_queued_jobs=max_queued_jobs,
+                                max_job_observations=max_job_observations,
+                            )
+                        )
+                except IntegrityError:
+                    pass
+            else:
+                conn.execute(
+                    update(UserRow)
+                    .where(UserRow.name == name)
+                    .values(
+                        is_admin=is_admin,
+                        max_queued_jobs=max_queued_jobs,
+                        max_job_observations=max_job_observations,
+                    )
+                )
+            row = conn.execute(select(UserRow).where(UserRow.name == name)).one()
+            return self._user(row)
+
+    def get_user(self, user_id: str) -> UserRecord | None:
+        """A user by id."""
+        with self.engine.connect() as conn:
+            row = conn.execute(select(UserRow).where(UserRow.id == user_id)).first()
+        return self._user(row) if row else None
+
+    def add_api_key(self, user_id: str, key_hash: str, prefix: str) -> None:
+        """Store the hash of a new key."""
+        with self.engine.begin() as conn:
+            conn.execute(
+                insert(ApiKeyRow).values(
+                    key_hash=key_hash, prefix=prefix, user_id=user_id, created=utcnow()
+                )
+            )
+
+    def user_for_key_hash(self, key_hash: str) -> UserRecord | None:
+        """The user owning a key hash, or None."""
+        with self.engine.connect() as conn:
+            row = conn.execute(
+                select(UserRow)
+                .join(ApiKeyRow, ApiKeyRow.user_id == UserRow.id)
+                .where(ApiKeyRow.key_hash == key_hash)
+            ).first()
+        return self._user(row) if row else None
+
+    def revoke_api_key(self, prefix: str) -> bool:
+        """Delete the keys whose public prefix is ``prefix``."""
+        with self.engine.begin() as conn:
+            return conn.execute(delete(ApiKeyRow).where(ApiKeyRow.prefix == prefix)).rowcount > 0
+
+    # -- cameras ---------------------------------------------------------------------------
+    @staticmethod
+    def _camera(row: Any) -> CameraRecord:
+        return CameraRecord(
+            name=row.name,
+            version=row.version,
+            description=row.description,
+            definition=json.loads(row.definition),
+            created=row.created,
+            created_by=row.created_by,
+            source_job=row.source_job,
+        )
+
+    def add_camera(
+        self,
+        name: str,
+        description: str,
+        definition: dict[str, Any],
+        created_by: str,
+        source_job: str | None = None,
+    ) -> CameraRecord:
+        """Store the next version of ``name`` (retries when two writers race)."""
+        for _ in range(10):
+            try:
+                with self.engine.begin() as conn:
+                    latest = conn.execute(
+                        select(func.max(CameraRow.version)).where(CameraRow.name == name)
+                    ).scalar_one_or_none()
+                    version = (latest or 0) + 1
+                    conn.execute(
+                        insert(CameraRow).values(
+                            name=name,
+                            version=version,
+                            description=description,
+                            definition=json.dumps(definition),
+                            created=utcnow(),
+                            created_by=created_by,
+                            source_job=source_job,
+                        )
+                    )
+                rec = self.get_camera(name, version)
+                assert rec is not None
+                return rec
+            except IntegrityError:
+                continue
+        raise RuntimeError(f"could not store a new version of camera {name!r}")
+
+    def get_camera(self, name: str, version: int | None = None) -> CameraRecord | None:
+        """One version of a camera (the latest when ``version`` is None)."""
+        stmt = select(CameraRow).where(CameraRow.name == name)
+        if version is None:
+            stmt = stmt.order_by(CameraRow.version.desc()).limit(1)
+        else:
+            stmt = stmt.where(CameraRow.version == version)
+        with self.engine.connect() as conn:
+            row = conn.execute(stmt).first()
+        return self._camera(row) if row else None
+
+    def list_cameras(
+        self, name: str | None = None, limit: int = 100, offset: int = 0
+    ) -> tuple[list[CameraRecord], int]:
+        """All versions of ``name`` (newest first), or the latest version of every name."""
+        with self.engine.connect() as conn:
+            if name is not None:
+                cond = CameraRow.name == name
+            else:
+                latest = (
+                    select(CameraRow.name, func.max(CameraRow.version).label("v"))
+                    .group_by(CameraRow.name)
+                    .subquery()
+                )
+                cond = CameraRow.id.in_(
+                    select(CameraRow.id).join(
+                        latest, (CameraRow.name == latest.c.name) & (CameraRow.version == latest.c.v)
+                    )
+                )
+            total = conn.execute(select(func.count()).select_from(CameraRow).where(cond)).scalar_one()
+            rows = conn.execute(
+                select(CameraRow)
+                .where(cond)
+                .order_by(CameraRow.name, CameraRow.version.desc())
+                .limit(limit)
+                .offset(offset)
+            ).all()
+        return [self._camera(r) for r in rows], int(total)
