@@ -17,12 +17,13 @@ from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.problems import job_error_entries, json_pointer, pydantic_errors
+from service.problems import job_error_entries, pydantic_errors
 from solver.errors import JobError
 
 log = logging.getLogger("pba.service")
 
 PROBLEM_MEDIA_TYPE = "application/problem+json"
+MAX_ERRORS = 100
 OGC_EXC = "http://www.opengis.net/def/exceptions/ogcapi-processes-1/1.0/"
 
 
@@ -140,7 +141,9 @@ def problem_response(
         "instance": request.url.path,
     }
     if errors:
-        body["errors"] = list(errors)
+        body["errors"] = list(errors)[:MAX_ERRORS]
+        if len(errors) > MAX_ERRORS:
+            body["detail"] += f" ({len(errors)} problems; the first {MAX_ERRORS} are listed)"
     return JSONResponse(body, status_code=status, media_type=PROBLEM_MEDIA_TYPE, headers=headers)
 
 

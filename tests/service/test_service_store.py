@@ -1,0 +1,240 @@
+"""Store tests, parameterised by database URL: SQLite (a temp file) and PostgreSQL on
+127.0.0.1 (a fresh temporary database; ``make test`` starts the server). Extra URLs can be
+added with ``PBA_TEST_DATABASE_URLS`` (comma-separated)."""
+
+from __future__ import annotations
+
+import os
+import threading
+import uuid
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from typing import Iterator
+
+import pytest
+
+from service.auth import create_key, hash_key, user_for_key
+from service.states import JobStatus
+from service.store import Store, open_store
+
+PG_ADMIN_URL = os.environ.get("PBA_TEST_POSTGRES_ADMIN", "postgresql://postgres@127.0.0.1:5432/postgres")
+BACKENDS = ["sqlite", "postgresql"] + [
+    u for u in os.environ.get("PBA_TEST_DATABASE_URLS", "").split(",") if u.strip()
+]
+
+
+def _pg_database() -> Iterator[str]:
+    import psycopg
+
+    name = f"pba_test_{uuid.uuid4().hex[:12]}"
+    with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
+        conn.execute(f'CREATE DATABASE "{name}"')
+    base = PG_ADMIN_URL.rsplit("/", 1)[0].replace("postgresql://", "postgresql+psycopg://")
+    try:
+        yield f"{base}/{name}"
+    finally:
+        with psycopg.connect(PG_ADMIN_URL, autocommit=True) as conn:
+            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+@pytest.fixture(params=BACKENDS)
+def store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Store]:
+    if request.param == "sqlite":
+        urls: Iterator[str] = iter([f"sqlite:///{tmp_path / 'store.sqlite3'}"])
+    elif request.param == "postgresql":
+        urls = _pg_database()
+    else:
+        urls = iter([request.param])
+    url = next(urls)
+    s = open_store(url)
+    try:
+        yield s
+    finally:
+        s.close()
+        for _ in urls:  # runs the generator's clean-up
+            pass
+
+
+DOC = {"job": {"name": "x"}}
+
+
+def new_job(store: Store, owner: str = "u1", name: str = "j") -> str:
+    return store.create_job(owner, "bundle-adjustment", DOC, 10, name).id
+
+
+def test_create_get_and_document(store: Store) -> None:
+    rec = store.create_job("u1", "bundle-adjustment", DOC, 12, "my job")
+    got = store.get_job(rec.id)
+    assert got is not None
+    assert (got.status, got.progress, got.owner, got.n_observations, got.name) == (
+        JobStatus.accepted, 0, "u1", 12, "my job"
+    )
+    assert got.created.tzinfo is not None
+    assert got.document == DOC
+    assert got.results is None
+    assert store.get_job("nope") is None
+
+
+def test_list_filters_paging_and_counts(store: Store) -> None:
+    ids = [new_job(store, "u1", f"a{i}") for i in range(5)] + [new_job(store, "u2", "b")]
+    jobs, total = store.list_jobs("u1", limit=2, offset=0)
+    assert total == 5 and [j.id for j in jobs] == ids[4:2:-1]  # newest first
+    jobs, total = store.list_jobs("u1", limit=2, offset=4)
+    assert [j.id for j in jobs] == [ids[0]]
+    _, total = store.list_jobs(None)
+    assert total == 6
+    store.claim_next("w")
+    _, total = store.list_jobs("u1", statuses=[JobStatus.running])
+    assert total == 1
+    assert store.count_queued("u1") == 5
+    assert store.counts_by_status()[JobStatus.running] == 1
+
+
+def test_claim_is_fifo_and_sets_running(store: Store) -> None:
+    a, b = new_job(store), new_job(store)
+    first = store.claim_next("w1")
+    assert first is not None and first.id == a
+    assert (first.status, first.worker, first.attempts) == (JobStatus.running, "w1", 1)
+    assert first.started is not None
+    second = store.claim_next("w2")
+    assert second is not None and second.id == b
+    assert store.claim_next("w3") is None
+    assert store.claim(a, "w4") is None  # already running
+
+
+def test_concurrent_claims_take_each_job_once(store: Store) -> None:
+    ids = {new_job(store) for _ in range(40)}
+    claimed: list[tuple[str, str]] = []
+    lock = threading.Lock()
+
+    def worker(name: str) -> None:
+        while True:
+            rec = store.claim_next(name)
+            if rec is None:
+                return
+            with lock:
+                claimed.append((rec.id, name))
+
+    threads = [threading.Thread(target=worker, args=(f"w{i}",)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(c[0] for c in claimed) == sorted(ids)  # every job once, none twice
+
+
+def test_progress_only_increases_and_only_for_the_holder(store: Store) -> None:
+    job_id = new_job(store)
+    store.claim_next("w1")
+    assert store.set_progress(job_id, "w1", 40, "iteration 3")
+    assert store.set_progress(job_id, "w1", 20, "late message")
+    rec = store.get_job(job_id)
+    assert rec is not None and rec.progress == 40 and rec.message == "late message"
+    assert not store.set_progress(job_id, "other", 90, "stale worker")
+    assert store.get_job(job_id).progress == 40  # type: ignore[union-attr]
+
+
+def test_complete_stores_results_for_the_holder_only(store: Store) -> None:
+    job_id = new_job(store)
+    store.claim_next("w1")
+    assert not store.complete(job_id, "w2", '{"x": 1}', "done")
+    assert store.complete(job_id, "w1", '{"x": 1}', "done")
+    rec = store.get_job(job_id)
+    assert rec is not None
+    assert (rec.status, rec.progress, rec.results) == (JobStatus.successful, 100, {"x": 1})
+    assert rec.finished is not None
+    assert not store.complete(job_id, "w1", '{"x": 2}', "again")  # successful -> successful refused
+
+
+def test_stale_worker_cannot_finish_a_requeued_job(store: Store) -> None:
+    job_id = new_job(store)
+    store.claim_next("w1")
+    requeued, failed = store.recover_interrupted(max_attempts=2)
+    assert requeued == [job_id] and failed == []
+    rec = store.get_job(job_id)
+    assert rec is not None and rec.status == JobStatus.accepted and "re-queued" in rec.message
+    assert not store.complete(job_id, "w1", "{}", "stale")
+    again = store.claim_next("w2")
+    assert again is not None and again.attempts == 2
+    requeued, failed = store.recover_interrupted(max_attempts=2)
+    assert requeued == [] and failed == [job_id]
+    rec = store.get_job(job_id)
+    assert rec is not None and rec.status == JobStatus.failed and "2 times" in rec.message
+
+
+def test_requeue_without_counting_the_attempt(store: Store) -> None:
+    job_id = new_job(store)
+    store.claim_next("w1")
+    assert store.requeue(job_id, "w1", "server stopping", count_attempt=False)
+    rec = store.get_job(job_id)
+    assert rec is not None and (rec.status, rec.attempts, rec.worker) == (JobStatus.accepted, 0, None)
+
+
+def test_cancel_accepted_running_and_finished(store: Store) -> None:
+    queued = new_job(store)
+    rec = store.request_cancel(queued)
+    assert rec is not None and rec.status == JobStatus.dismissed
+
+    running = new_job(store)
+    store.claim_next("w1")
+    rec = store.request_cancel(running)
+    assert rec is not None and rec.status == JobStatus.running and rec.cancel_requested == "user"
+    assert store.cancel_requested(running) == "user"
+    assert store.finish_cancelled(running, "w1", "cancelled by the user")
+    assert store.get_job(running).status == JobStatus.dismissed  # type: ignore[union-attr]
+
+    done = new_job(store)
+    store.claim_next("w1")
+    store.complete(done, "w1", '{"r": 1}', "ok")
+    rec = store.request_cancel(done)
+    assert rec is not None and rec.status == JobStatus.dismissed
+    assert rec.results is None and rec.document is None
+    assert store.request_cancel("missing") is None
+    assert store.request_cancel(done).status == JobStatus.dismissed  # type: ignore[union-attr]
+
+
+def test_fail_and_fail_jobs_of_worker(store: Store) -> None:
+    a, b = new_job(store), new_job(store)
+    store.claim_next("dead")
+    assert store.fail_jobs_of_worker("dead", "worker died") == [a]
+    rec = store.get_job(a)
+    assert rec is not None and rec.status == JobStatus.failed and rec.error == {"status": 500, "code": "worker_died"}
+    assert store.fail(b, "cannot run", {"status": 422})
+    assert not store.fail(b, "twice")
+
+
+def test_finished_since(store: Store) -> None:
+    t0 = datetime.now(timezone.utc) - timedelta(seconds=1)
+    job_id = new_job(store)
+    store.claim_next("w")
+    store.complete(job_id, "w", "{}", "ok")
+    runs = store.finished_since(t0)
+    assert [r.id for r in runs] == [job_id] and runs[0].finished >= runs[0].started
+
+
+def test_users_and_keys(store: Store) -> None:
+    key, user = create_key(store, "alice", max_queued_jobs=3)
+    assert key.startswith("pba_") and user.max_queued_jobs == 3 and not user.is_admin
+    assert user_for_key(store, key) == user
+    assert user_for_key(store, key + "x") is None
+    assert store.user_for_key_hash(hash_key(key)) is not None
+    again = store.create_user("alice", is_admin=True)
+    assert again.id == user.id and again.is_admin
+    prefix = key.split("_")[1]
+    assert store.revoke_api_key(prefix)
+    assert user_for_key(store, key) is None
+
+
+def test_camera_versions(store: Store) -> None:
+    c1 = store.add_camera("prism-n", "first", {"focal_mm": 1939.0}, "u1")
+    c2 = store.add_camera("prism-n", "second", {"focal_mm": 1939.1}, "u1", source_job="j1")
+    store.add_camera("other", "", {"focal_mm": 1.0}, "u2")
+    assert (c1.version, c2.version) == (1, 2)
+    latest = store.get_camera("prism-n")
+    assert latest is not None and latest.version == 2 and latest.source_job == "j1"
+    assert store.get_camera("prism-n", 1).definition == {"focal_mm": 1939.0}  # type: ignore[union-attr]
+    assert store.get_camera("prism-n", 3) is None
+    cams, total = store.list_cameras()
+    assert total == 2 and {(c.name, c.version) for c in cams} == {("prism-n", 2), ("other", 1)}
+    cams, total = store.list_cameras("prism-n")
+    assert total == 2 and [c.version for c in cams] == [2, 1]
