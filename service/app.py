@@ -19,7 +19,7 @@ from fastapi.routing import APIRoute
 
 from service.auth import local_user
 from service.deps import Services
-from service.errors import install_error_handlers
+from service.errors import install_error_handlers, problem_responses
 from service.jobs import JobService
 from service.metrics import Metrics
 from service.middleware import AccessLogMiddleware, BodyLimitMiddleware, ServicesContextMiddleware
@@ -94,6 +94,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         ),
         lifespan=lifespan,
         generate_unique_id_function=_operation_id,
+        responses=problem_responses(400, 422),
     )
     app.state.settings = settings
     app.state.services = None

@@ -27,6 +27,33 @@ MAX_ERRORS = 100
 OGC_EXC = "http://www.opengis.net/def/exceptions/ogcapi-processes-1/1.0/"
 
 
+PROBLEM_DESCRIPTIONS = {
+    400: "Bad request: malformed JSON (NaN included) or an invalid parameter",
+    401: "API key missing or not valid",
+    404: "Not found (also: a job of another user)",
+    409: "Conflict with the state of the resource",
+    413: "Request body or job over the size limit",
+    422: "Invalid input; each entry of errors points at the offending field",
+    429: "Too many queued jobs for this user",
+    500: "The job failed on the server side (worker crash, time limit)",
+    503: "Not ready",
+}
+
+
+def problem_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI ``responses`` entries for problem documents with these status codes."""
+    from service.schemas import Problem
+
+    return {
+        code: {
+            "model": Problem,
+            "description": PROBLEM_DESCRIPTIONS[code],
+            "content": {PROBLEM_MEDIA_TYPE: {"schema": {"$ref": "#/components/schemas/Problem"}}},
+        }
+        for code in codes
+    }
+
+
 def problem_type(code: str) -> str:
     """The ``type`` URI of one of this service's problems."""
     return f"urn:pba:problem:{code}"

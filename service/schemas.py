@@ -14,6 +14,29 @@ from service.states import JobStatus
 from solver.job import Camera, Job
 
 
+class ProblemEntry(BaseModel):
+    """One problem of a request, located by a JSON pointer into the request body."""
+
+    model_config = ConfigDict(extra="allow")
+
+    pointer: str
+    code: str
+    message: str
+
+
+class Problem(BaseModel):
+    """An RFC 7807 problem document (``application/problem+json``)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    type: str
+    title: str
+    status: int
+    detail: str
+    instance: str | None = None
+    errors: list[ProblemEntry] | None = None
+
+
 class Link(BaseModel):
     """A web link (OGC link.yaml)."""
 

@@ -13,13 +13,13 @@ from service.cameras import camera_from_report, camera_links
 from service.deps import BaseUrl, CurrentUser, ServicesDep
 from service.errors import Conflict, NotFound
 from service.jobs import results_text
+from service.errors import problem_responses
 from service.routes import StrictJSONRoute
 from service.schemas import CameraCreate, CameraDefinition, CameraFromJob, CameraList, CameraPublic, Link
 from service.store import CameraRecord
 
 router = APIRouter(prefix="/cameras", tags=["cameras"], route_class=StrictJSONRoute)
 
-PROBLEM = {"content": {"application/problem+json": {}}}
 Name = Annotated[str, Path(min_length=1, max_length=128, description="camera name")]
 
 
@@ -44,7 +44,7 @@ def _definition(defn: CameraDefinition) -> dict:
     return defn.model_dump(mode="json", exclude={"id", "ref"}, exclude_none=True)
 
 
-@router.get("", response_model=CameraList, response_model_exclude_none=True, responses={401: PROBLEM})
+@router.get("", response_model=CameraList, response_model_exclude_none=True, responses={**problem_responses(401)})
 def list_cameras(
     user: CurrentUser,
     services: ServicesDep,
@@ -65,7 +65,7 @@ def list_cameras(
     "",
     status_code=201,
     response_model=CameraPublic,
-    responses={401: PROBLEM, 413: PROBLEM, 422: PROBLEM},
+    responses={**problem_responses(401, 413, 422)},
 )
 def create_camera(body: CameraCreate, user: CurrentUser, services: ServicesDep, base: BaseUrl) -> JSONResponse:
     """Store a camera definition as the next version of its name."""
@@ -77,7 +77,7 @@ def create_camera(body: CameraCreate, user: CurrentUser, services: ServicesDep, 
     "/from-job",
     status_code=201,
     response_model=CameraPublic,
-    responses={401: PROBLEM, 404: PROBLEM, 409: PROBLEM, 422: PROBLEM},
+    responses={**problem_responses(401, 404, 409, 422)},
 )
 def camera_from_job(body: CameraFromJob, user: CurrentUser, services: ServicesDep, base: BaseUrl) -> JSONResponse:
     """Save the camera a self-calibration job estimated (IOP values and covariance) as the next
@@ -95,7 +95,7 @@ def camera_from_job(body: CameraFromJob, user: CurrentUser, services: ServicesDe
     return _created(rec, base)
 
 
-@router.get("/{name}", response_model=CameraPublic, response_model_exclude_none=True, responses={401: PROBLEM, 404: PROBLEM})
+@router.get("/{name}", response_model=CameraPublic, response_model_exclude_none=True, responses={**problem_responses(401, 404)})
 def get_camera(name: Name, user: CurrentUser, services: ServicesDep, base: BaseUrl) -> CameraPublic:
     """The latest version of a camera."""
     rec = services.store.get_camera(name)
@@ -104,7 +104,7 @@ def get_camera(name: Name, user: CurrentUser, services: ServicesDep, base: BaseU
     return _public(rec, base)
 
 
-@router.get("/{name}/versions", response_model=CameraList, response_model_exclude_none=True, responses={401: PROBLEM, 404: PROBLEM})
+@router.get("/{name}/versions", response_model=CameraList, response_model_exclude_none=True, responses={**problem_responses(401, 404)})
 def list_versions(
     name: Name,
     user: CurrentUser,
@@ -128,7 +128,7 @@ def list_versions(
     "/{name}/versions/{version}",
     response_model=CameraPublic,
     response_model_exclude_none=True,
-    responses={401: PROBLEM, 404: PROBLEM},
+    responses={**problem_responses(401, 404)},
 )
 def get_camera_version(
     name: Name,

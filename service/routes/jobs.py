@@ -14,6 +14,7 @@ from fastapi.sse import EventSourceResponse, ServerSentEvent
 from service.deps import BaseUrl, CurrentUser, ServicesDep, VisibleJob
 from service.jobs import results_text, status_info, validate_inputs
 from service.processes import BUNDLE_ADJUSTMENT, MODEL_COMPARISON
+from service.errors import problem_responses
 from service.routes import StrictJSONRoute
 from service.schemas import Execute, JobList, Link, StatusInfo, ValidationReport
 from service.states import FINISHED, JobStatus
@@ -21,11 +22,10 @@ from service.tables import table_rows, to_csv
 
 router = APIRouter(prefix="/jobs", tags=["jobs"], route_class=StrictJSONRoute)
 
-PROBLEM = {"content": {"application/problem+json": {}}}
-NOT_FOUND = {404: PROBLEM, 401: PROBLEM}
+NOT_FOUND = problem_responses(401, 404)
 
 
-@router.get("", response_model=JobList, response_model_exclude_none=True, responses={401: PROBLEM})
+@router.get("", response_model=JobList, response_model_exclude_none=True, responses={**problem_responses(401)})
 def list_jobs(
     user: CurrentUser,
     services: ServicesDep,
@@ -57,7 +57,7 @@ def list_jobs(
 @router.post(
     "/validate",
     response_model=ValidationReport,
-    responses={400: PROBLEM, 401: PROBLEM, 413: PROBLEM, 422: PROBLEM},
+    responses={**problem_responses(400, 401, 413, 422)},
 )
 def validate_job(
     body: Execute,
@@ -90,7 +90,7 @@ def dismiss_job(job: VisibleJob, user: CurrentUser, services: ServicesDep, base:
 @router.get(
     "/{jobId}/results",
     responses={200: {"description": "results document {report: ...}", "content": {"application/json": {}}},
-               **NOT_FOUND, 422: PROBLEM, 500: PROBLEM},
+               **problem_responses(401, 404, 422, 500)},
 )
 def get_results(job: VisibleJob) -> Response:
     """Results document ``{"report": <report>}`` of a successful job (docs/report-contract.md);
@@ -101,7 +101,7 @@ def get_results(job: VisibleJob) -> Response:
 @router.get(
     "/{jobId}/results/{table}.csv",
     response_class=Response,
-    responses={200: {"content": {"text/csv": {}}}, **NOT_FOUND, 422: PROBLEM, 500: PROBLEM},
+    responses={200: {"content": {"text/csv": {}}}, **problem_responses(401, 404, 422, 500)},
 )
 def get_results_table(
     job: VisibleJob, table: Literal["observations", "checkpoints", "parameters"]

@@ -14,6 +14,7 @@ from service.deps import BaseUrl, CurrentUser, ServicesDep
 from service.errors import NoSuchProcess
 from service.jobs import results_text, status_info
 from service.processes import PROCESSES, describe
+from service.errors import problem_responses
 from service.routes import StrictJSONRoute
 from service.schemas import Execute, Link, ProcessDescription, ProcessList, ProcessSummary, StatusInfo
 from service.states import FINISHED
@@ -22,7 +23,6 @@ from service.store import JobRecord
 router = APIRouter(prefix="/processes", tags=["processes"], route_class=StrictJSONRoute)
 
 ProcessId = Annotated[str, Path(max_length=64, description="process id")]
-PROBLEM = {"content": {"application/problem+json": {}}}
 
 
 @router.get("", response_model=ProcessList, response_model_exclude_none=True)
@@ -43,7 +43,7 @@ def list_processes(base: BaseUrl) -> ProcessList:
     response_model=ProcessDescription,
     response_model_by_alias=True,
     response_model_exclude_none=True,
-    responses={404: PROBLEM},
+    responses={**problem_responses(404)},
 )
 def get_process(processId: ProcessId, base: BaseUrl) -> ProcessDescription:
     """Description of one process, with its inputs and outputs."""
@@ -66,7 +66,7 @@ def _accepted(rec: JobRecord, base: str, preference: bool) -> JSONResponse:
         200: {"description": "synchronous execution: the report (raw) or {report} (document)",
               "content": {"application/json": {}}},
         201: {"description": "job accepted (asynchronous execution)", "model": StatusInfo},
-        400: PROBLEM, 401: PROBLEM, 404: PROBLEM, 413: PROBLEM, 422: PROBLEM, 429: PROBLEM,
+        **problem_responses(401, 404, 413, 422, 429, 500),
     },
 )
 async def execute(
