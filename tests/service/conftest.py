@@ -28,10 +28,11 @@ def small_doc(triplet_doc: dict[str, Any]) -> dict[str, Any]:
 
 @pytest.fixture(scope="session")
 def big_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """A job that solves for many seconds: 4 PRISM triplets, 3000 tie points (pba simulate)."""
+    """A job that solves for several seconds: 8 PRISM triplets, 12000 tie points, 36k image
+    observations (pba simulate; about 9 s on this machine)."""
     out = tmp_path_factory.mktemp("big") / "strip.json"
     subprocess.run(
-        [str(PBA), "simulate", "strip", "--triplets", "4", "--tie-points", "3000", "-o", str(out)],
+        [str(PBA), "simulate", "strip", "--triplets", "8", "--tie-points", "12000", "-o", str(out)],
         check=True,
         capture_output=True,
     )
@@ -42,12 +43,12 @@ def big_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 
 @pytest.fixture(scope="session")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
-    """One real server for most end-to-end tests: keys required, 2 workers, 4 MB body limit."""
+    """One real server for most end-to-end tests: keys required, 2 workers, 16 MB body limit."""
     srv = Server(
         tmp_path_factory.mktemp("server"),
         workers=2,
         require_api_keys="true",
-        max_body_bytes=4_000_000,
+        max_body_bytes=16_000_000,
         max_queued_jobs=400,
     )
     srv.start()

@@ -4,6 +4,8 @@ the whole server (server and workers SIGKILLed together) is re-queued once, then
 from __future__ import annotations
 
 import copy
+import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +55,9 @@ def test_graceful_restart_with_queued_jobs(tmp_path: Path, medium_doc: dict[str,
         second.stop()
 
 
-def test_crash_requeues_a_running_job_once_then_fails_it(tmp_path: Path, medium_doc: dict[str, Any]) -> None:
+def test_crash_requeues_a_running_job_once_then_fails_it(
+    tmp_path: Path, medium_doc: dict[str, Any], small_doc: dict[str, Any]
+) -> None:
     server = Server(tmp_path, workers=1).start()
     with server.client() as c:
         job_id = submit_async(c, medium_doc)
@@ -77,7 +81,66 @@ def test_crash_requeues_a_running_job_once_then_fails_it(tmp_path: Path, medium_
             assert st["status"] == "failed", st
             assert "interrupted by a server restart 2 times" in st["message"]
             # the server is healthy and serves new work
-            r = c.post("/processes/bundle-adjustment/execution", json=execute_body(medium_doc | {"options": {"max_iterations": 1, "covariance": False}}))
+            r = c.post("/processes/bundle-adjustment/execution", json=execute_body(small_doc))
             assert r.status_code == 200, r.text[:300]
     finally:
         server.stop()
+
+
+def test_server_killed_alone_its_orphaned_worker_hands_the_job_back(
+    tmp_path: Path, medium_doc: dict[str, Any]
+) -> None:
+    server = Server(tmp_path, workers=1).start()
+    with server.client() as c:
+        job_id = submit_async(c, medium_doc)
+        wait_status(c, job_id, {"running"}, min_progress=5)
+    pid = worker_pid_of(server, job_id)
+    assert server.proc is not None
+    server.proc.kill()  # only the server process; its worker notices and gives the job back
+    server.proc.wait(10)
+    deadline = time.monotonic() + 20
+    while pid_alive(pid):
+        assert time.monotonic() < deadline, "the orphaned worker did not exit"
+        time.sleep(0.2)
+    store = server.store()
+    try:
+        rec = store.get_job(job_id)
+        assert rec is not None and rec.status == JobStatus.accepted and rec.attempts == 0, rec
+    finally:
+        store.close()
+    server = Server(tmp_path, workers=1).start()
+    try:
+        with server.client() as c:
+            assert wait_status(c, job_id, timeout=120)["status"] == "successful"
+    finally:
+        server.stop()
+
+
+def test_time_limit_fails_a_long_job(tmp_path: Path, big_doc: dict[str, Any], small_doc: dict[str, Any]) -> None:
+    server = Server(tmp_path, workers=1, job_time_limit_s=3, kill_grace_s=5).start()
+    try:
+        with server.client() as c:
+            job_id = submit_async(c, big_doc)
+            st = wait_status(c, job_id, {"failed"}, timeout=30)
+            assert "time limit of 3 s exceeded" in st["message"], st
+            assert c.post("/processes/bundle-adjustment/execution", json=execute_body(small_doc)).status_code == 200
+    finally:
+        server.stop()
+
+
+def worker_pid_of(server: Server, job_id: str) -> int:
+    store = server.store()
+    try:
+        rec = store.get_job(job_id)
+    finally:
+        store.close()
+    assert rec is not None and rec.worker
+    return int(rec.worker.rsplit(":", 1)[1])
+
+
+def pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
