@@ -43,12 +43,19 @@ def free_port() -> int:
 
 def start_server(data_dir: Path, workers: int) -> tuple[subprocess.Popen[bytes], str]:
     port = free_port()
-    env = {**os.environ, "PBA_DATA_DIR": str(data_dir), "PBA_WORKERS": str(workers),
-           "PBA_LOG_LEVEL": "WARNING", "PBA_MAX_QUEUED_JOBS": "100000"}
+    env = {
+        **os.environ,
+        "PBA_DATA_DIR": str(data_dir),
+        "PBA_WORKERS": str(workers),
+        "PBA_LOG_LEVEL": "WARNING",
+        "PBA_MAX_QUEUED_JOBS": "100000",
+    }
     pba = Path(sys.executable).with_name("pba")
     proc = subprocess.Popen(
         [str(pba), "serve", "--host", "127.0.0.1", "--port", str(port)],
-        env=env, stdout=subprocess.DEVNULL, stderr=open(data_dir / "server.log", "wb"),
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=open(data_dir / "server.log", "wb"),
     )
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 90
@@ -71,7 +78,9 @@ def percentile(values: list[float], q: float) -> float:
 
 def run_async(c: httpx.Client, body: dict[str, Any]) -> float:
     t0 = time.perf_counter()
-    r = c.post("/processes/bundle-adjustment/execution", json=body, headers={"Prefer": "respond-async"})
+    r = c.post(
+        "/processes/bundle-adjustment/execution", json=body, headers={"Prefer": "respond-async"}
+    )
     r.raise_for_status()
     job = r.json()["jobID"]
     while c.get(f"/jobs/{job}").json()["status"] not in ("successful", "failed", "dismissed"):
@@ -95,14 +104,20 @@ def burst(url: str, body: dict[str, Any], n: int) -> float:
         t0 = time.perf_counter()
 
         def submit(_: int) -> str:
-            r = c.post("/processes/bundle-adjustment/execution", json=body, headers={"Prefer": "respond-async"})
+            r = c.post(
+                "/processes/bundle-adjustment/execution",
+                json=body,
+                headers={"Prefer": "respond-async"},
+            )
             r.raise_for_status()
             return r.json()["jobID"]
 
         with ThreadPoolExecutor(8) as pool:
             ids = set(pool.map(submit, range(n)))
         while True:
-            jobs = c.get("/jobs", params={"limit": 1000, "status": ["successful", "failed"]}).json()["jobs"]
+            jobs = c.get(
+                "/jobs", params={"limit": 1000, "status": ["successful", "failed"]}
+            ).json()["jobs"]
             done = {j["jobID"] for j in jobs} & ids
             if len(done) == n:
                 return time.perf_counter() - t0
@@ -146,8 +161,13 @@ def main() -> int:
     print(f"submit-to-result latency, {EXAMPLE.name}, {args.runs} runs, {args.workers} workers:")
     for kind in ("sync", "async"):
         lat = result[f"{kind}_latency_s"]
-        print(f"  {kind:5s}  median {lat['median'] * 1000:7.1f} ms   p95 {lat['p95'] * 1000:7.1f} ms")
-    print(f"throughput: {args.burst} jobs in {burst_s:.1f} s = {result['jobs_per_minute']:.0f} jobs/min")
+        print(
+            f"  {kind:5s}  median {lat['median'] * 1000:7.1f} ms   p95 {lat['p95'] * 1000:7.1f} ms"
+        )
+    print(
+        f"throughput: {args.burst} jobs in {burst_s:.1f} s"
+        f" = {result['jobs_per_minute']:.0f} jobs/min"
+    )
     print(json.dumps(result))
     return 0
 

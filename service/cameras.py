@@ -93,5 +93,9 @@ def camera_links(rec: CameraRecord, base_url: str) -> list[dict[str, str]]:
             "rel": "self",
             "type": "application/json",
         },
-        {"href": f"{base_url}cameras/{rec.name}", "rel": "latest-version", "type": "application/json"},
+        {
+            "href": f"{base_url}cameras/{rec.name}",
+            "rel": "latest-version",
+            "type": "application/json",
+        },
     ]

@@ -14,7 +14,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     serve = subparsers.add_parser("serve", help="run the HTTP server (OGC API - Processes)")
     serve.add_argument("--host", default=None, help="bind address (default PBA_HOST or 127.0.0.1)")
     serve.add_argument("--port", type=int, default=None, help="port (default PBA_PORT or 8000)")
-    serve.add_argument("--workers", type=int, default=None, help="local worker processes (PBA_WORKERS)")
+    serve.add_argument(
+        "--workers", type=int, default=None, help="local worker processes (PBA_WORKERS)"
+    )
     serve.add_argument("--data-dir", default=None, help="data directory (PBA_DATA_DIR)")
     serve.set_defaults(func=cmd_serve)
 
@@ -53,7 +55,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
     settings = _settings(args)
     configure_logging(settings.log_level, settings.log_format)
     if settings.auth_required and not settings.require_api_keys:
-        print(f"binding to {settings.host}: API keys are required (pba admin create-key)", file=sys.stderr)
+        print(
+            f"binding to {settings.host}: API keys are required (pba admin create-key)",
+            file=sys.stderr,
+        )
     app = create_app(settings)
     uvicorn.run(
         app,
@@ -82,7 +87,8 @@ def cmd_create_key(args: argparse.Namespace) -> int:
         store.close()
     print(key)
     print(
-        f"user {user.name!r}{' (admin)' if user.is_admin else ''}: keep this key, it is not shown again",
+        f"user {user.name!r}{' (admin)' if user.is_admin else ''}: "
+        "keep this key, it is not shown again",
         file=sys.stderr,
     )
     return 0

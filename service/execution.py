@@ -188,7 +188,11 @@ def run_claimed_job(
         ok = store.fail(
             job.id,
             "invalid job document",
-            {"status": 422, "code": "invalid-input", "errors": pydantic_errors(exc.errors(), ("inputs", "job"))},
+            {
+                "status": 422,
+                "code": "invalid-input",
+                "errors": pydantic_errors(exc.errors(), ("inputs", "job")),
+            },
             worker=worker,
         )
         return JobStatus.failed if ok else None
@@ -206,7 +210,10 @@ def run_claimed_job(
         text = report_to_json(report)
     except Exception as exc:
         ok = store.fail(
-            job.id, f"the report could not be serialized: {exc}", {"status": 500, "code": "internal"}, worker=worker
+            job.id,
+            f"the report could not be serialized: {exc}",
+            {"status": 500, "code": "internal"},
+            worker=worker,
         )
         return JobStatus.failed if ok else None
     ok = store.complete(job.id, worker, text, f"finished in {elapsed:.2f} s")

@@ -80,14 +80,22 @@ def validate_inputs(
     elif inputs.models:
         raise InvalidInput(
             "models is an input of model-comparison only",
-            [{"pointer": "/inputs/models", "code": "unexpected", "message": "not an input of this process"}],
+            [
+                {
+                    "pointer": "/inputs/models",
+                    "code": "unexpected",
+                    "message": "not an input of this process",
+                }
+            ],
         )
     try:
         summary = solver.api.validate(job)
     except JobError as exc:
         raise InvalidInput(str(exc), job_error_entries(exc, PREFIX)) from None
     except ValidationError as exc:
-        raise InvalidInput("the job does not match the schema", pydantic_errors(exc.errors(), PREFIX)) from None
+        raise InvalidInput(
+            "the job does not match the schema", pydantic_errors(exc.errors(), PREFIX)
+        ) from None
     if not summary.get("valid", False):
         problems = summary.get("problems", [])
         raise InvalidInput(
@@ -171,7 +179,9 @@ def status_info(rec: JobRecord, base_url: str) -> StatusInfo:
     href = f"{base_url}jobs/{rec.id}"
     links = [
         Link(href=href, rel="self", type="application/json", title="job status"),
-        Link(href=f"{href}/events", rel="monitor", type="text/event-stream", title="progress events"),
+        Link(
+            href=f"{href}/events", rel="monitor", type="text/event-stream", title="progress events"
+        ),
     ]
     if rec.status == JobStatus.successful:
         links.append(
@@ -184,7 +194,12 @@ def status_info(rec: JobRecord, base_url: str) -> StatusInfo:
         )
         for table in ("observations", "checkpoints", "parameters"):
             links.append(
-                Link(href=f"{href}/results/{table}.csv", rel="alternate", type="text/csv", title=f"{table} table")
+                Link(
+                    href=f"{href}/results/{table}.csv",
+                    rel="alternate",
+                    type="text/csv",
+                    title=f"{table} table",
+                )
             )
     problems = None
     if rec.status == JobStatus.failed and rec.error:

@@ -37,9 +37,13 @@ class StoreCollector:
             jobs.add_metric([status.value], counts.get(status, 0))
         yield jobs
         yield GaugeMetricFamily(
-            "pba_queue_depth", "Accepted jobs waiting for a worker", value=counts.get(JobStatus.accepted, 0)
+            "pba_queue_depth",
+            "Accepted jobs waiting for a worker",
+            value=counts.get(JobStatus.accepted, 0),
         )
-        yield GaugeMetricFamily("pba_workers", "Workers able to take jobs", value=self.backend.worker_count())
+        yield GaugeMetricFamily(
+            "pba_workers", "Workers able to take jobs", value=self.backend.worker_count()
+        )
 
 
 class Metrics:

@@ -48,6 +48,8 @@ def problem_entries(
     ]
 
 
-def job_error_entries(exc: JobError, prefix: Sequence[str | int] = ("inputs", "job")) -> list[dict[str, Any]]:
+def job_error_entries(
+    exc: JobError, prefix: Sequence[str | int] = ("inputs", "job")
+) -> list[dict[str, Any]]:
     """The problems of a solver :class:`JobError` as entries."""
     return problem_entries([p.to_dict() for p in exc.problems], prefix)

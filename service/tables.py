@@ -22,10 +22,12 @@ def _flatten(row: dict[str, Any], prefix: str = "") -> dict[str, Any]:
         if isinstance(value, dict):
             out.update(_flatten(value, f"{name}_"))
         elif isinstance(value, (list, tuple)):
-            if len(value) == 3 and name.endswith("_m") and all(
-                isinstance(v, (int, float)) or v is None for v in value
+            if (
+                len(value) == 3
+                and name.endswith("_m")
+                and all(isinstance(v, (int, float)) or v is None for v in value)
             ):
-                for axis, v in zip(ENU, value):
+                for axis, v in zip(ENU, value, strict=False):
                     out[f"{name}_{axis}"] = v
             else:
                 out[name] = ";".join("" if v is None else str(v) for v in value)

@@ -105,7 +105,7 @@ class LocalPoolBackend:
             self.wake.set()
 
     def stop(self) -> None:
-        """Ask the workers to stop, wait ``shutdown_grace_s``, kill the rest, re-queue their jobs."""
+        """Ask workers to stop, wait ``shutdown_grace_s``, kill the rest, re-queue their jobs."""
         self._stopping.set()
         self.stop_event.set()
         if self._thread is not None:
@@ -147,7 +147,11 @@ class LocalPoolBackend:
 
     def worker_pids(self) -> list[int]:
         """PIDs of the live workers."""
-        return [s.process.pid for s in self.slots if s.process and s.process.is_alive() and s.process.pid]
+        return [
+            s.process.pid
+            for s in self.slots
+            if s.process and s.process.is_alive() and s.process.pid
+        ]
 
     # -- supervision -----------------------------------------------------------------------
     def _spawn(self, slot: _Slot) -> None:
@@ -185,7 +189,7 @@ class LocalPoolBackend:
                 slot.process = None
                 lived = now - slot.started
                 slot.quick_deaths = slot.quick_deaths + 1 if lived < QUICK_DEATH_S else 0
-                backoff = min(MAX_BACKOFF_S, 0.5 * 2 ** slot.quick_deaths) if slot.quick_deaths else 0
+                backoff = min(MAX_BACKOFF_S, 0.5 * 2**slot.quick_deaths) if slot.quick_deaths else 0
                 slot.next_start = now + backoff
             if now >= slot.next_start:
                 self.restarts += 1
@@ -207,7 +211,9 @@ class LocalPoolBackend:
             )
             code = "worker_died"
         for job in self.store.running_jobs():
-            if job.worker == wid and self.store.fail(job.id, message, {"status": 500, "code": code}, worker=wid):
+            if job.worker == wid and self.store.fail(
+                job.id, message, {"status": 500, "code": code}, worker=wid
+            ):
                 log.error("worker %s %s; job failed", wid, how, extra={"job_id": job.id})
         log.warning("worker %s %s; replacing it", wid, how)
 

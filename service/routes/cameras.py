@@ -11,11 +11,17 @@ from fastapi.responses import JSONResponse
 
 from service.cameras import camera_from_report, camera_links
 from service.deps import BaseUrl, CurrentUser, ServicesDep
-from service.errors import Conflict, NotFound
+from service.errors import Conflict, NotFound, problem_responses
 from service.jobs import results_text
-from service.errors import problem_responses
 from service.routes import StrictJSONRoute
-from service.schemas import CameraCreate, CameraDefinition, CameraFromJob, CameraList, CameraPublic, Link
+from service.schemas import (
+    CameraCreate,
+    CameraDefinition,
+    CameraFromJob,
+    CameraList,
+    CameraPublic,
+    Link,
+)
 from service.store import CameraRecord
 
 router = APIRouter(prefix="/cameras", tags=["cameras"], route_class=StrictJSONRoute)
@@ -37,14 +43,21 @@ def _public(rec: CameraRecord, base: str) -> CameraPublic:
 
 def _created(rec: CameraRecord, base: str) -> JSONResponse:
     body = _public(rec, base).model_dump(mode="json", exclude_none=True)
-    return JSONResponse(body, 201, headers={"Location": f"{base}cameras/{rec.name}/versions/{rec.version}"})
+    return JSONResponse(
+        body, 201, headers={"Location": f"{base}cameras/{rec.name}/versions/{rec.version}"}
+    )
 
 
 def _definition(defn: CameraDefinition) -> dict:
     return defn.model_dump(mode="json", exclude={"id", "ref"}, exclude_none=True)
 
 
-@router.get("", response_model=CameraList, response_model_exclude_none=True, responses={**problem_responses(401)})
+@router.get(
+    "",
+    response_model=CameraList,
+    response_model_exclude_none=True,
+    responses={**problem_responses(401)},
+)
 def list_cameras(
     user: CurrentUser,
     services: ServicesDep,
@@ -67,9 +80,13 @@ def list_cameras(
     response_model=CameraPublic,
     responses={**problem_responses(401, 413, 422)},
 )
-def create_camera(body: CameraCreate, user: CurrentUser, services: ServicesDep, base: BaseUrl) -> JSONResponse:
+def create_camera(
+    body: CameraCreate, user: CurrentUser, services: ServicesDep, base: BaseUrl
+) -> JSONResponse:
     """Store a camera definition as the next version of its name."""
-    rec = services.store.add_camera(body.name, body.description, _definition(body.definition), user.id)
+    rec = services.store.add_camera(
+        body.name, body.description, _definition(body.definition), user.id
+    )
     return _created(rec, base)
 
 
@@ -79,7 +96,9 @@ def create_camera(body: CameraCreate, user: CurrentUser, services: ServicesDep, 
     response_model=CameraPublic,
     responses={**problem_responses(401, 404, 409, 422)},
 )
-def camera_from_job(body: CameraFromJob, user: CurrentUser, services: ServicesDep, base: BaseUrl) -> JSONResponse:
+def camera_from_job(
+    body: CameraFromJob, user: CurrentUser, services: ServicesDep, base: BaseUrl
+) -> JSONResponse:
     """Save the camera a self-calibration job estimated (IOP values and covariance) as the next
     version of ``name``."""
     import json
@@ -91,11 +110,18 @@ def camera_from_job(body: CameraFromJob, user: CurrentUser, services: ServicesDe
     document = job.document or {}
     definition = camera_from_report(document, report, body.camera)
     CameraDefinition.model_validate(definition)
-    rec = services.store.add_camera(body.name, body.description, definition, user.id, source_job=job.id)
+    rec = services.store.add_camera(
+        body.name, body.description, definition, user.id, source_job=job.id
+    )
     return _created(rec, base)
 
 
-@router.get("/{name}", response_model=CameraPublic, response_model_exclude_none=True, responses={**problem_responses(401, 404)})
+@router.get(
+    "/{name}",
+    response_model=CameraPublic,
+    response_model_exclude_none=True,
+    responses={**problem_responses(401, 404)},
+)
 def get_camera(name: Name, user: CurrentUser, services: ServicesDep, base: BaseUrl) -> CameraPublic:
     """The latest version of a camera."""
     rec = services.store.get_camera(name)
@@ -104,7 +130,12 @@ def get_camera(name: Name, user: CurrentUser, services: ServicesDep, base: BaseU
     return _public(rec, base)
 
 
-@router.get("/{name}/versions", response_model=CameraList, response_model_exclude_none=True, responses={**problem_responses(401, 404)})
+@router.get(
+    "/{name}/versions",
+    response_model=CameraList,
+    response_model_exclude_none=True,
+    responses={**problem_responses(401, 404)},
+)
 def list_versions(
     name: Name,
     user: CurrentUser,

@@ -12,9 +12,9 @@ from fastapi.responses import Response
 from fastapi.sse import EventSourceResponse, ServerSentEvent
 
 from service.deps import BaseUrl, CurrentUser, ServicesDep, VisibleJob
+from service.errors import problem_responses
 from service.jobs import results_text, status_info, validate_inputs
 from service.processes import BUNDLE_ADJUSTMENT, MODEL_COMPARISON
-from service.errors import problem_responses
 from service.routes import StrictJSONRoute
 from service.schemas import Execute, JobList, Link, StatusInfo, ValidationReport
 from service.states import FINISHED, JobStatus
@@ -25,14 +25,22 @@ router = APIRouter(prefix="/jobs", tags=["jobs"], route_class=StrictJSONRoute)
 NOT_FOUND = problem_responses(401, 404)
 
 
-@router.get("", response_model=JobList, response_model_exclude_none=True, responses={**problem_responses(401)})
+@router.get(
+    "",
+    response_model=JobList,
+    response_model_exclude_none=True,
+    responses={**problem_responses(401)},
+)
 def list_jobs(
     user: CurrentUser,
     services: ServicesDep,
     base: BaseUrl,
-    status: Annotated[list[JobStatus] | None, Query(description="only jobs in these states")] = None,
+    status: Annotated[
+        list[JobStatus] | None, Query(description="only jobs in these states")
+    ] = None,
     processID: Annotated[
-        Literal["bundle-adjustment", "model-comparison"] | None, Query(description="only this process")
+        Literal["bundle-adjustment", "model-comparison"] | None,
+        Query(description="only this process"),
     ] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 10,
     offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
@@ -43,14 +51,29 @@ def list_jobs(
     query = "".join(f"&status={s.value}" for s in status or []) + (
         f"&processID={processID}" if processID else ""
     )
-    links = [Link(href=f"{base}jobs?limit={limit}&offset={offset}{query}", rel="self",
-                  type="application/json")]
+    links = [
+        Link(
+            href=f"{base}jobs?limit={limit}&offset={offset}{query}",
+            rel="self",
+            type="application/json",
+        )
+    ]
     if offset + limit < total:
-        links.append(Link(href=f"{base}jobs?limit={limit}&offset={offset + limit}{query}",
-                          rel="next", type="application/json"))
+        links.append(
+            Link(
+                href=f"{base}jobs?limit={limit}&offset={offset + limit}{query}",
+                rel="next",
+                type="application/json",
+            )
+        )
     if offset > 0:
-        links.append(Link(href=f"{base}jobs?limit={limit}&offset={max(0, offset - limit)}{query}",
-                          rel="prev", type="application/json"))
+        links.append(
+            Link(
+                href=f"{base}jobs?limit={limit}&offset={max(0, offset - limit)}{query}",
+                rel="prev",
+                type="application/json",
+            )
+        )
     return JobList(jobs=[status_info(r, base) for r in records], numberMatched=total, links=links)
 
 
@@ -64,7 +87,8 @@ def validate_job(
     user: CurrentUser,
     services: ServicesDep,
     process: Annotated[
-        Literal["bundle-adjustment", "model-comparison"], Query(description="process to validate for")
+        Literal["bundle-adjustment", "model-comparison"],
+        Query(description="process to validate for"),
     ] = BUNDLE_ADJUSTMENT,
 ) -> ValidationReport:
     """Dry run: schema, camera references, model names, degrees of freedom; nothing is queued.
@@ -74,14 +98,20 @@ def validate_job(
     return ValidationReport.model_validate(summary)
 
 
-@router.get("/{jobId}", response_model=StatusInfo, response_model_exclude_none=True, responses=NOT_FOUND)
+@router.get(
+    "/{jobId}", response_model=StatusInfo, response_model_exclude_none=True, responses=NOT_FOUND
+)
 def get_status(job: VisibleJob, base: BaseUrl) -> StatusInfo:
     """Status of a job: state, progress 0-100 (never decreasing), message, times, links."""
     return status_info(job, base)
 
 
-@router.delete("/{jobId}", response_model=StatusInfo, response_model_exclude_none=True, responses=NOT_FOUND)
-def dismiss_job(job: VisibleJob, user: CurrentUser, services: ServicesDep, base: BaseUrl) -> StatusInfo:
+@router.delete(
+    "/{jobId}", response_model=StatusInfo, response_model_exclude_none=True, responses=NOT_FOUND
+)
+def dismiss_job(
+    job: VisibleJob, user: CurrentUser, services: ServicesDep, base: BaseUrl
+) -> StatusInfo:
     """Cancel a queued or running job (a running solve stops within one iteration), or dismiss
     a finished one (its results are deleted)."""
     return status_info(services.jobs.cancel(job.id, user), base)
@@ -89,8 +119,10 @@ def dismiss_job(job: VisibleJob, user: CurrentUser, services: ServicesDep, base:
 
 @router.get(
     "/{jobId}/results",
-    responses={200: {"description": "results document {report: ...}", "content": {"application/json": {}}},
-               **problem_responses(401, 404, 422, 500)},
+    responses={
+        200: {"description": "results document {report: ...}", "content": {"application/json": {}}},
+        **problem_responses(401, 404, 422, 500),
+    },
 )
 def get_results(job: VisibleJob) -> Response:
     """Results document ``{"report": <report>}`` of a successful job (docs/report-contract.md);

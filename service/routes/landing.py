@@ -32,10 +32,18 @@ def landing_page(request: Request, base: BaseUrl) -> LandingPage:
             title="API definition (OpenAPI)",
         ),
         Link(href=f"{base}docs", rel="service-doc", type="text/html", title="API documentation"),
-        Link(href=f"{base}conformance", rel=OGC_REL + "conformance", type="application/json",
-             title="conformance classes"),
-        Link(href=f"{base}processes", rel=OGC_REL + "processes", type="application/json",
-             title="processes"),
+        Link(
+            href=f"{base}conformance",
+            rel=OGC_REL + "conformance",
+            type="application/json",
+            title="conformance classes",
+        ),
+        Link(
+            href=f"{base}processes",
+            rel=OGC_REL + "processes",
+            type="application/json",
+            title="processes",
+        ),
         Link(href=f"{base}jobs", rel=OGC_REL + "job-list", type="application/json", title="jobs"),
         Link(href=f"{base}cameras", rel="data", type="application/json", title="camera library"),
     ]

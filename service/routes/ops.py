@@ -37,7 +37,9 @@ async def readyz(services: ServicesDep) -> JSONResponse:
     return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
 
 
-@router.get("/metrics", response_class=Response, responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}})
+@router.get(
+    "/metrics", response_class=Response, responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}}
+)
 async def metrics(services: ServicesDep) -> Response:
     """Prometheus metrics: jobs by state, queue depth, workers, solve durations."""
     text = await run_in_threadpool(services.metrics.render)

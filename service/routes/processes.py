@@ -11,12 +11,18 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
 from service.deps import BaseUrl, CurrentUser, ServicesDep
-from service.errors import NoSuchProcess
+from service.errors import NoSuchProcess, problem_responses
 from service.jobs import results_text, status_info
 from service.processes import PROCESSES, describe
-from service.errors import problem_responses
 from service.routes import StrictJSONRoute
-from service.schemas import Execute, Link, ProcessDescription, ProcessList, ProcessSummary, StatusInfo
+from service.schemas import (
+    Execute,
+    Link,
+    ProcessDescription,
+    ProcessList,
+    ProcessSummary,
+    StatusInfo,
+)
 from service.states import FINISHED
 from service.store import JobRecord
 
@@ -63,8 +69,10 @@ def _accepted(rec: JobRecord, base: str, preference: bool) -> JSONResponse:
 @router.post(
     "/{processId}/execution",
     responses={
-        200: {"description": "synchronous execution: the report (raw) or {report} (document)",
-              "content": {"application/json": {}}},
+        200: {
+            "description": "synchronous execution: the report (raw) or {report} (document)",
+            "content": {"application/json": {}},
+        },
         201: {"description": "job accepted (asynchronous execution)", "model": StatusInfo},
         **problem_responses(401, 404, 413, 422, 429, 500),
     },
@@ -75,7 +83,9 @@ async def execute(
     user: CurrentUser,
     services: ServicesDep,
     base: BaseUrl,
-    prefer: Annotated[str | None, Header(description="respond-async for an asynchronous job")] = None,
+    prefer: Annotated[
+        str | None, Header(description="respond-async for an asynchronous job")
+    ] = None,
 ) -> Response:
     """Execute a process: ``Prefer: respond-async`` answers 201 with the job's Location; otherwise
     a small job is solved before answering (200 with the report), a large one answers 201."""
@@ -103,4 +113,6 @@ async def execute(
     text = await run_in_threadpool(results_text, rec)
     if body.response == "document":
         text = '{"report":' + text + "}"
-    return Response(text, 200, media_type="application/json", headers={"Location": f"{base}jobs/{rec.id}"})
+    return Response(
+        text, 200, media_type="application/json", headers={"Location": f"{base}jobs/{rec.id}"}
+    )

@@ -43,7 +43,9 @@ class JobRecord:
     cancel_requested: str | None = None
     n_observations: int = 0
     error: dict[str, Any] | None = None
-    _load_results: Callable[[str], str | None] | None = field(default=None, repr=False, compare=False)
+    _load_results: Callable[[str], str | None] | None = field(
+        default=None, repr=False, compare=False
+    )
     _load_document: Callable[[str], dict[str, Any] | None] | None = field(
         default=None, repr=False, compare=False
     )
@@ -114,15 +116,24 @@ class Store(Protocol):
     url: str
 
     # -- lifecycle -------------------------------------------------------------------------
-    def create_schema(self) -> None: """Create missing tables (idempotent)."""
-    def ping(self) -> None: """Raise if the database does not answer."""
-    def close(self) -> None: """Release connections."""
+    def create_schema(self) -> None:
+        """Create missing tables (idempotent)."""
+
+    def ping(self) -> None:
+        """Raise if the database does not answer."""
+
+    def close(self) -> None:
+        """Release connections."""
 
     # -- jobs: API side --------------------------------------------------------------------
     def create_job(
         self, owner: str, process_id: str, document: dict[str, Any], n_observations: int, name: str
-    ) -> JobRecord: """Insert an ``accepted`` job."""
-    def get_job(self, job_id: str) -> JobRecord | None: """One job or None."""
+    ) -> JobRecord:
+        """Insert an ``accepted`` job."""
+
+    def get_job(self, job_id: str) -> JobRecord | None:
+        """One job or None."""
+
     def list_jobs(
         self,
         owner: str | None,
@@ -130,37 +141,67 @@ class Store(Protocol):
         process_id: str | None = None,
         limit: int = 10,
         offset: int = 0,
-    ) -> tuple[list[JobRecord], int]: """Newest first, and the total matching."""
-    def count_queued(self, owner: str) -> int: """Accepted + running jobs of a user."""
+    ) -> tuple[list[JobRecord], int]:
+        """Newest first, and the total matching."""
+
+    def count_queued(self, owner: str) -> int:
+        """Accepted + running jobs of a user."""
+
     def request_cancel(self, job_id: str, reason: str = "user") -> JobRecord | None:
         """Dismiss an accepted or finished job, or flag a running one; the record after."""
 
     # -- jobs: worker side -----------------------------------------------------------------
-    def claim_next(self, worker: str) -> JobRecord | None: """Oldest accepted job -> running."""
-    def claim(self, job_id: str, worker: str) -> JobRecord | None: """This job -> running."""
-    def cancel_requested(self, job_id: str) -> str | None: """The cancel reason, if any."""
+    def claim_next(self, worker: str) -> JobRecord | None:
+        """Oldest accepted job -> running."""
+
+    def claim(self, job_id: str, worker: str) -> JobRecord | None:
+        """This job -> running."""
+
+    def cancel_requested(self, job_id: str) -> str | None:
+        """The cancel reason, if any."""
+
     def set_progress(self, job_id: str, worker: str, progress: int, message: str) -> bool:
         """Raise progress (never lowers it) of a job this worker runs."""
+
     def complete(self, job_id: str, worker: str, results_text: str, message: str) -> bool:
         """running -> successful with the report."""
+
     def fail(
-        self, job_id: str, message: str, error: dict[str, Any] | None = None, worker: str | None = None
-    ) -> bool: """accepted/running -> failed (only this worker's run when ``worker`` is given)."""
+        self,
+        job_id: str,
+        message: str,
+        error: dict[str, Any] | None = None,
+        worker: str | None = None,
+    ) -> bool:
+        """accepted/running -> failed (only this worker's run when ``worker`` is given)."""
+
     def finish_cancelled(self, job_id: str, worker: str, message: str) -> bool:
         """running -> dismissed after a cancel request."""
+
     def requeue(self, job_id: str, worker: str, message: str, count_attempt: bool = True) -> bool:
         """running -> accepted (this worker's run)."""
+
     def recover_interrupted(self, max_attempts: int) -> tuple[list[str], list[str]]:
         """Start-up: running jobs back to accepted, or failed after ``max_attempts`` runs."""
+
     def fail_jobs_of_worker(self, worker: str, message: str) -> list[str]:
         """Fail every job a (dead) worker was running."""
-    def running_jobs(self) -> list[JobRecord]: """All running jobs."""
+
+    def running_jobs(self) -> list[JobRecord]:
+        """All running jobs."""
 
     # -- jobs: reading ---------------------------------------------------------------------
-    def get_results_text(self, job_id: str) -> str | None: """Stored report JSON text."""
-    def get_document(self, job_id: str) -> dict[str, Any] | None: """Stored execute inputs."""
-    def counts_by_status(self) -> dict[JobStatus, int]: """Jobs per status (all users)."""
-    def finished_since(self, after: datetime) -> list[FinishedRun]: """For metrics."""
+    def get_results_text(self, job_id: str) -> str | None:
+        """Stored report JSON text."""
+
+    def get_document(self, job_id: str) -> dict[str, Any] | None:
+        """Stored execute inputs."""
+
+    def counts_by_status(self) -> dict[JobStatus, int]:
+        """Jobs per status (all users)."""
+
+    def finished_since(self, after: datetime) -> list[FinishedRun]:
+        """For metrics."""
 
     # -- users and keys --------------------------------------------------------------------
     def create_user(
@@ -169,11 +210,20 @@ class Store(Protocol):
         is_admin: bool = False,
         max_queued_jobs: int | None = None,
         max_job_observations: int | None = None,
-    ) -> UserRecord: """Create a user, or return the existing one of that name."""
-    def get_user(self, user_id: str) -> UserRecord | None: """By id."""
-    def add_api_key(self, user_id: str, key_hash: str, prefix: str) -> None: """Store a key hash."""
-    def user_for_key_hash(self, key_hash: str) -> UserRecord | None: """Resolve a key hash."""
-    def revoke_api_key(self, prefix: str) -> bool: """Delete keys starting with ``prefix``."""
+    ) -> UserRecord:
+        """Create a user, or return the existing one of that name."""
+
+    def get_user(self, user_id: str) -> UserRecord | None:
+        """By id."""
+
+    def add_api_key(self, user_id: str, key_hash: str, prefix: str) -> None:
+        """Store a key hash."""
+
+    def user_for_key_hash(self, key_hash: str) -> UserRecord | None:
+        """Resolve a key hash."""
+
+    def revoke_api_key(self, prefix: str) -> bool:
+        """Delete keys starting with ``prefix``."""
 
     # -- cameras ---------------------------------------------------------------------------
     def add_camera(
@@ -183,9 +233,13 @@ class Store(Protocol):
         definition: dict[str, Any],
         created_by: str,
         source_job: str | None = None,
-    ) -> CameraRecord: """Store the next version of ``name``."""
+    ) -> CameraRecord:
+        """Store the next version of ``name``."""
+
     def get_camera(self, name: str, version: int | None = None) -> CameraRecord | None:
         """A version (latest when None)."""
+
     def list_cameras(
         self, name: str | None = None, limit: int = 100, offset: int = 0
-    ) -> tuple[list[CameraRecord], int]: """Latest version of each name, or all versions of one."""
+    ) -> tuple[list[CameraRecord], int]:
+        """Latest version of each name, or all versions of one."""

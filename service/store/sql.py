@@ -38,7 +38,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 from sqlalchemy.pool import NullPool
 
-from service.states import JobStatus, check_transition, sources_of
+from service.states import JobStatus, check_transition
 from service.store.base import CameraRecord, FinishedRun, JobRecord, UserRecord
 
 
@@ -268,9 +268,7 @@ class SqlStore:
                     n_observations=n_observations,
                 )
             )
-            conn.execute(
-                insert(JobPayloadRow).values(job_id=job_id, document=json.dumps(document))
-            )
+            conn.execute(insert(JobPayloadRow).values(job_id=job_id, document=json.dumps(document)))
             rec = self._fetch(conn, job_id)
         assert rec is not None
         return rec
@@ -297,7 +295,9 @@ class SqlStore:
         if process_id is not None:
             conds.append(JobRow.process_id == process_id)
         with self.engine.connect() as conn:
-            total = conn.execute(select(func.count()).select_from(JobRow).where(*conds)).scalar_one()
+            total = conn.execute(
+                select(func.count()).select_from(JobRow).where(*conds)
+            ).scalar_one()
             rows = conn.execute(
                 select(JobRow)
                 .where(*conds)
@@ -487,7 +487,12 @@ class SqlStore:
         """running -> dismissed after a cancel request, for the worker that ran it."""
         with self.engine.begin() as conn:
             return self._cas(
-                conn, job_id, JobStatus.dismissed, [JobStatus.running], worker=worker, message=message
+                conn,
+                job_id,
+                JobStatus.dismissed,
+                [JobStatus.running],
+                worker=worker,
+                message=message,
             )
 
     def requeue(self, job_id: str, worker: str, message: str, count_attempt: bool = True) -> bool:
@@ -555,11 +560,15 @@ class SqlStore:
     def fail_jobs_of_worker(self, worker: str, message: str) -> list[str]:
         """Fail every job a (dead) worker was running."""
         with self.engine.begin() as conn:
-            ids = conn.execute(
-                select(JobRow.id).where(
-                    JobRow.worker == worker, JobRow.status == JobStatus.running.value
+            ids = (
+                conn.execute(
+                    select(JobRow.id).where(
+                        JobRow.worker == worker, JobRow.status == JobStatus.running.value
+                    )
                 )
-            ).scalars().all()
+                .scalars()
+                .all()
+            )
             done = []
             for job_id in ids:
                 if self._cas(
@@ -770,10 +779,13 @@ class SqlStore:
                 )
                 cond = CameraRow.id.in_(
                     select(CameraRow.id).join(
-                        latest, (CameraRow.name == latest.c.name) & (CameraRow.version == latest.c.v)
+                        latest,
+                        (CameraRow.name == latest.c.name) & (CameraRow.version == latest.c.v),
                     )
                 )
-            total = conn.execute(select(func.count()).select_from(CameraRow).where(cond)).scalar_one()
+            total = conn.execute(
+                select(func.count()).select_from(CameraRow).where(cond)
+            ).scalar_one()
             rows = conn.execute(
                 select(CameraRow)
                 .where(cond)

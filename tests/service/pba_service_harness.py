@@ -125,7 +125,13 @@ class Server:
         """A new API key, written straight into the server's store."""
         store = self.store()
         try:
-            key, _ = create_key(store, user, admin, limits.get("max_queued_jobs"), limits.get("max_job_observations"))
+            key, _ = create_key(
+                store,
+                user,
+                admin,
+                limits.get("max_queued_jobs"),
+                limits.get("max_job_observations"),
+            )
         finally:
             store.close()
         return key
@@ -141,17 +147,24 @@ def execute_body(job: dict[str, Any], **inputs: Any) -> dict[str, Any]:
     return {"inputs": {"job": job, **inputs}}
 
 
-def submit_async(client: httpx.Client, job: dict[str, Any], process: str = "bundle-adjustment") -> str:
+def submit_async(
+    client: httpx.Client, job: dict[str, Any], process: str = "bundle-adjustment"
+) -> str:
     """Submit with Prefer: respond-async; the job id."""
     r = client.post(
-        f"/processes/{process}/execution", json=execute_body(job), headers={"Prefer": "respond-async"}
+        f"/processes/{process}/execution",
+        json=execute_body(job),
+        headers={"Prefer": "respond-async"},
     )
     assert r.status_code == 201, r.text
     return r.json()["jobID"]
 
 
 def wait_status(
-    client: httpx.Client, job_id: str, statuses: set[str] = FINISHED, timeout: float = 120.0,
+    client: httpx.Client,
+    job_id: str,
+    statuses: set[str] = FINISHED,
+    timeout: float = 120.0,
     min_progress: int = 0,
 ) -> dict[str, Any]:
     """Poll a job's status document until its status is in ``statuses``."""

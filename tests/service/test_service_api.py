@@ -102,7 +102,9 @@ def test_keys_required_mode(keyed: tuple[TestClient, dict[str, str]]) -> None:
 # -- capabilities ------------------------------------------------------------------------
 def test_landing_conformance_processes(local: TestClient) -> None:
     links = {link["rel"]: link["href"] for link in local.get("/").json()["links"]}
-    assert {"self", "service-desc", "http://www.opengis.net/def/rel/ogc/1.0/processes"} <= set(links)
+    assert {"self", "service-desc", "http://www.opengis.net/def/rel/ogc/1.0/processes"} <= set(
+        links
+    )
     conf = local.get("/conformance").json()["conformsTo"]
     assert "http://www.opengis.net/spec/ogcapi-processes-1/1.0/conf/core" in conf
     ids = [p["id"] for p in local.get("/processes").json()["processes"]]
@@ -124,8 +126,15 @@ def test_landing_conformance_processes(local: TestClient) -> None:
 # -- bad input -------------------------------------------------------------------------
 def test_malformed_json_and_nan_are_400(local: TestClient) -> None:
     headers = {"content-type": "application/json"}
-    for raw in (b'{"inputs": {"job": ', b"not json", b'{"inputs": {"job": NaN}}', b'{"a": Infinity}'):
-        assert_problem(local.post("/processes/bundle-adjustment/execution", content=raw, headers=headers), 400)
+    for raw in (
+        b'{"inputs": {"job": ',
+        b"not json",
+        b'{"inputs": {"job": NaN}}',
+        b'{"a": Infinity}',
+    ):
+        assert_problem(
+            local.post("/processes/bundle-adjustment/execution", content=raw, headers=headers), 400
+        )
         assert_problem(local.post("/jobs/validate", content=raw, headers=headers), 400)
 
 
@@ -140,20 +149,26 @@ def test_schema_errors_point_at_the_field(local: TestClient, triplet_doc: dict[s
     job = copy.deepcopy(triplet_doc)
     job["observations"][3]["line"] = "abc"
     job["cameras"][0]["focal_mm"] = -1
-    doc = assert_problem(local.post("/jobs/validate", json=body(job)), 422, "/inputs/job/observations/3/line")
+    doc = assert_problem(
+        local.post("/jobs/validate", json=body(job)), 422, "/inputs/job/observations/3/line"
+    )
     assert "/inputs/job/cameras/0/focal_mm" in [e["pointer"] for e in doc["errors"]]
     assert_problem(local.post("/jobs/validate", json={"inputs": {}}), 422, "/inputs/job")
     assert_problem(local.post("/jobs/validate", json=[1, 2]), 422)
     assert_problem(local.post("/jobs/validate", json=body(job, extra=1)), 422, "/inputs/extra")
 
 
-def test_unknown_model_and_missing_references(local: TestClient, triplet_doc: dict[str, Any]) -> None:
+def test_unknown_model_and_missing_references(
+    local: TestClient, triplet_doc: dict[str, Any]
+) -> None:
     job = copy.deepcopy(triplet_doc)
     job["images"][1]["model"]["name"] = "NO-SUCH-MODEL"
     job["observations"][5]["point"] = "ghost"
     job["images"][2]["camera"] = "missing-camera"
     for url in ("/jobs/validate", "/processes/bundle-adjustment/execution"):
-        doc = assert_problem(local.post(url, json=body(job)), 422, "/inputs/job/images/1/model/name")
+        doc = assert_problem(
+            local.post(url, json=body(job)), 422, "/inputs/job/images/1/model/name"
+        )
         pointers = [e["pointer"] for e in doc["errors"]]
         assert "/inputs/job/observations/5/point" in pointers
         assert any(p.startswith("/inputs/job/images/2") for p in pointers)
@@ -163,13 +178,17 @@ def test_unknown_model_and_missing_references(local: TestClient, triplet_doc: di
 def test_comparison_models_are_checked(local: TestClient, triplet_doc: dict[str, Any]) -> None:
     url = "/processes/model-comparison/execution"
     assert_problem(local.post(url, json=body(triplet_doc)), 422, "/inputs/models")
-    assert_problem(local.post(url, json=body(triplet_doc, models=["K2", "XX"])), 422, "/inputs/models/1")
+    assert_problem(
+        local.post(url, json=body(triplet_doc, models=["K2", "XX"])), 422, "/inputs/models/1"
+    )
     assert_problem(
         local.post("/processes/bundle-adjustment/execution", json=body(triplet_doc, models=["K2"])),
         422,
         "/inputs/models",
     )
-    r = local.post("/jobs/validate?process=model-comparison", json=body(triplet_doc, models=["K2", "P2"]))
+    r = local.post(
+        "/jobs/validate?process=model-comparison", json=body(triplet_doc, models=["K2", "P2"])
+    )
     assert r.status_code == 200, r.text
 
 
@@ -184,7 +203,12 @@ def test_body_over_the_limit_is_413(local: TestClient, triplet_doc: dict[str, An
         for _ in range(30):
             yield b" " * 10_000
 
-    assert_problem(local.post("/jobs/validate", content=chunks(), headers={"content-type": "application/json"}), 413)
+    assert_problem(
+        local.post(
+            "/jobs/validate", content=chunks(), headers={"content-type": "application/json"}
+        ),
+        413,
+    )
 
 
 def test_valid_job_validates_and_is_queued(local: TestClient, triplet_doc: dict[str, Any]) -> None:
@@ -203,10 +227,14 @@ def test_valid_job_validates_and_is_queued(local: TestClient, triplet_doc: dict[
 
 
 # -- limits and ownership ---------------------------------------------------------------
-def test_per_user_limits(keyed: tuple[TestClient, dict[str, str]], triplet_doc: dict[str, Any]) -> None:
+def test_per_user_limits(
+    keyed: tuple[TestClient, dict[str, str]], triplet_doc: dict[str, Any]
+) -> None:
     c, keys = keyed
     alice = {"X-API-Key": keys["alice"]}
-    assert_problem(c.post("/processes/bundle-adjustment/execution", json=body(triplet_doc), headers=alice), 413)
+    assert_problem(
+        c.post("/processes/bundle-adjustment/execution", json=body(triplet_doc), headers=alice), 413
+    )
     small = copy.deepcopy(triplet_doc)
     small["observations"] = small["observations"][:180]
     used = {o["point"] for o in small["observations"]}
@@ -228,9 +256,13 @@ def test_camera_library_and_refs(local: TestClient, triplet_doc: dict[str, Any])
     definition = {k: v for k, v in triplet_doc["cameras"][0].items() if k != "id"}
     definition["iop"] = {}
     definition["iop_covariance"] = {"names": ["dx_mm"], "matrix": [[1e-6]]}
-    r = local.post("/cameras", json={"name": "prism-backward", "description": "v1", "definition": definition})
+    r = local.post(
+        "/cameras", json={"name": "prism-backward", "description": "v1", "definition": definition}
+    )
     assert r.status_code == 201, r.text
-    assert r.json()["version"] == 1 and r.headers["location"].endswith("/cameras/prism-backward/versions/1")
+    assert r.json()["version"] == 1 and r.headers["location"].endswith(
+        "/cameras/prism-backward/versions/1"
+    )
     definition["focal_mm"] += 0.001
     r = local.post("/cameras", json={"name": "prism-backward", "definition": definition})
     assert r.json()["version"] == 2
@@ -241,7 +273,9 @@ def test_camera_library_and_refs(local: TestClient, triplet_doc: dict[str, Any])
     assert_problem(local.get("/cameras/none"), 404)
     assert_problem(local.get("/cameras/prism-backward/versions/9"), 404)
     bad = dict(definition, focal_mm="long")
-    assert_problem(local.post("/cameras", json={"name": "x", "definition": bad}), 422, "/definition/focal_mm")
+    assert_problem(
+        local.post("/cameras", json={"name": "x", "definition": bad}), 422, "/definition/focal_mm"
+    )
     bad = dict(definition, iop_covariance={"names": ["a", "b"], "matrix": [[1.0]]})
     assert_problem(local.post("/cameras", json={"name": "x", "definition": bad}), 422)
 
@@ -252,8 +286,6 @@ def test_camera_library_and_refs(local: TestClient, triplet_doc: dict[str, Any])
     r = local.post("/processes/bundle-adjustment/execution", json=body(job))
     assert r.status_code == 201, r.text
     # the stored document has the resolved camera, with the version used
-    from service.deps import Services  # noqa: F401  (documenting where the store lives)
-
     store = local.app.state.services.store  # type: ignore[attr-defined]
     stored = store.get_document(r.json()["jobID"])["job"]["cameras"][0]
     assert stored["focal_mm"] == triplet_doc["cameras"][0]["focal_mm"]
@@ -266,8 +298,11 @@ def test_cors_origins(tmp_path: Path) -> None:
     with make_client(tmp_path, cors_origins=["http://front.example"]) as c:
         r = c.options(
             "/jobs",
-            headers={"Origin": "http://front.example", "Access-Control-Request-Method": "POST",
-                     "Access-Control-Request-Headers": "X-API-Key"},
+            headers={
+                "Origin": "http://front.example",
+                "Access-Control-Request-Method": "POST",
+                "Access-Control-Request-Headers": "X-API-Key",
+            },
         )
         assert r.headers.get("access-control-allow-origin") == "http://front.example"
         r = c.get("/jobs", headers={"Origin": "http://evil.example"})

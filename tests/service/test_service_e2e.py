@@ -39,7 +39,7 @@ def assert_same_numbers(a: Any, b: Any, path: str = "") -> None:
                 assert_same_numbers(a[k], b[k], f"{path}/{k}")
     elif isinstance(a, list):
         assert isinstance(b, list) and len(a) == len(b), f"{path}: lengths"
-        for i, (x, y) in enumerate(zip(a, b)):
+        for i, (x, y) in enumerate(zip(a, b, strict=False)):
             assert_same_numbers(x, y, f"{path}/{i}")
     elif isinstance(a, float) and isinstance(b, (int, float)):
         assert math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12), f"{path}: {a} != {b}"
@@ -53,12 +53,19 @@ def json_roundtrip(report: dict[str, Any]) -> dict[str, Any]:
     return json.loads(report_to_json(report))
 
 
-def read_events(client: httpx.Client, job_id: str, key: str, until: Any = None, timeout: float = 120) -> list[dict[str, Any]]:
+def read_events(
+    client: httpx.Client, job_id: str, key: str, until: Any = None, timeout: float = 120
+) -> list[dict[str, Any]]:
     """Status events of a job's SSE stream (EventSource-style ``?api_key=``), until the
     stream ends or ``until(event)`` is true."""
     events: list[dict[str, Any]] = []
-    with client.stream("GET", f"/jobs/{job_id}/events", params={"api_key": key},
-                       headers={"X-API-Key": ""}, timeout=timeout) as r:
+    with client.stream(
+        "GET",
+        f"/jobs/{job_id}/events",
+        params={"api_key": key},
+        headers={"X-API-Key": ""},
+        timeout=timeout,
+    ) as r:
         assert r.status_code == 200
         assert r.headers["content-type"].startswith("text/event-stream")
         kind = None
@@ -82,7 +89,9 @@ def worker_pid(server: Server, job_id: str) -> int:
     return int(rec.worker.rsplit(":", 1)[1])
 
 
-def test_triplet_same_numbers_as_the_solver(server: Server, keys: dict[str, str], triplet_doc: dict[str, Any]) -> None:
+def test_triplet_same_numbers_as_the_solver(
+    server: Server, keys: dict[str, str], triplet_doc: dict[str, Any]
+) -> None:
     import solver.api
 
     direct = json_roundtrip(solver.api.run(copy.deepcopy(triplet_doc)))
@@ -98,15 +107,21 @@ def test_triplet_same_numbers_as_the_solver(server: Server, keys: dict[str, str]
         res = c.get(f"/jobs/{job_id}/results")
         assert res.status_code == 200
         assert_same_numbers(direct, res.json()["report"])
-        rows = list(csv.DictReader(io.StringIO(c.get(f"/jobs/{job_id}/results/parameters.csv").text)))
+        rows = list(
+            csv.DictReader(io.StringIO(c.get(f"/jobs/{job_id}/results/parameters.csv").text))
+        )
         by_name = {(row["image"], row["name"]): row for row in rows}
         for image in direct["images"]:
             for p in image["parameters"]:
-                assert float(by_name[(image["id"], p["name"])]["value"]) == pytest.approx(p["value"], rel=1e-12)
+                assert float(by_name[(image["id"], p["name"])]["value"]) == pytest.approx(
+                    p["value"], rel=1e-12
+                )
         obs = c.get(f"/jobs/{job_id}/results/observations.csv")
         assert obs.headers["content-type"].startswith("text/csv")
         assert len(list(csv.DictReader(io.StringIO(obs.text)))) == len(direct["observations"])
-        cps = list(csv.DictReader(io.StringIO(c.get(f"/jobs/{job_id}/results/checkpoints.csv").text)))
+        cps = list(
+            csv.DictReader(io.StringIO(c.get(f"/jobs/{job_id}/results/checkpoints.csv").text))
+        )
         assert len(cps) == direct["checkpoints"]["n"]
 
 
@@ -116,7 +131,10 @@ def test_sse_progress_and_cancel_a_running_large_job(
     with server.client(keys["alice"]) as c:
         job_id = submit_async(c, big_doc)
         events = read_events(
-            c, job_id, keys["alice"], until=lambda e: e["status"] == "running" and "iteration" in e["message"]
+            c,
+            job_id,
+            keys["alice"],
+            until=lambda e: e["status"] == "running" and "iteration" in e["message"],
         )
         assert events[0]["status"] in ("accepted", "running")
         t0 = time.monotonic()
@@ -156,18 +174,30 @@ def test_worker_killed_mid_job_fails_the_job_and_server_goes_on(
             time.sleep(0.2)
 
 
-def test_users_see_only_their_own_jobs(server: Server, keys: dict[str, str], small_doc: dict[str, Any]) -> None:
+def test_users_see_only_their_own_jobs(
+    server: Server, keys: dict[str, str], small_doc: dict[str, Any]
+) -> None:
     alice, bob, root = (server.client(keys[k]) for k in ("alice", "bob", "root"))
     with alice, bob, root:
         job_id = submit_async(alice, small_doc)
-        for path in (f"/jobs/{job_id}", f"/jobs/{job_id}/results", f"/jobs/{job_id}/events",
-                     f"/jobs/{job_id}/results/observations.csv"):
+        for path in (
+            f"/jobs/{job_id}",
+            f"/jobs/{job_id}/results",
+            f"/jobs/{job_id}/events",
+            f"/jobs/{job_id}/results/observations.csv",
+        ):
             r = bob.get(path)
             assert r.status_code == 404 and r.json()["type"].endswith("no-such-job"), (path, r.text)
         assert bob.delete(f"/jobs/{job_id}").status_code == 404
-        assert job_id not in [j["jobID"] for j in bob.get("/jobs", params={"limit": 1000}).json()["jobs"]]
-        assert job_id in [j["jobID"] for j in alice.get("/jobs", params={"limit": 1000}).json()["jobs"]]
-        assert job_id in [j["jobID"] for j in root.get("/jobs", params={"limit": 1000}).json()["jobs"]]
+        assert job_id not in [
+            j["jobID"] for j in bob.get("/jobs", params={"limit": 1000}).json()["jobs"]
+        ]
+        assert job_id in [
+            j["jobID"] for j in alice.get("/jobs", params={"limit": 1000}).json()["jobs"]
+        ]
+        assert job_id in [
+            j["jobID"] for j in root.get("/jobs", params={"limit": 1000}).json()["jobs"]
+        ]
         assert wait_status(root, job_id)["status"] == "successful"  # the admin sees it
         with server.client() as anonymous:
             assert anonymous.get(f"/jobs/{job_id}").status_code == 401
@@ -180,7 +210,11 @@ def test_200_concurrent_small_jobs(server: Server, small_doc: dict[str, Any]) ->
     with server.client(key) as c:
 
         def submit(_: int) -> str:
-            r = c.post("/processes/bundle-adjustment/execution", json=body, headers={"Prefer": "respond-async"})
+            r = c.post(
+                "/processes/bundle-adjustment/execution",
+                json=body,
+                headers={"Prefer": "respond-async"},
+            )
             assert r.status_code == 201, r.text[:300]
             return r.json()["jobID"]
 
@@ -198,7 +232,10 @@ def test_200_concurrent_small_jobs(server: Server, small_doc: dict[str, Any]) ->
         assert listed["numberMatched"] == 200
         assert sorted(j["jobID"] for j in listed["jobs"]) == sorted(ids)
         assert {j["status"] for j in listed["jobs"]} == {"successful"}
-        sigma0 = {c.get(f"/jobs/{i}/results").json()["report"]["adjustment"]["sigma0_aposteriori"] for i in ids[::20]}
+        sigma0 = {
+            c.get(f"/jobs/{i}/results").json()["report"]["adjustment"]["sigma0_aposteriori"]
+            for i in ids[::20]
+        }
         assert len(sigma0) == 1
     store = server.store()
     try:
@@ -210,7 +247,9 @@ def test_200_concurrent_small_jobs(server: Server, small_doc: dict[str, Any]) ->
         store.close()
 
 
-def test_model_comparison_process(server: Server, keys: dict[str, str], triplet_doc: dict[str, Any]) -> None:
+def test_model_comparison_process(
+    server: Server, keys: dict[str, str], triplet_doc: dict[str, Any]
+) -> None:
     with server.client(keys["bob"]) as c:
         r = c.post(
             "/processes/model-comparison/execution",
@@ -218,9 +257,14 @@ def test_model_comparison_process(server: Server, keys: dict[str, str], triplet_
         )
         assert r.status_code == 200, r.text[:500]
         report = r.json()["report"]
-        assert report["kind"] == "comparison" and [t["model"] for t in report["table"]] == ["K2", "P2"]
+        assert report["kind"] == "comparison" and [t["model"] for t in report["table"]] == [
+            "K2",
+            "P2",
+        ]
         job_id = r.headers["location"].rsplit("/", 1)[1]
-        rows = list(csv.DictReader(io.StringIO(c.get(f"/jobs/{job_id}/results/parameters.csv").text)))
+        rows = list(
+            csv.DictReader(io.StringIO(c.get(f"/jobs/{job_id}/results/parameters.csv").text))
+        )
         assert {row["model"] for row in rows} == {"K2", "P2"}
 
 
@@ -230,13 +274,17 @@ def test_camera_from_a_job_without_self_calibration_is_404(
     with server.client(keys["bob"]) as c:
         job_id = submit_async(c, small_doc)
         wait_status(c, job_id)
-        r = c.post("/cameras/from-job", json={"job_id": job_id, "camera": "prism-nadir", "name": "prism-n"})
+        r = c.post(
+            "/cameras/from-job", json={"job_id": job_id, "camera": "prism-nadir", "name": "prism-n"}
+        )
         assert r.status_code == 404 and "interior orientation" in r.json()["detail"]
         r = c.post("/cameras/from-job", json={"job_id": job_id, "camera": "nope", "name": "x"})
         assert r.status_code == 404
 
 
-def test_metrics_health_and_structured_logs(server: Server, keys: dict[str, str], small_doc: dict[str, Any]) -> None:
+def test_metrics_health_and_structured_logs(
+    server: Server, keys: dict[str, str], small_doc: dict[str, Any]
+) -> None:
     with server.client(keys["bob"]) as c:
         r = c.post("/processes/bundle-adjustment/execution", json=execute_body(small_doc))
         job_id = r.headers["location"].rsplit("/", 1)[1]

@@ -11,7 +11,11 @@ README = Path(__file__).resolve().parents[2] / "README.md"
 
 def test_every_setting_is_in_the_readme_table() -> None:
     text = README.read_text()
-    missing = [f"PBA_{name.upper()}" for name in Settings.model_fields if f"| `PBA_{name.upper()}` |" not in text]
+    missing = [
+        f"PBA_{name.upper()}"
+        for name in Settings.model_fields
+        if f"| `PBA_{name.upper()}` |" not in text
+    ]
     assert not missing, f"README settings table lacks {missing}"
 
 

@@ -27,7 +27,9 @@ def medium_doc(big_doc: dict[str, Any]) -> dict[str, Any]:
     return doc
 
 
-def test_graceful_restart_with_queued_jobs(tmp_path: Path, medium_doc: dict[str, Any], small_doc: dict[str, Any]) -> None:
+def test_graceful_restart_with_queued_jobs(
+    tmp_path: Path, medium_doc: dict[str, Any], small_doc: dict[str, Any]
+) -> None:
     first = Server(tmp_path, workers=1).start()
     try:
         with first.client() as c:  # local single-user mode: no key
@@ -42,7 +44,9 @@ def test_graceful_restart_with_queued_jobs(tmp_path: Path, medium_doc: dict[str,
     try:
         rec = store.get_job(running)
         assert rec is not None and rec.status == JobStatus.accepted, rec
-        assert "server stopped" in rec.message and rec.attempts == 0  # a clean stop costs no attempt
+        assert (
+            "server stopped" in rec.message and rec.attempts == 0
+        )  # a clean stop costs no attempt
         assert all(store.get_job(j).status == JobStatus.accepted for j in queued)  # type: ignore[union-attr]
     finally:
         store.close()
@@ -116,14 +120,21 @@ def test_server_killed_alone_its_orphaned_worker_hands_the_job_back(
         server.stop()
 
 
-def test_time_limit_fails_a_long_job(tmp_path: Path, big_doc: dict[str, Any], small_doc: dict[str, Any]) -> None:
+def test_time_limit_fails_a_long_job(
+    tmp_path: Path, big_doc: dict[str, Any], small_doc: dict[str, Any]
+) -> None:
     server = Server(tmp_path, workers=1, job_time_limit_s=3, kill_grace_s=5).start()
     try:
         with server.client() as c:
             job_id = submit_async(c, big_doc)
             st = wait_status(c, job_id, {"failed"}, timeout=30)
             assert "time limit of 3 s exceeded" in st["message"], st
-            assert c.post("/processes/bundle-adjustment/execution", json=execute_body(small_doc)).status_code == 200
+            assert (
+                c.post(
+                    "/processes/bundle-adjustment/execution", json=execute_body(small_doc)
+                ).status_code
+                == 200
+            )
     finally:
         server.stop()
 

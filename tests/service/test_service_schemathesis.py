@@ -25,7 +25,9 @@ CHECKS = ",".join(
 )
 
 
-def test_schemathesis_finds_no_server_error(server: Server, small_doc: dict[str, Any], tmp_path: Path) -> None:
+def test_schemathesis_finds_no_server_error(
+    server: Server, small_doc: dict[str, Any], tmp_path: Path
+) -> None:
     key = server.create_key("fuzzer")
     with server.client(key) as c:
         r = c.post("/processes/bundle-adjustment/execution", json=execute_body(small_doc))
@@ -36,17 +38,30 @@ def test_schemathesis_finds_no_server_error(server: Server, small_doc: dict[str,
     config.write_text(f'[parameters]\njobId = "{job_id}"\n')
     st = Path(sys.executable).with_name("st")
     cmd = [
-        str(st), "--config-file", str(config), "run", str(ROOT / "openapi.yaml"),
-        "--url", server.url,
-        "-H", f"X-API-Key: {key}",
-        "--checks", CHECKS,
-        "--phases", "examples,coverage,fuzzing,stateful",
-        "--max-examples", "25",
-        "--seed", "20261122",
-        "--workers", "2",
+        str(st),
+        "--config-file",
+        str(config),
+        "run",
+        str(ROOT / "openapi.yaml"),
+        "--url",
+        server.url,
+        "-H",
+        f"X-API-Key: {key}",
+        "--checks",
+        CHECKS,
+        "--phases",
+        "examples,coverage,fuzzing,stateful",
+        "--max-examples",
+        "25",
+        "--seed",
+        "20261122",
+        "--workers",
+        "2",
         "--no-shrink",
-        "--request-timeout", "60",
-        "--report-dir", str(tmp_path / "report"),
+        "--request-timeout",
+        "60",
+        "--report-dir",
+        str(tmp_path / "report"),
     ]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=400, cwd=tmp_path)
     tail = "\n".join((out.stdout + out.stderr).splitlines()[-80:])

@@ -15,7 +15,13 @@ from service.states import (
 
 
 def test_status_values_are_the_ogc_codes() -> None:
-    assert [s.value for s in JobStatus] == ["accepted", "running", "successful", "failed", "dismissed"]
+    assert [s.value for s in JobStatus] == [
+        "accepted",
+        "running",
+        "successful",
+        "failed",
+        "dismissed",
+    ]
 
 
 def test_dismissed_is_final_and_finished_jobs_only_get_dismissed() -> None:

@@ -17,7 +17,9 @@ from service.auth import create_key, hash_key, user_for_key
 from service.states import JobStatus
 from service.store import Store, open_store
 
-PG_ADMIN_URL = os.environ.get("PBA_TEST_POSTGRES_ADMIN", "postgresql://postgres@127.0.0.1:5432/postgres")
+PG_ADMIN_URL = os.environ.get(
+    "PBA_TEST_POSTGRES_ADMIN", "postgresql://postgres@127.0.0.1:5432/postgres"
+)
 BACKENDS = ["sqlite", "postgresql"] + [
     u for u in os.environ.get("PBA_TEST_DATABASE_URLS", "").split(",") if u.strip()
 ]
@@ -67,7 +69,11 @@ def test_create_get_and_document(store: Store) -> None:
     got = store.get_job(rec.id)
     assert got is not None
     assert (got.status, got.progress, got.owner, got.n_observations, got.name) == (
-        JobStatus.accepted, 0, "u1", 12, "my job"
+        JobStatus.accepted,
+        0,
+        "u1",
+        12,
+        "my job",
     )
     assert got.created.tzinfo is not None
     assert got.document == DOC
@@ -167,7 +173,11 @@ def test_requeue_without_counting_the_attempt(store: Store) -> None:
     store.claim_next("w1")
     assert store.requeue(job_id, "w1", "server stopping", count_attempt=False)
     rec = store.get_job(job_id)
-    assert rec is not None and (rec.status, rec.attempts, rec.worker) == (JobStatus.accepted, 0, None)
+    assert rec is not None and (rec.status, rec.attempts, rec.worker) == (
+        JobStatus.accepted,
+        0,
+        None,
+    )
 
 
 def test_cancel_accepted_running_and_finished(store: Store) -> None:
@@ -198,7 +208,11 @@ def test_fail_and_fail_jobs_of_worker(store: Store) -> None:
     store.claim_next("dead")
     assert store.fail_jobs_of_worker("dead", "worker died") == [a]
     rec = store.get_job(a)
-    assert rec is not None and rec.status == JobStatus.failed and rec.error == {"status": 500, "code": "worker_died"}
+    assert (
+        rec is not None
+        and rec.status == JobStatus.failed
+        and rec.error == {"status": 500, "code": "worker_died"}
+    )
     assert store.fail(b, "cannot run", {"status": 422})
     assert not store.fail(b, "twice")
 
