@@ -99,6 +99,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.services = None
     install_error_handlers(app)
+    app.state.router_modules = []
     for name in ROUTER_MODULES:
         module_name = f"service.routes.{name}"
         try:
@@ -108,6 +109,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 continue
             raise
         app.include_router(module.router)
+        app.state.router_modules.append(name)
     # middlewares: the last added runs first
     app.add_middleware(ServicesContextMiddleware)
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)

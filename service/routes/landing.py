@@ -47,7 +47,7 @@ def landing_page(request: Request, base: BaseUrl) -> LandingPage:
         Link(href=f"{base}jobs", rel=OGC_REL + "job-list", type="application/json", title="jobs"),
         Link(href=f"{base}cameras", rel="data", type="application/json", title="camera library"),
     ]
-    if any(getattr(r, "path", None) == "/ui" for r in request.app.routes):
+    if "ui" in getattr(request.app.state, "router_modules", ()):
         links.append(Link(href=f"{base}ui", rel="alternate", type="text/html", title="web page"))
     return LandingPage(
         title="Pushbroom orientation server",
