@@ -40,7 +40,9 @@ class JobError(SolverError):
 
     def __init__(self, problems: list[Problem] | Problem):
         self.problems = [problems] if isinstance(problems, Problem) else list(problems)
-        super().__init__("; ".join(p.message for p in self.problems))
+        shown = "; ".join(p.message for p in self.problems[:5])
+        more = len(self.problems) - 5
+        super().__init__(shown + (f"; and {more} more problem(s)" if more > 0 else ""))
 
     @property
     def code(self) -> str:

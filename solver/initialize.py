@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from solver.errors import JobError, Problem as JobProblem
-from solver.kernels import gravity_and_gradient, platform_state, ray
+from solver.kernels import gravity_and_gradient, intersect_all, platform_state, project
 from solver.models import ANGLES, ELEMENTS, HELD, coef_index
 from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.problem import ImageState, Problem, is_kepler
@@ -138,7 +138,7 @@ def initialise(problem: Problem) -> None:
         img.params[:] = img.base[img.free_idx]
     if issues:
         raise JobError(issues)
-    _intersect_estimated_points(problem)
+    intersect_estimated_points(problem)
 
 
 def _attitude_by_resection(problem: Problem, img: ImageState, v_ecef) -> tuple[float, float, float]:
@@ -162,24 +162,59 @@ def _attitude_by_resection(problem: Problem, img: ImageState, v_ecef) -> tuple[f
         c = np.array([oc[5], y, -oc[3]])
         cam.append(c / np.linalg.norm(c))
     m = _wahba(np.array(obj), np.array(cam))
-    return angles_from_matrix(m)
+    angles = angles_from_matrix(m)
+    return _refine_angles(problem, img, np.array(sel), angles)
 
 
-def _intersect_estimated_points(problem: Problem) -> None:
+def _refine_angles(problem: Problem, img: ImageState, rows: np.ndarray, angles) -> tuple[float, float, float]:
+    """Gauss-Newton on the angles (constants and linear rates), positions held at the header state.
+
+    The closed-form rotation is poorly conditioned about the boresight (the rays of a narrow
+    field of view are nearly parallel), which leaves ~10 px at the edges of a tilted image; this
+    refinement removes it without moving along the pitch / along-track-position valley.
+    """
     obs = problem.obs
-    coefs = [img.coef() for img in problem.images]
-    for p in problem.points:
-        if not p.estimated or p.known_lgs is not None:
-            continue
-        a = np.zeros((3, 3))
-        b = np.zeros(3)
-        for k in np.flatnonzero(obs.pt == p.index):
-            img = problem.images[obs.img[k]]
-            s, d = ray(img.kind, coefs[img.index], img.kc, obs.oc[k])
-            q = np.eye(3) - np.outer(d, d)
-            a += q
-            b += q @ s
-        try:
-            p.xyz = np.linalg.solve(a, b)
-        except np.linalg.LinAlgError:
-            p.xyz = np.zeros(3)  # validation reports points seen in fewer than two images
+    coef = img.coef()
+    idx = [coef_index(e, 0) for e in ANGLES]
+    coef[idx] = angles
+    orders = img.model.effective_orders(img.options)
+    # constant angles and, where the model has them, their linear rates (kappa drift, ...)
+    free = [coef_index(e, k) for e in ANGLES for k in range(min(orders[ELEMENTS.index(e)], 1) + 1)]
+    if not free or 2 * len(rows) < len(free) + 2:
+        return tuple(coef[idx])
+    for _ in range(8):
+        jac = []
+        res = []
+        for k in rows:
+            ok, line, col, dl_dc, _dl_dp, dc_dc, _dc_dp = project(
+                img.kind, coef, img.kc, problem.points[obs.pt[k]].known_lgs, obs.oc[k], True
+            )
+            res += [obs.oc[k, 0] - line, obs.oc[k, 1] - col]
+            jac += [dl_dc[free], dc_dc[free]]
+        step = np.linalg.lstsq(np.array(jac), np.array(res), rcond=None)[0]
+        if not np.all(np.isfinite(step)):
+            break
+        coef[free] += step
+        if np.max(np.abs(step)) < 1e-9:
+            break
+    for e in ANGLES:  # rates go straight into the image's coefficients
+        if orders[ELEMENTS.index(e)] >= 1:
+            img.base[coef_index(e, 1)] = coef[coef_index(e, 1)]
+    return tuple(float(x) for x in coef[idx])
+
+
+def intersect_estimated_points(problem: Problem) -> None:
+    """Tie points (estimated points without survey) by least-squares intersection of their rays."""
+    obs = problem.obs
+    which = np.array([p.index for p in problem.points if p.estimated and p.known_lgs is None], dtype=np.int64)
+    if len(which) == 0:
+        return
+    kinds = np.array([im.kind for im in problem.images], dtype=np.int64)
+    coefs = np.ascontiguousarray([im.coef() for im in problem.images])
+    kcs = np.ascontiguousarray([im.kc for im in problem.images])
+    order = np.argsort(obs.pt, kind="stable")
+    bounds = np.searchsorted(obs.pt[order], np.arange(len(problem.points) + 1))
+    xyz = intersect_all(kinds, coefs, kcs, obs.img, obs.oc, order, bounds, which)
+    for q, i in enumerate(which):
+        # NaN (fewer than two rays) is reported by validation; keep a finite start
+        problem.points[i].xyz = np.ascontiguousarray(np.nan_to_num(xyz[q]))

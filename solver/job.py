@@ -118,11 +118,17 @@ class ApproxState(_Strict):
     From the image header or ephemeris. Used to initialise every platform model (the angles are
     then found by a resection on the control points). ``attitude_deg`` optionally gives
     approximate (omega, phi, kappa) in the local geodetic frame.
+
+    With ``sigma_position_m`` (and optionally ``sigma_velocity_m_s``) the state also enters the
+    adjustment as a weighted observation of the model's position (and velocity) at line 0
+    (seed 001 eqs 38-43: state = ephemeris value + correction with weighted constraints).
     """
 
     position_ecef_m: tuple[float, float, float]
     velocity_ecef_m_s: tuple[float, float, float]
     attitude_deg: tuple[float, float, float] | None = None
+    sigma_position_m: float | None = Field(default=None, gt=0)
+    sigma_velocity_m_s: float | None = Field(default=None, gt=0)
 
 
 class Image(_Strict):

@@ -175,6 +175,104 @@ def _camera_vector(kind, coef, kc, tau, p):
 
 
 @njit(**_JIT)
+def _rotation_into(om: float, ph: float, ka: float, out):
+    """Fill out[0] = M, out[1..3] = dM/d(omega, phi, kappa) for M = Rx(om) Ry(ph) Rz(ka)."""
+    co, so = np.cos(om), np.sin(om)
+    cp, sp = np.cos(ph), np.sin(ph)
+    ck, sk = np.cos(ka), np.sin(ka)
+    # M = Rx Ry Rz written out; rows: see docs/models.md
+    out[0, 0, 0] = cp * ck
+    out[0, 0, 1] = -cp * sk
+    out[0, 0, 2] = sp
+    out[0, 1, 0] = co * sk + so * sp * ck
+    out[0, 1, 1] = co * ck - so * sp * sk
+    out[0, 1, 2] = -so * cp
+    out[0, 2, 0] = so * sk - co * sp * ck
+    out[0, 2, 1] = so * ck + co * sp * sk
+    out[0, 2, 2] = co * cp
+    # d/d omega: row 0 constant, rows 1, 2 rotate
+    out[1, 0, 0] = 0.0
+    out[1, 0, 1] = 0.0
+    out[1, 0, 2] = 0.0
+    out[1, 1, 0] = -so * sk + co * sp * ck
+    out[1, 1, 1] = -so * ck - co * sp * sk
+    out[1, 1, 2] = -co * cp
+    out[1, 2, 0] = co * sk + so * sp * ck
+    out[1, 2, 1] = co * ck - so * sp * sk
+    out[1, 2, 2] = -so * cp
+    # d/d phi
+    out[2, 0, 0] = -sp * ck
+    out[2, 0, 1] = sp * sk
+    out[2, 0, 2] = cp
+    out[2, 1, 0] = so * cp * ck
+    out[2, 1, 1] = -so * cp * sk
+    out[2, 1, 2] = so * sp
+    out[2, 2, 0] = -co * cp * ck
+    out[2, 2, 1] = co * cp * sk
+    out[2, 2, 2] = -co * sp
+    # d/d kappa
+    out[3, 0, 0] = -cp * sk
+    out[3, 0, 1] = -cp * ck
+    out[3, 0, 2] = 0.0
+    out[3, 1, 0] = co * ck - so * sp * sk
+    out[3, 1, 1] = -co * sk - so * sp * ck
+    out[3, 1, 2] = 0.0
+    out[3, 2, 0] = so * ck + co * sp * sk
+    out[3, 2, 1] = -so * sk + co * sp * ck
+    out[3, 2, 2] = 0.0
+
+
+@njit(**_JIT)
+def _kepler_terms(coef, kc):
+    """Rotating-frame acceleration at the state (S0, u) and its derivatives (once per call)."""
+    r0 = np.empty(3)
+    r0[0] = coef[0]
+    r0[1] = coef[4]
+    r0[2] = coef[8]
+    om = kc[13]
+    g, gg = gravity_and_gradient(r0, kc[12], kc[14], kc[15])
+    a = g
+    a[0] += om * om * r0[0] + 2.0 * om * coef[5]
+    a[1] += om * om * r0[1] - 2.0 * om * coef[1]
+    gg[0, 0] += om * om
+    gg[1, 1] += om * om
+    return a, gg
+
+
+@njit(**_JIT)
+def _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot):
+    """Position (LGS) and its tau-derivative, angles and their tau-derivatives, at tau."""
+    for e in range(3):
+        c0 = coef[(3 + e) * 4]
+        c1 = coef[(3 + e) * 4 + 1]
+        c2 = coef[(3 + e) * 4 + 2]
+        c3 = coef[(3 + e) * 4 + 3]
+        ang[e] = c0 + tau * (c1 + tau * (c2 + tau * c3))
+        angdot[e] = c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
+    if kind == KIND_POLYNOMIAL:
+        for e in range(3):
+            c0 = coef[e * 4]
+            c1 = coef[e * 4 + 1]
+            c2 = coef[e * 4 + 2]
+            c3 = coef[e * 4 + 3]
+            s[e] = c0 + tau * (c1 + tau * (c2 + tau * c3))
+            sdot[e] = c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
+        return
+    h = 0.5 * tau * tau
+    for i in range(3):
+        se_i = coef[i * 4] + coef[i * 4 + 1] * tau + acc[i] * h - kc[9 + i]
+        sd_i = coef[i * 4 + 1] + acc[i] * tau
+        sdot[i] = sd_i
+        s[i] = se_i
+    # rotate ECEF offsets into the LGS
+    x, y, z = s[0], s[1], s[2]
+    vx, vy, vz = sdot[0], sdot[1], sdot[2]
+    for i in range(3):
+        s[i] = kc[3 * i] * x + kc[3 * i + 1] * y + kc[3 * i + 2] * z
+        sdot[i] = kc[3 * i] * vx + kc[3 * i + 1] * vy + kc[3 * i + 2] * vz
+
+
+@njit(**_JIT)
 def project(kind, coef, kc, p, oc, want_jac: bool):
     """Exact pushbroom projection of ground point ``p`` (LGS, m) with its observation constants.
 
@@ -190,46 +288,134 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
     tpl = oc[8]
     line = oc[0]
     ok = False
-    for _ in range(30):
+    rot = np.empty((4, 3, 3))
+    s = np.empty(3)
+    sdot = np.empty(3)
+    ang = np.empty(3)
+    angdot = np.empty(3)
+    d = np.empty(3)
+    ddt = np.empty(3)
+    v = np.empty(3)
+    if kind == KIND_KEPLER:
+        acc, da_dr = _kepler_terms(coef, kc)
+    else:
+        acc = np.zeros(3)
+        da_dr = np.zeros((3, 3))
+    for it in range(31):
         tau = line * tpl
-        d, dd_dc, dd_dt, m = _camera_vector(kind, coef, kc, tau, p)
+        _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot)
+        _rotation_into(ang[0], ang[1], ang[2], rot)
+        for i in range(3):
+            v[i] = p[i] - s[i]
+        for i in range(3):
+            di = 0.0
+            dti = 0.0
+            for j in range(3):
+                mij = rot[0, i, j]
+                dmij = rot[1, i, j] * angdot[0] + rot[2, i, j] * angdot[1] + rot[3, i, j] * angdot[2]
+                di += mij * v[j]
+                dti += dmij * v[j] - mij * sdot[j]
+            d[i] = di
+            ddt[i] = dti
+        if it == 30 or ok:
+            break
         g = -f * d[0] / d[2] - xo
-        dg_dt = -f * (dd_dt[0] * d[2] - d[0] * dd_dt[2]) / (d[2] * d[2])
-        dg_dl = dg_dt * tpl
+        dg_dl = -f * (ddt[0] * d[2] - d[0] * ddt[2]) / (d[2] * d[2]) * tpl
         if dg_dl == 0.0 or not np.isfinite(dg_dl):
             break
         step = g / dg_dl
         line -= step
         if abs(step) < 1e-8:
             ok = True
-            break
-    tau = line * tpl
-    d, dd_dc, dd_dt, m = _camera_vector(kind, coef, kc, tau, p)
-    y = -f * d[1] / d[2]
+    iz = 1.0 / d[2]
+    y = -f * d[1] * iz
     col = cc + (y - yo) / px
     dl_dc = np.zeros(N_COEF)
     dl_dp = np.zeros(3)
     dc_dc = np.zeros(N_COEF)
     dc_dp = np.zeros(3)
-    if want_jac:
-        iz = 1.0 / d[2]
-        # gradients of x and y (mm) wrt d
-        gx = np.array([-f * iz, 0.0, f * d[0] * iz * iz])
-        gy = np.array([0.0, -f * iz, f * d[1] * iz * iz])
-        dx_dt = gx @ dd_dt
-        dy_dt = gy @ dd_dt
-        dx_dl = dx_dt * tpl
-        dy_dl = dy_dt * tpl
-        dx_dc = gx @ dd_dc
-        dy_dc = gy @ dd_dc
-        dx_dp = gx @ m
-        dy_dp = gy @ m
-        for j in range(N_COEF):
-            dl_dc[j] = -dx_dc[j] / dx_dl
-            dc_dc[j] = (dy_dc[j] + dy_dl * dl_dc[j]) / px
+    if not want_jac:
+        return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
+    tau = line * tpl
+    # gradients of x and y (mm) wrt d
+    gx0, gx2 = -f * iz, f * d[0] * iz * iz
+    gy1, gy2 = -f * iz, f * d[1] * iz * iz
+    dx_dl = (gx0 * ddt[0] + gx2 * ddt[2]) * tpl
+    dy_dl = (gy1 * ddt[1] + gy2 * ddt[2]) * tpl
+    # wrt P: dd/dP = M
+    for j in range(3):
+        dxp = gx0 * rot[0, 0, j] + gx2 * rot[0, 2, j]
+        dyp = gy1 * rot[0, 1, j] + gy2 * rot[0, 2, j]
+        dl_dp[j] = -dxp / dx_dl
+        dc_dp[j] = (dyp + dy_dl * dl_dp[j]) / px
+    # wrt the coefficients: dd/dc = dM/dang (P - S) dang/dc - M dS/dc
+    # angles: dang_e/dc[(3+e)*4+k] = tau^k
+    gvx = np.empty(3)  # d x / d ang_e
+    gvy = np.empty(3)
+    for e in range(3):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
         for j in range(3):
-            dl_dp[j] = -dx_dp[j] / dx_dl
-            dc_dp[j] = (dy_dp[j] + dy_dl * dl_dp[j]) / px
+            a0 += rot[1 + e, 0, j] * v[j]
+            a1 += rot[1 + e, 1, j] * v[j]
+            a2 += rot[1 + e, 2, j] * v[j]
+        gvx[e] = gx0 * a0 + gx2 * a2
+        gvy[e] = gy1 * a1 + gy2 * a2
+    tp = 1.0
+    for k in range(4):
+        for e in range(3):
+            idx = (3 + e) * 4 + k
+            dxc = gvx[e] * tp
+            dyc = gvy[e] * tp
+            dl_dc[idx] = -dxc / dx_dl
+            dc_dc[idx] = (dyc + dy_dl * dl_dc[idx]) / px
+        tp *= tau
+    # position: dx/dS_lgs = -(gx^T M), dy/dS_lgs likewise
+    wx = np.empty(3)
+    wy = np.empty(3)
+    for j in range(3):
+        wx[j] = -(gx0 * rot[0, 0, j] + gx2 * rot[0, 2, j])
+        wy[j] = -(gy1 * rot[0, 1, j] + gy2 * rot[0, 2, j])
+    if kind == KIND_POLYNOMIAL:
+        tp = 1.0
+        for k in range(4):
+            for e in range(3):
+                idx = e * 4 + k
+                dl_dc[idx] = -(wx[e] * tp) / dx_dl
+                dc_dc[idx] = (wy[e] * tp + dy_dl * dl_dc[idx]) / px
+            tp *= tau
+    else:
+        # S_lgs = R (S0 + u tau + a h - O); dS_ecef/dS0 = I + h da/dr, dS_ecef/du = tau I + h da/du
+        h = 0.5 * tau * tau
+        om2 = 2.0 * kc[13] * h
+        # row vectors wx^T R and wy^T R (ECEF)
+        ex = np.empty(3)
+        ey = np.empty(3)
+        for j in range(3):
+            ex[j] = wx[0] * kc[j] + wx[1] * kc[3 + j] + wx[2] * kc[6 + j]
+            ey[j] = wy[0] * kc[j] + wy[1] * kc[3 + j] + wy[2] * kc[6 + j]
+        for j in range(3):
+            # d/dS0_j
+            dxs = ex[j]
+            dys = ey[j]
+            for i in range(3):
+                dxs += ex[i] * h * da_dr[i, j]
+                dys += ey[i] * h * da_dr[i, j]
+            idx = j * 4
+            dl_dc[idx] = -dxs / dx_dl
+            dc_dc[idx] = (dys + dy_dl * dl_dc[idx]) / px
+        # d/du: tau I + h * [[0, 2W, 0], [-2W, 0, 0], [0, 0, 0]]
+        dxu0 = ex[0] * tau - ex[1] * om2
+        dyu0 = ey[0] * tau - ey[1] * om2
+        dxu1 = ex[1] * tau + ex[0] * om2
+        dyu1 = ey[1] * tau + ey[0] * om2
+        dxu2 = ex[2] * tau
+        dyu2 = ey[2] * tau
+        for j, dxu, dyu in ((0, dxu0, dyu0), (1, dxu1, dyu1), (2, dxu2, dyu2)):
+            idx = j * 4 + 1
+            dl_dc[idx] = -dxu / dx_dl
+            dc_dc[idx] = (dyu + dy_dl * dl_dc[idx]) / px
     return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
 
 
@@ -363,3 +549,126 @@ def observation_rows(kinds, coefs, kcs, free_idx, nfree, img_col, pts, pt_col, o
                     vals[q] = -dc_dp[j] * w
                     q += 1
     return res, rows, cols, vals, ok
+
+
+# ---- packed per-block constants for the hot residual blocks ------------------------------
+# Layout of one image record inside a point block's constant array ``cst``:
+#   kind, nfree, free_idx[24], base[24], kc[16], oc[9]   (75 float64)
+_REC = 75
+
+
+def pack_point_block(kinds, bases, kcs, ocs, free_idx, nfree) -> np.ndarray:
+    """Pack the constants of a point block (k images) into one float64 array (k * 75)."""
+    k = len(kinds)
+    cst = np.zeros(k * _REC)
+    for i in range(k):
+        r = cst[i * _REC : (i + 1) * _REC]
+        r[0] = kinds[i]
+        r[1] = nfree[i]
+        r[2 : 2 + nfree[i]] = free_idx[i][: nfree[i]]
+        r[26:50] = bases[i]
+        r[50:66] = kcs[i]
+        r[66:75] = ocs[i]
+    return cst
+
+
+@njit(**_JIT)
+def point_block(cst, p, params, res, jac_p, jacs, want_jac: bool):
+    """Residuals and Jacobians of one estimated point seen in k images, straight into Ceres' arrays.
+
+    ``params`` and ``jacs`` are tuples of the k image parameter blocks and their Jacobian
+    outputs (2k x nfree_i, row-major, flattened); ``jac_p`` is (2k x 3) flattened. Returns False
+    only for a non-finite result.
+    """
+    k = len(params)
+    ok = True
+    for i in range(k):
+        base = i * _REC
+        kind = int(cst[base])
+        nf = int(cst[base + 1])
+        coef = cst[base + 26 : base + 50].copy()
+        pi = params[i]
+        for j in range(nf):
+            coef[int(cst[base + 2 + j])] = pi[j]
+        kc = cst[base + 50 : base + 66]
+        oc = cst[base + 66 : base + 75]
+        good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(kind, coef, kc, p, oc, want_jac)
+        w = 1.0 / oc[2]
+        r0 = (oc[0] - ln) * w
+        r1 = (oc[1] - cl) * w
+        if not (np.isfinite(r0) and np.isfinite(r1)):
+            ok = False
+        res[2 * i] = r0
+        res[2 * i + 1] = r1
+        if want_jac:
+            for j in range(3):
+                jac_p[(2 * i) * 3 + j] = -dl_dp[j] * w
+                jac_p[(2 * i + 1) * 3 + j] = -dc_dp[j] * w
+            ji = jacs[i]
+            for q in range(ji.shape[0]):
+                ji[q] = 0.0
+            for j in range(nf):
+                fj = int(cst[base + 2 + j])
+                ji[(2 * i) * nf + j] = -dl_dc[fj] * w
+                ji[(2 * i + 1) * nf + j] = -dc_dc[fj] * w
+    return ok
+
+
+@njit(**_JIT)
+def intersect_all(kinds, coefs, kcs, obs_img, ocs, order, bounds, which):
+    """Least-squares intersection of the rays of each selected point (midpoint in 3D).
+
+    ``order``/``bounds`` group the observations by point (observations of point q are
+    order[bounds[q]:bounds[q+1]]); ``which`` lists the points to compute. Returns (len(which), 3);
+    NaN where fewer than two independent rays exist.
+    """
+    out = np.full((which.shape[0], 3), np.nan)
+    for w in range(which.shape[0]):
+        q = which[w]
+        a = np.zeros((3, 3))
+        b = np.zeros(3)
+        n = 0
+        for t in range(bounds[q], bounds[q + 1]):
+            k = order[t]
+            im = obs_img[k]
+            s, d = ray(kinds[im], coefs[im], kcs[im], ocs[k])
+            for i in range(3):
+                for j in range(3):
+                    qij = (1.0 if i == j else 0.0) - d[i] * d[j]
+                    a[i, j] += qij
+                    b[i] += qij * s[j]
+            n += 1
+        if n >= 2 and abs(np.linalg.det(a)) > 1e-18:
+            out[w] = np.linalg.solve(a, b)
+    return out
+
+
+@njit(**_JIT)
+def observation_blocks(kinds, coefs, kcs, free_idx, nfree, pts, estimated, obs_img, obs_pt, ocs):
+    """Whitened residuals and dense Jacobian blocks of every observation.
+
+    Returns res (n, 2), jimg (n, 2, 24) wrt the free parameters of the observation's image
+    (first nfree entries), jpt (n, 2, 3) wrt the point (zero if the point is not estimated),
+    ok (n,). Residual = (observed - projected) / sigma.
+    """
+    n = obs_img.shape[0]
+    res = np.empty((n, 2))
+    jimg = np.zeros((n, 2, 24))
+    jpt = np.zeros((n, 2, 3))
+    ok = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        im = obs_img[i]
+        pt = obs_pt[i]
+        good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(kinds[im], coefs[im], kcs[im], pts[pt], ocs[i], True)
+        w = 1.0 / ocs[i, 2]
+        res[i, 0] = (ocs[i, 0] - ln) * w
+        res[i, 1] = (ocs[i, 1] - cl) * w
+        ok[i] = good and np.isfinite(res[i, 0]) and np.isfinite(res[i, 1])
+        for j in range(nfree[im]):
+            jimg[i, 0, j] = -dl_dc[free_idx[im, j]] * w
+            jimg[i, 1, j] = -dc_dc[free_idx[im, j]] * w
+        if estimated[pt]:
+            for j in range(3):
+                jpt[i, 0, j] = -dl_dp[j] * w
+                jpt[i, 1, j] = -dc_dp[j] * w
+    return res, jimg, jpt, ok

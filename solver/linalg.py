@@ -1,13 +1,16 @@
-"""Linearised problem: weighted Jacobian, rank check, covariance and redundancy numbers.
+"""Linearised problem: rank check, covariance and redundancy numbers (numba, independent of Ceres).
 
-The Jacobian is assembled from the same kernels as the residual blocks (one numba call for all
-observations) plus the survey priors, independently of Ceres. Unknowns are ordered as all
+The Jacobian is evaluated with the same kernels as the residual blocks, observation by
+observation as small dense blocks (2 x n_image_parameters and 2 x 3), plus the priors (survey
+coordinates of weighted control points, weighted platform states). Unknowns are ordered as all
 images' free parameters (image order, model order), then the estimated points (3 each, LGS).
 
-Covariance: N = J^T J of the whitened residuals (a-priori sigma0 = 1). The point blocks are
-eliminated (Schur complement, 3x3 blocks), the reduced image system S is inverted densely, and
-each point's 3x3 covariance is recovered; every block is then scaled by the a-posteriori
-variance factor where the report asks for it.
+Normal matrix N = J^T J of the whitened residuals (a-priori sigma0 = 1) in block form
+[[A, B], [B^T, C]] with C block-diagonal (3 x 3 per point). The points are eliminated
+(S = A - B C^-1 B^T), S is inverted densely, and per point the 3 x 3 covariance
+C^-1 + C^-1 B_p^T S^-1 B_p C^-1 and the leverages h = u^T S^-1 u + b^T C^-1 b
+(u = a - B_p C^-1 b) of its observation rows are recovered. Scale by the a-posteriori variance
+factor where a report needs it.
 """
 
 from __future__ import annotations
@@ -16,9 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 
-from solver.kernels import observation_rows
+from solver.kernels import observation_blocks
+from solver.priors import StatePrior, all_state_priors
 from solver.problem import Problem
+
+_JIT = dict(cache=True, nogil=True, error_model="numpy")
 
 
 @dataclass
@@ -44,106 +51,254 @@ def layout(problem: Problem) -> Layout:
     return Layout(img_col, pt_col, n_img, c)
 
 
-def _image_arrays(problem: Problem):
-    nimg = len(problem.images)
+@dataclass
+class Linearisation:
+    """Residuals and Jacobian blocks at the current parameters."""
+
+    layout: Layout
+    obs_sel: np.ndarray  # indices of the observations that enter the adjustment
+    res_obs: np.ndarray  # (n, 2) whitened
+    jimg: np.ndarray  # (n, 2, 24)
+    jpt: np.ndarray  # (n, 2, 3)
+    ok: np.ndarray  # (n,)
+    point_prior: dict[int, tuple[np.ndarray, np.ndarray]]  # point -> (whitened residual, 1/sigma)
+    state_priors: list[StatePrior]
+    nfree: np.ndarray
+    obs_img: np.ndarray
+    obs_pt: np.ndarray
+
+    @property
+    def n_obs_rows(self) -> int:
+        return 2 * len(self.obs_sel)
+
+    @property
+    def residuals(self) -> np.ndarray:
+        """All whitened residuals: observations (line, column interleaved), then priors."""
+        parts = [self.res_obs.ravel()]
+        parts += [r for r, _ in self.point_prior.values()]
+        parts += [p.residuals(p_params) for p, p_params in self._state_params()]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def _state_params(self):
+        return [(p, self._img_params[p.image_index]) for p in self.state_priors]
+
+    def sparse_jacobian(self) -> sp.csr_matrix:
+        """The full weighted Jacobian (rows as :attr:`residuals`), for tests and diagnostics."""
+        rows, cols, vals = [], [], []
+        lay = self.layout
+        for q in range(len(self.obs_sel)):
+            im, pt = self.obs_img[q], self.obs_pt[q]
+            nf = self.nfree[im]
+            for r in range(2):
+                for j in range(nf):
+                    rows.append(2 * q + r)
+                    cols.append(lay.img_col[im] + j)
+                    vals.append(self.jimg[q, r, j])
+                if lay.pt_col[pt] >= 0:
+                    for j in range(3):
+                        rows.append(2 * q + r)
+                        cols.append(lay.pt_col[pt] + j)
+                        vals.append(self.jpt[q, r, j])
+        row = self.n_obs_rows
+        for pidx, (_res, w) in self.point_prior.items():
+            for a in range(3):
+                rows.append(row)
+                cols.append(lay.pt_col[pidx] + a)
+                vals.append(w[a])
+                row += 1
+        for p in self.state_priors:
+            jac = p.jacobian
+            for q in range(jac.shape[0]):
+                for c in np.flatnonzero(jac[q]):
+                    rows.append(row)
+                    cols.append(lay.img_col[p.image_index] + c)
+                    vals.append(jac[q, c])
+                row += 1
+        return sp.csr_matrix((vals, (rows, cols)), shape=(row, lay.n_params))
+
+
+def linearise(problem: Problem) -> Linearisation:
+    lay = layout(problem)
+    obs = problem.obs
+    sel = np.flatnonzero(problem.adjusted_mask)
     kinds = np.array([im.kind for im in problem.images], dtype=np.int64)
     coefs = np.ascontiguousarray([im.coef() for im in problem.images])
     kcs = np.ascontiguousarray([im.kc for im in problem.images])
+    nimg = len(problem.images)
     free = np.zeros((nimg, 24), dtype=np.int64)
     nfree = np.zeros(nimg, dtype=np.int64)
     for im in problem.images:
         free[im.index, : im.nfree] = im.free_idx
         nfree[im.index] = im.nfree
-    return kinds, coefs, kcs, free, nfree
-
-
-def evaluate_observations(problem: Problem, rows_mask: np.ndarray | None = None, want_jac: bool = True):
-    """Whitened residuals (2n) and the sparse Jacobian of the selected observations."""
-    lay = layout(problem)
-    kinds, coefs, kcs, free, nfree = _image_arrays(problem)
     pts = np.ascontiguousarray([p.xyz for p in problem.points], dtype=float)
-    obs = problem.obs
-    sel = np.arange(len(obs.img)) if rows_mask is None else np.flatnonzero(rows_mask)
-    res, r, c, v, ok = observation_rows(
-        kinds, coefs, kcs, free, nfree, lay.img_col, pts, lay.pt_col,
-        np.ascontiguousarray(obs.img[sel]), np.ascontiguousarray(obs.pt[sel]),
-        np.ascontiguousarray(obs.oc[sel]), want_jac,
-    )
-    jac = sp.csr_matrix((v, (r, c)), shape=(2 * len(sel), lay.n_params)) if want_jac else None
-    return res, jac, ok, sel, lay
-
-
-def prior_rows(problem: Problem, lay: Layout):
-    """Whitened residuals and Jacobian rows of the survey priors of weighted control points."""
-    res, rows, cols, vals = [], [], [], []
-    r = 0
+    est = np.array([p.estimated for p in problem.points], dtype=np.bool_)
+    oi = np.ascontiguousarray(obs.img[sel])
+    op = np.ascontiguousarray(obs.pt[sel])
+    res, jimg, jpt, ok = observation_blocks(kinds, coefs, kcs, free, nfree, pts, est, oi, op, np.ascontiguousarray(obs.oc[sel]))
+    point_prior = {}
     for p in problem.points:
         if p.estimated and p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
-            for a in range(3):
-                res.append((p.xyz[a] - p.known_lgs[a]) / p.sigma_m[a])
-                rows.append(r)
-                cols.append(lay.pt_col[p.index] + a)
-                vals.append(1.0 / p.sigma_m[a])
-                r += 1
-    jac = sp.csr_matrix((vals, (rows, cols)), shape=(r, lay.n_params))
-    return np.array(res), jac
+            point_prior[p.index] = ((p.xyz - p.known_lgs) / p.sigma_m, 1.0 / p.sigma_m)
+    lin = Linearisation(lay, sel, res, jimg, jpt, ok, point_prior, all_state_priors(problem), nfree, oi, op)
+    lin._img_params = {im.index: im.params for im in problem.images}  # type: ignore[attr-defined]
+    return lin
 
 
-@dataclass
-class Linearisation:
-    residuals: np.ndarray  # whitened, observations then priors
-    jacobian: sp.csr_matrix
-    n_obs_rows: int
-    layout: Layout
-    obs_sel: np.ndarray
-    ok: np.ndarray
+@njit(**_JIT)
+def _accumulate(n_img_params, img_col, nfree, obs_img, obs_pt, jimg, jpt, pt_q, npt_est):
+    """A (image normal block) and C (3x3 point blocks) and per-observation B pieces."""
+    a = np.zeros((n_img_params, n_img_params))
+    c = np.zeros((npt_est, 3, 3))
+    for i in range(obs_img.shape[0]):
+        im = obs_img[i]
+        c0 = img_col[im]
+        nf = nfree[im]
+        for r in range(2):
+            for j in range(nf):
+                vj = jimg[i, r, j]
+                if vj == 0.0:
+                    continue
+                for k in range(nf):
+                    a[c0 + j, c0 + k] += vj * jimg[i, r, k]
+            q = pt_q[obs_pt[i]]
+            if q >= 0:
+                for j in range(3):
+                    for k in range(3):
+                        c[q, j, k] += jpt[i, r, j] * jpt[i, r, k]
+    return a, c
 
 
-def linearise(problem: Problem) -> Linearisation:
-    res, jac, ok, sel, lay = evaluate_observations(problem, problem.adjusted_mask)
-    pres, pjac = prior_rows(problem, lay)
-    return Linearisation(
-        np.concatenate([res, pres]), sp.vstack([jac, pjac]).tocsr(), len(res), lay, sel, ok
-    )
+@njit(**_JIT)
+def _reduce(s, img_col, nfree, obs_img, jimg, jpt, order, bounds, c_inv):
+    """S -= B_p C_p^-1 B_p^T for every point p (observations grouped by ``order``/``bounds``)."""
+    npt = bounds.shape[0] - 1
+    for q in range(npt):
+        lo, hi = bounds[q], bounds[q + 1]
+        m = hi - lo
+        if m == 0:
+            continue
+        # B_p restricted to the columns of the images that see the point: rows of (col, 3)
+        cols = np.empty(0, dtype=np.int64)
+        total = 0
+        for t in range(lo, hi):
+            total += nfree[obs_img[order[t]]]
+        cols = np.empty(total, dtype=np.int64)
+        bp = np.zeros((total, 3))
+        off = 0
+        for t in range(lo, hi):
+            i = order[t]
+            im = obs_img[i]
+            nf = nfree[im]
+            for j in range(nf):
+                cols[off + j] = img_col[im] + j
+                for k in range(3):
+                    bp[off + j, k] = jimg[i, 0, j] * jpt[i, 0, k] + jimg[i, 1, j] * jpt[i, 1, k]
+            off += nf
+        w = bp @ c_inv[q]  # (total, 3)
+        for x in range(total):
+            for y in range(total):
+                s[cols[x], cols[y]] -= w[x, 0] * bp[y, 0] + w[x, 1] * bp[y, 1] + w[x, 2] * bp[y, 2]
+    return s
+
+
+@njit(**_JIT)
+def _point_covariances(s_inv, img_col, nfree, obs_img, jimg, jpt, order, bounds, c_inv, lev):
+    """Per point: 3x3 covariance and the leverages of its observation rows (written into lev)."""
+    npt = bounds.shape[0] - 1
+    cov = np.zeros((npt, 3, 3))
+    for q in range(npt):
+        lo, hi = bounds[q], bounds[q + 1]
+        total = 0
+        for t in range(lo, hi):
+            total += nfree[obs_img[order[t]]]
+        cols = np.empty(total, dtype=np.int64)
+        bp = np.zeros((total, 3))
+        off = 0
+        for t in range(lo, hi):
+            i = order[t]
+            im = obs_img[i]
+            nf = nfree[im]
+            for j in range(nf):
+                cols[off + j] = img_col[im] + j
+                for k in range(3):
+                    bp[off + j, k] = jimg[i, 0, j] * jpt[i, 0, k] + jimg[i, 1, j] * jpt[i, 1, k]
+            off += nf
+        sub = np.empty((total, total))
+        for x in range(total):
+            for y in range(total):
+                sub[x, y] = s_inv[cols[x], cols[y]]
+        ci = c_inv[q]
+        wb = bp @ ci  # (total, 3) = B_p C^-1
+        cov[q] = ci + wb.T @ sub @ wb
+        # leverages of the rows of this point
+        off = 0
+        for t in range(lo, hi):
+            i = order[t]
+            im = obs_img[i]
+            nf = nfree[im]
+            for r in range(2):
+                u = np.zeros(total)
+                for j in range(nf):
+                    u[off + j] = jimg[i, r, j]
+                b = jpt[i, r]
+                u -= wb @ b
+                h = u @ (sub @ u) + b @ (ci @ b)
+                lev[2 * i + r] = h
+            off += nf
+    return cov
+
+
+@njit(**_JIT)
+def _image_only_leverage(s_inv, img_col, nfree, obs_img, jimg, rows, lev):
+    for t in range(rows.shape[0]):
+        i = rows[t]
+        im = obs_img[i]
+        c0 = img_col[im]
+        nf = nfree[im]
+        for r in range(2):
+            h = 0.0
+            for j in range(nf):
+                for k in range(nf):
+                    h += jimg[i, r, j] * s_inv[c0 + j, c0 + k] * jimg[i, r, k]
+            lev[2 * i + r] = h
 
 
 @dataclass
 class SchurParts:
     s: np.ndarray  # reduced image normal matrix (dense)
     c_inv: np.ndarray  # (npt_est, 3, 3) inverse point blocks
-    b: sp.csr_matrix  # image-point cross block N_ip (n_img x 3 npt)
-    est_points: np.ndarray  # indices of estimated points in column order
+    est_points: np.ndarray  # point indices in column order
     point_singular: np.ndarray  # (npt_est,) bool
+    order: np.ndarray  # observation rows grouped by estimated point
+    bounds: np.ndarray
 
 
 def schur(lin: Linearisation, problem: Problem) -> SchurParts:
     lay = lin.layout
-    n = lay.n_img_params
-    jac = lin.jacobian
-    normal = (jac.T @ jac).tocsr()
-    a = normal[:n, :n].toarray()
-    b = normal[:n, n:].tocsr()
-    cdiag = normal[n:, n:]
     est = np.array([p.index for p in problem.points if p.estimated], dtype=np.int64)
-    npt = len(est)
-    blocks = np.zeros((npt, 3, 3))
-    if npt:
-        coo = cdiag.tocoo()
-        bi = coo.row // 3
-        same = bi == coo.col // 3
-        blocks[bi[same], coo.row[same] % 3, coo.col[same] % 3] = coo.data[same]
-    dets = np.linalg.det(blocks) if npt else np.zeros(0)
-    scale = np.einsum("kii->k", blocks) ** 3 if npt else np.zeros(0)
+    pt_q = -np.ones(len(problem.points), dtype=np.int64)
+    pt_q[est] = np.arange(len(est))
+    a, c = _accumulate(lay.n_img_params, lay.img_col, lin.nfree, lin.obs_img, lin.obs_pt, lin.jimg, lin.jpt, pt_q, len(est))
+    for pidx, (_r, w) in lin.point_prior.items():
+        c[pt_q[pidx]] += np.diag(w**2)
+    for prior in lin.state_priors:
+        c0 = lay.img_col[prior.image_index]
+        j = prior.jacobian
+        n = j.shape[1]
+        a[c0 : c0 + n, c0 : c0 + n] += j.T @ j
+    dets = np.linalg.det(c) if len(est) else np.zeros(0)
+    scale = np.einsum("kii->k", c) ** 3 if len(est) else np.zeros(0)
     singular = np.abs(dets) <= 1e-14 * np.maximum(scale, 1e-300)
-    c_inv = np.zeros_like(blocks)
-    if npt:
-        good = ~singular
-        c_inv[good] = np.linalg.inv(blocks[good])
-        cinv_sp = sp.block_diag(list(c_inv), format="csr")
-        s = a - (b @ cinv_sp @ b.T).toarray()
-    else:
-        s = a
-    return SchurParts(s, c_inv, b, est, singular)
+    c_inv = np.zeros_like(c)
+    if len(est):
+        c_inv[~singular] = np.linalg.inv(c[~singular])
+    # observations grouped by estimated point (in the order of est)
+    q_of_obs = pt_q[lin.obs_pt]
+    has = np.flatnonzero(q_of_obs >= 0)
+    order = has[np.argsort(q_of_obs[has], kind="stable")]
+    bounds = np.searchsorted(q_of_obs[order], np.arange(len(est) + 1))
+    s = _reduce(a, lay.img_col, lin.nfree, lin.obs_img, lin.jimg, lin.jpt, order, bounds, c_inv) if len(est) else a
+    return SchurParts(s, c_inv, est, singular, order, bounds)
 
 
 @dataclass
@@ -153,7 +308,7 @@ class RankReport:
     null_parameters: list[tuple[str, float]]  # (image/param, weight in the null direction)
 
 
-def check_rank(parts: SchurParts, names: list[str], tol: float = 1e-14) -> RankReport:
+def check_rank(parts: SchurParts, names: list[str], tol: float = 1e-15) -> RankReport:
     """Eigen-analysis of the Jacobi-scaled reduced normal matrix S."""
     s = parts.s
     if s.size == 0:
@@ -189,45 +344,13 @@ class Covariance:
 def covariance(lin: Linearisation, parts: SchurParts, problem: Problem) -> Covariance:
     """Inverse normal-matrix blocks and observation leverages (a-priori sigma0 = 1)."""
     s_inv = np.linalg.inv(parts.s) if parts.s.size else parts.s
-    lay = lin.layout
-    n = lay.n_img_params
-    pts_cov: dict[int, np.ndarray] = {}
-    b = parts.b.tocsc()
-    # per point: W = C^-1 B_p^T restricted to the images' columns that see it
-    jac = lin.jacobian.tocsr()[: lin.n_obs_rows]
     lev = np.zeros(lin.n_obs_rows)
-    # image-only part of the leverage, for rows without an estimated point
-    ji = jac[:, :n]
-    if n:
-        tmp = ji @ s_inv
-        lev_img = np.asarray(ji.multiply(tmp).sum(axis=1)).ravel()
-    else:
-        lev_img = np.zeros(lin.n_obs_rows)
-    lev[:] = lev_img
-    obs_pt = problem.obs.pt[lin.obs_sel]
-    row_pt = np.repeat(obs_pt, 2)
-    row_order = np.argsort(row_pt, kind="stable")
-    row_bounds = np.searchsorted(row_pt[row_order], np.arange(len(problem.points) + 1))
-    for q, pidx in enumerate(parts.est_points):
-        col0 = lay.pt_col[pidx]
-        cinv = parts.c_inv[q]
-        bp = b[:, col0 : col0 + 3]  # n x 3 sparse
-        idx = np.unique(bp.nonzero()[0])
-        if len(idx):
-            wb = bp[idx].toarray() @ cinv  # (m, 3) = B_p C^-1 restricted
-            sub = s_inv[np.ix_(idx, idx)]
-            cov = cinv + wb.T @ sub @ wb
-        else:
-            wb = np.zeros((0, 3))
-            sub = np.zeros((0, 0))
-            cov = cinv
-        pts_cov[int(pidx)] = cov
-        rows = row_order[row_bounds[pidx] : row_bounds[pidx + 1]]
-        if len(rows):
-            jr = jac[rows]
-            jb = jr[:, col0 : col0 + 3].toarray()  # (r, 3)
-            ja = jr[:, idx].toarray() if len(idx) else np.zeros((len(rows), 0))
-            # h = u^T S^-1 u + b^T C^-1 b with u = a - B_p C^-1 b
-            u = ja - jb @ wb.T
-            lev[rows] = np.einsum("ij,jk,ik->i", u, sub, u) + np.einsum("ij,jk,ik->i", jb, cinv, jb)
-    return Covariance(s_inv, pts_cov, lev)
+    points: dict[int, np.ndarray] = {}
+    lay = lin.layout
+    if len(parts.est_points):
+        cov = _point_covariances(s_inv, lay.img_col, lin.nfree, lin.obs_img, lin.jimg, lin.jpt, parts.order, parts.bounds, parts.c_inv, lev)
+        points = {int(p): cov[q] for q, p in enumerate(parts.est_points)}
+    fixed_rows = np.flatnonzero(lay.pt_col[lin.obs_pt] < 0)
+    if len(fixed_rows) and s_inv.size:
+        _image_only_leverage(s_inv, lay.img_col, lin.nfree, lin.obs_img, lin.jimg, fixed_rows, lev)
+    return Covariance(s_inv, points, lev)

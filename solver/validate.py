@@ -72,6 +72,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
                 )
 
     n_unknowns = 0
+    n_prior_obs = 0
     image_info = []
     for i, im in enumerate(job.images):
         if im.camera not in cameras:
@@ -108,6 +109,10 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
                 )
             )
         n_unknowns += len(params)
+        if im.approx_state is not None and im.approx_state.sigma_position_m is not None:
+            n_prior_obs += sum(1 for n in ("X0", "Y0", "Z0") if n in names)
+            if im.approx_state.sigma_velocity_m_s is not None:
+                n_prior_obs += sum(1 for n in ("ux", "uy", "uz", "X1", "Y1", "Z1") if n in names)
         image_info.append({"id": im.id, "model": model.name, "n_parameters": len(params)})
 
     crs_checked: dict[str, bool] = {}
@@ -172,7 +177,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
             obs_per_image[o.image] += 1
 
     weighted = job.options.control == "weighted"
-    n_obs = 0
+    n_obs = n_prior_obs
     for j, p in enumerate(job.points):
         seen = images_of_point.get(p.id, set())
         if p.role != "check":
