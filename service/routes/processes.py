@@ -11,7 +11,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
 from service.deps import BaseUrl, CurrentUser, ServicesDep
-from service.errors import NoSuchProcess, problem_responses
+from service.errors import NoSuchProcess, ServiceError, problem_responses
 from service.jobs import results_text, status_info
 from service.processes import PROCESSES, describe
 from service.routes import StrictJSONRoute
@@ -110,7 +110,11 @@ async def execute(
         if found is None:
             break
         rec = found
-    text = await run_in_threadpool(results_text, rec)
+    try:
+        text = await run_in_threadpool(results_text, rec)
+    except ServiceError as exc:  # the job failed: its problem document, and where the job is
+        exc.headers = {**exc.headers, "Location": f"{base}jobs/{rec.id}"}
+        raise
     if body.response == "document":
         text = '{"report":' + text + "}"
     return Response(

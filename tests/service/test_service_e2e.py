@@ -299,3 +299,25 @@ def test_metrics_health_and_structured_logs(
     messages = [r["message"] for r in records]
     assert any(m.startswith("solve finished") for m in messages), messages
     assert all(r["level"] and r["time"] for r in records)
+
+
+def test_a_job_the_solver_rejects_fails_with_its_problems(
+    server: Server, keys: dict[str, str], triplet_doc: dict[str, Any]
+) -> None:
+    job = copy.deepcopy(triplet_doc)
+    gcps = [p for p in job["points"] if p["role"] == "gcp"]
+    for p in gcps[1:]:  # one control point: valid counts, singular normal matrix
+        p["role"] = "tie"
+    with server.client(keys["bob"]) as c:
+        assert c.post("/jobs/validate", json=execute_body(job)).status_code == 200
+        r = c.post("/processes/bundle-adjustment/execution", json=execute_body(job))
+        assert r.status_code == 422, r.text[:300]
+        assert r.headers["content-type"].startswith("application/problem+json")
+        problem = r.json()
+        assert problem["errors"][0]["code"] == "rank_deficient"
+        assert problem["errors"][0]["pointer"].startswith("/inputs/job")
+        job_id = r.headers["location"].rsplit("/", 1)[1]
+        st = c.get(f"/jobs/{job_id}").json()
+        assert st["status"] == "failed" and "invalid job" in st["message"]
+        assert st["problems"][0]["code"] == "rank_deficient"
+        assert c.get(f"/jobs/{job_id}/results").status_code == 422
