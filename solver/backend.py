@@ -151,21 +151,24 @@ class PointCost(pyceres.CostFunction):
         return point_block(self.cst, parameters[0], tuple(parameters[1:]), residuals, jp, js, True)
 
 
-class StatePriorCost(pyceres.CostFunction):
-    """Weighted observation of an image's state (see :mod:`solver.priors`): linear, constant J."""
+class ImageTermCost(pyceres.CostFunction):
+    """Any image-only term (:mod:`solver.terms`): weighted states, line observations, ..."""
 
-    def __init__(self, prior):
+    def __init__(self, term, nfree: int, control: SolveControl):
         pyceres.CostFunction.__init__(self)
-        self.prior = prior
-        self.jac = np.ascontiguousarray(prior.jacobian.ravel())
-        self.set_num_residuals(len(prior.b))
-        self.set_parameter_block_sizes([prior.a.shape[1]])
+        self.term = term
+        self.control = control
+        self.set_num_residuals(term.n_residuals)
+        self.set_parameter_block_sizes([nfree])
 
     def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API)
-        residuals[:] = self.prior.residuals(parameters[0])
+        if self.control.poll():
+            return False
+        res, jac = self.term.evaluate(parameters[0])
+        residuals[:] = res
         if jacobians is not None and jacobians[0] is not None:
-            jacobians[0][:] = self.jac
-        return True
+            jacobians[0][:] = jac.ravel()
+        return bool(np.all(np.isfinite(res)))
 
 
 class _Callback(pyceres.IterationCallback):
@@ -245,12 +248,13 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
             keep.append(prior)
             cp.add_residual_block(prior, None, [p.xyz])
 
-    from solver.priors import all_state_priors
+    from solver.terms import image_terms
 
-    for prior in all_state_priors(problem):
-        cf = StatePriorCost(prior)
+    for term in image_terms(problem):
+        img = problem.images[term.image_index]
+        cf = ImageTermCost(term, img.nfree, control)
         keep.append(cf)
-        cp.add_residual_block(cf, None, [problem.images[prior.image_index].params])
+        cp.add_residual_block(cf, None, [img.params])
 
     so = pyceres.SolverOptions()
     so.max_num_iterations = options.max_iterations

@@ -22,7 +22,7 @@ import scipy.sparse as sp
 from numba import njit
 
 from solver.kernels import observation_blocks
-from solver.priors import StatePrior, all_state_priors
+from solver.terms import ImageTerm, image_terms
 from solver.problem import Problem
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
@@ -62,7 +62,8 @@ class Linearisation:
     jpt: np.ndarray  # (n, 2, 3)
     ok: np.ndarray  # (n,)
     point_prior: dict[int, tuple[np.ndarray, np.ndarray]]  # point -> (whitened residual, 1/sigma)
-    state_priors: list[StatePrior]
+    terms: list[ImageTerm]
+    term_eval: list[tuple[np.ndarray, np.ndarray]]  # (residuals, jacobian) of each term
     nfree: np.ndarray
     obs_img: np.ndarray
     obs_pt: np.ndarray
@@ -76,11 +77,8 @@ class Linearisation:
         """All whitened residuals: observations (line, column interleaved), then priors."""
         parts = [self.res_obs.ravel()]
         parts += [r for r, _ in self.point_prior.values()]
-        parts += [p.residuals(p_params) for p, p_params in self._state_params()]
+        parts += [r for r, _ in self.term_eval]
         return np.concatenate(parts) if parts else np.zeros(0)
-
-    def _state_params(self):
-        return [(p, self._img_params[p.image_index]) for p in self.state_priors]
 
     def sparse_jacobian(self) -> sp.csr_matrix:
         """The full weighted Jacobian (rows as :attr:`residuals`), for tests and diagnostics."""
@@ -106,12 +104,11 @@ class Linearisation:
                 cols.append(lay.pt_col[pidx] + a)
                 vals.append(w[a])
                 row += 1
-        for p in self.state_priors:
-            jac = p.jacobian
+        for term, (_r, jac) in zip(self.terms, self.term_eval):
             for q in range(jac.shape[0]):
                 for c in np.flatnonzero(jac[q]):
                     rows.append(row)
-                    cols.append(lay.img_col[p.image_index] + c)
+                    cols.append(lay.img_col[term.image_index] + c)
                     vals.append(jac[q, c])
                 row += 1
         return sp.csr_matrix((vals, (rows, cols)), shape=(row, lay.n_params))
@@ -139,9 +136,9 @@ def linearise(problem: Problem) -> Linearisation:
     for p in problem.points:
         if p.estimated and p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
             point_prior[p.index] = ((p.xyz - p.known_lgs) / p.sigma_m, 1.0 / p.sigma_m)
-    lin = Linearisation(lay, sel, res, jimg, jpt, ok, point_prior, all_state_priors(problem), nfree, oi, op)
-    lin._img_params = {im.index: im.params for im in problem.images}  # type: ignore[attr-defined]
-    return lin
+    terms = image_terms(problem)
+    term_eval = [t.evaluate(problem.images[t.image_index].params) for t in terms]
+    return Linearisation(lay, sel, res, jimg, jpt, ok, point_prior, terms, term_eval, nfree, oi, op)
 
 
 @njit(**_JIT)
@@ -281,9 +278,8 @@ def schur(lin: Linearisation, problem: Problem) -> SchurParts:
     a, c = _accumulate(lay.n_img_params, lay.img_col, lin.nfree, lin.obs_img, lin.obs_pt, lin.jimg, lin.jpt, pt_q, len(est))
     for pidx, (_r, w) in lin.point_prior.items():
         c[pt_q[pidx]] += np.diag(w**2)
-    for prior in lin.state_priors:
-        c0 = lay.img_col[prior.image_index]
-        j = prior.jacobian
+    for term, (_r, j) in zip(lin.terms, lin.term_eval):
+        c0 = lay.img_col[term.image_index]
         n = j.shape[1]
         a[c0 : c0 + n, c0 : c0 + n] += j.T @ j
     dets = np.linalg.det(c) if len(est) else np.zeros(0)

@@ -27,12 +27,12 @@ class StatePrior:
     b: np.ndarray  # (m,)
     w: np.ndarray  # (m,) 1/sigma
 
-    def residuals(self, params: np.ndarray) -> np.ndarray:
-        return self.w * (self.a @ params - self.b)
-
     @property
-    def jacobian(self) -> np.ndarray:
-        return self.w[:, None] * self.a
+    def n_residuals(self) -> int:
+        return len(self.b)
+
+    def evaluate(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.w * (self.a @ params - self.b), self.w[:, None] * self.a
 
 
 def state_prior(problem: Problem, img: ImageState) -> StatePrior | None:
