@@ -90,8 +90,32 @@ def from_ecef(ecef: np.ndarray, crs: str) -> np.ndarray:
 
 
 def ecef_to_geodetic(ecef: np.ndarray) -> np.ndarray:
-    """ECEF metres (n, 3) to (longitude_deg, latitude_deg, height_m) on WGS 84."""
-    return from_ecef(ecef, GEODETIC_CRS)
+    """ECEF metres (n, 3) to (longitude_deg, latitude_deg, height_m) on WGS 84.
+
+    Own iteration (Bowring's parametric latitude, to convergence) rather than PROJ's
+    geocentric inverse, which is off by ~3.5 mm in height at satellite altitudes (700 km).
+    """
+    e = np.atleast_2d(np.asarray(ecef, dtype=float))
+    x, y, z = e[:, 0], e[:, 1], e[:, 2]
+    a = A_WGS84_M
+    b = a * (1.0 - F_WGS84)
+    ep2 = (a * a - b * b) / (b * b)
+    p = np.hypot(x, y)
+    lon = np.arctan2(y, x)
+    beta = np.arctan2(z * a, p * b)
+    lat = np.zeros_like(p)
+    for _ in range(10):
+        lat_new = np.arctan2(z + ep2 * b * np.sin(beta) ** 3, p - E2_WGS84 * a * np.cos(beta) ** 3)
+        beta = np.arctan2((1.0 - F_WGS84) * np.sin(lat_new), np.cos(lat_new))
+        done = np.all(np.abs(lat_new - lat) < 1e-15)
+        lat = lat_new
+        if done:
+            break
+    sl, cl = np.sin(lat), np.cos(lat)
+    n = a / np.sqrt(1.0 - E2_WGS84 * sl * sl)
+    # height: well conditioned at all latitudes (projection on the normal)
+    h = p * cl + z * sl - a * a / n
+    return np.column_stack([np.degrees(lon), np.degrees(lat), h])
 
 
 def geodetic_to_ecef(lon_lat_h: np.ndarray) -> np.ndarray:

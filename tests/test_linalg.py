@@ -37,7 +37,7 @@ def test_schur_covariance_equals_direct_inverse(model, state_sigma):
         c0 = lin.layout.pt_col[pidx]
         same(c, q[c0 : c0 + 3, c0 : c0 + 3])
     h = np.einsum("ij,jk,ik->i", jac[: lin.n_obs_rows], q, jac[: lin.n_obs_rows])
-    np.testing.assert_allclose(cov.leverage, h, atol=1e-4)  # same conditioning limit as above
+    np.testing.assert_allclose(cov.leverage, h, atol=1e-3 if state_sigma is None else 1e-5)  # conditioning, as above
     # redundancy numbers add up to the degrees of freedom (with the prior rows)
     h_all = np.einsum("ij,jk,ik->i", jac, q, jac)
     assert (1 - h_all).sum() == pytest.approx(jac.shape[0] - jac.shape[1], abs=1e-3)

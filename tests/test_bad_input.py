@@ -1,0 +1,129 @@
+"""Bad input gets a clear error that names the problem and where it is (nothing is lost)."""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import pytest
+from pydantic import ValidationError
+
+from solver import api
+from solver.errors import JobError, RankDeficientError
+from solver.job import load_job
+from solver.synthetic import block_job, single_image_job
+
+
+@pytest.fixture(scope="module")
+def base() -> dict:
+    return single_image_job("P2", seed=1)[0]
+
+
+def codes(exc: JobError) -> set[str]:
+    return {p.code for p in exc.problems}
+
+
+def run(doc):
+    return api.run(copy.deepcopy(doc))
+
+
+def test_fewer_observations_than_unknowns(base):
+    doc = copy.deepcopy(base)
+    keep = {o["point"] for o in doc["observations"][:5]}
+    doc["points"] = [p for p in doc["points"] if p["id"] in keep]
+    doc["observations"] = doc["observations"][:5]
+    with pytest.raises(JobError) as e:
+        run(doc)
+    assert "insufficient_observations" in codes(e.value)
+    assert "10 observations for 14 unknowns" in str(e.value)
+
+
+def test_unknown_references_all_reported(base):
+    doc = copy.deepcopy(base)
+    doc["observations"][0]["image"] = "nope"
+    doc["observations"][1]["point"] = "ghost"
+    doc["images"][0]["camera"] = "no-camera"
+    with pytest.raises(JobError) as e:
+        run(doc)
+    locs = {tuple(p.location) for p in e.value.problems}
+    assert ("observations", 0, "image") in locs
+    assert ("observations", 1, "point") in locs
+    assert ("images", 0, "camera") in locs
+
+
+@pytest.mark.parametrize("bad", ["NaN", "Infinity", "-Infinity"])
+def test_non_finite_numbers_rejected_by_the_schema(base, bad):
+    text = json.dumps(base).replace(json.dumps(base["observations"][3]["line"]), bad, 1)
+    with pytest.raises(ValidationError) as e:
+        load_job(text)
+    assert any(err["loc"][:2] == ("observations", 3) for err in e.value.errors())
+
+
+def test_unknown_crs(base):
+    doc = copy.deepcopy(base)
+    doc["points"][2]["crs"] = "EPSG:999999"
+    r = api.validate(doc)
+    assert not r["valid"]
+    assert r["problems"][0]["code"] == "unknown_crs"
+    assert r["problems"][0]["location"] == ["points", 2, "crs"]
+
+
+def test_unknown_model(base):
+    doc = copy.deepcopy(base)
+    doc["images"][0]["model"]["name"] = "K9"
+    with pytest.raises(JobError) as e:
+        run(doc)
+    assert "unknown_model" in codes(e.value)
+    assert "known: K1, K2" in str(e.value)
+
+
+def test_rank_deficient_control_geometry_names_parameters():
+    """Control points clustered on one across-track line of the image: enough observations,
+    but the along-track variation of the platform (rates, accelerations) is not observable."""
+    doc, truth = single_image_job("P2", seed=2, n_gcp=16, n_check=0)
+    # keep the geometry but move every control point onto the ground line seen at one epoch:
+    # copy one point's coordinates and line to all, keep their columns (across-track spread)
+    first = doc["points"][0]["coordinates"]
+    line0 = doc["observations"][0]["line"]
+    for p, o in zip(doc["points"], doc["observations"]):
+        p["coordinates"] = list(first)
+        o["line"] = line0
+    with pytest.raises(RankDeficientError) as e:
+        run(doc)
+    p = e.value.problems[-1]
+    assert p.code == "rank_deficient"
+    assert p.detail["parameters"], p.detail
+    assert "undetermined" in p.message and "img-1/" in p.message
+
+
+def test_observation_outside_image(base):
+    doc = copy.deepcopy(base)
+    doc["observations"][4]["column"] = 20000.0
+    doc["observations"][5]["line"] = -3.0
+    with pytest.raises(JobError) as e:
+        run(doc)
+    locs = {tuple(p.location) for p in e.value.problems if p.code == "outside_image"}
+    assert locs == {("observations", 4, "column"), ("observations", 5, "line")}
+
+
+def test_tie_point_seen_once_and_duplicates():
+    doc, _ = block_job("P2", n_triplets=1, n_tie=4, n_gcp=8, n_check=1, seed=1)
+    tie = next(p["id"] for p in doc["points"] if p["role"] == "tie")
+    doc["observations"] = [o for o in doc["observations"] if not (o["point"] == tie and o["image"] != "T00-nadir")]
+    doc["points"].append(copy.deepcopy(doc["points"][0]))
+    with pytest.raises(JobError) as e:
+        run(doc)
+    assert {"tie_point_underdetermined", "duplicate_id"} <= codes(e.value)
+
+
+def test_missing_initial_position(base):
+    doc = copy.deepcopy(base)
+    del doc["images"][0]["approx_state"]
+    with pytest.raises(JobError) as e:
+        run(doc)
+    assert "no_initial_position" in codes(e.value)
+
+
+def test_validate_reports_degrees_of_freedom(base):
+    r = api.validate(base)
+    assert r["valid"] and r["n_observations"] == 28 and r["n_unknowns"] == 14 and r["dof"] == 14

@@ -1,0 +1,54 @@
+"""The pba command line: run with a report and summary, models, validate, compare."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from solver.synthetic import single_image_job
+
+PBA = [sys.executable, "-m", "solver.cli"]
+
+
+def test_run_writes_report_and_prints_summary(tmp_path: Path):
+    job, _ = single_image_job("K2", seed=1)
+    jp = tmp_path / "job.json"
+    jp.write_text(json.dumps(job))
+    out = tmp_path / "report.json"
+    r = subprocess.run(PBA + ["run", str(jp), "-o", str(out)], capture_output=True, text=True, check=True)
+    rep = json.loads(out.read_text())
+    assert rep["adjustment"]["converged"]
+    assert "sigma0 a posteriori" in r.stdout and "check points (9, mono)" in r.stdout
+    assert f"{rep['adjustment']['sigma0_aposteriori']:.4g}" in r.stdout
+
+
+def test_models_lists_every_model():
+    r = subprocess.run(PBA + ["models", "--json"], capture_output=True, text=True, check=True)
+    names = [m["name"] for m in json.loads(r.stdout)]
+    assert {"K1", "K2", "J2-1", "J2-2", "ON1", "ON2", "P1", "P2", "GENERAL", "MT8"} <= set(names)
+    text = subprocess.run(PBA + ["models"], capture_output=True, text=True, check=True).stdout
+    assert "ux [m/s]" in text and "frame LGS" in text
+
+
+def test_validate_and_run_report_bad_input_with_exit_code_2(tmp_path: Path):
+    job, _ = single_image_job("P2", seed=1)
+    job["observations"][0]["point"] = "ghost"
+    jp = tmp_path / "bad.json"
+    jp.write_text(json.dumps(job))
+    r = subprocess.run(PBA + ["validate", str(jp)], capture_output=True, text=True)
+    assert r.returncode == 2 and "unknown_point" in r.stdout and "observations/0/point" in r.stdout
+    r = subprocess.run(PBA + ["run", str(jp)], capture_output=True, text=True)
+    assert r.returncode == 2 and "ghost" in r.stderr
+
+
+def test_compare_prints_side_by_side_table(tmp_path: Path):
+    job, _ = single_image_job("K2", seed=1)
+    jp = tmp_path / "job.json"
+    jp.write_text(json.dumps(job))
+    r = subprocess.run(PBA + ["compare", str(jp), "--models", "K1,P2,ON1", "-o", str(tmp_path / "c.json")], capture_output=True, text=True, check=True)
+    lines = [ln for ln in r.stdout.splitlines() if ln.split() and ln.split()[0] in ("K1", "P2", "ON1")]
+    assert len(lines) == 3
+    rep = json.loads((tmp_path / "c.json").read_text())
+    assert [row["model"] for row in rep["table"]] == ["K1", "P2", "ON1"]
