@@ -29,11 +29,12 @@ def new_key() -> tuple[str, str]:
 def create_key(
     store: Store,
     user_name: str,
-    is_admin: bool = False,
+    is_admin: bool | None = None,
     max_queued_jobs: int | None = None,
     max_job_observations: int | None = None,
 ) -> tuple[str, UserRecord]:
-    """Create (or update) a user and give it a new key; returns (key, user)."""
+    """Create a user (or update the given fields of an existing one) and give it a new key;
+    returns (key, user)."""
     user = store.create_user(user_name, is_admin, max_queued_jobs, max_job_observations)
     key, prefix = new_key()
     store.add_api_key(user.id, hash_key(key), prefix)

@@ -24,7 +24,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     admin_sub = admin.add_subparsers(dest="admin_command", metavar="ACTION")
     ck = admin_sub.add_parser("create-key", help="create a user's API key (printed once)")
     ck.add_argument("--user", required=True, help="user name (created if new)")
-    ck.add_argument("--admin", action="store_true", help="the user sees every job")
+    ck.add_argument(
+        "--admin",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="the user sees every job (--no-admin revokes; default: unchanged, new users not)",
+    )
     ck.add_argument("--max-queued-jobs", type=int, default=None, help="per-user limit")
     ck.add_argument("--max-job-observations", type=int, default=None, help="per-user limit")
     ck.set_defaults(func=cmd_create_key)

@@ -207,11 +207,11 @@ class Store(Protocol):
     def create_user(
         self,
         name: str,
-        is_admin: bool = False,
+        is_admin: bool | None = None,
         max_queued_jobs: int | None = None,
         max_job_observations: int | None = None,
     ) -> UserRecord:
-        """Create a user, or return the existing one of that name."""
+        """Create a user, or update the given fields of the existing one of that name."""
 
     def get_user(self, user_id: str) -> UserRecord | None:
         """By id."""

@@ -641,11 +641,12 @@ class SqlStore:
     def create_user(
         self,
         name: str,
-        is_admin: bool = False,
+        is_admin: bool | None = None,
         max_queued_jobs: int | None = None,
         max_job_observations: int | None = None,
     ) -> UserRecord:
-        """Create a user, or update the flags of the existing one of that name."""
+        """Create a user, or update the existing one of that name; arguments left at None keep
+        the existing values (a new user: not admin, the server's default limits)."""
         with self.engine.begin() as conn:
             row = conn.execute(select(UserRow).where(UserRow.name == name)).first()
             if row is None:
@@ -655,7 +656,7 @@ class SqlStore:
                             insert(UserRow).values(
                                 id=str(uuid.uuid4()),
                                 name=name,
-                                is_admin=is_admin,
+                                is_admin=bool(is_admin),
                                 created=utcnow(),
                                 max_queued_jobs=max_queued_jobs,
                                 max_job_observations=max_job_observations,
@@ -664,15 +665,17 @@ class SqlStore:
                 except IntegrityError:
                     pass
             else:
-                conn.execute(
-                    update(UserRow)
-                    .where(UserRow.name == name)
-                    .values(
-                        is_admin=is_admin,
-                        max_queued_jobs=max_queued_jobs,
-                        max_job_observations=max_job_observations,
+                given = {
+                    k: v
+                    for k, v in (
+                        ("is_admin", is_admin),
+                        ("max_queued_jobs", max_queued_jobs),
+                        ("max_job_observations", max_job_observations),
                     )
-                )
+                    if v is not None
+                }
+                if given:
+                    conn.execute(update(UserRow).where(UserRow.name == name).values(**given))
             row = conn.execute(select(UserRow).where(UserRow.name == name)).one()
             return self._user(row)
 

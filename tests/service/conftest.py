@@ -33,7 +33,17 @@ def big_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     0.5 s per solver iteration). Tests that stop it fail loudly if it ever finishes first."""
     out = tmp_path_factory.mktemp("big") / "strip.json"
     subprocess.run(
-        [str(PBA), "simulate", "strip", "--triplets", "12", "--tie-points", "24000", "-o", str(out)],
+        [
+            str(PBA),
+            "simulate",
+            "strip",
+            "--triplets",
+            "12",
+            "--tie-points",
+            "24000",
+            "-o",
+            str(out),
+        ],
         check=True,
         capture_output=True,
     )

@@ -233,7 +233,9 @@ def test_users_and_keys(store: Store) -> None:
     assert user_for_key(store, key + "x") is None
     assert store.user_for_key_hash(hash_key(key)) is not None
     again = store.create_user("alice", is_admin=True)
-    assert again.id == user.id and again.is_admin
+    assert again.id == user.id and again.is_admin and again.max_queued_jobs == 3  # kept
+    key2, same = create_key(store, "alice")  # a second key changes nothing else
+    assert same == again and user_for_key(store, key2) == again
     prefix = key.split("_")[1]
     assert store.revoke_api_key(prefix)
     assert user_for_key(store, key) is None
