@@ -100,12 +100,14 @@ async def execute(
     ):
         return _accepted(rec, base, wants_async)
     deadline = time.monotonic() + settings.sync_timeout_s
-    delay = 0.02
+    started = time.monotonic()
+    delay = 0.01  # poll the store every 10 ms for the first second (small jobs), then back off
     while rec.status not in FINISHED:
         if time.monotonic() > deadline:
             return _accepted(rec, base, False)
         await asyncio.sleep(delay)
-        delay = min(delay * 1.5, 0.25)
+        if time.monotonic() - started > 1.0:
+            delay = min(delay * 1.5, 0.25)
         found = await run_in_threadpool(services.store.get_job, rec.id)
         if found is None:
             break
