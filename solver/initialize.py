@@ -6,7 +6,10 @@
 2. Attitude: the rotation that best aligns the image rays of the control points with their
    object-space directions (Wahba's problem, solved by SVD), converted to (omega, phi, kappa);
    without control on the image, the nominal attitude from the flight direction and the
-   camera's mounting pitch.
+   camera's mounting pitch. Rates start at zero. Refining the angles (or a whole resection) on
+   the control points before the bundle was measured and rejected: it moves each image along
+   its weakly determined pitch / along-track-position direction away from the header state, and
+   the bundle then needs 51+ instead of 8 (triplet) or 26 (20 triplets) iterations.
 3. ``initial`` values given in the job override everything (report units).
 4. Tie points: least-squares intersection of their rays.
 """
@@ -18,7 +21,7 @@ import math
 import numpy as np
 
 from solver.errors import JobError, Problem as JobProblem
-from solver.kernels import gravity_and_gradient, intersect_all, platform_state, project
+from solver.kernels import gravity_and_gradient, intersect_all, platform_state
 from solver.models import ANGLES, ELEMENTS, HELD, coef_index
 from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.problem import ImageState, Problem, is_kepler
@@ -162,45 +165,7 @@ def _attitude_by_resection(problem: Problem, img: ImageState, v_ecef) -> tuple[f
         c = np.array([oc[5], y, -oc[3]])
         cam.append(c / np.linalg.norm(c))
     m = _wahba(np.array(obj), np.array(cam))
-    angles = angles_from_matrix(m)
-    return _refine_angles(problem, img, np.array(sel), angles)
-
-
-def _refine_angles(problem: Problem, img: ImageState, rows: np.ndarray, angles) -> tuple[float, float, float]:
-    """Gauss-Newton on the angles (constants and linear rates), positions held at the header state.
-
-    The closed-form rotation is poorly conditioned about the boresight (the rays of a narrow
-    field of view are nearly parallel), which leaves ~10 px at the edges of a tilted image; this
-    refinement removes it without moving along the pitch / along-track-position valley.
-    """
-    obs = problem.obs
-    coef = img.coef()
-    idx = [coef_index(e, 0) for e in ANGLES]
-    coef[idx] = angles
-    orders = img.model.effective_orders(img.options)
-    # constant angles and, where the model has them, their linear rates (kappa drift, ...)
-    free = [coef_index(e, k) for e in ANGLES for k in range(min(orders[ELEMENTS.index(e)], 1) + 1)]
-    if not free or 2 * len(rows) < len(free) + 2:
-        return tuple(coef[idx])
-    for _ in range(8):
-        jac = []
-        res = []
-        for k in rows:
-            ok, line, col, dl_dc, _dl_dp, dc_dc, _dc_dp = project(
-                img.kind, coef, img.kc, problem.points[obs.pt[k]].known_lgs, obs.oc[k], True
-            )
-            res += [obs.oc[k, 0] - line, obs.oc[k, 1] - col]
-            jac += [dl_dc[free], dc_dc[free]]
-        step = np.linalg.lstsq(np.array(jac), np.array(res), rcond=None)[0]
-        if not np.all(np.isfinite(step)):
-            break
-        coef[free] += step
-        if np.max(np.abs(step)) < 1e-9:
-            break
-    for e in ANGLES:  # rates go straight into the image's coefficients
-        if orders[ELEMENTS.index(e)] >= 1:
-            img.base[coef_index(e, 1)] = coef[coef_index(e, 1)]
-    return tuple(float(x) for x in coef[idx])
+    return angles_from_matrix(m)
 
 
 def intersect_estimated_points(problem: Problem) -> None:
