@@ -9,7 +9,7 @@ workers), measures, stops the server and exits:
 * throughput: a burst of ``--burst`` triplet jobs submitted at once; jobs per minute from the
   first submission to the last result.
 
-Usage: ``python bench/bench_service.py [--workers 2] [--runs 30] [--burst 60]``
+Usage: ``python bench/bench_service.py [--workers 2] [--runs 30] [--burst 200]``
 """
 
 from __future__ import annotations
@@ -129,7 +129,7 @@ def main() -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--runs", type=int, default=30)
     ap.add_argument("--warmup", type=int, default=3)
-    ap.add_argument("--burst", type=int, default=60)
+    ap.add_argument("--burst", type=int, default=200)
     args = ap.parse_args()
     body = {"inputs": {"job": json.loads(EXAMPLE.read_text())}}
     data_dir = Path(tempfile.mkdtemp(prefix="pba-bench-"))
