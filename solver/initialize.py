@@ -21,6 +21,7 @@ import math
 import numpy as np
 
 from solver.errors import JobError, Problem as JobProblem
+from solver.ephemeris import image_state
 from solver.kernels import gravity_and_gradient, intersect_all, platform_state
 from solver.models import ANGLES, ELEMENTS, HELD, coef_index
 from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
@@ -105,9 +106,10 @@ def initialise(problem: Problem) -> None:
             )
             continue
         v_ecef = None
-        if im_doc.approx_state is not None:
-            r_ecef = np.array(im_doc.approx_state.position_ecef_m, dtype=float)
-            v_ecef = np.array(im_doc.approx_state.velocity_ecef_m_s, dtype=float)
+        state = image_state(im_doc, job.options)  # approx_state or the interpolated ephemeris
+        if state is not None:
+            r_ecef = np.array(state.position_ecef_m, dtype=float)
+            v_ecef = np.array(state.velocity_ecef_m_s, dtype=float)
             _set_position_from_state(img, frame, r_ecef, v_ecef)
         else:
             pos_names = {"X0", "Y0", "Z0"}
@@ -115,8 +117,9 @@ def initialise(problem: Problem) -> None:
                 issues.append(
                     JobProblem(
                         "no_initial_position",
-                        f"image {img.id!r} needs approx_state (position/velocity at line 0) or "
-                        "initial values for its position parameters",
+                        f"image {img.id!r} needs approx_state (position/velocity at line 0), an "
+                        "ephemeris covering first_line_time_s, or initial values for its position "
+                        "parameters",
                         ("images", img.index, "approx_state"),
                     )
                 )
@@ -133,8 +136,8 @@ def initialise(problem: Problem) -> None:
         for e, val in zip(ANGLES, (omega, phi, kappa)):
             if orders[ELEMENTS.index(e)] != HELD:
                 img.base[coef_index(e, 0)] = val
-        if im_doc.approx_state is not None and im_doc.approx_state.attitude_deg is not None:
-            for e, val in zip(ANGLES, im_doc.approx_state.attitude_deg):
+        if state is not None and state.attitude_deg is not None:
+            for e, val in zip(ANGLES, state.attitude_deg):
                 if orders[ELEMENTS.index(e)] != HELD:
                     img.base[coef_index(e, 0)] = math.radians(val)
         _apply_initial(img)

@@ -192,6 +192,28 @@ class ImageObservation(_Strict):
     sigma_px: float = Field(default=0.5, gt=0)
 
 
+class EphemerisOptions(_Strict):
+    """Use each image's ``ephemeris`` (state vectors) for its line-0 state (seed 001 section 5).
+
+    The state vectors are interpolated to ``first_line_time_s`` (Hermite with positions and
+    velocities over the ``nodes`` nearest samples, :mod:`solver.ephemeris`) and replace the
+    image's ``approx_state`` position and velocity. With ``sigma_position_m`` (and optionally
+    ``sigma_velocity_m_s``) they also enter the adjustment as weighted observations of the
+    model's state: state = ephemeris value + correction (seed 001 eqs 38-43). Without sigmas the
+    interpolated state only initialises the models.
+    """
+
+    sigma_position_m: float | None = Field(default=None, gt=0)
+    sigma_velocity_m_s: float | None = Field(default=None, gt=0)
+    nodes: int = Field(default=4, ge=2, le=8, description="samples used around the epoch")
+
+    @model_validator(mode="after")
+    def _velocity_needs_position(self) -> "EphemerisOptions":
+        if self.sigma_velocity_m_s is not None and self.sigma_position_m is None:
+            raise ValueError("sigma_velocity_m_s needs sigma_position_m")
+        return self
+
+
 class SolverOptions(_Strict):
     """How to solve and what to report."""
 
@@ -209,6 +231,11 @@ class SolverOptions(_Strict):
     models: list[str] = Field(
         default_factory=list,
         description="model comparison: adjust the same observations with each of these models",
+    )
+    ephemeris: EphemerisOptions | None = Field(
+        default=None,
+        description="interpolate each image's ephemeris to its first line and use it as the "
+        "line-0 state (weighted observation when sigmas are given; seed 001 eqs 38-43)",
     )
 
 

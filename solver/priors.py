@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from solver.ephemeris import image_state
 from solver.models import coef_index
 from solver.problem import ImageState, Problem, is_kepler
 
@@ -37,7 +38,7 @@ class StatePrior:
 
 def state_prior(problem: Problem, img: ImageState) -> StatePrior | None:
     """The weighted state observation of ``img``, or None if the job gives no sigma."""
-    doc = problem.job.images[img.index].approx_state
+    doc = image_state(problem.job.images[img.index], problem.job.options)  # header or ephemeris
     if doc is None or doc.sigma_position_m is None:
         return None
     r = np.array(doc.position_ecef_m, dtype=float)

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections import Counter, defaultdict
 from typing import Any
 
+from solver.ephemeris import ephemeris_problems, image_state
 from solver.errors import JobError, Problem
 from solver.geodesy import UnknownCRSError, parse_crs
 from solver.job import Job
@@ -79,6 +80,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
             problems.append(
                 Problem("unknown_camera", f"image {im.id!r} uses unknown camera {im.camera!r}", ("images", i, "camera"))
             )
+        problems += ephemeris_problems(im, i)
         try:
             model = get_model(im.model.name)
         except KeyError as exc:
@@ -99,19 +101,21 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
                     ("images", i, "initial"),
                 )
             )
-        if im.approx_state is None and not {"X0", "Y0", "Z0"} <= set(im.initial):
+        state = image_state(im, job.options)  # approx_state or the interpolated ephemeris
+        if state is None and not {"X0", "Y0", "Z0"} <= set(im.initial):
             problems.append(
                 Problem(
                     "no_initial_position",
-                    f"image {im.id!r} needs approx_state (position/velocity at line 0) or initial "
-                    "values for X0, Y0, Z0 (and the other position terms)",
+                    f"image {im.id!r} needs approx_state (position/velocity at line 0), an ephemeris "
+                    "covering first_line_time_s, or initial values for X0, Y0, Z0 (and the other "
+                    "position terms)",
                     ("images", i, "approx_state"),
                 )
             )
         n_unknowns += len(params)
-        if im.approx_state is not None and im.approx_state.sigma_position_m is not None:
+        if state is not None and state.sigma_position_m is not None:
             n_prior_obs += sum(1 for n in ("X0", "Y0", "Z0") if n in names)
-            if im.approx_state.sigma_velocity_m_s is not None:
+            if state.sigma_velocity_m_s is not None:
                 n_prior_obs += sum(1 for n in ("ux", "uy", "uz", "X1", "Y1", "Z1") if n in names)
         image_info.append({"id": im.id, "model": model.name, "n_parameters": len(params)})
 
