@@ -26,7 +26,7 @@ import numpy as np
 import pyceres
 
 from solver.job import SolverOptions
-from solver.kernels import pack_point_block, point_block, residuals_image_batch
+from solver.kernels import fixed_obs_block, point_obs_block
 from solver.problem import Problem
 
 
@@ -86,69 +86,89 @@ class SolveControl:
             self.progress(self._last_fraction, f"iteration {it}, cost {cost:.6g}", {"iteration": it, "cost": cost})
 
 
-class ImageBatchCost(pyceres.CostFunction):
-    """Observations of fixed ground points in one image: residuals (2m) wrt the image block."""
+def _slots(problem: Problem, rows: np.ndarray, first_image_slot: int = 0):
+    """Parameter blocks of a residual block over ``rows``: the images (in row order) and the
+    distinct cameras with free interior orientation; returns (blocks, image slots, camera slots)."""
+    obs = problem.obs
+    blocks = []
+    img_slot = np.empty(len(rows), dtype=np.int64)
+    seen_img: dict[int, int] = {}
+    for q, r in enumerate(rows):
+        im = int(obs.img[r])
+        if im not in seen_img:
+            seen_img[im] = len(blocks)
+            blocks.append(problem.images[im].params)
+        img_slot[q] = seen_img[im]
+    cam_slot = -np.ones(len(rows), dtype=np.int64)
+    seen_cam: dict[int, int] = {}
+    for q, r in enumerate(rows):
+        cm = int(obs.cam[r])
+        cam = problem.cameras[cm]
+        if cam.nfree == 0:
+            continue
+        if cm not in seen_cam:
+            seen_cam[cm] = len(blocks)
+            blocks.append(cam.params)
+        cam_slot[q] = seen_cam[cm]
+    return blocks, img_slot, cam_slot
 
-    def __init__(self, problem: Problem, image_index: int, obs_rows: np.ndarray, control: SolveControl):
+
+class ImageBatchCost(pyceres.CostFunction):
+    """Observations of fixed ground points in one image: residuals (2m) wrt the image block
+    (and its camera's interior orientation when that is estimated)."""
+
+    def __init__(self, problem: Problem, image_index: int, obs_rows: np.ndarray, control: SolveControl, tables):
         pyceres.CostFunction.__init__(self)
-        img = problem.images[image_index]
-        self.kind = img.kind
-        self.base = img.base
-        self.kc = img.kc
-        self.free = img.free_idx
+        from solver.tables import records
+
+        self.img_tab, self.cam_tab = tables
+        self.blocks, img_slot, cam_slot = _slots(problem, obs_rows)
+        self.rec = records(problem, obs_rows, img_slot, cam_slot)
         self.pts = np.ascontiguousarray([problem.points[problem.obs.pt[k]].xyz for k in obs_rows], dtype=float)
-        self.ocs = np.ascontiguousarray(problem.obs.oc[obs_rows])
         m = len(obs_rows)
-        self.jac = np.zeros((2 * m, img.nfree))
+        self.scratch = tuple(np.zeros(2 * m * len(b)) for b in self.blocks)
         self.control = control
         self.set_num_residuals(2 * m)
-        self.set_parameter_block_sizes([img.nfree])
-
-    def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API)
-        if self.control.poll():
-            return False
-        want = jacobians is not None and jacobians[0] is not None
-        ok = residuals_image_batch(
-            self.kind, self.base, parameters[0], self.kc, self.pts, self.ocs, self.free, residuals, self.jac, want
-        )
-        if want:
-            jacobians[0][:] = self.jac.ravel()
-        return bool(ok)
-
-
-class PointCost(pyceres.CostFunction):
-    """All observations of one estimated ground point: blocks [point(3), image_1, ..., image_k].
-
-    The constants are packed into one array and the kernel writes straight into Ceres' output
-    arrays, so a call costs the trampoline plus one numba dispatch (no numpy work in Python).
-    """
-
-    def __init__(self, problem: Problem, point_index: int, obs_rows: np.ndarray, control: SolveControl):
-        pyceres.CostFunction.__init__(self)
-        k = len(obs_rows)
-        imgs = [problem.images[problem.obs.img[r]] for r in obs_rows]
-        self.cst = pack_point_block(
-            [im.kind for im in imgs],
-            [im.base for im in imgs],
-            [im.kc for im in imgs],
-            problem.obs.oc[obs_rows],
-            [im.free_idx for im in imgs],
-            [im.nfree for im in imgs],
-        )
-        self.scratch = tuple(np.zeros(2 * k * im.nfree) for im in imgs)
-        self.scratch_p = np.zeros(2 * k * 3)
-        self.control = control
-        self.set_num_residuals(2 * k)
-        self.set_parameter_block_sizes([3] + [im.nfree for im in imgs])
+        self.set_parameter_block_sizes([len(b) for b in self.blocks])
 
     def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API)
         if self.control.poll():
             return False
         if jacobians is None:
-            return point_block(self.cst, parameters[0], tuple(parameters[1:]), residuals, self.scratch_p, self.scratch, False)
+            return fixed_obs_block(self.rec, self.img_tab, self.cam_tab, self.pts, tuple(parameters), residuals, self.scratch, False)
+        js = tuple(j if j is not None else s for j, s in zip(jacobians, self.scratch))
+        return fixed_obs_block(self.rec, self.img_tab, self.cam_tab, self.pts, tuple(parameters), residuals, js, True)
+
+
+class PointCost(pyceres.CostFunction):
+    """All observations of one estimated ground point: blocks [point(3), images..., cameras...].
+
+    The constants live in shared tables and short per-observation records; the kernel writes
+    straight into Ceres' output arrays, so a call costs the trampoline plus one numba dispatch.
+    """
+
+    def __init__(self, problem: Problem, point_index: int, obs_rows: np.ndarray, control: SolveControl, tables):
+        pyceres.CostFunction.__init__(self)
+        from solver.tables import records
+
+        self.img_tab, self.cam_tab = tables
+        self.blocks, img_slot, cam_slot = _slots(problem, obs_rows)
+        self.rec = records(problem, obs_rows, img_slot, cam_slot)
+        k = len(obs_rows)
+        self.scratch = tuple(np.zeros(2 * k * len(b)) for b in self.blocks)
+        self.scratch_p = np.zeros(2 * k * 3)
+        self.control = control
+        self.set_num_residuals(2 * k)
+        self.set_parameter_block_sizes([3] + [len(b) for b in self.blocks])
+
+    def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API)
+        if self.control.poll():
+            return False
+        if jacobians is None:
+            return point_obs_block(self.rec, self.img_tab, self.cam_tab, parameters[0], tuple(parameters[1:]), residuals, self.scratch_p, self.scratch, False)
         jp = jacobians[0] if jacobians[0] is not None else self.scratch_p
         js = tuple(j if j is not None else s for j, s in zip(jacobians[1:], self.scratch))
-        return point_block(self.cst, parameters[0], tuple(parameters[1:]), residuals, jp, js, True)
+        return point_obs_block(self.rec, self.img_tab, self.cam_tab, parameters[0], tuple(parameters[1:]), residuals, jp, js, True)
 
 
 class ImageTermCost(pyceres.CostFunction):
@@ -212,8 +232,14 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
     t0 = time.perf_counter()
     cp = pyceres.Problem()
     keep: list[Any] = []  # cost functions must outlive the solve
+    from solver.tables import camera_table, image_table
+
+    tables = (image_table(problem), camera_table(problem))
     for img in problem.images:
         cp.add_parameter_block(img.params, img.nfree)
+    for cam in problem.cameras:
+        if cam.nfree:
+            cp.add_parameter_block(cam.params, cam.nfree)
     mask = problem.adjusted_mask
     obs = problem.obs
     loss = _loss(options)
@@ -225,9 +251,9 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
     for img in problem.images:
         rows = fixed_obs[obs.img[fixed_obs] == img.index] if len(fixed_obs) else fixed_obs
         if len(rows):
-            cf = ImageBatchCost(problem, img.index, rows, control)
+            cf = ImageBatchCost(problem, img.index, rows, control, tables)
             keep.append(cf)
-            cp.add_residual_block(cf, loss, [img.params])
+            cp.add_residual_block(cf, loss, cf.blocks)
     # estimated points
     order = np.argsort(obs.pt, kind="stable")
     pts_sorted = obs.pt[order]
@@ -240,9 +266,9 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
         if len(rows) == 0:
             continue
         has_points = True
-        cf = PointCost(problem, p.index, rows, control)
+        cf = PointCost(problem, p.index, rows, control, tables)
         keep.append(cf)
-        cp.add_residual_block(cf, loss, [p.xyz] + [problem.images[obs.img[r]].params for r in rows])
+        cp.add_residual_block(cf, loss, [p.xyz] + cf.blocks)
         if p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
             prior = pyceres.factors.NormalPrior(p.known_lgs.copy(), np.diag(p.sigma_m**2))
             keep.append(prior)
@@ -255,6 +281,13 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
         cf = ImageTermCost(term, img.nfree, control)
         keep.append(cf)
         cp.add_residual_block(cf, None, [img.params])
+    from solver.iop import camera_priors
+
+    for prior in camera_priors(problem.cameras):
+        cam = problem.cameras[prior.camera_index]
+        cf = ImageTermCost(prior, cam.nfree, control)
+        keep.append(cf)
+        cp.add_residual_block(cf, None, [cam.params])
 
     so = pyceres.SolverOptions()
     so.max_num_iterations = options.max_iterations

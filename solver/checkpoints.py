@@ -17,29 +17,40 @@ from typing import Any
 
 import numpy as np
 
-from solver.kernels import ray, residuals_point_multi
+from solver.kernels import ray_cam
 from solver.problem import Problem
 from solver.statistics import axis_summary, shapiro_wilk, t_test
 
 
-def _intersect(problem: Problem, rows: np.ndarray, start: np.ndarray) -> np.ndarray:
+def _ray(problem: Problem, r: int):
     obs = problem.obs
-    imgs = [problem.images[obs.img[r]] for r in rows]
-    k = len(rows)
-    kinds = np.array([im.kind for im in imgs], dtype=np.int64)
-    bases = np.ascontiguousarray([im.coef() for im in imgs])
-    kcs = np.ascontiguousarray([im.kc for im in imgs])
-    ocs = np.ascontiguousarray(obs.oc[rows])
-    free = np.zeros((k, 24), dtype=np.int64)
-    nfree = np.zeros(k, dtype=np.int64)
-    pimg = np.zeros((k, 24))
-    res = np.zeros(2 * k)
-    jp = np.zeros((2 * k, 3))
-    ji = np.zeros((k, 2, 24))
+    img = problem.images[obs.img[r]]
+    cam = problem.cameras[obs.cam[r]]
+    k = obs.chip_idx[r]
+    return ray_cam(img.kind, img.coef(), img.kc, obs.oc[r], cam.values(), int(k), cam.chip_len_mm[k])
+
+
+def _intersect(problem: Problem, rows: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """Gauss-Newton on the point alone (orientation held), on the weighted image residuals."""
+    from solver.kernels import all_observation_blocks
+    from solver.tables import camera_table, image_table, records
+
+    img_tab, cam_tab = image_table(problem), camera_table(problem)
+    img_p = np.zeros((len(problem.images), 24))
+    for im in problem.images:
+        img_p[im.index, : im.nfree] = im.params
+    cam_p = np.zeros((max(len(problem.cameras), 1), cam_tab.shape[1]))
+    for c in problem.cameras:
+        cam_p[c.index, : c.nfree] = c.params
+    rec = records(problem, rows)
+    zeros = np.zeros(len(rows), dtype=np.int64)
     x = start.copy()
     for _ in range(20):
-        residuals_point_multi(x, kinds, bases, pimg, kcs, ocs, free, nfree, res, jp, ji, True)
-        step = np.linalg.lstsq(jp, -res, rcond=None)[0]
+        res, _jf, _fc, jpt, _ok = all_observation_blocks(
+            rec, img_tab, cam_tab, img_p, cam_p, x[None, :], zeros, np.ones(1, dtype=np.bool_),
+            np.zeros(len(problem.images), dtype=np.int64), np.zeros(len(cam_tab), dtype=np.int64), 70,
+        )
+        step = np.linalg.lstsq(jpt.reshape(-1, 3), -res.ravel(), rcond=None)[0]
         x += step
         if np.linalg.norm(step) < 1e-7:
             break
@@ -58,17 +69,14 @@ def compute_checkpoints(problem: Problem, alpha: float, gsd_m: float | None) -> 
         if len(rows) == 0:
             continue
         if len(rows) == 1:
-            r = rows[0]
-            img = problem.images[obs.img[r]]
-            s, d = ray(img.kind, img.coef(), img.kc, obs.oc[r])
+            s, d = _ray(problem, rows[0])
             lam = (p.known_lgs[2] - s[2]) / d[2]
             est = s + lam * d
             method = "mono"
         else:
             starts = []
             for r in rows:
-                img = problem.images[obs.img[r]]
-                s, d = ray(img.kind, img.coef(), img.kc, obs.oc[r])
+                s, d = _ray(problem, r)
                 starts.append(s + d * ((p.known_lgs[2] - s[2]) / d[2]))
             est = _intersect(problem, rows, np.mean(starts, axis=0))
             method = "intersection"

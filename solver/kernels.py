@@ -672,3 +672,410 @@ def observation_blocks(kinds, coefs, kcs, free_idx, nfree, pts, estimated, obs_i
                 jpt[i, 0, j] = -dl_dp[j] * w
                 jpt[i, 1, j] = -dc_dp[j] * w
     return res, jimg, jpt, ok
+
+
+# ---- interior orientation (docs/models.md section 8) ----------------------------------------
+# Full IOP vector of a camera: x0, y0, df, k1, k2, sy, then per chip (a0, b0, a1, b1, delta).
+IOP_OPTICAL = ("x0", "y0", "df", "k1", "k2", "sy")
+IOP_CHIP = ("a0", "b0", "a1", "b1", "delta")
+MAX_CHIPS = 8
+N_IOP = len(IOP_OPTICAL) + len(IOP_CHIP) * MAX_CHIPS
+
+
+@njit(**_JIT)
+def camera_model(oc, iop, chip: int, chip_len: float, col: float, want: bool):
+    """Ideal focal-plane coordinates (x_i, y_i) of column ``col`` on chip ``chip`` (mm) and the
+    effective focal length; with derivatives wrt the column and the IOP vector.
+
+    Returns (xi, yi, F, dxi_dc, dyi_dc, dxi_diop[N_IOP], dyi_diop[N_IOP]).
+    """
+    px = oc[4]
+    xo = oc[5]
+    yo = oc[6]
+    ys = (col - oc[7]) * px
+    b = 6 + 5 * chip
+    a0, b0, a1, b1, de = iop[b], iop[b + 1], iop[b + 2], iop[b + 3], iop[b + 4]
+    x0, y0, df, k1, k2, sy = iop[0], iop[1], iop[2], iop[3], iop[4], iop[5]
+    xb = xo + a0 + b1 * ys + de * ys * ys / (2.0 * chip_len) - x0
+    yb = ys + yo + b0 + (a1 + sy) * ys - y0
+    r2 = xb * xb + yb * yb
+    dfac = 1.0 - k1 * r2 - k2 * r2 * r2
+    xi = xb * dfac
+    yi = yb * dfac
+    dxi_diop = np.zeros(N_IOP)
+    dyi_diop = np.zeros(N_IOP)
+    # d dfac / d xb, d yb
+    dd_dr2 = -k1 - 2.0 * k2 * r2
+    dxi_dxb = dfac + xb * dd_dr2 * 2.0 * xb
+    dxi_dyb = xb * dd_dr2 * 2.0 * yb
+    dyi_dxb = yb * dd_dr2 * 2.0 * xb
+    dyi_dyb = dfac + yb * dd_dr2 * 2.0 * yb
+    dxb_dc = (b1 + de * ys / chip_len) * px
+    dyb_dc = (1.0 + a1 + sy) * px
+    dxi_dc = dxi_dxb * dxb_dc + dxi_dyb * dyb_dc
+    dyi_dc = dyi_dxb * dxb_dc + dyi_dyb * dyb_dc
+    if want:
+        # xb depends on x0, a0, b1, delta; yb on y0, b0, a1, sy
+        for idx, gx, gy in (
+            (0, -1.0, 0.0),
+            (b, 1.0, 0.0),
+            (b + 3, ys, 0.0),
+            (b + 4, ys * ys / (2.0 * chip_len), 0.0),
+            (1, 0.0, -1.0),
+            (b + 1, 0.0, 1.0),
+            (b + 2, 0.0, ys),
+            (5, 0.0, ys),
+        ):
+            dxi_diop[idx] += dxi_dxb * gx + dxi_dyb * gy
+            dyi_diop[idx] += dyi_dxb * gx + dyi_dyb * gy
+        dxi_diop[3] = -xb * r2
+        dyi_diop[3] = -yb * r2
+        dxi_diop[4] = -xb * r2 * r2
+        dyi_diop[4] = -yb * r2 * r2
+    return xi, yi, oc[3] + df, dxi_dc, dyi_dc, dxi_diop, dyi_diop
+
+
+@njit(**_JIT)
+def project_cam(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac: bool):
+    """Exact projection with interior orientation: solve both collinearity conditions
+    ``x_i(C) = -F d_x/d_z``, ``y_i(C) = -F d_y/d_z`` for (L, C) by 2D Newton from the observed
+    values. Returns (ok, L, C, dL_dcoef[24], dL_dp[3], dC_dcoef[24], dC_dp[3], dL_diop, dC_diop).
+    """
+    tpl = oc[8]
+    line = oc[0]
+    col = oc[1]
+    ok = False
+    rot = np.empty((4, 3, 3))
+    s = np.empty(3)
+    sdot = np.empty(3)
+    ang = np.empty(3)
+    angdot = np.empty(3)
+    d = np.empty(3)
+    ddt = np.empty(3)
+    v = np.empty(3)
+    if kind == KIND_KEPLER:
+        acc, da_dr = _kepler_terms(coef, kc)
+    else:
+        acc = np.zeros(3)
+        da_dr = np.zeros((3, 3))
+    xi = yi = big_f = dxi_dc = dyi_dc = 0.0
+    dxi_diop = np.zeros(N_IOP)
+    dyi_diop = np.zeros(N_IOP)
+    j11 = j12 = j21 = j22 = 0.0
+    for it in range(31):
+        tau = line * tpl
+        _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot)
+        _rotation_into(ang[0], ang[1], ang[2], rot)
+        for i in range(3):
+            v[i] = p[i] - s[i]
+        for i in range(3):
+            di = 0.0
+            dti = 0.0
+            for j in range(3):
+                mij = rot[0, i, j]
+                dmij = rot[1, i, j] * angdot[0] + rot[2, i, j] * angdot[1] + rot[3, i, j] * angdot[2]
+                di += mij * v[j]
+                dti += dmij * v[j] - mij * sdot[j]
+            d[i] = di
+            ddt[i] = dti
+        xi, yi, big_f, dxi_dc, dyi_dc, dxi_diop, dyi_diop = camera_model(oc, iop, chip, chip_len, col, it == 30 or ok)
+        if it == 30 or ok:
+            break
+        g1 = xi + big_f * d[0] / d[2]
+        g2 = yi + big_f * d[1] / d[2]
+        j11 = big_f * (ddt[0] * d[2] - d[0] * ddt[2]) / (d[2] * d[2]) * tpl
+        j21 = big_f * (ddt[1] * d[2] - d[1] * ddt[2]) / (d[2] * d[2]) * tpl
+        j12 = dxi_dc
+        j22 = dyi_dc
+        det = j11 * j22 - j12 * j21
+        if det == 0.0 or not np.isfinite(det):
+            break
+        dl = (j22 * g1 - j12 * g2) / det
+        dc = (-j21 * g1 + j11 * g2) / det
+        line -= dl
+        col -= dc
+        if abs(dl) < 1e-8 and abs(dc) < 1e-8:
+            ok = True
+    dl_dc = np.zeros(N_COEF)
+    dl_dp = np.zeros(3)
+    dc_dc = np.zeros(N_COEF)
+    dc_dp = np.zeros(3)
+    dl_di = np.zeros(N_IOP)
+    dc_di = np.zeros(N_IOP)
+    if not want_jac:
+        return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di
+    tau = line * tpl
+    iz = 1.0 / d[2]
+    # g = (x_i + F d_x/d_z, y_i + F d_y/d_z); its derivatives wrt d
+    hx0, hx2 = big_f * iz, -big_f * d[0] * iz * iz
+    hy1, hy2 = big_f * iz, -big_f * d[1] * iz * iz
+    j11 = (hx0 * ddt[0] + hx2 * ddt[2]) * tpl
+    j21 = (hy1 * ddt[1] + hy2 * ddt[2]) * tpl
+    j12 = dxi_dc
+    j22 = dyi_dc
+    det = j11 * j22 - j12 * j21
+    # inverse of [[j11, j12], [j21, j22]]
+    i11, i12, i21, i22 = j22 / det, -j12 / det, -j21 / det, j11 / det
+
+    def _solve(gx, gy):
+        return -(i11 * gx + i12 * gy), -(i21 * gx + i22 * gy)
+
+    for j in range(3):
+        gx = hx0 * rot[0, 0, j] + hx2 * rot[0, 2, j]
+        gy = hy1 * rot[0, 1, j] + hy2 * rot[0, 2, j]
+        dl_dp[j], dc_dp[j] = _solve(gx, gy)
+    gvx = np.empty(3)
+    gvy = np.empty(3)
+    for e in range(3):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for j in range(3):
+            a0 += rot[1 + e, 0, j] * v[j]
+            a1 += rot[1 + e, 1, j] * v[j]
+            a2 += rot[1 + e, 2, j] * v[j]
+        gvx[e] = hx0 * a0 + hx2 * a2
+        gvy[e] = hy1 * a1 + hy2 * a2
+    tp = 1.0
+    for k in range(4):
+        for e in range(3):
+            idx = (3 + e) * 4 + k
+            dl_dc[idx], dc_dc[idx] = _solve(gvx[e] * tp, gvy[e] * tp)
+        tp *= tau
+    wx = np.empty(3)
+    wy = np.empty(3)
+    for j in range(3):
+        wx[j] = -(hx0 * rot[0, 0, j] + hx2 * rot[0, 2, j])
+        wy[j] = -(hy1 * rot[0, 1, j] + hy2 * rot[0, 2, j])
+    if kind == KIND_POLYNOMIAL:
+        tp = 1.0
+        for k in range(4):
+            for e in range(3):
+                idx = e * 4 + k
+                dl_dc[idx], dc_dc[idx] = _solve(wx[e] * tp, wy[e] * tp)
+            tp *= tau
+    else:
+        h = 0.5 * tau * tau
+        om2 = 2.0 * kc[13] * h
+        ex = np.empty(3)
+        ey = np.empty(3)
+        for j in range(3):
+            ex[j] = wx[0] * kc[j] + wx[1] * kc[3 + j] + wx[2] * kc[6 + j]
+            ey[j] = wy[0] * kc[j] + wy[1] * kc[3 + j] + wy[2] * kc[6 + j]
+        for j in range(3):
+            gxs = ex[j]
+            gys = ey[j]
+            for i in range(3):
+                gxs += ex[i] * h * da_dr[i, j]
+                gys += ey[i] * h * da_dr[i, j]
+            dl_dc[j * 4], dc_dc[j * 4] = _solve(gxs, gys)
+        for j in range(3):
+            if j == 0:
+                gxu, gyu = ex[0] * tau - ex[1] * om2, ey[0] * tau - ey[1] * om2
+            elif j == 1:
+                gxu, gyu = ex[1] * tau + ex[0] * om2, ey[1] * tau + ey[0] * om2
+            else:
+                gxu, gyu = ex[2] * tau, ey[2] * tau
+            dl_dc[j * 4 + 1], dc_dc[j * 4 + 1] = _solve(gxu, gyu)
+    # interior orientation: dg/diop = (dx_i/diop, dy_i/diop) + (d_x/d_z, d_y/d_z) for df
+    for q in range(N_IOP):
+        gx = dxi_diop[q]
+        gy = dyi_diop[q]
+        if q == 2:
+            gx += d[0] * iz
+            gy += d[1] * iz
+        if gx != 0.0 or gy != 0.0:
+            dl_di[q], dc_di[q] = _solve(gx, gy)
+    return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di
+
+
+@njit(**_JIT)
+def ideal_direction(oc, iop, chip: int, chip_len: float):
+    """Camera-frame direction (x_i, y_i, -F) of the observed pixel (unnormalised)."""
+    xi, yi, big_f, _a, _b, _c, _d = camera_model(oc, iop, chip, chip_len, oc[1], False)
+    out = np.empty(3)
+    out[0] = xi
+    out[1] = yi
+    out[2] = -big_f
+    return out
+
+
+# ---- residual blocks over image and camera tables ----------------------------------------
+# img_tab row (66): kind, nfree, free_idx[24], base[24], kc[16]
+# cam_tab row (2 + 2 N_IOP): nfree, has_iop, free_idx[N_IOP], base[N_IOP]
+# observation record (15): image, camera, image slot, camera slot (-1: constant), chip index,
+#                          chip length (mm), oc[9]
+IMG_TAB = 66
+CAM_TAB = 2 + 2 * N_IOP
+OBS_REC = 15
+
+
+@njit(**_JIT)
+def _eval_record(r, img_tab, cam_tab, p, params, want: bool):
+    im = int(r[0])
+    cm = int(r[1])
+    islot = int(r[2])
+    cslot = int(r[3])
+    it = img_tab[im]
+    kind = int(it[0])
+    nf = int(it[1])
+    coef = it[26:50].copy()
+    if islot >= 0:
+        pi = params[islot]
+        for j in range(nf):
+            coef[int(it[2 + j])] = pi[j]
+    kc = it[50:66]
+    oc = r[6:15]
+    ct = cam_tab[cm]
+    if ct[1] != 0.0:
+        iop = ct[2 + N_IOP : 2 + 2 * N_IOP].copy()
+        if cslot >= 0:
+            pc = params[cslot]
+            for j in range(int(ct[0])):
+                iop[int(ct[2 + j])] = pc[j]
+        return project_cam(kind, coef, kc, p, oc, iop, int(r[4]), r[5], want)
+    ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp = project(kind, coef, kc, p, oc, want)
+    empty = np.empty(0)  # no interior orientation: _fill skips the camera (slot -1)
+    return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp, empty, empty
+
+
+@njit(**_JIT)
+def _fill(i, r, img_tab, cam_tab, w, jacs, dl_dc, dc_dc, dl_di, dc_di):
+    islot = int(r[2])
+    cslot = int(r[3])
+    if islot >= 0:
+        it = img_tab[int(r[0])]
+        nf = int(it[1])
+        ji = jacs[islot]
+        for j in range(nf):
+            fj = int(it[2 + j])
+            ji[(2 * i) * nf + j] = -dl_dc[fj] * w
+            ji[(2 * i + 1) * nf + j] = -dc_dc[fj] * w
+    if cslot >= 0:
+        ct = cam_tab[int(r[1])]
+        nc = int(ct[0])
+        jc = jacs[cslot]
+        for j in range(nc):
+            fj = int(ct[2 + j])
+            jc[(2 * i) * nc + j] = -dl_di[fj] * w
+            jc[(2 * i + 1) * nc + j] = -dc_di[fj] * w
+
+
+@njit(**_JIT)
+def point_obs_block(rec, img_tab, cam_tab, p, params, res, jac_p, jacs, want_jac: bool):
+    """All observations of one estimated point. Parameter blocks: the point, then ``params``
+    (image and camera blocks, referenced by the records' slots). Writes Ceres' arrays."""
+    k = rec.shape[0]
+    ok = True
+    if want_jac:
+        for a in jacs:
+            for q in range(a.shape[0]):
+                a[q] = 0.0
+    for i in range(k):
+        r = rec[i]
+        good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di = _eval_record(r, img_tab, cam_tab, p, params, want_jac)
+        w = 1.0 / r[8]
+        r0 = (r[6] - ln) * w
+        r1 = (r[7] - cl) * w
+        if not (np.isfinite(r0) and np.isfinite(r1)):
+            ok = False
+        res[2 * i] = r0
+        res[2 * i + 1] = r1
+        if want_jac:
+            for j in range(3):
+                jac_p[(2 * i) * 3 + j] = -dl_dp[j] * w
+                jac_p[(2 * i + 1) * 3 + j] = -dc_dp[j] * w
+            _fill(i, r, img_tab, cam_tab, w, jacs, dl_dc, dc_dc, dl_di, dc_di)
+    return ok
+
+
+@njit(**_JIT)
+def fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, jacs, want_jac: bool):
+    """Observations of fixed ground points ``pts`` (m, 3) (one image's resection block)."""
+    k = rec.shape[0]
+    ok = True
+    if want_jac:
+        for a in jacs:
+            for q in range(a.shape[0]):
+                a[q] = 0.0
+    for i in range(k):
+        r = rec[i]
+        good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di = _eval_record(r, img_tab, cam_tab, pts[i], params, want_jac)
+        w = 1.0 / r[8]
+        r0 = (r[6] - ln) * w
+        r1 = (r[7] - cl) * w
+        if not (np.isfinite(r0) and np.isfinite(r1)):
+            ok = False
+        res[2 * i] = r0
+        res[2 * i + 1] = r1
+        if want_jac:
+            _fill(i, r, img_tab, cam_tab, w, jacs, dl_dc, dc_dc, dl_di, dc_di)
+    return ok
+
+
+@njit(**_JIT)
+def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, estimated, img_col, cam_col, width):
+    """Whitened residuals and dense Jacobian pieces of every record (for the covariance).
+
+    ``img_p`` (nimg, 24) and ``cam_p`` (ncam, N_IOP) hold the current free parameters; slots in
+    ``rec`` are ignored. Returns res (n, 2), jf (n, 2, width) with column indices fcol (n, width)
+    (-1 padding) over the image and camera parameters, jpt (n, 2, 3), ok (n).
+    """
+    n = rec.shape[0]
+    res = np.empty((n, 2))
+    jf = np.zeros((n, 2, width))
+    fcol = -np.ones((n, width), dtype=np.int64)
+    jpt = np.zeros((n, 2, 3))
+    ok = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        r = rec[i]
+        im = int(r[0])
+        cm = int(r[1])
+        it = img_tab[im]
+        ct = cam_tab[cm]
+        nf = int(it[1])
+        nc = int(ct[0])
+        coef = it[26:50].copy()
+        for j in range(nf):
+            coef[int(it[2 + j])] = img_p[im, j]
+        oc = r[6:15]
+        p = pts[pt_idx[i]]
+        if ct[1] != 0.0:
+            iop = ct[2 + N_IOP : 2 + 2 * N_IOP].copy()
+            for j in range(nc):
+                iop[int(ct[2 + j])] = cam_p[cm, j]
+            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di = project_cam(int(it[0]), coef, it[50:66], p, oc, iop, int(r[4]), r[5], True)
+        else:
+            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(int(it[0]), coef, it[50:66], p, oc, True)
+            dl_di = np.zeros(N_IOP)
+            dc_di = np.zeros(N_IOP)
+        w = 1.0 / oc[2]
+        res[i, 0] = (oc[0] - ln) * w
+        res[i, 1] = (oc[1] - cl) * w
+        ok[i] = good and np.isfinite(res[i, 0]) and np.isfinite(res[i, 1])
+        for j in range(nf):
+            fj = int(it[2 + j])
+            fcol[i, j] = img_col[im] + j
+            jf[i, 0, j] = -dl_dc[fj] * w
+            jf[i, 1, j] = -dc_dc[fj] * w
+        for j in range(nc):
+            fj = int(ct[2 + j])
+            fcol[i, nf + j] = cam_col[cm] + j
+            jf[i, 0, nf + j] = -dl_di[fj] * w
+            jf[i, 1, nf + j] = -dc_di[fj] * w
+        if estimated[pt_idx[i]]:
+            for j in range(3):
+                jpt[i, 0, j] = -dl_dp[j] * w
+                jpt[i, 1, j] = -dc_dp[j] * w
+    return res, jf, fcol, jpt, ok
+
+
+@njit(**_JIT)
+def ray_cam(kind, coef, kc, oc, iop, chip: int, chip_len: float):
+    """Perspective centre S and unit viewing direction (LGS) of an observed pixel, with IOP."""
+    tau = oc[0] * oc[8]
+    s, ds_dc, ds_dt, ang, da_dc, da_dt = platform_state(kind, coef, kc, tau)
+    m, dmo, dmp, dmk = rotation_and_derivatives(ang[0], ang[1], ang[2])
+    dvec = m.T @ ideal_direction(oc, iop, chip, chip_len)
+    dvec /= np.sqrt(dvec @ dvec)
+    return s, dvec

@@ -15,13 +15,13 @@ factor where a report needs it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
-from solver.kernels import observation_blocks
+from solver.kernels import all_observation_blocks
 from solver.terms import ImageTerm, image_terms
 from solver.problem import Problem
 
@@ -32,8 +32,9 @@ _JIT = dict(cache=True, nogil=True, error_model="numpy")
 class Layout:
     img_col: np.ndarray  # (nimg,) first column of each image
     pt_col: np.ndarray  # (npt,) first column of each estimated point, -1 otherwise
-    n_img_params: int
+    n_img_params: int  # images and cameras: all columns before the points
     n_params: int
+    cam_col: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (ncam,)
 
 
 def layout(problem: Problem) -> Layout:
@@ -42,13 +43,18 @@ def layout(problem: Problem) -> Layout:
     for img in problem.images:
         img_col[img.index] = c
         c += img.nfree
-    n_img = c
+    cam_col = -np.ones(max(len(problem.cameras), 1), dtype=np.int64)
+    for cam in problem.cameras:
+        if cam.nfree:
+            cam_col[cam.index] = c
+            c += cam.nfree
+    n_f = c
     pt_col = -np.ones(len(problem.points), dtype=np.int64)
     for p in problem.points:
         if p.estimated:
             pt_col[p.index] = c
             c += 3
-    return Layout(img_col, pt_col, n_img, c)
+    return Layout(img_col, pt_col, n_f, c, cam_col)
 
 
 @dataclass
@@ -58,14 +64,14 @@ class Linearisation:
     layout: Layout
     obs_sel: np.ndarray  # indices of the observations that enter the adjustment
     res_obs: np.ndarray  # (n, 2) whitened
-    jimg: np.ndarray  # (n, 2, 24)
+    jf: np.ndarray  # (n, 2, W) wrt image and camera parameters, columns in fcol
+    fcol: np.ndarray  # (n, W) global columns, -1 padding
     jpt: np.ndarray  # (n, 2, 3)
     ok: np.ndarray  # (n,)
     point_prior: dict[int, tuple[np.ndarray, np.ndarray]]  # point -> (whitened residual, 1/sigma)
-    terms: list[ImageTerm]
+    terms: list  # image terms, then camera priors
     term_eval: list[tuple[np.ndarray, np.ndarray]]  # (residuals, jacobian) of each term
-    nfree: np.ndarray
-    obs_img: np.ndarray
+    term_col: list[int]  # first column of each term's block
     obs_pt: np.ndarray
 
     @property
@@ -85,13 +91,13 @@ class Linearisation:
         rows, cols, vals = [], [], []
         lay = self.layout
         for q in range(len(self.obs_sel)):
-            im, pt = self.obs_img[q], self.obs_pt[q]
-            nf = self.nfree[im]
+            pt = self.obs_pt[q]
             for r in range(2):
-                for j in range(nf):
-                    rows.append(2 * q + r)
-                    cols.append(lay.img_col[im] + j)
-                    vals.append(self.jimg[q, r, j])
+                for j in range(self.fcol.shape[1]):
+                    if self.fcol[q, j] >= 0:
+                        rows.append(2 * q + r)
+                        cols.append(self.fcol[q, j])
+                        vals.append(self.jf[q, r, j])
                 if lay.pt_col[pt] >= 0:
                     for j in range(3):
                         rows.append(2 * q + r)
@@ -104,59 +110,69 @@ class Linearisation:
                 cols.append(lay.pt_col[pidx] + a)
                 vals.append(w[a])
                 row += 1
-        for term, (_r, jac) in zip(self.terms, self.term_eval):
+        for c0, (_r, jac) in zip(self.term_col, self.term_eval):
             for q in range(jac.shape[0]):
                 for c in np.flatnonzero(jac[q]):
                     rows.append(row)
-                    cols.append(lay.img_col[term.image_index] + c)
+                    cols.append(c0 + c)
                     vals.append(jac[q, c])
                 row += 1
         return sp.csr_matrix((vals, (rows, cols)), shape=(row, lay.n_params))
 
 
 def linearise(problem: Problem) -> Linearisation:
+    from solver.iop import camera_priors
+    from solver.tables import camera_table, image_table, records
+
     lay = layout(problem)
     obs = problem.obs
     sel = np.flatnonzero(problem.adjusted_mask)
-    kinds = np.array([im.kind for im in problem.images], dtype=np.int64)
-    coefs = np.ascontiguousarray([im.coef() for im in problem.images])
-    kcs = np.ascontiguousarray([im.kc for im in problem.images])
-    nimg = len(problem.images)
-    free = np.zeros((nimg, 24), dtype=np.int64)
-    nfree = np.zeros(nimg, dtype=np.int64)
+    img_tab = image_table(problem)
+    cam_tab = camera_table(problem)
+    img_p = np.zeros((len(problem.images), 24))
     for im in problem.images:
-        free[im.index, : im.nfree] = im.free_idx
-        nfree[im.index] = im.nfree
+        img_p[im.index, : im.nfree] = im.params
+    cam_p = np.zeros((max(len(problem.cameras), 1), cam_tab.shape[1]))
+    width = max(im.nfree for im in problem.images)
+    for c in problem.cameras:
+        cam_p[c.index, : c.nfree] = c.params
+    width += max([c.nfree for c in problem.cameras] + [0])
     pts = np.ascontiguousarray([p.xyz for p in problem.points], dtype=float)
     est = np.array([p.estimated for p in problem.points], dtype=np.bool_)
-    oi = np.ascontiguousarray(obs.img[sel])
+    rec = records(problem, sel)
     op = np.ascontiguousarray(obs.pt[sel])
-    res, jimg, jpt, ok = observation_blocks(kinds, coefs, kcs, free, nfree, pts, est, oi, op, np.ascontiguousarray(obs.oc[sel]))
+    res, jf, fcol, jpt, ok = all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, op, est, lay.img_col, lay.cam_col, width)
     point_prior = {}
     for p in problem.points:
         if p.estimated and p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
             point_prior[p.index] = ((p.xyz - p.known_lgs) / p.sigma_m, 1.0 / p.sigma_m)
-    terms = image_terms(problem)
+    terms = list(image_terms(problem))
+    term_col = [int(lay.img_col[t.image_index]) for t in terms]
     term_eval = [t.evaluate(problem.images[t.image_index].params) for t in terms]
-    return Linearisation(lay, sel, res, jimg, jpt, ok, point_prior, terms, term_eval, nfree, oi, op)
+    for prior in camera_priors(problem.cameras):
+        terms.append(prior)
+        term_col.append(int(lay.cam_col[prior.camera_index]))
+        term_eval.append(prior.evaluate(problem.cameras[prior.camera_index].params))
+    return Linearisation(lay, sel, res, jf, fcol, jpt, ok, point_prior, terms, term_eval, term_col, op)
 
 
 @njit(**_JIT)
-def _accumulate(n_img_params, img_col, nfree, obs_img, obs_pt, jimg, jpt, pt_q, npt_est):
-    """A (image normal block) and C (3x3 point blocks) and per-observation B pieces."""
-    a = np.zeros((n_img_params, n_img_params))
+def _accumulate(n_f, fcol, jf, obs_pt, jpt, pt_q, npt_est):
+    """A (image/camera normal block) and C (3x3 point blocks)."""
+    a = np.zeros((n_f, n_f))
     c = np.zeros((npt_est, 3, 3))
-    for i in range(obs_img.shape[0]):
-        im = obs_img[i]
-        c0 = img_col[im]
-        nf = nfree[im]
+    w = fcol.shape[1]
+    for i in range(fcol.shape[0]):
         for r in range(2):
-            for j in range(nf):
-                vj = jimg[i, r, j]
-                if vj == 0.0:
+            for j in range(w):
+                cj = fcol[i, j]
+                vj = jf[i, r, j]
+                if cj < 0 or vj == 0.0:
                     continue
-                for k in range(nf):
-                    a[c0 + j, c0 + k] += vj * jimg[i, r, k]
+                for k in range(w):
+                    ck = fcol[i, k]
+                    if ck >= 0:
+                        a[cj, ck] += vj * jf[i, r, k]
             q = pt_q[obs_pt[i]]
             if q >= 0:
                 for j in range(3):
@@ -166,97 +182,93 @@ def _accumulate(n_img_params, img_col, nfree, obs_img, obs_pt, jimg, jpt, pt_q, 
 
 
 @njit(**_JIT)
-def _reduce(s, img_col, nfree, obs_img, jimg, jpt, order, bounds, c_inv):
+def _point_b(lo, hi, order, fcol, jf, jpt):
+    """Columns (concatenated over the point's observations, duplicates allowed) and B_p rows."""
+    w = fcol.shape[1]
+    cols = np.empty((hi - lo) * w, dtype=np.int64)
+    bp = np.zeros(((hi - lo) * w, 3))
+    m = 0
+    for t in range(lo, hi):
+        i = order[t]
+        for j in range(w):
+            if fcol[i, j] < 0:
+                continue
+            cols[m] = fcol[i, j]
+            for k in range(3):
+                bp[m, k] = jf[i, 0, j] * jpt[i, 0, k] + jf[i, 1, j] * jpt[i, 1, k]
+            m += 1
+    return cols[:m], bp[:m]
+
+
+@njit(**_JIT)
+def _reduce(s, fcol, jf, jpt, order, bounds, c_inv):
     """S -= B_p C_p^-1 B_p^T for every point p (observations grouped by ``order``/``bounds``)."""
-    npt = bounds.shape[0] - 1
-    for q in range(npt):
+    for q in range(bounds.shape[0] - 1):
         lo, hi = bounds[q], bounds[q + 1]
-        m = hi - lo
-        if m == 0:
+        if hi == lo:
             continue
-        # B_p restricted to the columns of the images that see the point: rows of (col, 3)
-        cols = np.empty(0, dtype=np.int64)
-        total = 0
-        for t in range(lo, hi):
-            total += nfree[obs_img[order[t]]]
-        cols = np.empty(total, dtype=np.int64)
-        bp = np.zeros((total, 3))
-        off = 0
-        for t in range(lo, hi):
-            i = order[t]
-            im = obs_img[i]
-            nf = nfree[im]
-            for j in range(nf):
-                cols[off + j] = img_col[im] + j
-                for k in range(3):
-                    bp[off + j, k] = jimg[i, 0, j] * jpt[i, 0, k] + jimg[i, 1, j] * jpt[i, 1, k]
-            off += nf
-        w = bp @ c_inv[q]  # (total, 3)
-        for x in range(total):
-            for y in range(total):
-                s[cols[x], cols[y]] -= w[x, 0] * bp[y, 0] + w[x, 1] * bp[y, 1] + w[x, 2] * bp[y, 2]
+        cols, bp = _point_b(lo, hi, order, fcol, jf, jpt)
+        wm = bp @ c_inv[q]
+        m = cols.shape[0]
+        for x in range(m):
+            for y in range(m):
+                s[cols[x], cols[y]] -= wm[x, 0] * bp[y, 0] + wm[x, 1] * bp[y, 1] + wm[x, 2] * bp[y, 2]
     return s
 
 
 @njit(**_JIT)
-def _point_covariances(s_inv, img_col, nfree, obs_img, jimg, jpt, order, bounds, c_inv, lev):
+def _point_covariances(s_inv, fcol, jf, jpt, order, bounds, c_inv, lev):
     """Per point: 3x3 covariance and the leverages of its observation rows (written into lev)."""
     npt = bounds.shape[0] - 1
     cov = np.zeros((npt, 3, 3))
+    w = fcol.shape[1]
     for q in range(npt):
         lo, hi = bounds[q], bounds[q + 1]
-        total = 0
-        for t in range(lo, hi):
-            total += nfree[obs_img[order[t]]]
-        cols = np.empty(total, dtype=np.int64)
-        bp = np.zeros((total, 3))
-        off = 0
-        for t in range(lo, hi):
-            i = order[t]
-            im = obs_img[i]
-            nf = nfree[im]
-            for j in range(nf):
-                cols[off + j] = img_col[im] + j
-                for k in range(3):
-                    bp[off + j, k] = jimg[i, 0, j] * jpt[i, 0, k] + jimg[i, 1, j] * jpt[i, 1, k]
-            off += nf
-        sub = np.empty((total, total))
-        for x in range(total):
-            for y in range(total):
+        cols, bp = _point_b(lo, hi, order, fcol, jf, jpt)
+        m = cols.shape[0]
+        sub = np.empty((m, m))
+        for x in range(m):
+            for y in range(m):
                 sub[x, y] = s_inv[cols[x], cols[y]]
         ci = c_inv[q]
-        wb = bp @ ci  # (total, 3) = B_p C^-1
+        wb = bp @ ci
         cov[q] = ci + wb.T @ sub @ wb
-        # leverages of the rows of this point
         off = 0
         for t in range(lo, hi):
             i = order[t]
-            im = obs_img[i]
-            nf = nfree[im]
+            nown = 0
+            for j in range(w):
+                if fcol[i, j] >= 0:
+                    nown += 1
             for r in range(2):
-                u = np.zeros(total)
-                for j in range(nf):
-                    u[off + j] = jimg[i, r, j]
+                u = np.zeros(m)
+                jj = 0
+                for j in range(w):
+                    if fcol[i, j] >= 0:
+                        u[off + jj] = jf[i, r, j]
+                        jj += 1
                 b = jpt[i, r]
                 u -= wb @ b
-                h = u @ (sub @ u) + b @ (ci @ b)
-                lev[2 * i + r] = h
-            off += nf
+                lev[2 * i + r] = u @ (sub @ u) + b @ (ci @ b)
+            off += nown
     return cov
 
 
 @njit(**_JIT)
-def _image_only_leverage(s_inv, img_col, nfree, obs_img, jimg, rows, lev):
+def _image_only_leverage(s_inv, fcol, jf, rows, lev):
+    w = fcol.shape[1]
     for t in range(rows.shape[0]):
         i = rows[t]
-        im = obs_img[i]
-        c0 = img_col[im]
-        nf = nfree[im]
         for r in range(2):
             h = 0.0
-            for j in range(nf):
-                for k in range(nf):
-                    h += jimg[i, r, j] * s_inv[c0 + j, c0 + k] * jimg[i, r, k]
+            for j in range(w):
+                cj = fcol[i, j]
+                if cj < 0:
+                    continue
+                for k in range(w):
+                    ck = fcol[i, k]
+                    if ck >= 0:
+                        h += jf[i, r, j] * s_inv[cj, ck] * jf[i, r, k]
             lev[2 * i + r] = h
 
 
@@ -275,11 +287,10 @@ def schur(lin: Linearisation, problem: Problem) -> SchurParts:
     est = np.array([p.index for p in problem.points if p.estimated], dtype=np.int64)
     pt_q = -np.ones(len(problem.points), dtype=np.int64)
     pt_q[est] = np.arange(len(est))
-    a, c = _accumulate(lay.n_img_params, lay.img_col, lin.nfree, lin.obs_img, lin.obs_pt, lin.jimg, lin.jpt, pt_q, len(est))
+    a, c = _accumulate(lay.n_img_params, lin.fcol, lin.jf, lin.obs_pt, lin.jpt, pt_q, len(est))
     for pidx, (_r, w) in lin.point_prior.items():
         c[pt_q[pidx]] += np.diag(w**2)
-    for term, (_r, j) in zip(lin.terms, lin.term_eval):
-        c0 = lay.img_col[term.image_index]
+    for c0, (_r, j) in zip(lin.term_col, lin.term_eval):
         n = j.shape[1]
         a[c0 : c0 + n, c0 : c0 + n] += j.T @ j
     dets = np.linalg.det(c) if len(est) else np.zeros(0)
@@ -293,7 +304,7 @@ def schur(lin: Linearisation, problem: Problem) -> SchurParts:
     has = np.flatnonzero(q_of_obs >= 0)
     order = has[np.argsort(q_of_obs[has], kind="stable")]
     bounds = np.searchsorted(q_of_obs[order], np.arange(len(est) + 1))
-    s = _reduce(a, lay.img_col, lin.nfree, lin.obs_img, lin.jimg, lin.jpt, order, bounds, c_inv) if len(est) else a
+    s = _reduce(a, lin.fcol, lin.jf, lin.jpt, order, bounds, c_inv) if len(est) else a
     return SchurParts(s, c_inv, est, singular, order, bounds)
 
 
@@ -344,9 +355,9 @@ def covariance(lin: Linearisation, parts: SchurParts, problem: Problem) -> Covar
     points: dict[int, np.ndarray] = {}
     lay = lin.layout
     if len(parts.est_points):
-        cov = _point_covariances(s_inv, lay.img_col, lin.nfree, lin.obs_img, lin.jimg, lin.jpt, parts.order, parts.bounds, parts.c_inv, lev)
+        cov = _point_covariances(s_inv, lin.fcol, lin.jf, lin.jpt, parts.order, parts.bounds, parts.c_inv, lev)
         points = {int(p): cov[q] for q, p in enumerate(parts.est_points)}
     fixed_rows = np.flatnonzero(lay.pt_col[lin.obs_pt] < 0)
     if len(fixed_rows) and s_inv.size:
-        _image_only_leverage(s_inv, lay.img_col, lin.nfree, lin.obs_img, lin.jimg, fixed_rows, lev)
+        _image_only_leverage(s_inv, lin.fcol, lin.jf, fixed_rows, lev)
     return Covariance(s_inv, points, lev)

@@ -12,7 +12,6 @@ from solver.adjust import prepare
 from solver.job import load_job
 from solver.kernels import (
     gravity_and_gradient,
-    point_block,
     project,
     ray,
     rotation_and_derivatives,
@@ -180,13 +179,14 @@ def test_point_block_matches_single_projections_and_layout():
     """The packed point block used by Ceres gives the same numbers as the plain kernel, with the
     Jacobian of image i only on rows 2i, 2i+1 (Ceres' dense row-major layout)."""
     from solver.backend import PointCost, SolveControl
+    from solver.tables import camera_table, image_table
 
     job, _ = block_job("K2", n_triplets=1, n_tie=5, n_gcp=6, n_check=2, seed=3)
     problem = prepare(load_job(job))
     control = SolveControl(None, None, 10)
     p = next(q for q in problem.points if q.role == "tie")
     rows = np.flatnonzero(problem.obs.pt == p.index)
-    cf = PointCost(problem, p.index, rows, control)
+    cf = PointCost(problem, p.index, rows, control, (image_table(problem), camera_table(problem)))
     k = len(rows)
     imgs = [problem.images[problem.obs.img[r]] for r in rows]
     params = [p.xyz] + [im.params for im in imgs]
@@ -203,4 +203,54 @@ def test_point_block_matches_single_projections_and_layout():
         np.testing.assert_allclose(ji[2 * i + 1], -dc_dc[im.free_idx] / sig, rtol=1e-12)
         other = np.delete(ji, [2 * i, 2 * i + 1], axis=0)
         assert np.all(other == 0.0)
-    assert point_block is not None
+
+
+def test_projection_with_interior_orientation_jacobian_and_zero_limit():
+    """project_cam: equals project when every IOP is zero; exact derivatives wrt coefficients,
+    point and each IOP (nonzero values so that every term is exercised)."""
+    from solver.kernels import IOP_CHIP, IOP_OPTICAL, N_IOP, project_cam
+
+    job, _ = single_image_job("K2", seed=5, pitch_deg=23.8)
+    problem = prepare(load_job(job))
+    img = problem.images[0]
+    coef = img.coef()
+    chip, chip_len = 1, 3624 * 0.0071
+    for k in range(0, len(problem.obs.img), 6):
+        p = problem.points[problem.obs.pt[k]].xyz
+        oc = problem.obs.oc[k]
+        a = project(img.kind, coef, img.kc, p, oc, True)
+        b = project_cam(img.kind, coef, img.kc, p, oc, np.zeros(N_IOP), chip, chip_len, True)
+        assert abs(a[1] - b[1]) < 1e-7 and abs(a[2] - b[2]) < 1e-7
+        np.testing.assert_allclose(b[5], a[5], rtol=1e-6, atol=1e-9)
+    iop = np.zeros(N_IOP)
+    iop[: len(IOP_OPTICAL)] = [0.004, -0.003, 1.5, 2e-6, 3e-10, 1e-4]
+    b0 = 6 + 5 * chip
+    iop[b0 : b0 + len(IOP_CHIP)] = [0.02, -0.03, 2e-4, -1e-4, 1e-3]
+    for k in range(0, len(problem.obs.img), 6):
+        p = problem.points[problem.obs.pt[k]].xyz
+        oc = problem.obs.oc[k]
+        r = project_cam(img.kind, coef, img.kc, p, oc, iop, chip, chip_len, True)
+        assert r[0]
+        checks = [(3, 5, coef, j, "coef") for j in img.free_idx] + [(7, 8, iop, q, "iop") for q in list(range(6)) + list(range(b0, b0 + 5))]
+        for il, ic, vec, j, what in checks:
+            h = 0.05 / max(abs(r[il][j]), abs(r[ic][j]), 1e-12)  # distortion terms are strongly non-linear
+            vp, vm = vec.copy(), vec.copy()
+            vp[j] += h
+            vm[j] -= h
+            args_p = (coef if what == "iop" else vp, iop if what == "coef" else vp)
+            args_m = (coef if what == "iop" else vm, iop if what == "coef" else vm)
+            fp = project_cam(img.kind, args_p[0], img.kc, p, oc, args_p[1], chip, chip_len, False)
+            fm = project_cam(img.kind, args_m[0], img.kc, p, oc, args_m[1], chip, chip_len, False)
+            scale = max(abs(r[il][j]), abs(r[ic][j]))
+            assert abs((fp[1] - fm[1]) / (2 * h) - r[il][j]) <= REL_TOL * scale, (what, j)
+            assert abs((fp[2] - fm[2]) / (2 * h) - r[ic][j]) <= REL_TOL * scale, (what, j)
+        for j in range(3):
+            h = 0.3 / max(abs(r[4][j]), abs(r[6][j]))
+            pp, pm = p.copy(), p.copy()
+            pp[j] += h
+            pm[j] -= h
+            fp = project_cam(img.kind, coef, img.kc, pp, oc, iop, chip, chip_len, False)
+            fm = project_cam(img.kind, coef, img.kc, pm, oc, iop, chip, chip_len, False)
+            scale = max(abs(r[4][j]), abs(r[6][j]))
+            assert abs((fp[1] - fm[1]) / (2 * h) - r[4][j]) <= REL_TOL * scale
+            assert abs((fp[2] - fm[2]) / (2 * h) - r[6][j]) <= REL_TOL * scale

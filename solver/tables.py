@@ -1,0 +1,50 @@
+"""Packed constant tables for the numba residual kernels (:mod:`solver.kernels`).
+
+The per-image and per-camera constants live once in two arrays; every observation is a short
+record pointing into them, so a residual block costs one numba dispatch with few arguments.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from solver.kernels import CAM_TAB, IMG_TAB, N_IOP, OBS_REC
+from solver.problem import Problem
+
+
+def image_table(problem: Problem) -> np.ndarray:
+    tab = np.zeros((len(problem.images), IMG_TAB))
+    for im in problem.images:
+        r = tab[im.index]
+        r[0] = im.kind
+        r[1] = im.nfree
+        r[2 : 2 + im.nfree] = im.free_idx
+        r[26:50] = im.base
+        r[50:66] = im.kc
+    return tab
+
+
+def camera_table(problem: Problem) -> np.ndarray:
+    tab = np.zeros((max(len(problem.cameras), 1), CAM_TAB))
+    for c in problem.cameras:
+        r = tab[c.index]
+        r[0] = c.nfree
+        r[1] = 1.0 if c.has_iop else 0.0
+        r[2 : 2 + c.nfree] = c.free_idx
+        r[2 + N_IOP : 2 + 2 * N_IOP] = c.base
+    return tab
+
+
+def records(problem: Problem, rows: np.ndarray, img_slot: np.ndarray | None = None, cam_slot: np.ndarray | None = None) -> np.ndarray:
+    """Observation records of ``rows``; slots default to -1 (filled by the block builders)."""
+    obs = problem.obs
+    rec = np.zeros((len(rows), OBS_REC))
+    rec[:, 0] = obs.img[rows]
+    rec[:, 1] = obs.cam[rows]
+    rec[:, 2] = -1 if img_slot is None else img_slot
+    rec[:, 3] = -1 if cam_slot is None else cam_slot
+    rec[:, 4] = obs.chip_idx[rows]
+    lens = np.array([problem.cameras[c].chip_len_mm[k] for c, k in zip(obs.cam[rows], obs.chip_idx[rows])])
+    rec[:, 5] = lens
+    rec[:, 6:15] = obs.oc[rows]
+    return np.ascontiguousarray(rec)

@@ -1,0 +1,92 @@
+"""Self-calibration (seed 001): recovery of known IOP errors, significance analysis, reuse."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from solver.adjust import adjust_job
+from solver.iop import camera_from_report
+from solver.job import load_job
+from solver.synthetic import block_job
+
+TRUTH = {"df": 2.0, "a0@1": 0.03, "b0@1": -0.02, "a0@3": -0.03, "b0@4": 0.03}  # mm; chip 2 is the master
+CAMS = ("backward", "nadir", "forward")
+
+
+def triplet(seed: int):
+    return block_job(
+        "K2", n_triplets=1, n_tie=40, n_gcp=22, n_check=20, seed=seed, chips=4,
+        iop_truth={c: dict(TRUTH) for c in CAMS}, state_sigma=(20.0, 0.05), gcp_sigma_m=0.3,
+    )[0]
+
+
+def rmse3d(rep) -> float:
+    r = rep["checkpoints"]["rmse_m"]
+    return float(np.sqrt(r["e"] ** 2 + r["n"] ** 2 + r["u"] ** 2))
+
+
+@pytest.fixture(scope="module")
+def calibrated():
+    job = triplet(3)
+    plain = adjust_job(load_job(job))
+    job_sc = copy.deepcopy(job)
+    job_sc["options"]["self_calibration"] = {"estimate": ["df", "a0", "b0"], "sigmas": {"a0": None, "b0": None}}
+    return job_sc, plain, adjust_job(load_job(job_sc))
+
+
+def test_self_calibration_recovers_known_errors_within_3_sigma(calibrated):
+    _job, plain, rep = calibrated
+    for cam in rep["cameras"]:
+        assert cam["master_chip"] == "2"
+        names = {p["name"] for p in cam["parameters"] if p["estimated"]}
+        assert "a0@2" not in names and {"df", "a0@1", "b0@4"} <= names
+        for p in cam["parameters"]:
+            if p["estimated"]:
+                assert abs(p["value"] - TRUTH.get(p["name"], 0.0)) <= 3 * p["sigma"], (cam["id"], p)
+        cov = np.array(cam["iop_covariance"]["matrix"])
+        assert cov.shape == (7, 7)
+    assert abs(rep["adjustment"]["sigma0_aposteriori"] - 1) < 0.15
+    assert plain["adjustment"]["sigma0_aposteriori"] > 2  # the unmodelled IOP errors show
+    assert rmse3d(rep) < 0.5 * rmse3d(plain)
+
+
+def test_significance_analysis_drops_the_parameters_simulated_as_zero():
+    job = triplet(4)
+    job["options"]["self_calibration"] = {
+        "estimate": ["df", "a0", "b0", "a1", "b1"],
+        "sigmas": {"a0": None, "b0": None, "a1": None, "b1": None},
+        "significance_analysis": True,
+    }
+    rep = adjust_job(load_job(job))
+    pa = rep["parameter_analysis"]
+    assert pa["dropped"], pa
+    for name in pa["dropped"]:
+        assert TRUTH.get(name.split("/")[1], 0.0) == 0.0, name
+    kept = {f"{c['id']}/{p['name']}" for c in rep["cameras"] for p in c["parameters"] if p["estimated"]}
+    for c in CAMS:
+        assert f"{c}/df" in kept and f"{c}/a0@1" in kept
+    assert pa["steps"][-1]["dropped"] is None
+    # every step is reported with its statistics
+    assert [s["step"] for s in pa["steps"]] == list(range(len(pa["steps"])))
+
+
+@pytest.mark.parametrize("use", ["fixed", "weighted"])
+def test_exported_calibration_improves_a_second_triplet(calibrated, use):
+    job_sc, _plain, rep = calibrated
+    second = triplet(11)
+    base = adjust_job(load_job(second))
+    reuse = copy.deepcopy(second)
+    for cam in reuse["cameras"]:
+        definition = camera_from_report(job_sc, rep, cam["id"])
+        cam["iop"] = definition["iop"]
+        cam["iop_use"] = use
+        if use == "weighted":
+            cam["iop_covariance"] = definition["iop_covariance"]
+    if use == "weighted":
+        reuse["options"]["self_calibration"] = {"estimate": ["df", "a0", "b0"], "sigmas": {"a0": None, "b0": None}}
+    rep2 = adjust_job(load_job(reuse))
+    assert rmse3d(rep2) < 0.6 * rmse3d(base)
+    assert rep2["adjustment"]["sigma0_aposteriori"] < 0.5 * base["adjustment"]["sigma0_aposteriori"]
