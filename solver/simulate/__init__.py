@@ -9,6 +9,7 @@ Layers, each in its own module:
 - :mod:`.orbit`      numerical orbit in WGS 84 ECEF (point mass, zonal J2-J4, Earth rotation)
 - :mod:`.attitude`   orbit frame, yaw steering, drift, jitter and camera mounting pitch
 - :mod:`.camera`     linear-array cameras (focal plane, CCD chips, timing); PRISM and CBERS presets
+- :mod:`.iop`        interior-orientation errors of a simulated camera (docs/models.md section 8)
 - :mod:`.projection` exact ground -> image (root finding on the line) and image -> ground
 - :mod:`.terrain`    a smooth synthetic terrain around the scene
 - :mod:`.scene`      point selection, noise, the job document and the truth file

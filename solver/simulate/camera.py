@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from solver.simulate.iop import NO_IOP, CameraIOP
+
 # Seed 001 Table 1: calibrated focal lengths of the PRISM cameras (mm)
 PRISM_FOCAL_MM = {"backward": 1999.8762715, "nadir": 1999.8630195, "forward": 2000.0645632}
 PRISM_PITCH_DEG = {"backward": -23.8, "nadir": 0.0, "forward": 23.8}
@@ -66,6 +68,7 @@ class CameraSpec:
     columns: int
     chips: tuple[ChipSpec, ...]
     mounting_pitch_deg: float = 0.0
+    iop: CameraIOP = NO_IOP  # true interior-orientation errors (not written in the job)
 
     def __post_init__(self) -> None:
         cols = sorted((c.first_column, c.columns) for c in self.chips)
@@ -100,6 +103,24 @@ class CameraSpec:
         dy = np.array([c.dy_mm for c in self.chips])[k]
         cc = np.array([c.centre_column for c in self.chips])[k]
         return dx, dy + (col - cc) * self.pixel_mm, k
+
+    @property
+    def true_focal_mm(self) -> float:
+        """Focal length of the simulated camera: nominal + the IOP error ``df``."""
+        return self.focal_mm + self.iop.value("df")
+
+    def image_plane(self, column: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x_i, y_i, chip index) of image columns in the simulated camera: the focal-plane
+        point (mm, from the principal point) whose direction ``(x_i, y_i, -true_focal_mm)`` the
+        pixel sees, with the IOP errors applied (:mod:`solver.simulate.iop`)."""
+        x, y, k = self.focal_from_image(column)
+        if self.iop.is_zero:
+            return x, y, k
+        dy = np.array([c.dy_mm for c in self.chips])[k]
+        ids = np.array([c.id for c in self.chips])[k]
+        length = np.array([c.columns * self.pixel_mm for c in self.chips])[k]
+        xi, yi = self.iop.image_point(y - dy, x, dy, ids, length)
+        return xi, yi, k
 
     def gsd_nadir_m(self, height_m: float) -> float:
         return self.pixel_mm / self.focal_mm * height_m

@@ -8,6 +8,13 @@ for PRISM). Then ``L = (t - first_line_time) / line_time`` and
 whose column range contains C (with unequal chip offsets a point near a seam may fall in
 none: a gap between chips, reported as outside).
 
+A camera with interior-orientation errors (:mod:`solver.simulate.iop`, docs/models.md section 8)
+bends each chip's line of pixels and moves it in the focal plane: then the time and the scanline
+coordinate y_s are solved together from both collinearity conditions ``x(t) = x_i(y_s)``,
+``y(t) = y_i(y_s)`` (Newton in 2D, |dt| < 1e-12 s, |dy_s| < 1e-10 mm), with the true focal length
+f + df, and ``C = first_column + (columns - 1)/2 + y_s / pixel``. Without IOP errors the
+nominal path above runs unchanged.
+
 Image to ground: the ray of (L, C) from S(t(L)) is intersected with the surface of given
 ellipsoidal height (or the terrain) by Newton iteration along the ray.
 
@@ -26,6 +33,7 @@ from solver.simulate.camera import CameraSpec
 from solver.simulate.terrain import Terrain
 
 TIME_TOL_S = 1e-12
+SCANLINE_TOL_MM = 1e-10  # 1.4e-8 PRISM pixels
 HEIGHT_TOL_M = 1e-7
 
 
@@ -69,9 +77,10 @@ class ImageGeometry:
         return np.einsum("nij,nj->ni", m, points_ecef - r)
 
     def focal_plane(self, t_s: np.ndarray, points_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Focal-plane coordinates (x_mm, y_mm) of points at times t_s (collinearity)."""
+        """Focal-plane coordinates (x_mm, y_mm) of points at times t_s (collinearity, with the
+        simulated camera's true focal length)."""
         c = self.camera_coordinates(t_s, points_ecef)
-        f = self.camera.focal_mm
+        f = self.camera.focal_mm if self.camera.iop.is_zero else self.camera.true_focal_mm
         return -f * c[:, 0] / c[:, 2], -f * c[:, 1] / c[:, 2]
 
     def solve_time(self, points_ecef: np.ndarray, x_mm: float | np.ndarray, t0_s: np.ndarray | None = None) -> np.ndarray:
@@ -91,6 +100,50 @@ class ImageGeometry:
             raise RuntimeError(f"line search did not converge (max step {np.max(np.abs(step)):.3g} s)")
         return t
 
+    def solve_time_and_scanline(
+        self, points_ecef: np.ndarray, chip: int, t0_s: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Acquisition times (n,) and scanline coordinates y_s (n,) mm at which each point lies on
+        chip ``chip`` of the camera with IOP errors: Newton in 2D on both collinearity conditions
+        ``x(t) = x_i(y_s)``, ``y(t) = y_i(y_s)`` (:mod:`solver.simulate.iop`)."""
+        p = np.atleast_2d(points_ecef)
+        cam = self.camera
+        c = cam.chips[chip]
+        n = len(p)
+        ids = np.full(n, c.id)
+        dx = np.full(n, c.dx_mm)
+        dy = np.full(n, c.dy_mm)
+        length = np.full(n, c.columns * cam.pixel_mm)
+
+        def image_point(y_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return cam.iop.image_point(y_s, dx, dy, ids, length)
+
+        # start from the nominal chip geometry
+        t = self.solve_time(p, c.dx_mm, t0_s)
+        y_s = self.focal_plane(t, p)[1] - c.dy_mm
+        lo, hi = self.platform.orbit.t_min_s, self.platform.orbit.t_max_s
+        h_t, h_y = 1e-3, 1e-3
+        for _ in range(40):
+            x, y = self.focal_plane(t, p)
+            xi, yi = image_point(y_s)
+            f1, f2 = x - xi, y - yi
+            xp, yp = self.focal_plane(t + h_t, p)
+            xm, ym = self.focal_plane(t - h_t, p)
+            a11, a21 = (xp - xm) / (2 * h_t), (yp - ym) / (2 * h_t)
+            xip, yip = image_point(y_s + h_y)
+            xim, yim = image_point(y_s - h_y)
+            a12, a22 = -(xip - xim) / (2 * h_y), -(yip - yim) / (2 * h_y)
+            det = a11 * a22 - a12 * a21
+            dt = (a22 * f1 - a12 * f2) / det
+            dys = (a11 * f2 - a21 * f1) / det
+            t = np.clip(t - dt, lo + h_t, hi - h_t)
+            y_s = y_s - dys
+            if np.max(np.abs(dt)) < TIME_TOL_S and np.max(np.abs(dys)) < SCANLINE_TOL_MM:
+                break
+        else:
+            raise RuntimeError(f"image point search did not converge (max steps {np.max(np.abs(dt)):.3g} s, {np.max(np.abs(dys)):.3g} mm)")
+        return t, y_s
+
     def ground_to_image(self, points_ecef: np.ndarray) -> ImageProjection:
         """Exact image coordinates of ECEF points (n, 3): line, column, chip, inside."""
         p = np.atleast_2d(np.asarray(points_ecef, dtype=float))
@@ -98,9 +151,13 @@ class ImageGeometry:
         lines, cols, times, margins = [], [], [], []
         t_guess = None
         for k, c in enumerate(cam.chips):
-            t = self.solve_time(p, c.dx_mm, t_guess)
+            if cam.iop.is_zero:
+                t = self.solve_time(p, c.dx_mm, t_guess)
+                col = cam.column_from_y(self.focal_plane(t, p)[1], k)
+            else:
+                t, y_s = self.solve_time_and_scanline(p, k, t_guess)
+                col = c.centre_column + y_s / cam.pixel_mm
             t_guess = t
-            col = cam.column_from_y(self.focal_plane(t, p)[1], k)
             # margin >= 0 inside the chip's column range (pixels extend half a pixel each side)
             margins.append(np.minimum(col - (c.first_column - 0.5), (c.first_column + c.columns - 0.5) - col))
             lines.append(self.line_of_time(t))
@@ -118,9 +175,10 @@ class ImageGeometry:
     def rays(self, line: np.ndarray, column: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Origins (perspective centres) and unit directions (ECEF) of image points' rays."""
         t = self.time_of_line(np.atleast_1d(line))
-        x, y, _ = self.camera.focal_from_image(np.atleast_1d(column))
+        x, y, _ = self.camera.image_plane(np.atleast_1d(column))
         r, _, m = self.frames(t)
-        d_cam = np.column_stack([x, y, np.full_like(x, -self.camera.focal_mm)])
+        f = self.camera.focal_mm if self.camera.iop.is_zero else self.camera.true_focal_mm
+        d_cam = np.column_stack([x, y, np.full_like(x, -f)])
         d = np.einsum("nji,nj->ni", m, d_cam)
         return r, d / np.linalg.norm(d, axis=1, keepdims=True)
 

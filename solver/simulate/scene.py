@@ -12,7 +12,8 @@ Procedure (all randomness from one ``numpy.random.Generator`` seeded by ``settin
    from chip seams; control points (gcp, then check) are picked by farthest-point sampling,
    so that ``--gcps 14 --checks 9`` and ``--gcps 9 --checks 14`` share the same 23 points;
    tie points are drawn at random among the rest;
-4. project exactly, add Gaussian noise (image: ``noise_px`` on line and column; survey:
+4. project exactly (with the cameras' true interior orientation, ``settings.iop_errors``: the
+   job gets the nominal cameras, the truth file the IOP), add Gaussian noise (image: ``noise_px`` on line and column; survey:
    ``gcp_sigma_m`` along east, north, up), drop observations that leave the image.
 
 Times in the documents are ``epoch_s + t_s`` (seconds of the UTC day).
@@ -21,7 +22,7 @@ Times in the documents are ``epoch_s + t_s`` (seconds of the UTC day).
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,7 @@ import numpy as np
 from solver.geodesy import LocalFrame, ecef_to_geodetic, enu_rotation, from_ecef
 from solver.simulate.attitude import AttitudeModel, Platform, opk_from_matrix
 from solver.simulate.camera import CameraSpec
+from solver.simulate.iop import resolve_iop
 from solver.simulate.orbit import EarthModel, Orbit, circular_state_over, sun_synchronous_semi_major_axis
 from solver.simulate.projection import ImageGeometry
 from solver.simulate.terrain import Terrain
@@ -69,6 +71,9 @@ class Settings:
     terrain_max_m: float = 550.0
     truth_step_lines: int = 100
     point_margin: float = 0.03  # fraction of the reference image kept free at its borders
+    # interior-orientation errors of the simulated cameras (not written in the job): "none",
+    # "default" (solver.simulate.iop.default_iop) or {camera id: {iop name: value}}
+    iop_errors: Any = "none"
 
 
 @dataclass
@@ -104,7 +109,17 @@ class Scene:
 
     def __init__(self, settings: Settings, groups: list[Group], earth: EarthModel | None = None) -> None:
         self.settings = settings
-        self.groups = groups
+        self.groups = [
+            replace(
+                g,
+                cameras=[
+                    replace(c, iop=resolve_iop(settings.iop_errors, c.id, c.focal_mm, [ch.id for ch in c.chips]))
+                    for c in g.cameras
+                ],
+                images=[],
+            )
+            for g in groups
+        ]
         self.earth = earth or EarthModel()
         self.rng = np.random.default_rng(settings.seed)
         self.images: list[ImageGeometry] = []
@@ -318,6 +333,23 @@ class Scene:
             "observations": observations,
         }
 
+    def true_cameras(self) -> dict[str, Any]:
+        """Per camera id: the true interior orientation (every parameter of docs/models.md
+        section 8 by name, zeros included) and the true focal length; the job has the nominal
+        camera."""
+        out: dict[str, Any] = {}
+        for im in self.images:
+            cam = im.camera
+            out.setdefault(
+                cam.id,
+                {
+                    "nominal_focal_mm": cam.focal_mm,
+                    "true_focal_mm": cam.true_focal_mm,
+                    "iop": cam.iop.full([c.id for c in cam.chips]),
+                },
+            )
+        return out
+
     def lgs(self) -> LocalFrame:
         """The solver's Local Geodetic System: centroid of the written gcp coordinates."""
         gcp = [i for i, p in enumerate(self.points) if p.role == "gcp"]
@@ -368,6 +400,7 @@ class Scene:
                 "t_span_s": [self.orbit.t_min_s, self.orbit.t_max_s],
                 "integrator": "DOP853 rtol 1e-12",
             },
+            "cameras": self.true_cameras(),
             "attitude": _jsonable(self.platform.attitude.to_dict()),
             "terrain": _jsonable(self.terrain.to_dict()),
             "lgs": lgs.to_dict(),
