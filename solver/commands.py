@@ -29,6 +29,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_models)
 
+    p = sub.add_parser("export-camera", help="camera definition with the IOP a self-calibration estimated")
+    p.add_argument("job", type=Path, help="the self-calibration job document")
+    p.add_argument("report", type=Path, help="its report (pba run -o)")
+    p.add_argument("--camera", required=True, help="camera id")
+    p.add_argument("-o", "--output", type=Path, help="camera definition (JSON); default stdout")
+    p.set_defaults(func=cmd_export_camera)
+
     p = sub.add_parser("compare", help="adjust one job with several platform models side by side")
     p.add_argument("job", type=Path)
     p.add_argument("--models", required=True, help="comma-separated, e.g. K1,K2,J2-1,J2-2,ON1,ON2,P1,P2")
@@ -128,6 +135,15 @@ def summary_text(report: dict[str, Any]) -> str:
                     f"  t-test {axis}: t={t['statistic']:.3f} critical {t['critical']:.3f} "
                     f"({'no bias' if t['passed'] else 'BIASED'})"
                 )
+    ln = report.get("lines") or {}
+    if ln.get("items"):
+        roles = [it["role"] for it in ln["items"]]
+        model = ln["model"] + (f", correction {ln['correction']}" if ln.get("correction") else "")
+        rm = ln["rmse_px"]
+        lines.append(
+            f"\nlines ({roles.count('control')} control, {roles.count('check')} check; {model}): image distance "
+            f"RMSE control {_fmt(rm['control'], '.3f')} px, check {_fmt(rm['check'], '.3f')} px"
+        )
     for w in report.get("warnings", []):
         lines.append(f"warning: {w}")
     return "\n".join(lines)
@@ -205,4 +221,24 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if args.output:
         args.output.write_text(json.dumps(report, indent=1))
     print(comparison_table_text(report))
+    return 0
+
+
+def cmd_export_camera(args: argparse.Namespace) -> int:
+    """Write the job's camera with the estimated IOP and their covariance, ready to reuse in
+    another job (``iop_use``: "fixed", or "weighted" with the same parameters estimated)."""
+    from solver.iop import camera_from_report
+
+    job = json.loads(args.job.read_text())
+    report = json.loads(args.report.read_text())
+    try:
+        definition = camera_from_report(job, report, args.camera)
+    except StopIteration:
+        print(f"no estimated interior orientation for camera {args.camera!r} in {args.report}", file=sys.stderr)
+        return 2
+    text = json.dumps(definition, indent=1)
+    if args.output:
+        args.output.write_text(text)
+    else:
+        print(text)
     return 0
