@@ -1,6 +1,6 @@
 """``pba serve`` and ``pba admin ...`` (registered into the ``pba`` command by solver.cli).
 
-``pba worker`` (a distributed worker) is added by the Celery backend (issue 8) next to these.
+``pba worker`` runs a distributed (Celery) worker and ``pba db`` migrates the store (issue 8).
 """
 
 from __future__ import annotations
@@ -19,6 +19,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     serve.add_argument("--data-dir", default=None, help="data directory (PBA_DATA_DIR)")
     serve.set_defaults(func=cmd_serve)
+
+    worker = subparsers.add_parser(
+        "worker", help="run a distributed (Celery) worker: PBA_BROKER_URL, PBA_DATABASE_URL"
+    )
+    worker.add_argument(
+        "--concurrency", type=int, default=None, help="solves at once (PBA_WORKER_CONCURRENCY)"
+    )
+    worker.add_argument("--name", default=None, help="Celery node name (default pba-PID@host)")
+    worker.add_argument(
+        "--ping", action="store_true", help="health check: exit 0 if a worker of this host answers"
+    )
+    worker.set_defaults(func=cmd_worker)
+
+    db = subparsers.add_parser("db", help="job store schema: migrations (Alembic)")
+    db_sub = db.add_subparsers(dest="db_command", metavar="ACTION")
+    db_sub.add_parser("upgrade", help="migrate the store to the newest schema").set_defaults(
+        func=cmd_db_upgrade
+    )
+    db_sub.add_parser("current", help="print the store's schema revision").set_defaults(
+        func=cmd_db_current
+    )
+    db.set_defaults(func=lambda args: db.print_help() or 2)
 
     admin = subparsers.add_parser("admin", help="administration: API keys")
     admin_sub = admin.add_subparsers(dest="admin_command", metavar="ACTION")
@@ -110,3 +132,46 @@ def cmd_revoke_key(args: argparse.Namespace) -> int:
         store.close()
     print("revoked" if ok else "no such key", file=sys.stderr)
     return 0 if ok else 1
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    """Run a Celery worker: solves jobs from PBA_BROKER_URL, store at PBA_DATABASE_URL."""
+    from service.celery_app import ping_local_workers, worker_main
+
+    if args.ping:
+        nodes = ping_local_workers(_settings(args))
+        print(", ".join(nodes) or "no worker of this host answered", file=sys.stderr)
+        return 0 if nodes else 1
+    return worker_main(_settings(args), args.concurrency, args.name)
+
+
+def cmd_db_upgrade(args: argparse.Namespace) -> int:
+    """Run the store's migrations up to the newest revision."""
+    from service.store.schema import upgrade
+    from service.store.sql import make_engine
+
+    settings = _settings(args)
+    if settings.resolved_database_url.startswith("sqlite"):
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+    engine = make_engine(settings.resolved_database_url)
+    try:
+        revision = upgrade(engine)
+    finally:
+        engine.dispose()
+    print(f"store at revision {revision}", file=sys.stderr)
+    return 0
+
+
+def cmd_db_current(args: argparse.Namespace) -> int:
+    """Print the store's revision and the newest one this package ships."""
+    from service.store.schema import current_revision, head_revision
+    from service.store.sql import make_engine
+
+    engine = make_engine(_settings(args).resolved_database_url)
+    try:
+        with engine.connect() as conn:
+            current = current_revision(conn)
+    finally:
+        engine.dispose()
+    print(f"{current or 'none'} (newest: {head_revision()})")
+    return 0

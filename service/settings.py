@@ -74,6 +74,29 @@ class Settings(BaseSettings):
     cancel_poll_interval_s: float = Field(0.2, gt=0, description="cancel flag reads, at most every")
     sse_interval_s: float = Field(0.5, gt=0, description="SSE stream's status poll interval")
     shutdown_grace_s: float = Field(10.0, ge=0, description="stop: wait for workers this long")
+    # -- distributed queue (PBA_QUEUE=celery; docs: README "Scaling out") -----------------
+    broker_url: str = Field(
+        "redis://127.0.0.1:6379/0", description="Celery broker URL (PBA_QUEUE=celery)"
+    )
+    broker_key_prefix: str = Field(
+        "", description="prefix of every Redis key the queue uses (several deployments, one Redis)"
+    )
+    broker_visibility_timeout_s: float = Field(
+        300.0, gt=0, description="Redis gives an unacknowledged job message to another worker after"
+    )
+    celery_queue: str = Field("pba", min_length=1, description="Celery queue name of the jobs")
+    worker_concurrency: int = Field(
+        0, ge=0, le=256, description="solves at once per pba worker (0: one per CPU core)"
+    )
+    lease_s: float = Field(
+        30.0, gt=0, description="a running job whose worker is silent this long is re-queued"
+    )
+    heartbeat_interval_s: float = Field(
+        5.0, gt=0, description="a distributed worker renews its job's lease this often"
+    )
+    sweep_interval_s: float = Field(
+        10.0, gt=0, description="how often expired leases are looked for (API and workers)"
+    )
     log_level: str = Field("INFO", description="logging level")
     log_format: Literal["json", "text"] = Field("json", description="log line format")
 

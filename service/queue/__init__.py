@@ -13,9 +13,11 @@ def make_backend(settings: Settings, store: Store) -> QueueBackend:
         from service.queue.local import LocalPoolBackend
 
         return LocalPoolBackend(settings, store)
-    raise NotImplementedError(
-        f"queue backend {settings.queue!r} is not available yet (PBA_QUEUE=local works)"
-    )
+    if settings.queue == "celery":
+        from service.queue.celery_backend import CeleryBackend
+
+        return CeleryBackend(settings, store)
+    raise NotImplementedError(f"unknown queue backend {settings.queue!r} (local or celery)")
 
 
 __all__ = ["QueueBackend", "make_backend"]

@@ -87,6 +87,8 @@ class JobRow(Base):
     finished: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True, index=True)
     attempts: Mapped[int] = mapped_column(Integer, default=0)
     worker: Mapped[str | None] = mapped_column(String(128), nullable=True, index=True)
+    # lease of a distributed worker's run (service.store.leases); NULL for local workers
+    heartbeat: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     cancel_requested: Mapped[str | None] = mapped_column(String(32), nullable=True)
     n_observations: Mapped[int] = mapped_column(Integer, default=0)
     error: Mapped[str | None] = mapped_column(Text, nullable=True)
@@ -185,8 +187,10 @@ class SqlStore:
 
     # -- lifecycle -------------------------------------------------------------------------
     def create_schema(self) -> None:
-        """Create missing tables (idempotent)."""
-        Base.metadata.create_all(self.engine)
+        """Create or migrate the tables to the newest revision (idempotent; service.store.schema)."""
+        from service.store.schema import ensure_schema
+
+        ensure_schema(self.engine)
 
     def ping(self) -> None:
         """Raise if the database does not answer."""
