@@ -20,8 +20,8 @@ Conventions (see docs/models.md):
   u, and the position is ``S0 + u tau + 1/2 a tau^2`` with the rotating-frame acceleration
   ``a = g(S0) + Omega^2 (X0, Y0, 0) + 2 Omega (u_y, -u_x, 0)`` (g: point mass, optionally J2);
   the result is rotated into the LGS. Angles are polynomials for every model.
-* Kepler constants ``kc`` (16): R_ecef->lgs (9, row-major), LGS origin in ECEF (3), GM, Omega,
-  J2 (0 disables), a_e.
+* Kepler constants ``kc`` (17): R_ecef->lgs (9, row-major), LGS origin in ECEF (3), GM, Omega,
+  J2 (0 disables), a_e, camera mounting pitch (rad, orbit-attitude models).
 * Observation constants ``oc`` (9): line, column, sigma_px, f_mm, pixel_mm, xo_mm, yo_mm,
   c_centre, tau_per_line, where the projection condition is ``-f d_x/d_z = xo`` (xo = chip dx -
   principal point x0) and ``column = c_centre + (-f d_y/d_z - yo) / pixel`` (yo = chip dy - y0).
@@ -34,9 +34,10 @@ from numba import njit
 
 KIND_POLYNOMIAL = 0
 KIND_KEPLER = 1
+KIND_ORBIT_ATTITUDE = 2  # Kepler/J2 position, attitude relative to the orbital frame
 N_COEF = 24
 N_OBS_CONST = 9
-N_KEPLER_CONST = 16
+N_KEPLER_CONST = 17
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
@@ -156,25 +157,6 @@ def platform_state(kind: int, coef, kc, tau: float):
 
 
 @njit(**_JIT)
-def _camera_vector(kind, coef, kc, tau, p):
-    """d = M (P - S) and its derivatives wrt coef (3x24), tau (3) and P (3x3)."""
-    s, ds_dc, ds_dt, ang, da_dc, da_dt = platform_state(kind, coef, kc, tau)
-    m, dmo, dmp, dmk = rotation_and_derivatives(ang[0], ang[1], ang[2])
-    v = p - s
-    d = m @ v
-    g0 = dmo @ v
-    g1 = dmp @ v
-    g2 = dmk @ v
-    md = m @ ds_dc
-    dd_dc = np.empty((3, N_COEF))
-    for i in range(3):
-        for j in range(N_COEF):
-            dd_dc[i, j] = g0[i] * da_dc[0, j] + g1[i] * da_dc[1, j] + g2[i] * da_dc[2, j] - md[i, j]
-    dd_dt = g0 * da_dt[0] + g1 * da_dt[1] + g2 * da_dt[2] - m @ ds_dt
-    return d, dd_dc, dd_dt, m
-
-
-@njit(**_JIT)
 def _rotation_into(om: float, ph: float, ka: float, out):
     """Fill out[0] = M, out[1..3] = dM/d(omega, phi, kappa) for M = Rx(om) Ry(ph) Rz(ka)."""
     co, so = np.cos(om), np.sin(om)
@@ -273,6 +255,171 @@ def _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot):
 
 
 @njit(**_JIT)
+def _orbital_frame(s, v, c):
+    """Orbital frame from the LGS position ``s`` and Earth-fixed velocity ``v`` (LGS axes);
+    ``c`` = R_ecef->lgs @ origin, so ``s + c`` is the geocentric position in LGS axes.
+
+    Rows: x along track (velocity without its radial part: follows the ground track, i.e. yaw
+    steering), y = z x x, z radial (away from the Earth). Returns (R, dR/ds, dR/dv) with
+    dR[row, col, var].
+    """
+    g = s + c
+    gn = np.sqrt(g @ g)
+    z = g / gn
+    dz = (np.eye(3) - np.outer(z, z)) / gn  # dz/ds
+    vz = v @ z
+    h = v - vz * z
+    hn = np.sqrt(h @ h)
+    x = h / hn
+    px = (np.eye(3) - np.outer(x, x)) / hn
+    # dh/ds = -(z v^T + vz I) dz/ds ; dh/dv = I - z z^T
+    dh_ds = -(np.outer(z, v) + vz * np.eye(3)) @ dz
+    dh_dv = np.eye(3) - np.outer(z, z)
+    dx_ds = px @ dh_ds
+    dx_dv = px @ dh_dv
+    y = np.cross(z, x)
+    r = np.empty((3, 3))
+    r[0] = x
+    r[1] = y
+    r[2] = z
+    d_s = np.zeros((3, 3, 3))
+    d_v = np.zeros((3, 3, 3))
+    for k in range(3):
+        dzk = dz[:, k]
+        dxk = dx_ds[:, k]
+        dyk = np.cross(dzk, x) + np.cross(z, dxk)
+        dxv = dx_dv[:, k]
+        dyv = np.cross(z, dxv)
+        for col in range(3):
+            d_s[0, col, k] = dxk[col]
+            d_s[1, col, k] = dyk[col]
+            d_s[2, col, k] = dzk[col]
+            d_v[0, col, k] = dxv[col]
+            d_v[1, col, k] = dyv[col]
+    return r, d_s, d_v
+
+
+@njit(**_JIT)
+def _mount(angle: float):
+    c, s = np.cos(angle), np.sin(angle)
+    m = np.zeros((3, 3))
+    m[0, 0] = c
+    m[0, 2] = s
+    m[1, 1] = 1.0
+    m[2, 0] = -s
+    m[2, 2] = c
+    return m
+
+
+@njit(**_JIT)
+def _oa_state(coef, kc, acc, da_dr, tau, rot):
+    """Everything the orbit-attitude projection needs at tau: S, Sdot, M, dM/dtau, the attitude
+    part A = Ry(mount) R_att and its angle derivatives, and the orbital frame derivatives."""
+    s = np.empty(3)
+    sdot = np.empty(3)
+    ang = np.empty(3)
+    angdot = np.empty(3)
+    _pose(KIND_KEPLER, coef, kc, acc, tau, s, sdot, ang, angdot)
+    _rotation_into(ang[0], ang[1], ang[2], rot)
+    r0 = kc[0:9].reshape(3, 3)
+    c = r0 @ kc[9:12]
+    vdot = r0 @ acc
+    ro, d_s, d_v = _orbital_frame(s, sdot, c)
+    mnt = _mount(kc[16])
+    a_att = mnt @ rot[0]
+    dro_dt = np.zeros((3, 3))
+    for k in range(3):
+        dro_dt += d_s[:, :, k] * sdot[k] + d_v[:, :, k] * vdot[k]
+    m = a_att @ ro
+    dm_dt = a_att @ dro_dt
+    for e in range(3):
+        dm_dt += (mnt @ rot[1 + e]) * angdot[e] @ ro
+    return s, sdot, ang, m, dm_dt, a_att, mnt, ro, d_s, d_v
+
+
+@njit(**_JIT)
+def _project_oa(coef, kc, p, oc, want_jac: bool):
+    """``project`` for the orbit-attitude kind (same returns)."""
+    f = oc[3]
+    px = oc[4]
+    xo = oc[5]
+    yo = oc[6]
+    cc = oc[7]
+    tpl = oc[8]
+    line = oc[0]
+    ok = False
+    rot = np.empty((4, 3, 3))
+    acc, da_dr = _kepler_terms(coef, kc)
+    d = np.zeros(3)
+    ddt = np.zeros(3)
+    for it in range(31):
+        tau = line * tpl
+        s, sdot, ang, m, dm_dt, a_att, mnt, ro, d_s, d_v = _oa_state(coef, kc, acc, da_dr, tau, rot)
+        v = p - s
+        d = m @ v
+        ddt = dm_dt @ v - m @ sdot
+        if it == 30 or ok:
+            break
+        g = -f * d[0] / d[2] - xo
+        dg_dl = -f * (ddt[0] * d[2] - d[0] * ddt[2]) / (d[2] * d[2]) * tpl
+        if dg_dl == 0.0 or not np.isfinite(dg_dl):
+            break
+        step = g / dg_dl
+        line -= step
+        if abs(step) < 1e-8:
+            ok = True
+    iz = 1.0 / d[2]
+    y = -f * d[1] * iz
+    col = cc + (y - yo) / px
+    dl_dc = np.zeros(N_COEF)
+    dl_dp = np.zeros(3)
+    dc_dc = np.zeros(N_COEF)
+    dc_dp = np.zeros(3)
+    if not want_jac:
+        return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
+    tau = line * tpl
+    gx = np.array([-f * iz, 0.0, f * d[0] * iz * iz])
+    gy = np.array([0.0, -f * iz, f * d[1] * iz * iz])
+    dx_dl = (gx @ ddt) * tpl
+    dy_dl = (gy @ ddt) * tpl
+    for j in range(3):
+        dxp = gx[0] * m[0, j] + gx[1] * m[1, j] + gx[2] * m[2, j]
+        dyp = gy[0] * m[0, j] + gy[1] * m[1, j] + gy[2] * m[2, j]
+        dl_dp[j] = -dxp / dx_dl
+        dc_dp[j] = (dyp + dy_dl * dl_dp[j]) / px
+    # attitude angles (relative to the orbital frame)
+    tp = 1.0
+    for k in range(4):
+        for e in range(3):
+            dd = (mnt @ rot[1 + e] @ ro) @ v * tp
+            idx = (3 + e) * 4 + k
+            dl_dc[idx] = -(gx @ dd) / dx_dl
+            dc_dc[idx] = ((gy @ dd) + dy_dl * dl_dc[idx]) / px
+        tp *= tau
+    # state: S_lgs = R0 (S0 + u t + a h - O), V_lgs = R0 (u + a t); a = a(S0, u)
+    r0 = kc[0:9].reshape(3, 3)
+    h = 0.5 * tau * tau
+    da_du = np.zeros((3, 3))
+    da_du[0, 1] = 2.0 * kc[13]
+    da_du[1, 0] = -2.0 * kc[13]
+    ds_dth = np.empty((3, 6))
+    dv_dth = np.empty((3, 6))
+    ds_dth[:, 0:3] = r0 @ (np.eye(3) + h * da_dr)
+    ds_dth[:, 3:6] = r0 @ (tau * np.eye(3) + h * da_du)
+    dv_dth[:, 0:3] = r0 @ (tau * da_dr)
+    dv_dth[:, 3:6] = r0 @ (np.eye(3) + tau * da_du)
+    for q in range(6):
+        dro = np.zeros((3, 3))
+        for k in range(3):
+            dro += d_s[:, :, k] * ds_dth[k, q] + d_v[:, :, k] * dv_dth[k, q]
+        dd = a_att @ dro @ v - m @ np.ascontiguousarray(ds_dth[:, q])
+        idx = (q % 3) * 4 + (0 if q < 3 else 1)
+        dl_dc[idx] = -(gx @ dd) / dx_dl
+        dc_dc[idx] = ((gy @ dd) + dy_dl * dl_dc[idx]) / px
+    return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
+
+
+@njit(**_JIT)
 def project(kind, coef, kc, p, oc, want_jac: bool):
     """Exact pushbroom projection of ground point ``p`` (LGS, m) with its observation constants.
 
@@ -280,6 +427,8 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
     observed line, then evaluates the column. Returns (ok, line, column, dL_dcoef[24],
     dL_dp[3], dC_dcoef[24], dC_dp[3]); derivatives by the implicit function theorem.
     """
+    if kind == KIND_ORBIT_ATTITUDE:
+        return _project_oa(coef, kc, p, oc, want_jac)
     f = oc[3]
     px = oc[4]
     xo = oc[5]
@@ -429,58 +578,14 @@ def assemble(base, free_idx, p):
 
 
 @njit(**_JIT)
-def residuals_image_batch(kind, base, p, kc, pts, ocs, free_idx, res, jac, want_jac: bool):
-    """Residuals of many observations of one image of fixed ground points (resection block).
-
-    ``pts`` (m, 3) LGS, ``ocs`` (m, 9); fills ``res`` (2m) with (observed - projected)/sigma
-    for line then column, and ``jac`` (2m, nfree) wrt the free coefficients ``free_idx``.
-    Returns False if a projection did not converge.
-    """
-    coef = assemble(base, free_idx, p)
-    m = pts.shape[0]
-    nf = free_idx.shape[0]
-    all_ok = True
-    for i in range(m):
-        ok, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(kind, coef, kc, pts[i], ocs[i], want_jac)
-        all_ok = all_ok and ok
-        w = 1.0 / ocs[i, 2]
-        res[2 * i] = (ocs[i, 0] - ln) * w
-        res[2 * i + 1] = (ocs[i, 1] - cl) * w
-        if want_jac:
-            for j in range(nf):
-                jac[2 * i, j] = -dl_dc[free_idx[j]] * w
-                jac[2 * i + 1, j] = -dc_dc[free_idx[j]] * w
-    return all_ok
-
-
-@njit(**_JIT)
-def residuals_point_multi(p, kinds, bases, pimg, kcs, ocs, free_idx, nfree, res, jac_p, jac_img, want_jac: bool):
-    """Residuals of one ground point (parameter) seen in k images (tie or weighted control).
-
-    ``bases`` (k, 24) held coefficients, ``pimg`` (k, 24) the images' free parameters (first
-    nfree[i] entries), ``kcs`` (k, 16), ``ocs`` (k, 9), ``free_idx`` (k, 24) padded, ``nfree``
-    (k). Fills ``res`` (2k), ``jac_p`` (2k, 3) and ``jac_img`` (k, 2, 24) (first nfree[i] columns
-    wrt the free coefficients of image i). Returns False if a projection did not converge.
-    """
-    k = kinds.shape[0]
-    all_ok = True
-    for i in range(k):
-        coef = bases[i].copy()
-        for j in range(nfree[i]):
-            coef[free_idx[i, j]] = pimg[i, j]
-        ok, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(kinds[i], coef, kcs[i], p, ocs[i], want_jac)
-        all_ok = all_ok and ok
-        w = 1.0 / ocs[i, 2]
-        res[2 * i] = (ocs[i, 0] - ln) * w
-        res[2 * i + 1] = (ocs[i, 1] - cl) * w
-        if want_jac:
-            for j in range(3):
-                jac_p[2 * i, j] = -dl_dp[j] * w
-                jac_p[2 * i + 1, j] = -dc_dp[j] * w
-            for j in range(nfree[i]):
-                jac_img[i, 0, j] = -dl_dc[free_idx[i, j]] * w
-                jac_img[i, 1, j] = -dc_dc[free_idx[i, j]] * w
-    return all_ok
+def object_to_camera(kind, coef, kc, tau: float):
+    """The rotation M (object LGS -> camera) at scaled time tau, for every kind."""
+    if kind == KIND_ORBIT_ATTITUDE:
+        rot = np.empty((4, 3, 3))
+        acc, da_dr = _kepler_terms(coef, kc)
+        return _oa_state(coef, kc, acc, da_dr, tau, rot)[3]
+    ang = platform_state(kind, coef, kc, tau)[3]
+    return rotation_and_derivatives(ang[0], ang[1], ang[2])[0]
 
 
 @njit(**_JIT)
@@ -488,130 +593,13 @@ def ray(kind, coef, kc, oc):
     """Perspective centre S (LGS) and unit viewing direction (LGS) of an observation's pixel."""
     tau = oc[0] * oc[8]
     s, ds_dc, ds_dt, ang, da_dc, da_dt = platform_state(kind, coef, kc, tau)
-    m, dmo, dmp, dmk = rotation_and_derivatives(ang[0], ang[1], ang[2])
+    m = object_to_camera(kind, coef, kc, tau)
     f = oc[3]
     y = (oc[1] - oc[7]) * oc[4] + oc[6]
     cam = np.array([oc[5], y, -f])
     dvec = m.T @ cam
     dvec /= np.sqrt(dvec @ dvec)
     return s, dvec
-
-
-@njit(**_JIT)
-def observation_rows(kinds, coefs, kcs, free_idx, nfree, img_col, pts, pt_col, obs_img, obs_pt, ocs, want_jac: bool):
-    """Whitened residuals and sparse Jacobian rows of every observation, in one call.
-
-    ``coefs`` (nimg, 24) current full coefficients, ``free_idx`` (nimg, 24) padded with
-    ``nfree`` (nimg), ``img_col`` (nimg) first column of each image's parameters, ``pts``
-    (npt, 3) LGS coordinates, ``pt_col`` (npt) first column of the point's parameters or -1 if
-    the point is held fixed, ``obs_img``/``obs_pt`` (n) indices, ``ocs`` (n, 9).
-
-    Returns (res[2n], rows, cols, vals, ok[n]) in COO form; residual = (observed - projected)/sigma.
-    """
-    n = obs_img.shape[0]
-    res = np.empty(2 * n)
-    ok = np.empty(n, dtype=np.bool_)
-    cap = 0
-    if want_jac:
-        for i in range(n):
-            cap += 2 * (nfree[obs_img[i]] + (3 if pt_col[obs_pt[i]] >= 0 else 0))
-    rows = np.empty(cap, dtype=np.int64)
-    cols = np.empty(cap, dtype=np.int64)
-    vals = np.empty(cap)
-    q = 0
-    for i in range(n):
-        im = obs_img[i]
-        pt = obs_pt[i]
-        good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(kinds[im], coefs[im], kcs[im], pts[pt], ocs[i], want_jac)
-        ok[i] = good
-        w = 1.0 / ocs[i, 2]
-        res[2 * i] = (ocs[i, 0] - ln) * w
-        res[2 * i + 1] = (ocs[i, 1] - cl) * w
-        if want_jac:
-            for j in range(nfree[im]):
-                c = img_col[im] + j
-                rows[q] = 2 * i
-                cols[q] = c
-                vals[q] = -dl_dc[free_idx[im, j]] * w
-                q += 1
-                rows[q] = 2 * i + 1
-                cols[q] = c
-                vals[q] = -dc_dc[free_idx[im, j]] * w
-                q += 1
-            if pt_col[pt] >= 0:
-                for j in range(3):
-                    rows[q] = 2 * i
-                    cols[q] = pt_col[pt] + j
-                    vals[q] = -dl_dp[j] * w
-                    q += 1
-                    rows[q] = 2 * i + 1
-                    cols[q] = pt_col[pt] + j
-                    vals[q] = -dc_dp[j] * w
-                    q += 1
-    return res, rows, cols, vals, ok
-
-
-# ---- packed per-block constants for the hot residual blocks ------------------------------
-# Layout of one image record inside a point block's constant array ``cst``:
-#   kind, nfree, free_idx[24], base[24], kc[16], oc[9]   (75 float64)
-_REC = 75
-
-
-def pack_point_block(kinds, bases, kcs, ocs, free_idx, nfree) -> np.ndarray:
-    """Pack the constants of a point block (k images) into one float64 array (k * 75)."""
-    k = len(kinds)
-    cst = np.zeros(k * _REC)
-    for i in range(k):
-        r = cst[i * _REC : (i + 1) * _REC]
-        r[0] = kinds[i]
-        r[1] = nfree[i]
-        r[2 : 2 + nfree[i]] = free_idx[i][: nfree[i]]
-        r[26:50] = bases[i]
-        r[50:66] = kcs[i]
-        r[66:75] = ocs[i]
-    return cst
-
-
-@njit(**_JIT)
-def point_block(cst, p, params, res, jac_p, jacs, want_jac: bool):
-    """Residuals and Jacobians of one estimated point seen in k images, straight into Ceres' arrays.
-
-    ``params`` and ``jacs`` are tuples of the k image parameter blocks and their Jacobian
-    outputs (2k x nfree_i, row-major, flattened); ``jac_p`` is (2k x 3) flattened. Returns False
-    only for a non-finite result.
-    """
-    k = len(params)
-    ok = True
-    for i in range(k):
-        base = i * _REC
-        kind = int(cst[base])
-        nf = int(cst[base + 1])
-        coef = cst[base + 26 : base + 50].copy()
-        pi = params[i]
-        for j in range(nf):
-            coef[int(cst[base + 2 + j])] = pi[j]
-        kc = cst[base + 50 : base + 66]
-        oc = cst[base + 66 : base + 75]
-        good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(kind, coef, kc, p, oc, want_jac)
-        w = 1.0 / oc[2]
-        r0 = (oc[0] - ln) * w
-        r1 = (oc[1] - cl) * w
-        if not (np.isfinite(r0) and np.isfinite(r1)):
-            ok = False
-        res[2 * i] = r0
-        res[2 * i + 1] = r1
-        if want_jac:
-            for j in range(3):
-                jac_p[(2 * i) * 3 + j] = -dl_dp[j] * w
-                jac_p[(2 * i + 1) * 3 + j] = -dc_dp[j] * w
-            ji = jacs[i]
-            for q in range(ji.shape[0]):
-                ji[q] = 0.0
-            for j in range(nf):
-                fj = int(cst[base + 2 + j])
-                ji[(2 * i) * nf + j] = -dl_dc[fj] * w
-                ji[(2 * i + 1) * nf + j] = -dc_dc[fj] * w
-    return ok
 
 
 @njit(**_JIT)
@@ -641,37 +629,6 @@ def intersect_all(kinds, coefs, kcs, obs_img, ocs, order, bounds, which):
         if n >= 2 and abs(np.linalg.det(a)) > 1e-18:
             out[w] = np.linalg.solve(a, b)
     return out
-
-
-@njit(**_JIT)
-def observation_blocks(kinds, coefs, kcs, free_idx, nfree, pts, estimated, obs_img, obs_pt, ocs):
-    """Whitened residuals and dense Jacobian blocks of every observation.
-
-    Returns res (n, 2), jimg (n, 2, 24) wrt the free parameters of the observation's image
-    (first nfree entries), jpt (n, 2, 3) wrt the point (zero if the point is not estimated),
-    ok (n,). Residual = (observed - projected) / sigma.
-    """
-    n = obs_img.shape[0]
-    res = np.empty((n, 2))
-    jimg = np.zeros((n, 2, 24))
-    jpt = np.zeros((n, 2, 3))
-    ok = np.empty(n, dtype=np.bool_)
-    for i in range(n):
-        im = obs_img[i]
-        pt = obs_pt[i]
-        good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(kinds[im], coefs[im], kcs[im], pts[pt], ocs[i], True)
-        w = 1.0 / ocs[i, 2]
-        res[i, 0] = (ocs[i, 0] - ln) * w
-        res[i, 1] = (ocs[i, 1] - cl) * w
-        ok[i] = good and np.isfinite(res[i, 0]) and np.isfinite(res[i, 1])
-        for j in range(nfree[im]):
-            jimg[i, 0, j] = -dl_dc[free_idx[im, j]] * w
-            jimg[i, 1, j] = -dc_dc[free_idx[im, j]] * w
-        if estimated[pt]:
-            for j in range(3):
-                jpt[i, 0, j] = -dl_dp[j] * w
-                jpt[i, 1, j] = -dc_dp[j] * w
-    return res, jimg, jpt, ok
 
 
 # ---- interior orientation (docs/models.md section 8) ----------------------------------------
@@ -901,11 +858,11 @@ def ideal_direction(oc, iop, chip: int, chip_len: float):
 
 
 # ---- residual blocks over image and camera tables ----------------------------------------
-# img_tab row (66): kind, nfree, free_idx[24], base[24], kc[16]
+# img_tab row (67): kind, nfree, free_idx[24], base[24], kc[17]
 # cam_tab row (2 + 2 N_IOP): nfree, has_iop, free_idx[N_IOP], base[N_IOP]
 # observation record (15): image, camera, image slot, camera slot (-1: constant), chip index,
 #                          chip length (mm), oc[9]
-IMG_TAB = 66
+IMG_TAB = 67
 CAM_TAB = 2 + 2 * N_IOP
 OBS_REC = 15
 
@@ -924,7 +881,7 @@ def _eval_record(r, img_tab, cam_tab, p, params, want: bool):
         pi = params[islot]
         for j in range(nf):
             coef[int(it[2 + j])] = pi[j]
-    kc = it[50:66]
+    kc = it[50:67]
     oc = r[6:15]
     ct = cam_tab[cm]
     if ct[1] != 0.0:
@@ -1044,9 +1001,9 @@ def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, est
             iop = ct[2 + N_IOP : 2 + 2 * N_IOP].copy()
             for j in range(nc):
                 iop[int(ct[2 + j])] = cam_p[cm, j]
-            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di = project_cam(int(it[0]), coef, it[50:66], p, oc, iop, int(r[4]), r[5], True)
+            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di = project_cam(int(it[0]), coef, it[50:67], p, oc, iop, int(r[4]), r[5], True)
         else:
-            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(int(it[0]), coef, it[50:66], p, oc, True)
+            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(int(it[0]), coef, it[50:67], p, oc, True)
             dl_di = np.zeros(N_IOP)
             dc_di = np.zeros(N_IOP)
         w = 1.0 / oc[2]
@@ -1075,7 +1032,7 @@ def ray_cam(kind, coef, kc, oc, iop, chip: int, chip_len: float):
     """Perspective centre S and unit viewing direction (LGS) of an observed pixel, with IOP."""
     tau = oc[0] * oc[8]
     s, ds_dc, ds_dt, ang, da_dc, da_dt = platform_state(kind, coef, kc, tau)
-    m, dmo, dmp, dmk = rotation_and_derivatives(ang[0], ang[1], ang[2])
+    m = object_to_camera(kind, coef, kc, tau)
     dvec = m.T @ ideal_direction(oc, iop, chip, chip_len)
     dvec /= np.sqrt(dvec @ dvec)
     return s, dvec

@@ -61,15 +61,37 @@ def _state_for_pass(frame: LocalFrame, t_mid: float, pitch_deg: float, altitude_
     return frame.to_ecef(s0), frame.vector_to_ecef(v)
 
 
+def _orbit_relative_angles(frame: LocalFrame, r0, v0, line_time: float, angles, mount_rad: float):
+    """Attitude (roll, pitch, yaw) relative to the orbital frame that gives, at the middle line,
+    the same rotation as the LGS angles ``angles``: M = Ry(mount) R_att R_orbit."""
+    from solver.initialize import _rotating_frame_acceleration, angles_from_matrix
+    from solver.kernels import _mount, _orbital_frame, rotation_and_derivatives
+
+    t = line_time * 8000.0
+    a = _rotating_frame_acceleration(r0, v0)
+    s_e = r0 + v0 * t + 0.5 * a * t * t
+    v_e = v0 + a * t
+    s = frame.to_lgs(s_e)
+    v = frame.vector_to_lgs(v_e)
+    c = frame.rotation_ecef_to_lgs @ frame.origin_ecef_m
+    r_orb = _orbital_frame(s, v, c)[0]
+    m_lgs = rotation_and_derivatives(*angles)[0]
+    r_att = _mount(mount_rad).T @ m_lgs @ r_orb.T
+    return angles_from_matrix(r_att)
+
+
 def true_coefficients(model_name: str, frame: LocalFrame, r0: np.ndarray, v0: np.ndarray, line_time: float,
-                      angles: tuple[float, float, float], rates: tuple[float, float], options: dict | None = None) -> np.ndarray:
+                      angles: tuple[float, float, float], rates: tuple[float, float], options: dict | None = None,
+                      mount_rad: float = 0.0) -> np.ndarray:
     """Full coefficient vector of ``model_name`` for the given state and attitude (rad, rad/s)."""
     model = get_model(model_name)
     opts = options or {}
     coef = np.zeros(N_COEF)
     tpl = model.tau_per_line(line_time)
     dt_dtau = line_time / tpl
-    if model.kind == 1:
+    if model.kind == 2:
+        angles = _orbit_relative_angles(frame, r0, v0, line_time, angles, mount_rad)
+    if model.orbital:
         for e in range(3):
             coef[e * 4] = r0[e]
             coef[e * 4 + 1] = v0[e]
@@ -178,8 +200,8 @@ def single_image_job(
     # The solver's LGS is centred on the control points, which depend on the truth: iterate
     # until the truth is expressed in exactly the frame the solver will build.
     for _ in range(12):
-        coef = true_coefficients(model, frame, r0, v0, lt, angles, rates, mopts)
-        img = SyntheticImage("img-1", model, pitch_deg, coef, kepler_constants(m, frame), m.tau_per_line(lt), r0, v0)
+        coef = true_coefficients(model, frame, r0, v0, lt, angles, rates, mopts, math.radians(pitch_deg))
+        img = SyntheticImage("img-1", model, pitch_deg, coef, kepler_constants(m, frame, pitch_deg), m.tau_per_line(lt), r0, v0)
         pts_lgs = np.array([ground_point_of_pixel(img, cam, l, c) for l, c in pix])
         ecef_pts = frame.to_ecef(pts_lgs)
         new_origin = ecef_pts[:n_gcp].mean(axis=0)
@@ -377,8 +399,8 @@ def block_job(
                 if m.effective_orders({})[ELEMENTS.index(e)] == HELD:
                     mopts[f"{e}_deg"] = math.degrees(angles[ANGLES.index(e)])
             mopts_all.append(mopts)
-            coef = true_coefficients(model, frame, r0, v0, lt, angles, rates, mopts)
-            imgs.append(SyntheticImage(iid, model, PRISM_PITCH_DEG[cname], coef, kepler_constants(m, frame), m.tau_per_line(lt), r0, v0))
+            coef = true_coefficients(model, frame, r0, v0, lt, angles, rates, mopts, math.radians(PRISM_PITCH_DEG[cname]))
+            imgs.append(SyntheticImage(iid, model, PRISM_PITCH_DEG[cname], coef, kepler_constants(m, frame, PRISM_PITCH_DEG[cname]), m.tau_per_line(lt), r0, v0))
         pts = []
         for t in range(n_triplets):
             nadir = imgs[3 * t + 1]

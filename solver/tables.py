@@ -20,7 +20,7 @@ def image_table(problem: Problem) -> np.ndarray:
         r[1] = im.nfree
         r[2 : 2 + im.nfree] = im.free_idx
         r[26:50] = im.base
-        r[50:66] = im.kc
+        r[50:67] = im.kc
     return tab
 
 

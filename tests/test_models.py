@@ -39,7 +39,7 @@ def test_registry_lists_every_model_of_the_papers():
     assert len(get_model("MT8").parameters()) == 8  # seed 002, first order
 
 
-@pytest.mark.parametrize("model", PAPER_MODELS + ["GENERAL", "MT8"])
+@pytest.mark.parametrize("model", PAPER_MODELS + ["GENERAL", "MT8", "OA-K", "OA-J2"])
 @pytest.mark.parametrize("pitch", [0.0, -23.8])
 def test_model_recovers_its_own_truth_within_3_sigma(model, pitch):
     opts = GENERAL_ORDERS if model == "GENERAL" else None
@@ -58,7 +58,7 @@ def test_model_recovers_its_own_truth_within_3_sigma(model, pitch):
             assert p["sigma"] is None
 
 
-@pytest.mark.parametrize("model", ["K2", "J2-2", "P2", "ON2"])
+@pytest.mark.parametrize("model", ["K2", "J2-2", "P2", "ON2", "OA-K"])
 def test_triplet_bundle_recovers_images_and_tie_points(model):
     job, truth = block_job(model, n_triplets=1, n_tie=30, n_gcp=10, n_check=6, seed=2, gcp_sigma_m=0.3)
     rep = adjust_job(load_job(job))

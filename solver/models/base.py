@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from solver.kernels import KIND_KEPLER, KIND_POLYNOMIAL
+from solver.kernels import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_POLYNOMIAL
 
 ELEMENTS = ("X", "Y", "Z", "omega", "phi", "kappa")
 ANGLES = ("omega", "phi", "kappa")
@@ -65,17 +65,23 @@ class PlatformModel:
     held_defaults: dict[str, Any] = field(default_factory=dict)
     options_doc: dict[str, str] = field(default_factory=dict)
     order_option: bool = False  # GENERAL: orders come from job options
+    angle_names: tuple[str, str, str] = ("omega", "phi", "kappa")
 
     # ---- time ---------------------------------------------------------------------------
     @property
+    def orbital(self) -> bool:
+        """Position from an Earth-fixed state vector (Kepler / J2 / orbit-attitude kinds)."""
+        return self.kind in (KIND_KEPLER, KIND_ORBIT_ATTITUDE)
+
+    @property
     def time_variable(self) -> str:
-        if self.kind == KIND_KEPLER:
+        if self.orbital:
             return "t = L * line_time (s) since the first line"
         return "L (image line number); internally tau = L / 1000"
 
     def tau_per_line(self, line_time_s: float) -> float:
         """d tau / d L for this model."""
-        return line_time_s if self.kind == KIND_KEPLER else 1.0 / POLY_TIME_SCALE_LINES
+        return line_time_s if self.orbital else 1.0 / POLY_TIME_SCALE_LINES
 
     # ---- parameters -----------------------------------------------------------------------
     def effective_orders(self, options: dict[str, Any]) -> tuple[int, ...]:
@@ -95,14 +101,17 @@ class PlatformModel:
         orders = self.effective_orders(options or {})
         specs: list[ParameterSpec] = []
         deg = 180.0 / math.pi
-        if self.kind == KIND_KEPLER:
+        if self.orbital:
             for e in ("X", "Y", "Z"):
                 specs.append(ParameterSpec(f"{e}0", "m", coef_index(e, 0), 1.0))
             for e, u in zip(("X", "Y", "Z"), ("ux", "uy", "uz")):
                 specs.append(ParameterSpec(u, "m/s", coef_index(e, 1), 1.0))
-            for e in ANGLES:
+            for e, shown in zip(ANGLES, self.angle_names):
                 for k in range(orders[ELEMENTS.index(e)] + 1):
-                    name = e if k == 0 else (f"d{k}" if e == "kappa" else f"{e}{k}")
+                    if self.kind == KIND_KEPLER:
+                        name = e if k == 0 else (f"d{k}" if e == "kappa" else f"{e}{k}")
+                    else:
+                        name = shown if k == 0 else f"{shown}{k}"
                     unit = "deg" if k == 0 else f"deg/s^{k}" if k > 1 else "deg/s"
                     specs.append(ParameterSpec(name, unit, coef_index(e, k), deg))
             return specs
@@ -189,6 +198,7 @@ def _ensure_loaded() -> None:
     if not _LOADED:
         _LOADED = True
         import solver.models.kepler  # noqa: F401
+        import solver.models.orbit_attitude  # noqa: F401
         import solver.models.polynomial  # noqa: F401
 
 
