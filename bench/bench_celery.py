@@ -125,22 +125,21 @@ class Bench:
         ]
 
     def wait(self, ids: list[str]) -> list[Any]:
+        """Until no job is accepted or running (one COUNT query per poll: the bench must not
+        load the machine it measures), then the records."""
+        from service.states import JobStatus
+
         deadline = time.monotonic() + self.args.timeout
-        pending = set(ids)
-        while pending:
+        while True:
+            counts = self.store.counts_by_status()
+            if counts[JobStatus.accepted] + counts[JobStatus.running] == 0:
+                break
             if time.monotonic() > deadline:
-                raise SystemExit(f"{len(pending)} jobs unfinished after {self.args.timeout} s")
+                raise SystemExit(f"jobs unfinished after {self.args.timeout} s: {counts}")
             for p in self.procs:
                 if p.poll() is not None:
                     raise SystemExit(f"a worker exited ({p.returncode}); see {self.tmp}")
-            done = [
-                j
-                for j in list(pending)[:200]
-                if self.store.get_job(j).status.value in ("successful", "failed", "dismissed")
-            ]
-            pending.difference_update(done)
-            if pending:
-                time.sleep(0.02)
+            time.sleep(0.05)
         recs = [self.store.get_job(j) for j in ids]
         bad = [r for r in recs if r.status.value != "successful"]
         if bad:

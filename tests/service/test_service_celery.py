@@ -207,13 +207,31 @@ def test_warm_shutdown_hands_the_job_to_another_worker(
     with workers(deployment.env, tmp_path, n=2) as ws:
         store = deployment.store
         job_id = deployment.submit(strip_doc)
-        first = wait_job(store, job_id, {"running"}, min_progress=1)
+        first = wait_job(store, job_id, {"running"}, min_progress=10)  # iterating
         victim = next(w for w in ws if os.getpgid(holder_pid(first)) == w.pid)
         victim.stop(timeout=30)  # SIGTERM: the solve stops, the job goes back to the queue
         assert victim.proc is not None and victim.proc.returncode is not None
         rec = wait_job(store, job_id, {"successful"}, timeout=120)
         assert rec.worker != first.worker and rec.attempts == 1  # a handed-back run is free
         assert [o for _, o in ended_runs(ws, job_id)] == ["successful"]
+
+
+def test_time_limit_stops_a_solve(
+    tmp_path: Path, strip_doc: dict[str, Any], request: pytest.FixtureRequest
+) -> None:
+    """PBA_JOB_TIME_LIMIT_S on a Celery worker: the solve stops at an iteration, job failed."""
+    with pg_database("celery") as url:
+        env = celery_env(url, "time-limit", job_time_limit_s=2, kill_grace_s=30)
+        d = Deployment(env)
+        try:
+            with workers(env, tmp_path, n=1) as ws:
+                job_id = d.submit(strip_doc)
+                rec = wait_job(d.store, job_id, {"failed"}, timeout=120)
+                assert rec.error == {"status": 500, "code": "time_limit"}, rec.error
+                assert "time limit of 2 s exceeded" in rec.message
+                assert [o for _, o in ended_runs(ws, job_id)] == ["failed"]
+        finally:
+            d.close()
 
 
 class CeleryServer(Server):
