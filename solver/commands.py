@@ -120,6 +120,15 @@ def summary_text(report: dict[str, Any]) -> str:
         for p in img["parameters"]:
             flag = "" if p["estimated"] else "  (held)"
             lines.append(f"  {p['name']:<10} {p['value']:>20.10g} {_fmt(p['sigma'], '12.4g'):>12}  {p['unit']}{flag}")
+    for cam in report.get("cameras") or []:
+        lines.append(f"\ncamera {cam['id']} interior orientation (master chip {cam.get('master_chip')})")
+        for p in cam["parameters"]:
+            flag = "" if p["estimated"] else "  (given)"
+            sig = "" if p["significant"] is None else ("" if p["significant"] else "  |value| < sigma")
+            lines.append(f"  {p['name']:<10} {p['value']:>20.10g} {_fmt(p['sigma'], '12.4g'):>12}  {p['unit']}{flag}{sig}")
+    pa = report.get("parameter_analysis")
+    if pa:
+        lines.append(f"\nsignificance analysis: {len(pa['steps'])} adjustments, dropped {', '.join(pa['dropped']) or 'nothing'}")
     cp = report.get("checkpoints") or {}
     if cp.get("n"):
         rm = cp["rmse_m"]
