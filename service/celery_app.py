@@ -44,6 +44,11 @@ log = logging.getLogger("pba.worker")
 
 TASK_NAME = "pba.run_job"
 READY_MESSAGE = "worker process ready"
+STORE_RETRY_S = 5.0
+
+
+class StoreUnavailable(RuntimeError):
+    """The store could not be reached before a run claimed its job (the message is retried)."""
 
 
 def broker_transport_options(settings: Settings) -> dict[str, Any]:
@@ -91,7 +96,10 @@ def create_celery(settings: Settings) -> Celery:
     @app.task(name=TASK_NAME, bind=True, ignore_result=True)
     def run_job(self: Any, job_id: str) -> str:
         """Run one job (in a pool process)."""
-        return execute_job(self.app, job_id)
+        try:
+            return execute_job(self.app, job_id)
+        except StoreUnavailable as exc:  # keep the message: try again when the store answers
+            raise self.retry(exc=exc, countdown=STORE_RETRY_S, max_retries=None) from None
 
     return app
 
@@ -167,7 +175,11 @@ def execute_job(app: Celery, job_id: str) -> str:
     store = _store()
     token = run_token()
     extra = {"job_id": job_id, "worker": token}
-    claim = claim_run(store, job_id, token, settings.lease_s, settings.max_attempts)
+    try:
+        claim = claim_run(store, job_id, token, settings.lease_s, settings.max_attempts)
+    except Exception as exc:
+        log.warning("could not claim the job: %s", exc, extra=extra)
+        raise StoreUnavailable(str(exc)) from exc
     if not claim.runnable:
         log.info("message dropped: job %s", claim.outcome, extra={**extra, "status": claim.outcome})
         return claim.outcome
@@ -236,11 +248,12 @@ class _Sweeper(threading.Thread):
         super().__init__(name="pba-sweeper", daemon=True)
         self.app, self.settings, self.store = app, settings, store
         self._halt = threading.Event()
+        self.unsent: set[str] = set()
 
     def run(self) -> None:
         while not self._halt.wait(self.settings.sweep_interval_s):
             try:
-                sweep(self.app, self.settings, self.store)
+                sweep(self.app, self.settings, self.store, self.unsent)
             except Exception:
                 log.exception("lease sweep failed")
 
@@ -248,17 +261,32 @@ class _Sweeper(threading.Thread):
         self._halt.set()
 
 
-def sweep(app: Celery, settings: Settings, store: Any) -> list[Any]:
-    """One pass of the lease sweeper; the jobs it changed."""
+def sweep(app: Celery, settings: Settings, store: Any, unsent: set[str] | None = None) -> list[Any]:
+    """One pass of the lease sweeper; the jobs it changed. Jobs it re-queued but could not
+    send (broker down) are added to ``unsent``, and those in ``unsent`` still accepted are
+    sent again."""
     from service.store.leases import expire_leases
 
+    unsent = unsent if unsent is not None else set()
     expired = expire_leases(
         store, settings.lease_s, settings.max_attempts, settings.job_time_limit_s
     )
     for e in expired:
         log.warning("lease of %s expired: job %s", e.holder, e.action, extra={"job_id": e.job_id})
         if e.action == "requeued":
-            publish(app, settings, e.job_id)
+            unsent.add(e.job_id)
+    for job_id in sorted(unsent):
+        rec = store.get_job(job_id)
+        if rec is None or rec.status.value != "accepted":
+            unsent.discard(job_id)
+            continue
+        try:
+            publish(app, settings, job_id)
+            unsent.discard(job_id)
+        except Exception as exc:
+            log.error(
+                "could not send a re-queued job (%s); will retry", exc, extra={"job_id": job_id}
+            )
     return expired
 
 

@@ -27,7 +27,7 @@ from service.store import Store
 
 log = logging.getLogger("pba.queue")
 
-MONITOR_INTERVAL_S = 2.0
+MONITOR_INTERVAL_S = 3.0
 INSPECT_TIMEOUT_S = 1.0
 
 
@@ -99,7 +99,7 @@ class CeleryBackend:
     def ready(self) -> tuple[bool, str]:
         """Ready when the broker answers (workers may come and go; jobs wait in the queue)."""
         if self._broker_ok is None:
-            self._check()
+            return False, "checking the broker"
         if not self._broker_ok:
             return False, f"broker unreachable ({self._broker_error})"
         return True, (
@@ -139,10 +139,15 @@ class CeleryBackend:
             now = time.monotonic()
             if self._broker_ok and now - self._last_sweep >= self.settings.sweep_interval_s:
                 self._last_sweep = now
+                with self._lock:
+                    unsent, self._unsent = self._unsent, set()
                 try:
-                    sweep(self.app, self.settings, self.store)
+                    sweep(self.app, self.settings, self.store, unsent)
                 except Exception:
                     log.exception("lease sweep failed")
+                finally:
+                    with self._lock:
+                        self._unsent |= unsent
             self._stopping.wait(MONITOR_INTERVAL_S)
 
     def describe(self) -> dict[str, Any]:

@@ -234,6 +234,37 @@ def test_time_limit_stops_a_solve(
             d.close()
 
 
+def test_sweeper_keeps_jobs_it_could_not_send(
+    deployment: Deployment, tmp_path: Path, nadir_doc: dict[str, Any]
+) -> None:
+    """A job whose lease expired is re-queued; if the broker cannot take its message then,
+    the sweeper keeps it and sends it on a later pass, and a worker runs it."""
+    from datetime import timedelta
+
+    from sqlalchemy import update
+
+    from service.celery_app import create_celery, sweep
+    from service.store.leases import claim_run
+    from service.store.sql import JobRow, utcnow
+
+    store = deployment.store
+    rec = store.create_job("tester", "bundle-adjustment", {"job": nadir_doc}, 23, "orphan")
+    assert claim_run(store, rec.id, "gone-host:1:dead", 3.0, 2).runnable  # type: ignore[arg-type]
+    past = utcnow() - timedelta(seconds=60)
+    with store.engine.begin() as conn:  # type: ignore[attr-defined]
+        conn.execute(update(JobRow).where(JobRow.id == rec.id).values(heartbeat=past))
+    down = settings_for({**deployment.env, "PBA_BROKER_URL": "redis://127.0.0.1:1/0"})
+    unsent: set[str] = set()
+    expired = sweep(create_celery(down), down, store, unsent)
+    assert [(e.job_id, e.action) for e in expired] == [(rec.id, "requeued")]
+    assert unsent == {rec.id}  # not lost: kept for the next pass
+    sweep(deployment.backend.app, deployment.settings, store, unsent)
+    assert unsent == set()
+    with workers(deployment.env, tmp_path, n=1):
+        done = wait_job(store, rec.id, {"successful"}, timeout=120)
+    assert done.attempts == 2
+
+
 class CeleryServer(Server):
     """``pba serve`` with PBA_QUEUE=celery and the store in PostgreSQL."""
 
