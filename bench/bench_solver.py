@@ -63,7 +63,9 @@ def main() -> None:
     ap.add_argument("--cases", default="single,triplet,large")
     ap.add_argument("--full", action="store_true", help="whole adjust_job incl. covariance and report")
     args = ap.parse_args()
-    run_case("single", 1, args.full)  # warm-up (numba cache)
+    # warm-up: load the numba kernels for every block signature (one and several images)
+    run_case("single", 1, args.full)
+    run_case("triplet-eph", 1, args.full)
     for name in args.cases.split(","):
         run_case(name, args.repeat if not name.startswith("large") else max(1, args.repeat // 2), args.full)
 
