@@ -20,7 +20,7 @@ from service.store import Store, open_store
 PG_ADMIN_URL = os.environ.get(
     "PBA_TEST_POSTGRES_ADMIN", "postgresql://postgres@127.0.0.1:5432/postgres"
 )
-BACKENDS = ["sqlite", "postgresql"] + [
+BACKENDS = ["sqlite", pytest.param("postgresql", marks=pytest.mark.services)] + [
     u for u in os.environ.get("PBA_TEST_DATABASE_URLS", "").split(",") if u.strip()
 ]
 
