@@ -1,0 +1,243 @@
+"""The web page in real headless Chromium against a real server with real workers: submit the
+example triplet and read its result (progress to 100, parameter tables, tests, plots loaded,
+downloads), cancel a running job, validation errors beside the input, local mode and a model
+comparison. Screenshots of the result views go to test-artifacts/browser/."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from pba_service_harness import Server, load_example
+from playwright.sync_api import expect
+
+pytestmark = pytest.mark.browser
+
+# generous: a worker's first solve may compile the numba kernels (slow on a busy machine)
+SOLVE_MS = 240_000
+PLOTS_MS = 120_000
+OK = re.compile(r"\bok\b")
+BAD = re.compile(r"\bbad\b")
+ADJUSTMENT_PLOTS = {
+    "planimetric-discrepancies",
+    "height-discrepancies",
+    "image-residuals",
+    "residual-histograms",
+    "correlations",
+    "cost",
+}
+
+# every plot image on the page has loaded and has pixels (naturalWidth > 0)
+PLOTS_LOADED = """(n) => {
+  const imgs = [...document.querySelectorAll('#plots img')];
+  return imgs.length >= n && imgs.every((i) => i.complete && i.naturalWidth > 0);
+}"""
+LOADED_KINDS = """imgs => imgs.filter((i) => i.complete && i.naturalWidth > 0)
+                              .map((i) => i.dataset.kind)"""
+
+# records every text the progress percentage shows
+RECORD_PROGRESS = """() => {
+  window.__progress = [];
+  const node = document.getElementById('cur-percent');
+  new MutationObserver(() => window.__progress.push(node.textContent))
+    .observe(node, {childList: true, characterData: true, subtree: true});
+}"""
+
+
+def open_ui(page: Any, server: Server, key: str | None = None) -> None:
+    page.goto(f"{server.url}/ui")
+    expect(page.locator("h1")).to_have_text("Pushbroom orientation server")
+    if key:
+        page.fill("#api-key", key)
+        page.click("#key-form button[type=submit]")
+        expect(page.locator("#key-status")).to_have_text("key in use (this tab)")
+
+
+def set_document(page: Any, text: str) -> None:
+    """Put a document in the editor as a paste would (page.fill types large texts slowly)."""
+    page.evaluate(
+        """(text) => {
+          const ta = document.getElementById('job-text');
+          ta.value = text;
+          ta.dispatchEvent(new Event('input', {bubbles: true}));
+        }""",
+        text,
+    )
+
+
+def pick_example(page: Any, name: str) -> None:
+    page.select_option("#example", name)
+    expect(page.locator("#validation")).to_have_class(OK, timeout=30_000)
+
+
+def wait_plots(page: Any, n: int) -> list[str]:
+    page.wait_for_function(PLOTS_LOADED, arg=n, timeout=PLOTS_MS)
+    expect(page.locator("#plots .plot-error")).to_have_count(0)
+    return page.eval_on_selector_all("#plots img", LOADED_KINDS)
+
+
+def test_submit_the_example_triplet_and_read_the_result(
+    page: Any, keyed_server: Server, api_key: str, artifacts: Path
+) -> None:
+    open_ui(page, keyed_server, api_key)
+    pick_example(page, "prism-triplet")
+    expect(page.locator("#validation")).to_contain_text("219 degrees of freedom")
+    page.evaluate(RECORD_PROGRESS)
+    page.click("#submit")
+
+    # live progress (SSE, with ?api_key=) up to 100
+    expect(page.locator("#cur-percent")).to_have_text("100%", timeout=SOLVE_MS)
+    expect(page.locator("#cur-status")).to_have_text("successful")
+    expect(page.locator("#cur-progress")).to_have_js_property("value", 100)
+    seen = [int(t.rstrip("%")) for t in page.evaluate("window.__progress") if t]
+    assert seen and seen[-1] == 100 and seen == sorted(seen), seen
+    job_id = page.locator("#cur-id").inner_text()
+
+    with httpx.Client(base_url=keyed_server.url, headers={"X-API-Key": api_key}) as c:
+        report = c.get(f"/jobs/{job_id}/results").json()["report"]
+
+    # summary: sigma0, chi-square verdict, dof, iterations
+    adj = report["adjustment"]
+    summary = page.locator("#summary")
+    expect(summary).to_contain_text(f"{adj['sigma0_aposteriori']:.4f}")
+    expect(summary).to_contain_text("passed" if adj["chi2"]["passed"] else "rejected")
+    expect(summary).to_contain_text(str(adj["dof"]))
+    expect(summary).to_contain_text(str(adj["iterations"]))
+
+    # one parameter table per image, a row per parameter, flags for correlations
+    tables = page.locator("table.params")
+    expect(tables).to_have_count(len(report["images"]))
+    for im in report["images"]:
+        rows = page.locator(f'table.params[data-image="{im["id"]}"] tbody tr')
+        expect(rows).to_have_count(len(im["parameters"]))
+        expect(rows.first).to_contain_text(im["parameters"][0]["name"])
+    if report["correlations"]["pairs"]:
+        assert page.locator("table.params .flag.corr").count() > 0
+
+    # check-point statistics with the t-test and Shapiro-Wilk verdicts
+    stats = page.locator("#checkpoint-stats")
+    expect(stats).to_contain_text("t-test")
+    expect(stats).to_contain_text("Shapiro-Wilk")
+    t_e = report["checkpoints"]["t_test"]["e"]
+    expect(stats.locator("tr", has_text="t-test")).to_contain_text(
+        "no bias" if t_e["passed"] else "biased"
+    )
+    expect(stats.locator("tr", has_text="Shapiro-Wilk")).to_contain_text("normal")
+
+    # plots: every kind that applies to the triplet, loaded as images
+    kinds = wait_plots(page, len(ADJUSTMENT_PLOTS))
+    assert set(kinds) == ADJUSTMENT_PLOTS, kinds
+    widths = page.eval_on_selector_all(
+        "#plots img", "imgs => imgs.map((i) => [i.dataset.kind, i.naturalWidth])"
+    )
+    assert all(w > 300 for _, w in widths), widths
+
+    # one image of the per-image plots
+    page.select_option("#plot-image", "prism-nadir")
+    wait_plots(page, len(ADJUSTMENT_PLOTS))
+
+    # downloads (fetched with the key)
+    with page.expect_download() as dl:
+        page.locator("button.download", has_text="parameters CSV").click()
+    rows = list(csv.DictReader(io.StringIO(Path(dl.value.path()).read_text())))
+    assert len(rows) == sum(len(im["parameters"]) for im in report["images"])
+    with page.expect_download() as dl:
+        page.locator("figure[data-kind='cost'] button.download", has_text="SVG").click()
+    assert "<svg" in Path(dl.value.path()).read_text()[:2000]
+
+    # the job list shows it
+    expect(page.locator(f'#jobs-table tr[data-job="{job_id}"] .badge')).to_have_text("successful")
+
+    page.select_option("#plot-image", "")
+    wait_plots(page, len(ADJUSTMENT_PLOTS))
+    page.screenshot(path=str(artifacts / "triplet-page.png"), full_page=True)
+    page.locator("#result").screenshot(path=str(artifacts / "triplet-result.png"))
+    page.locator("#adjustment").screenshot(path=str(artifacts / "triplet-tables.png"))
+
+
+def test_cancel_a_running_job(
+    page: Any, keyed_server: Server, api_key: str, big_job_file: Path, artifacts: Path
+) -> None:
+    open_ui(page, keyed_server, api_key)
+    page.set_input_files("#file", str(big_job_file))
+    expect(page.locator("#doc-info")).to_contain_text(big_job_file.name)
+    expect(page.locator("#validation")).to_have_class(OK, timeout=60_000)
+    page.click("#submit")
+    expect(page.locator("#cur-status")).to_have_text("running", timeout=SOLVE_MS)
+    expect(page.locator("#cancel")).to_be_enabled()
+    page.click("#cancel")
+    expect(page.locator("#cur-status")).to_have_text("dismissed", timeout=30_000)
+    expect(page.locator("#cur-message")).to_contain_text("cancel")
+    expect(page.locator("#cancel")).to_be_disabled()
+    expect(page.locator("#result")).to_be_hidden()
+    job_id = page.locator("#cur-id").inner_text()
+    with httpx.Client(base_url=keyed_server.url, headers={"X-API-Key": api_key}) as c:
+        st = c.get(f"/jobs/{job_id}").json()
+    assert st["status"] == "dismissed" and st["progress"] < 100, st
+    expect(page.locator(f'#jobs-table tr[data-job="{job_id}"] .badge')).to_have_text("dismissed")
+    page.screenshot(path=str(artifacts / "cancelled.png"))
+
+
+def test_validation_errors_beside_the_input(
+    page: Any, keyed_server: Server, api_key: str, artifacts: Path
+) -> None:
+    open_ui(page, keyed_server, api_key)
+    pick_example(page, "prism-triplet")
+    broken = load_example("prism-triplet.json")
+    broken["observations"][3]["image"] = "no-such-image"
+    set_document(page, json.dumps(broken, indent=2))
+    box = page.locator("#validation")
+    expect(box).to_have_class(BAD, timeout=30_000)
+    expect(box).to_contain_text("/inputs/job/observations/3/image")
+    expect(box).to_contain_text("unknown image 'no-such-image'")
+    page.locator("#new-job").screenshot(path=str(artifacts / "validation-error.png"))
+
+    # submitting it is refused the same way; no job is created
+    with httpx.Client(base_url=keyed_server.url, headers={"X-API-Key": api_key}) as c:
+        before = c.get("/jobs").json()["numberMatched"]
+        page.click("#submit")
+        expect(box).to_contain_text("Not submitted")
+        expect(box).to_contain_text("/inputs/job/observations/3/image")
+        assert c.get("/jobs").json()["numberMatched"] == before
+
+    # a schema error points at its field; broken JSON says where
+    broken = load_example("prism-triplet.json")
+    broken["points"][0]["role"] = "landmark"
+    set_document(page, json.dumps(broken))
+    expect(box).to_contain_text("/inputs/job/points/0/role", timeout=30_000)
+    page.fill("#job-text", '{\n  "name": "x",\n  "cameras": [\n}')
+    expect(box).to_contain_text("Not valid JSON")
+    expect(box).to_contain_text("line 4, column 1")
+
+
+def test_local_mode_model_comparison(page: Any, local_server: Server, artifacts: Path) -> None:
+    open_ui(page, local_server)
+    expect(page.locator("#key-status")).to_have_text("no key: local mode")
+    expect(page.locator("#jobs-table")).to_contain_text("No jobs yet.")
+    # the page reads the model names from /processes/model-comparison first
+    expect(page.locator("#models")).to_have_attribute("title", re.compile("available: .*K2"))
+    page.select_option("#process", "model-comparison")
+    page.fill("#models", "K2, P1")
+    pick_example(page, "prism-nadir")
+    page.click("#submit")
+    expect(page.locator("#cur-percent")).to_have_text("100%", timeout=SOLVE_MS)
+    table = page.locator("#comparison-table")
+    expect(table.locator("tbody tr")).to_have_count(2)
+    expect(table).to_contain_text("K2")
+    expect(table).to_contain_text("P1")
+    # mono check points: no height plot; the per-model RMSE bars are there
+    kinds = wait_plots(page, 5)
+    assert {"model-rmse", "planimetric-discrepancies", "image-residuals"} <= set(kinds), kinds
+    assert "height-discrepancies" not in kinds
+    expect(page.locator(".param-card .meta").first).to_contain_text("K2")
+    page.screenshot(path=str(artifacts / "comparison-page.png"), full_page=True)
+    page.select_option("#model-select", "P1")
+    expect(page.locator(".param-card .meta").first).to_contain_text("P1")
+    wait_plots(page, 5)
+    page.locator("#result").screenshot(path=str(artifacts / "comparison-result.png"))
