@@ -13,6 +13,7 @@ docs/models.md, and a test in tests/test_models.py (the parametrised tests pick 
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -191,15 +192,23 @@ def all_models() -> list[PlatformModel]:
 
 
 _LOADED = False
+_LOAD_LOCK = threading.RLock()
 
 
 def _ensure_loaded() -> None:
+    """Import the model modules once; thread-safe (a server validates jobs in threads). The
+    lock is re-entrant because the model modules call :func:`register` while importing."""
     global _LOADED
-    if not _LOADED:
-        _LOADED = True
+    if _LOADED:
+        return
+    with _LOAD_LOCK:
+        if _LOADED:
+            return
         import solver.models.kepler  # noqa: F401
         import solver.models.orbit_attitude  # noqa: F401
         import solver.models.polynomial  # noqa: F401
+
+        _LOADED = True
 
 
 __all__ = [
