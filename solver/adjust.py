@@ -20,6 +20,7 @@ from solver.linalg import Covariance, check_rank, covariance, linearise, schur
 from solver.problem import Problem, build_problem
 from solver.statistics import chi2_test
 from solver.checkpoints import compute_checkpoints
+from solver.lines import lines_report
 from solver.validate import require_valid
 
 REPORT_SCHEMA_VERSION = "1.0"
@@ -84,8 +85,10 @@ def solve_problem(problem: Problem, control):
     needs 3-4x more iterations (triplet: 21 instead of 6) than from the header state.
     """
     from solver.backend import solve
+    from solver.terms import solve_with_refreshes
 
-    return solve(problem, problem.job.options, control)
+    # terms that linearise around the solution (line corrections) are refreshed between solves
+    return solve_with_refreshes(problem, problem.job.options, control, solve)
 
 
 def adjust_job(
@@ -168,6 +171,8 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
         "cost_history": outcome.history,
     }
     images, gsds = _images_report(problem, lin, cov, var_factor)
+    lines = lines_report(problem, cov.images if cov is not None else None, lin.layout.img_col, opts.sigma0_apriori)
+    warnings += lines["warnings"]
     gsd = float(np.mean(gsds)) if gsds else None
     return {
         "schema_version": REPORT_SCHEMA_VERSION,
@@ -181,6 +186,7 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
         "tie_points": _points_report(problem, cov, var_factor, role="tie"),
         "control_points": _points_report(problem, cov, var_factor, role="gcp"),
         "checkpoints": compute_checkpoints(problem, opts.alpha, gsd),
+        "lines": lines,
         "warnings": warnings,
     }
 

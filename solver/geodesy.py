@@ -53,6 +53,18 @@ def _from_ecef(crs: str) -> Transformer:
     return Transformer.from_crs(parse_crs(ECEF_CRS), parse_crs(crs), always_xy=True)
 
 
+@lru_cache(maxsize=64)
+def _to_ecef_3d(crs: str) -> Transformer:
+    """From a 2D CRS promoted to 3D (ellipsoidal height carried through); building it takes
+    ~0.1 s, so it is cached like the others."""
+    return Transformer.from_crs(parse_crs(crs).to_3d(), parse_crs(ECEF_CRS), always_xy=True)
+
+
+@lru_cache(maxsize=64)
+def _from_ecef_3d(crs: str) -> Transformer:
+    return Transformer.from_crs(parse_crs(ECEF_CRS), parse_crs(crs).to_3d(), always_xy=True)
+
+
 def to_ecef(xyz: np.ndarray, crs: str) -> np.ndarray:
     """Coordinates (n, 3) in ``crs`` (x/y order, metres or degrees) to ECEF metres (n, 3).
 
@@ -66,8 +78,7 @@ def to_ecef(xyz: np.ndarray, crs: str) -> np.ndarray:
         return np.column_stack([x, y, z])
     if len(src.axis_info) == 2:
         # 2D CRS: promote to 3D with ellipsoidal height so that z is carried through.
-        crs3d = src.to_3d()
-        tr = Transformer.from_crs(crs3d, parse_crs(ECEF_CRS), always_xy=True)
+        tr = _to_ecef_3d(crs)
     else:
         tr = _to_ecef(crs)
     x, y, z = tr.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])
@@ -82,7 +93,7 @@ def from_ecef(ecef: np.ndarray, crs: str) -> np.ndarray:
     ecef = np.atleast_2d(np.asarray(ecef, dtype=float))
     dst = parse_crs(crs)
     if not dst.is_geocentric and len(dst.axis_info) == 2:
-        tr = Transformer.from_crs(parse_crs(ECEF_CRS), dst.to_3d(), always_xy=True)
+        tr = _from_ecef_3d(crs)
     else:
         tr = _from_ecef(crs)
     x, y, z = tr.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])

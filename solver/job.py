@@ -192,6 +192,70 @@ class ImageObservation(_Strict):
     sigma_px: float = Field(default=0.5, gt=0)
 
 
+LineRole = Literal["control", "check"]
+LineForm = Literal["y=ax+b", "x=a'y+b'"]
+
+
+class LineImagePoint(_Strict):
+    """A measured image point of a straight line: (line, column) in pixels."""
+
+    line: float
+    column: float
+
+
+class FittedImageLine(_Strict):
+    """An image line given by fitted parameters, in pixel coordinates x = image line (along
+    track, grows with time) and y = image column.
+
+    ``form`` ``"y=ax+b"``: column = a * line + b (lines running mostly along the image lines
+    axis); ``"x=a'y+b'"``: line = a * column + b. ``sigma_a`` is dimensionless (px/px),
+    ``sigma_b`` in pixels, ``correlation`` that of a and b (the intercept is at x = 0 or y = 0,
+    so a fit far from the axis has strongly correlated a and b).
+    """
+
+    form: LineForm
+    a: float
+    b: float
+    sigma_a: float = Field(gt=0)
+    sigma_b: float = Field(gt=0)
+    correlation: float = Field(default=0.0, gt=-1, lt=1)
+
+
+class LineObservation(_Strict):
+    """One image of a straight line: two or more measured image points (each with ``sigma_px``
+    on line and column), or the fitted parameters of the image line (exactly one of the two)."""
+
+    image: str = Field(min_length=1, max_length=64)
+    points: list[LineImagePoint] = Field(default_factory=list)
+    sigma_px: float = Field(default=0.5, gt=0)
+    fitted: FittedImageLine | None = None
+
+
+class GroundLine(_Strict):
+    """A straight line in object space, given by two of its points, and its images.
+
+    ``endpoints`` in ``crs`` (or the document's default CRS), x/y order like points;
+    ``sigma_m`` the survey standard deviations of each endpoint along local east, north, up in
+    metres (without it the line is exact). ``role`` ``control`` lines enter the adjustment,
+    ``check`` lines are only compared with the adjusted orientation. The endpoints need not be
+    the ends of what is seen in the image: any two distinct points of the line will do.
+    """
+
+    id: str = Field(min_length=1, max_length=64)
+    role: LineRole = "control"
+    endpoints: tuple[tuple[float, float, float], tuple[float, float, float]]
+    crs: str | None = None
+    sigma_m: tuple[float, float, float] | None = None
+    observations: list[LineObservation] = Field(default_factory=list)
+
+    @field_validator("sigma_m")
+    @classmethod
+    def _positive(cls, v: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
+        if v is not None and any(s <= 0 for s in v):
+            raise ValueError("sigmas must be positive")
+        return v
+
+
 class EphemerisOptions(_Strict):
     """Use each image's ``ephemeris`` (state vectors) for its line-0 state (seed 001 section 5).
 
@@ -232,6 +296,17 @@ class SolverOptions(_Strict):
         default_factory=list,
         description="model comparison: adjust the same observations with each of these models",
     )
+    line_model: Literal["rigorous", "equivalent_planes"] = Field(
+        default="rigorous",
+        description="straight-line observations: exact pushbroom distance of each image point "
+        "(rigorous) or the equivalent planes model of seed 002 eqs 1-4 (equivalent_planes)",
+    )
+    line_correction: Literal["iterated", "initial", "none"] = Field(
+        default="iterated",
+        description="pushbroom correction of the equivalent planes model (seed 002 eqs 5-8): "
+        "recomputed from the solution until it settles (iterated), computed once from the "
+        "initial orientation as in the paper (initial), or not applied (none)",
+    )
     ephemeris: EphemerisOptions | None = Field(
         default=None,
         description="interpolate each image's ephemeris to its first line and use it as the "
@@ -247,8 +322,11 @@ class Job(_Strict):
     crs: str = Field(default="EPSG:4326", description="default CRS of ground coordinates")
     cameras: list[Camera] = Field(min_length=1)
     images: list[Image] = Field(min_length=1)
-    points: list[GroundPoint] = Field(min_length=1)
-    observations: list[ImageObservation] = Field(min_length=1)
+    points: list[GroundPoint] = Field(default_factory=list)
+    observations: list[ImageObservation] = Field(default_factory=list)
+    lines: list[GroundLine] = Field(
+        default_factory=list, description="straight lines (control or check) and their image observations"
+    )
     options: SolverOptions = Field(default_factory=SolverOptions)
 
 

@@ -8,6 +8,7 @@ into the LGS inside the kernel (:mod:`solver.kernels`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -81,6 +82,7 @@ class Problem:
     images: list[ImageState]
     points: list[PointState]
     obs: Observations
+    lines: Any = None  # solver.lines.LineSet: straight-line observations (None without lines)
 
     @property
     def adjusted_mask(self) -> np.ndarray:
@@ -116,9 +118,12 @@ def camera_chip(camera: Camera, column: float) -> tuple[str, float, float, float
     raise KeyError(column)
 
 
-def control_frame(job: Job, points_ecef: dict[str, np.ndarray]) -> LocalFrame:
-    """LGS at the centroid of the control points (all known points if there are none)."""
+def control_frame(job: Job, points_ecef: dict[str, np.ndarray], line_points_ecef: np.ndarray | None = None) -> LocalFrame:
+    """LGS at the centroid of the control: control points and the control lines' two points each
+    (without any control, of all known points)."""
     gcps = [points_ecef[p.id] for p in job.points if p.role == "gcp"]
+    if line_points_ecef is not None and len(line_points_ecef):
+        gcps += list(line_points_ecef)
     if not gcps:
         gcps = list(points_ecef.values())
     return LocalFrame.at_centroid(np.array(gcps))
@@ -145,7 +150,10 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
     """
     cameras = {c.id: c for c in job.cameras}
     ecef = ground_points_ecef(job)
-    frame = control_frame(job, ecef)
+    from solver.lines import build_lines, control_line_points_ecef, lines_ecef
+
+    line_ecef = lines_ecef(job) if job.lines else {}
+    frame = control_frame(job, ecef, control_line_points_ecef(job, line_ecef))
     weighted = job.options.control == "weighted"
 
     images: list[ImageState] = []
@@ -207,7 +215,8 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
         )
         chips.append(chip_id)
     obs = Observations(obs_img, obs_pt, oc, chips, np.arange(n))
-    return Problem(job, frame, images, points, obs)
+    lines = build_lines(job, frame, images, line_ecef) if job.lines else None
+    return Problem(job, frame, images, points, obs, lines)
 
 
 def is_kepler(image: ImageState) -> bool:

@@ -28,8 +28,52 @@ class ImageTerm(Protocol):
 
 def image_terms(problem: Problem) -> list[ImageTerm]:
     """Every image-only term of the problem, in a fixed order."""
+    from solver.lines import line_terms
     from solver.priors import all_state_priors
 
     terms: list[ImageTerm] = []
     terms += all_state_priors(problem)
+    terms += line_terms(problem)
     return terms
+
+
+def refresh_image_terms(problem: Problem) -> float:
+    """Let term families that linearise around the solution (the pushbroom correction of the
+    equivalent planes line model) recompute that state at the current parameters.
+
+    Returns the largest change this makes to any whitened residual (0: nothing to redo).
+    """
+    from solver.lines import refresh_lines
+
+    return refresh_lines(problem)
+
+
+def solve_with_refreshes(problem: Problem, options, control, solve):
+    """``solve(problem, options, control)``, repeated while :func:`refresh_image_terms` changes
+    some residual by more than ``solver.lines.REFRESH_TOL`` (at most ``MAX_REFRESHES`` times).
+
+    The outcomes are merged: iterations, times and cost history add up, the initial cost is the
+    first solve's, the rest is the last solve's.
+    """
+    import dataclasses
+
+    from solver.lines import MAX_REFRESHES, REFRESH_TOL
+
+    outcome = solve(problem, options, control)
+    for _ in range(MAX_REFRESHES):
+        if outcome.cancelled or not outcome.usable or refresh_image_terms(problem) <= REFRESH_TOL:
+            break
+        # a new objective: the statistical convergence test starts again
+        control.statistically_converged = False
+        if hasattr(control, "_small_steps"):
+            control._small_steps = 0
+        nxt = solve(problem, options, control)
+        timing = {k: outcome.timing_s.get(k, 0.0) + v for k, v in nxt.timing_s.items()}
+        outcome = dataclasses.replace(
+            nxt,
+            iterations=outcome.iterations + nxt.iterations,
+            initial_cost=outcome.initial_cost,
+            time_s=outcome.time_s + nxt.time_s,
+            timing_s=timing,
+        )
+    return outcome

@@ -180,8 +180,15 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
         if points[o.point].role != "check":
             obs_per_image[o.image] += 1
 
+    from solver.lines import collect_line_problems
+
+    line_problems, line_counts = collect_line_problems(job, cameras, images)
+    problems += line_problems
+    for image_id, n in line_counts["per_image"].items():
+        obs_per_image[image_id] += n
+
     weighted = job.options.control == "weighted"
-    n_obs = n_prior_obs
+    n_obs = n_prior_obs + line_counts["n_observations"]
     for j, p in enumerate(job.points):
         seen = images_of_point.get(p.id, set())
         if p.role != "check":
@@ -204,11 +211,11 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
             problems.append(
                 Problem("image_without_observations", f"image {im.id!r} has no control or tie observations", ("images", i))
             )
-    if not any(p.role == "gcp" for p in job.points):
+    if not any(p.role == "gcp" for p in job.points) and line_counts["n_control"] == 0:
         problems.append(
             Problem(
                 "no_control",
-                "the job has no control points (role gcp): the datum is undefined",
+                "the job has no control points (role gcp) and no observed control lines: the datum is undefined",
                 ("points",),
             )
         )

@@ -53,6 +53,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--gcps", type=int, default=23)
     p.add_argument("--checks", type=int, default=8)
 
+    p = sub.add_parser("cbers-lines", help="CBERS-like scene with road segments as control lines (seed 002)")
+    _common(p)
+    p.add_argument("--lines", type=int, default=50, help="control lines (road segments)")
+    p.add_argument("--check-lines", type=int, default=0, help="check lines")
+    p.add_argument("--gcps", type=int, default=23)
+    p.add_argument("--checks", type=int, default=8)
+    p.add_argument("--line-noise-px", type=float, default=0.3, help="sigma of the lines' image points (default 0.3)")
+    p.add_argument("--yaw-steering", action="store_true", help="yaw-steer the platform (default: no, as CBERS)")
+
     p = sub.add_parser("strip", help="N consecutive PRISM triplets along one pass")
     _common(p)
     p.add_argument("--triplets", type=int, default=20)
@@ -88,6 +97,12 @@ def run(args: argparse.Namespace) -> int:
         scene = presets.prism_triplet(settings, args.gcps, args.checks, args.tie_points)
     elif args.preset == "cbers-scene":
         scene = presets.cbers_scene(settings, args.gcps, args.checks)
+    elif args.preset == "cbers-lines":
+        from solver.simulate.lines import cbers_lines
+
+        scene = cbers_lines(
+            settings, args.lines, args.gcps, args.checks, args.yaw_steering, args.line_noise_px, args.check_lines
+        )
     else:
         scene = presets.strip(settings, args.triplets, args.tie_points, args.gcps, args.checks)
     job_path, truth_path = write_documents(scene, Path(args.output), args.truth, args.indent)
