@@ -78,7 +78,7 @@ from numba import njit
 
 from solver.errors import JobError, Problem as JobProblem
 from solver.geodesy import UnknownCRSError, parse_crs, to_ecef
-from solver.kernels import N_OBS_CONST, assemble, platform_state, project, ray, rotation_and_derivatives
+from solver.kernels import N_OBS_CONST, assemble, platform_state, project, rotation_and_derivatives
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
@@ -334,7 +334,6 @@ class LineImage:
     ref_line: float = 0.0
     ref_oc: np.ndarray = field(default_factory=lambda: np.zeros(N_OBS_CONST))  # chip of the reference
     end_ocs: np.ndarray = field(default_factory=lambda: np.zeros((2, N_OBS_CONST)))  # projections of P1, P2
-    k_mm: float = 0.0
     form: int = FORM_Y  # equivalent planes form in the pseudo-frame
     ab_obs: np.ndarray = field(default_factory=lambda: np.zeros(2))  # pseudo-frame (a, b)
     ab_cov: np.ndarray = field(default_factory=lambda: np.eye(2))
