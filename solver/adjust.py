@@ -20,6 +20,7 @@ from solver.linalg import Covariance, check_rank, covariance, linearise, schur
 from solver.problem import Problem, build_problem
 from solver.statistics import chi2_test
 from solver.checkpoints import compute_checkpoints
+from solver.ephemeris import ephemeris_report
 from solver.lines import lines_report
 from solver.validate import require_valid
 
@@ -32,9 +33,12 @@ def _progress(progress, fraction: float, message: str, info: dict | None = None)
 
 
 def parameter_names(problem: Problem) -> list[str]:
+    """Names of the image and camera columns, in layout order ("image/param", "camera:id/iop")."""
     names = []
     for img in problem.images:
         names += [f"{img.id}/{p.name}" for p in img.model.parameters(img.options)]
+    for cam in problem.cameras:
+        names += [f"camera:{cam.id}/{cam.names[i]}" for i in cam.free_idx]
     return names
 
 
@@ -91,6 +95,52 @@ def solve_problem(problem: Problem, control):
     return solve_with_refreshes(problem, problem.job.options, control, solve)
 
 
+def _significance_analysis(job: Job, progress, cancel, models) -> dict[str, Any]:
+    """Seed 001 Figure 14: adjust, drop the interior-orientation parameter whose |estimate| is
+    smallest relative to its sigma if it is below its sigma, re-adjust; repeat. Every step is
+    reported; the final report is that of the last adjustment."""
+    sc = job.options.self_calibration
+    exclude = list(sc.exclude)
+    steps = []
+    report: dict[str, Any] = {}
+    for step in range(200):
+        lo = 1.0 - 0.5**step
+        hi = 1.0 - 0.5 ** (step + 1)
+        j = job.model_copy(
+            update={"options": job.options.model_copy(update={"self_calibration": sc.model_copy(update={"exclude": list(exclude), "significance_analysis": False})})}
+        )
+        report = adjust_job(j, progress=progress, cancel=cancel, models=models, fraction_range=(lo, hi))
+        weak = [
+            (abs(p["value"]) / p["sigma"], cam["id"], p)
+            for cam in report["cameras"]
+            for p in cam["parameters"]
+            if p["estimated"] and p["sigma"] and abs(p["value"]) < sc.significance_threshold * p["sigma"]
+        ]
+        cp = report["checkpoints"]["rmse_m"]
+        entry = {
+            "step": step,
+            "sigma0": report["adjustment"]["sigma0_aposteriori"],
+            "n_iop": sum(p["estimated"] for c in report["cameras"] for p in c["parameters"]),
+            "check_rmse_m": cp,
+            "dropped": None,
+        }
+        steps.append(entry)
+        if not weak:
+            break
+        ratio, cam_id, p = min(weak, key=lambda w: w[0])
+        entry["dropped"] = {"name": f"{cam_id}/{p['name']}", "value": p["value"], "sigma": p["sigma"], "ratio": ratio}
+        exclude.append(f"{cam_id}/{p['name']}")
+    report["parameter_analysis"] = {
+        "rule": f"drop, one at a time, the parameter with the smallest |estimate|/sigma while below {sc.significance_threshold:g}",
+        "steps": steps,
+        "dropped": [s["dropped"]["name"] for s in steps if s["dropped"]],
+        "correlated_pairs": [p for p in report["correlations"]["pairs"] if "IOP" in p.get("kinds", "")],
+    }
+    if progress is not None:
+        progress(1.0, "significance analysis done", {})
+    return report
+
+
 def adjust_job(
     job: Job,
     progress: Callable[..., None] | None = None,
@@ -104,6 +154,9 @@ def adjust_job(
     """
     from solver.backend import SolveControl  # imports pyceres: workers only
 
+    sc = job.options.self_calibration
+    if sc is not None and sc.significance_analysis:
+        return _significance_analysis(job, progress, cancel, models)
     f0, f1 = fraction_range
 
     def frac(x: float) -> float:
@@ -182,11 +235,13 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
         "adjustment": adjustment,
         "images": images,
         "correlations": _correlations(problem, cov, opts.correlation_threshold),
+        "cameras": _cameras_report(problem, lin, cov, var_factor),
         "observations": _observations_report(problem, lin, cov),
         "tie_points": _points_report(problem, cov, var_factor, role="tie"),
         "control_points": _points_report(problem, cov, var_factor, role="gcp"),
         "checkpoints": compute_checkpoints(problem, opts.alpha, gsd),
         "lines": lines,
+        "ephemeris": ephemeris_report(problem),
         "warnings": warnings,
     }
 
@@ -255,6 +310,19 @@ def _images_report(problem: Problem, lin, cov: Covariance | None, var_factor: fl
     return out, gsds
 
 
+def _cameras_report(problem: Problem, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
+    from solver.iop import cameras_report
+
+    def block(ci: int):
+        cam = problem.cameras[ci]
+        if cov is None or not cam.nfree:
+            return None
+        c0 = lin.layout.cam_col[ci]
+        return cov.images[c0 : c0 + cam.nfree, c0 : c0 + cam.nfree]
+
+    return cameras_report(problem.cameras, block, var_factor)
+
+
 def _correlations(problem: Problem, cov: Covariance | None, threshold: float, limit: int = 2000) -> dict[str, Any]:
     out: dict[str, Any] = {"threshold": threshold, "pairs": []}
     if cov is None or cov.images.size == 0:
@@ -266,7 +334,13 @@ def _correlations(problem: Problem, cov: Covariance | None, threshold: float, li
     vals = rho[iu]
     big = np.flatnonzero(np.abs(vals) > threshold)
     big = big[np.argsort(-np.abs(vals[big]))][:limit]
-    out["pairs"] = [{"a": names[iu[0][k]], "b": names[iu[1][k]], "rho": float(vals[k])} for k in big]
+    def kind(name: str) -> str:
+        return "IOP" if name.startswith("camera:") else "EOP"
+
+    out["pairs"] = [
+        {"a": names[iu[0][k]], "b": names[iu[1][k]], "rho": float(vals[k]), "kinds": f"{kind(names[iu[0][k]])}-{kind(names[iu[1][k]])}"}
+        for k in big
+    ]
     out["truncated"] = bool(len(np.flatnonzero(np.abs(vals) > threshold)) > limit)
     return out
 

@@ -148,6 +148,10 @@ def initialise(problem: Problem) -> None:
 
 
 def _attitude_by_resection(problem: Problem, img: ImageState, v_ecef) -> tuple[float, float, float]:
+    from solver.kernels import KIND_ORBIT_ATTITUDE
+
+    if img.kind == KIND_ORBIT_ATTITUDE:
+        return 0.0, 0.0, 0.0  # attitude relative to the orbital frame: nominally zero
     obs = problem.obs
     sel = [
         k

@@ -54,6 +54,20 @@ class CameraRef(_Strict):
     version: int | None = Field(default=None, ge=1)
 
 
+class IopCovariance(_Strict):
+    """Covariance of interior-orientation parameters (as exported by a self-calibration)."""
+
+    names: list[str]
+    matrix: list[list[float]]
+
+    @model_validator(mode="after")
+    def _square(self) -> "IopCovariance":
+        n = len(self.names)
+        if len(self.matrix) != n or any(len(r) != n for r in self.matrix):
+            raise ValueError(f"iop_covariance matrix must be {n} x {n}")
+        return self
+
+
 class Camera(_Strict):
     """A linear-array camera: focal plane, chips and timing.
 
@@ -78,6 +92,12 @@ class Camera(_Strict):
         description="nominal along-track tilt of the camera (backward PRISM -23.8, forward +23.8)",
     )
     iop: dict[str, Any] = Field(default_factory=dict)
+    iop_covariance: IopCovariance | None = None
+    iop_use: Literal["fixed", "weighted"] = Field(
+        default="fixed",
+        description="reuse of a calibration: 'fixed' holds iop values; 'weighted' makes the values "
+        "estimated in this job (options.self_calibration) weighted by iop_covariance",
+    )
 
     @model_validator(mode="after")
     def _complete_unless_ref(self) -> "Camera":
@@ -278,6 +298,32 @@ class EphemerisOptions(_Strict):
         return self
 
 
+class SelfCalibration(_Strict):
+    """Interior-orientation parameters to estimate (docs/models.md section 8, seed 001).
+
+    ``estimate``: optical names (x0, y0, df, k1, k2, sy) and chip names (a0, b0, a1, b1, delta:
+    every chip but the master; ``a0@3`` a single chip). ``sigmas``: weighted constraints by
+    name (mm or unitless; null = free); defaults a0, b0 1.5 px, a1, b1 300 ppm (seed 001).
+    ``significance_analysis``: drop, one at a time, the parameter whose |estimate| is below its
+    sigma, re-adjusting each time (seed 001 Figure 14).
+    """
+
+    estimate: list[str] = Field(min_length=1)
+    cameras: list[str] | None = None
+    master_chip: dict[str, str] = Field(default_factory=dict)
+    sigmas: dict[str, float | None] = Field(default_factory=dict)
+    exclude: list[str] = Field(
+        default_factory=list, description="'<camera id>/<parameter>' left out of the estimation (held)"
+    )
+    significance_analysis: bool = False
+    significance_threshold: float = Field(
+        default=1.0,
+        gt=0,
+        description="drop while |estimate| < threshold * sigma (seed 001: 1; 3 removes the spurious "
+        "chip bendings measured in docs/experiments.md, seed001 section)",
+    )
+
+
 class SolverOptions(_Strict):
     """How to solve and what to report."""
 
@@ -292,6 +338,7 @@ class SolverOptions(_Strict):
     loss: Literal["none", "huber", "cauchy"] = "none"
     loss_scale: float = Field(default=3.0, gt=0)
     kernel: Literal["auto", "python"] = "auto"
+    self_calibration: SelfCalibration | None = None
     models: list[str] = Field(
         default_factory=list,
         description="model comparison: adjust the same observations with each of these models",

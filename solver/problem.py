@@ -7,6 +7,8 @@ into the LGS inside the kernel (:mod:`solver.kernels`).
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -73,6 +75,8 @@ class Observations:
     oc: np.ndarray  # (n, 9) observation constants (see solver.kernels)
     chip: list[str]
     source_index: np.ndarray  # (n,) index in job.observations
+    cam: np.ndarray | None = None  # (n,) camera index (solver.iop.CameraState order)
+    chip_idx: np.ndarray | None = None  # (n,) chip position in the camera's chip list
 
 
 @dataclass
@@ -83,6 +87,7 @@ class Problem:
     points: list[PointState]
     obs: Observations
     lines: Any = None  # solver.lines.LineSet: straight-line observations (None without lines)
+    cameras: list = field(default_factory=list)  # solver.iop.CameraState per job camera
 
     @property
     def adjusted_mask(self) -> np.ndarray:
@@ -91,8 +96,9 @@ class Problem:
         return roles != "check"
 
 
-def kepler_constants(model: PlatformModel, frame: LocalFrame) -> np.ndarray:
+def kepler_constants(model: PlatformModel, frame: LocalFrame, mounting_pitch_deg: float = 0.0) -> np.ndarray:
     kc = np.zeros(N_KEPLER_CONST)
+    kc[16] = math.radians(mounting_pitch_deg)
     kc[0:9] = frame.rotation_ecef_to_lgs.ravel()
     kc[9:12] = frame.origin_ecef_m
     kc[12] = GM_M3_S2
@@ -169,7 +175,7 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
                 camera=cam,
                 model=model,
                 options=opts,
-                kc=kepler_constants(model, frame),
+                kc=kepler_constants(model, frame, cam.mounting_pitch_deg),
                 base=np.zeros(N_COEF),
                 free_idx=free,
                 params=np.zeros(free.shape[0]),
@@ -214,10 +220,19 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
             im.tau_per_line,
         )
         chips.append(chip_id)
-    obs = Observations(obs_img, obs_pt, oc, chips, np.arange(n))
+    from solver.iop import build_cameras, chip_ids
+
+    cams = build_cameras(job)
+    cam_index = {c.id: c.index for c in cams}
+    obs_cam = np.array([cam_index[images[i].camera.id] for i in obs_img], dtype=np.int64)
+    obs_chip = np.array([chip_ids(images[i].camera).index(c) for i, c in zip(obs_img, chips)], dtype=np.int64)
+    obs = Observations(obs_img, obs_pt, oc, chips, np.arange(n), obs_cam, obs_chip)
     lines = build_lines(job, frame, images, line_ecef) if job.lines else None
-    return Problem(job, frame, images, points, obs, lines)
+    problem = Problem(job, frame, images, points, obs, lines)
+    problem.cameras = cams
+    return problem
 
 
 def is_kepler(image: ImageState) -> bool:
-    return image.kind == KIND_KEPLER
+    """Position from an Earth-fixed state vector (Kepler, J2 and orbit-attitude models)."""
+    return image.model.orbital

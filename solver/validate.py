@@ -187,6 +187,14 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     for image_id, n in line_counts["per_image"].items():
         obs_per_image[image_id] += n
 
+    from solver.iop import n_iop_unknowns, validate_self_calibration
+
+    sc_problems = validate_self_calibration(job)
+    problems += [Problem(code, msg, loc) for code, msg, loc in sc_problems]
+    if not sc_problems:
+        iop_unk, iop_obs = n_iop_unknowns(job)
+        n_unknowns += iop_unk
+        n_prior_obs += iop_obs
     weighted = job.options.control == "weighted"
     n_obs = n_prior_obs + line_counts["n_observations"]
     for j, p in enumerate(job.points):
