@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import copy
 import json
-import re
 import subprocess
 import sys
 import tempfile
@@ -32,6 +31,9 @@ from solver.adjust import adjust_job
 from solver.errors import JobError
 from solver.geodesy import LocalFrame
 from solver.job import load_job
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from doc_sections import replace_section  # noqa: E402
 
 MODELS = ["P2", "K2", "J2-2", "OA-K", "OA-J2"]
 CONTROL = [None, 6, 4]
@@ -146,12 +148,8 @@ def run(seeds: list[int]) -> str:
 
 
 def write_section(path: Path, section: str) -> None:
-    text = path.read_text() if path.exists() else "# Experiments\n\n"
-    if BEGIN in text and END in text:
-        text = re.sub(re.escape(BEGIN) + r".*?" + re.escape(END) + r"\n?", lambda _: section, text, flags=re.S)
-    else:
-        text = text.rstrip("\n") + "\n\n" + section
-    path.write_text(text)
+    """Replace this script's section of the file between its markers, keep everything else."""
+    replace_section(path, BEGIN, END, section)
 
 
 def main() -> None:
