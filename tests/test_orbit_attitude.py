@@ -37,3 +37,20 @@ def test_orbit_attitude_velocity_is_physical_where_position_rotation_is_not():
     im = oa["images"][1]
     sig = np.array([p["sigma"] for p in im["parameters"] if p["name"] in ("ux", "uy", "uz")])
     assert dv_oa < 4 * np.linalg.norm(sig) + 1.0
+
+
+def test_ephemeris_as_observations_is_consistent_only_with_orbit_attitude():
+    """Weighted state vectors (10 m, 0.05 m/s): K2 fights them, OA-K agrees with them."""
+    job, truth = exp.simulate(2)
+    out = {}
+    for model in ("K2", "OA-K"):
+        j = copy.deepcopy(job)
+        for im in j["images"]:
+            im["model"] = {"name": model, "options": {}}
+        rep = adjust_job(load_job(exp.with_ephemeris(j)))
+        out[model] = (rep, *exp.state_errors(rep, truth))
+    k2, oa = out["K2"][0], out["OA-K"][0]
+    assert k2["adjustment"]["sigma0_aposteriori"] > 50
+    assert oa["adjustment"]["sigma0_aposteriori"] < 2
+    assert oa["checkpoints"]["rmse_m"]["planimetric"] < 3.0
+    assert out["OA-K"][1] < 30 and out["OA-K"][2] < 1.0  # position (m) and velocity (m/s) errors
