@@ -170,7 +170,8 @@ def run(seeds: list[int]) -> str:
         "use the state vectors as observations, and with them 4 control points give ~3 m check-point "
         "RMSE instead of 12-15 m. OA-K + ephemeris ends at sigma0 1.3-1.4 (chi-square rejected): the "
         "simulated attitude drifts (1e-6 rad/s in roll and pitch, 1e-5 in yaw) beyond the model's "
-        "constant roll and pitch; orders 1 for roll and pitch are the option to try.",
+        "constant roll and pitch; with `orders` {omega: 1, phi: 1} (linear roll and pitch) it fell to 1.08 on "
+        "seed 1, with 1.19 m planimetric / 1.98 m height check-point RMSE.",
         END,
         "",
     ]
