@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from solver.kernels import ray_cam
+from solver.tables import current_tables
 from solver.problem import Problem
 from solver.statistics import axis_summary, shapiro_wilk, t_test
 
@@ -30,18 +31,12 @@ def _ray(problem: Problem, r: int):
     return ray_cam(img.kind, img.coef(), img.kc, obs.oc[r], cam.values(), int(k), cam.chip_len_mm[k])
 
 
-def _intersect(problem: Problem, rows: np.ndarray, start: np.ndarray) -> np.ndarray:
+def _intersect(problem: Problem, rows: np.ndarray, start: np.ndarray, tables) -> np.ndarray:
     """Gauss-Newton on the point alone (orientation held), on the weighted image residuals."""
     from solver.kernels import all_observation_blocks
-    from solver.tables import camera_table, image_table, records
+    from solver.tables import records
 
-    img_tab, cam_tab = image_table(problem), camera_table(problem)
-    img_p = np.zeros((len(problem.images), 24))
-    for im in problem.images:
-        img_p[im.index, : im.nfree] = im.params
-    cam_p = np.zeros((max(len(problem.cameras), 1), cam_tab.shape[1]))
-    for c in problem.cameras:
-        cam_p[c.index, : c.nfree] = c.params
+    img_tab, cam_tab, img_p, cam_p = tables
     rec = records(problem, rows)
     zeros = np.zeros(len(rows), dtype=np.int64)
     x = start.copy()
@@ -62,6 +57,7 @@ def compute_checkpoints(problem: Problem, alpha: float, gsd_m: float | None) -> 
     points_out = []
     disc: dict[str, list[float]] = {"e": [], "n": [], "u": [], "planimetric": []}
     methods = set()
+    tables = current_tables(problem)
     for p in problem.points:
         if p.role != "check" or p.known_lgs is None:
             continue
@@ -78,7 +74,7 @@ def compute_checkpoints(problem: Problem, alpha: float, gsd_m: float | None) -> 
             for r in rows:
                 s, d = _ray(problem, r)
                 starts.append(s + d * ((p.known_lgs[2] - s[2]) / d[2]))
-            est = _intersect(problem, rows, np.mean(starts, axis=0))
+            est = _intersect(problem, rows, np.mean(starts, axis=0), tables)
             method = "intersection"
         methods.add(method)
         dd = est - p.known_lgs

@@ -45,21 +45,9 @@ _JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 @njit(**_JIT)
 def rotation_and_derivatives(om: float, ph: float, ka: float):
     """Return M, dM/domega, dM/dphi, dM/dkappa for M = Rx(om) Ry(ph) Rz(ka) (each 3x3)."""
-    co, so = np.cos(om), np.sin(om)
-    cp, sp = np.cos(ph), np.sin(ph)
-    ck, sk = np.cos(ka), np.sin(ka)
-    rx = np.array([[1.0, 0.0, 0.0], [0.0, co, -so], [0.0, so, co]])
-    drx = np.array([[0.0, 0.0, 0.0], [0.0, -so, -co], [0.0, co, -so]])
-    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    dry = np.array([[-sp, 0.0, cp], [0.0, 0.0, 0.0], [-cp, 0.0, -sp]])
-    rz = np.array([[ck, -sk, 0.0], [sk, ck, 0.0], [0.0, 0.0, 1.0]])
-    drz = np.array([[-sk, -ck, 0.0], [ck, -sk, 0.0], [0.0, 0.0, 0.0]])
-    ryz = ry @ rz
-    m = rx @ ryz
-    dm_om = drx @ ryz
-    dm_ph = rx @ (dry @ rz)
-    dm_ka = rx @ (ry @ drz)
-    return m, dm_om, dm_ph, dm_ka
+    out = np.empty((4, 3, 3))
+    _rotation_into(om, ph, ka, out)
+    return out[0], out[1], out[2], out[3]
 
 
 @njit(**_JIT)
@@ -129,17 +117,10 @@ def platform_state(kind: int, coef, kc, tau: float):
     # Kepler / J2 in the Earth-fixed frame
     r0 = np.array([coef[0], coef[4], coef[8]])
     u = np.array([coef[1], coef[5], coef[9]])
-    om = kc[13]
-    g, gg = gravity_and_gradient(r0, kc[12], kc[14], kc[15])
-    a = g.copy()
-    a[0] += om * om * r0[0] + 2.0 * om * u[1]
-    a[1] += om * om * r0[1] - 2.0 * om * u[0]
-    da_dr = gg.copy()
-    da_dr[0, 0] += om * om
-    da_dr[1, 1] += om * om
+    a, da_dr = _kepler_terms(coef, kc)
     da_du = np.zeros((3, 3))
-    da_du[0, 1] = 2.0 * om
-    da_du[1, 0] = -2.0 * om
+    da_du[0, 1] = 2.0 * kc[13]
+    da_du[1, 0] = -2.0 * kc[13]
     h = 0.5 * tau * tau
     se = r0 + u * tau + a * h
     sdt = u + a * tau
@@ -255,6 +236,16 @@ def _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot):
 
 
 @njit(**_JIT)
+def _line_newton_step(d, ddt, f: float, xo: float, tpl: float) -> float:
+    """Newton step (lines) on the along-track condition ``-f d_x/d_z = xo``; NaN if singular."""
+    g = -f * d[0] / d[2] - xo
+    dg_dl = -f * (ddt[0] * d[2] - d[0] * ddt[2]) / (d[2] * d[2]) * tpl
+    if dg_dl == 0.0 or not np.isfinite(dg_dl):
+        return np.nan
+    return g / dg_dl
+
+
+@njit(**_JIT)
 def _orbital_frame(s, v, c):
     """Orbital frame from the LGS position ``s`` and Earth-fixed velocity ``v`` (LGS axes);
     ``c`` = R_ecef->lgs @ origin, so ``s + c`` is the geocentric position in LGS axes.
@@ -360,11 +351,9 @@ def _project_oa(coef, kc, p, oc, want_jac: bool):
         ddt = dm_dt @ v - m @ sdot
         if it == 30 or ok:
             break
-        g = -f * d[0] / d[2] - xo
-        dg_dl = -f * (ddt[0] * d[2] - d[0] * ddt[2]) / (d[2] * d[2]) * tpl
-        if dg_dl == 0.0 or not np.isfinite(dg_dl):
+        step = _line_newton_step(d, ddt, f, xo, tpl)
+        if not np.isfinite(step):
             break
-        step = g / dg_dl
         line -= step
         if abs(step) < 1e-8:
             ok = True
@@ -468,11 +457,9 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
             ddt[i] = dti
         if it == 30 or ok:
             break
-        g = -f * d[0] / d[2] - xo
-        dg_dl = -f * (ddt[0] * d[2] - d[0] * ddt[2]) / (d[2] * d[2]) * tpl
-        if dg_dl == 0.0 or not np.isfinite(dg_dl):
+        step = _line_newton_step(d, ddt, f, xo, tpl)
+        if not np.isfinite(step):
             break
-        step = g / dg_dl
         line -= step
         if abs(step) < 1e-8:
             ok = True

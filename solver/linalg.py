@@ -122,21 +122,13 @@ class Linearisation:
 
 def linearise(problem: Problem) -> Linearisation:
     from solver.iop import camera_priors
-    from solver.tables import camera_table, image_table, records
+    from solver.tables import current_tables, records
 
     lay = layout(problem)
     obs = problem.obs
     sel = np.flatnonzero(problem.adjusted_mask)
-    img_tab = image_table(problem)
-    cam_tab = camera_table(problem)
-    img_p = np.zeros((len(problem.images), 24))
-    for im in problem.images:
-        img_p[im.index, : im.nfree] = im.params
-    cam_p = np.zeros((max(len(problem.cameras), 1), cam_tab.shape[1]))
-    width = max(im.nfree for im in problem.images)
-    for c in problem.cameras:
-        cam_p[c.index, : c.nfree] = c.params
-    width += max([c.nfree for c in problem.cameras] + [0])
+    img_tab, cam_tab, img_p, cam_p = current_tables(problem)
+    width = max(im.nfree for im in problem.images) + max([c.nfree for c in problem.cameras] + [0])
     pts = np.ascontiguousarray([p.xyz for p in problem.points], dtype=float)
     est = np.array([p.estimated for p in problem.points], dtype=np.bool_)
     rec = records(problem, sel)

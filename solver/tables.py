@@ -48,3 +48,15 @@ def records(problem: Problem, rows: np.ndarray, img_slot: np.ndarray | None = No
     rec[:, 5] = lens
     rec[:, 6:15] = obs.oc[rows]
     return np.ascontiguousarray(rec)
+
+
+def current_tables(problem: Problem):
+    """(image table, camera table, image free parameters (nimg, 24), camera free parameters)."""
+    img_tab, cam_tab = image_table(problem), camera_table(problem)
+    img_p = np.zeros((len(problem.images), 24))
+    for im in problem.images:
+        img_p[im.index, : im.nfree] = im.params
+    cam_p = np.zeros((max(len(problem.cameras), 1), N_IOP))
+    for c in problem.cameras:
+        cam_p[c.index, : c.nfree] = c.params
+    return img_tab, cam_tab, img_p, cam_p
