@@ -35,11 +35,17 @@ def _progress(progress, fraction: float, message: str, info: dict | None = None)
 def parameter_names(problem: Problem) -> list[str]:
     """Names of the image and camera columns, in layout order ("image/param", "camera:id/iop")."""
     names = []
+    seen: set[int] = set()
     for img in problem.images:
+        if id(img.params) in seen:  # shared attitude block: named after its first image
+            continue
+        seen.add(id(img.params))
         names += [f"{img.id}/{p.name}" for p in img.model.parameters(img.options)]
     for cam in problem.cameras:
         names += [f"camera:{cam.id}/{cam.names[i]}" for i in cam.free_idx]
-    return names
+    from solver.orbit_pass import parameter_names as pass_names
+
+    return names + pass_names(problem)
 
 
 def prepare(job: Job, models: dict[str, str] | None = None) -> Problem:
@@ -236,6 +242,7 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
         "images": images,
         "correlations": _correlations(problem, cov, opts.correlation_threshold),
         "cameras": _cameras_report(problem, lin, cov, var_factor),
+        "passes": _passes_report(problem, lin, cov, var_factor),
         "observations": _observations_report(problem, lin, cov),
         "tie_points": _points_report(problem, cov, var_factor, role="tie"),
         "control_points": _points_report(problem, cov, var_factor, role="gcp"),
@@ -246,6 +253,14 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
     }
 
 
+def _state_line0(problem: Problem, index: int) -> dict[str, list[float]]:
+    """The adjusted perspective-centre position and velocity at line 0 (ECEF), every model."""
+    from solver.ephemeris import line0_state_ecef
+
+    r, v = line0_state_ecef(problem, index)
+    return {"position_ecef_m": [float(x) for x in r], "velocity_ecef_m_s": [float(x) for x in v]}
+
+
 def _images_report(problem: Problem, lin, cov: Covariance | None, var_factor: float):
     out = []
     gsds = []
@@ -253,6 +268,9 @@ def _images_report(problem: Problem, lin, cov: Covariance | None, var_factor: fl
     res = lin.res_obs.ravel()
     obs = problem.obs
     sel = lin.obs_sel
+    from solver.orbit_pass import attitude_groups
+
+    groups = attitude_groups(problem)
     for img in problem.images:
         specs = img.model.parameters(img.options)
         c = img.coef()
@@ -302,12 +320,27 @@ def _images_report(problem: Problem, lin, cov: Covariance | None, var_factor: fl
                     "y_mm": None if rms(rc) is None else rms(rc) * px,
                 },
                 "n_observations": int(len(mine)),
+                "state_line0": _state_line0(problem, img.index),
+                "pass": problem.passes[img.pass_index].id if img.pass_index >= 0 else None,
+                "attitude_shared_with": groups.get(img.index),
                 "gsd_m": gsd,
                 "lines": img.camera.lines,
                 "columns": img.camera.columns,
             }
         )
     return out, gsds
+
+
+def _passes_report(problem: Problem, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
+    from solver.orbit_pass import passes_report
+
+    def block(pi: int):
+        if cov is None:
+            return None
+        c0 = lin.layout.pass_col[pi]
+        return cov.images[c0 : c0 + 6, c0 : c0 + 6]
+
+    return passes_report(problem, block, var_factor)
 
 
 def _cameras_report(problem: Problem, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:

@@ -86,19 +86,20 @@ class SolveControl:
             self.progress(self._last_fraction, f"iteration {it}, cost {cost:.6g}", {"iteration": it, "cost": cost})
 
 
-def _slots(problem: Problem, rows: np.ndarray, first_image_slot: int = 0):
-    """Parameter blocks of a residual block over ``rows``: the images (in row order) and the
-    distinct cameras with free interior orientation; returns (blocks, image slots, camera slots)."""
+def _slots(problem: Problem, rows: np.ndarray):
+    """Parameter blocks of a residual block over ``rows``: the images (in row order), the
+    distinct cameras with free interior orientation and the distinct passes of pass-propagated
+    images; returns (blocks, image slots, camera slots, pass slots)."""
     obs = problem.obs
     blocks = []
     img_slot = np.empty(len(rows), dtype=np.int64)
-    seen_img: dict[int, int] = {}
+    seen_img: dict[int, int] = {}  # by block identity: images of one camera may share a block
     for q, r in enumerate(rows):
-        im = int(obs.img[r])
-        if im not in seen_img:
-            seen_img[im] = len(blocks)
-            blocks.append(problem.images[im].params)
-        img_slot[q] = seen_img[im]
+        params = problem.images[int(obs.img[r])].params
+        if id(params) not in seen_img:
+            seen_img[id(params)] = len(blocks)
+            blocks.append(params)
+        img_slot[q] = seen_img[id(params)]
     cam_slot = -np.ones(len(rows), dtype=np.int64)
     seen_cam: dict[int, int] = {}
     for q, r in enumerate(rows):
@@ -110,7 +111,17 @@ def _slots(problem: Problem, rows: np.ndarray, first_image_slot: int = 0):
             seen_cam[cm] = len(blocks)
             blocks.append(cam.params)
         cam_slot[q] = seen_cam[cm]
-    return blocks, img_slot, cam_slot
+    pass_slot = -np.ones(len(rows), dtype=np.int64)
+    seen_pass: dict[int, int] = {}
+    for q, r in enumerate(rows):
+        pi = problem.images[int(obs.img[r])].pass_index
+        if pi < 0:
+            continue
+        if pi not in seen_pass:
+            seen_pass[pi] = len(blocks)
+            blocks.append(problem.passes[pi].params)
+        pass_slot[q] = seen_pass[pi]
+    return blocks, img_slot, cam_slot, pass_slot
 
 
 class ImageBatchCost(pyceres.CostFunction):
@@ -122,8 +133,8 @@ class ImageBatchCost(pyceres.CostFunction):
         from solver.tables import records
 
         self.img_tab, self.cam_tab = tables
-        self.blocks, img_slot, cam_slot = _slots(problem, obs_rows)
-        self.rec = records(problem, obs_rows, img_slot, cam_slot)
+        self.blocks, img_slot, cam_slot, pass_slot = _slots(problem, obs_rows)
+        self.rec = records(problem, obs_rows, img_slot, cam_slot, pass_slot)
         self.pts = np.ascontiguousarray([problem.points[problem.obs.pt[k]].xyz for k in obs_rows], dtype=float)
         m = len(obs_rows)
         self.scratch = tuple(np.zeros(2 * m * len(b)) for b in self.blocks)
@@ -152,8 +163,8 @@ class PointCost(pyceres.CostFunction):
         from solver.tables import records
 
         self.img_tab, self.cam_tab = tables
-        self.blocks, img_slot, cam_slot = _slots(problem, obs_rows)
-        self.rec = records(problem, obs_rows, img_slot, cam_slot)
+        self.blocks, img_slot, cam_slot, pass_slot = _slots(problem, obs_rows)
+        self.rec = records(problem, obs_rows, img_slot, cam_slot, pass_slot)
         k = len(obs_rows)
         self.scratch = tuple(np.zeros(2 * k * len(b)) for b in self.blocks)
         self.scratch_p = np.zeros(2 * k * 3)
@@ -172,7 +183,8 @@ class PointCost(pyceres.CostFunction):
 
 
 class ImageTermCost(pyceres.CostFunction):
-    """Any image-only term (:mod:`solver.terms`): weighted states, line observations, ..."""
+    """Any term on one parameter block (:mod:`solver.terms`): weighted states, line
+    observations, camera priors, pass ephemeris observations, ..."""
 
     def __init__(self, term, nfree: int, control: SolveControl):
         pyceres.CostFunction.__init__(self)
@@ -235,11 +247,16 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
     from solver.tables import camera_table, image_table
 
     tables = (image_table(problem), camera_table(problem))
+    added: set[int] = set()
     for img in problem.images:
-        cp.add_parameter_block(img.params, img.nfree)
+        if id(img.params) not in added:  # a block shared by images is added once
+            added.add(id(img.params))
+            cp.add_parameter_block(img.params, img.nfree)
     for cam in problem.cameras:
         if cam.nfree:
             cp.add_parameter_block(cam.params, cam.nfree)
+    for ps in problem.passes:
+        cp.add_parameter_block(ps.params, ps.nfree)
     mask = problem.adjusted_mask
     obs = problem.obs
     loss = _loss(options)
@@ -281,6 +298,13 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
         cf = ImageTermCost(term, img.nfree, control)
         keep.append(cf)
         cp.add_residual_block(cf, None, [img.params])
+    from solver.orbit_pass import pass_terms
+
+    for term in pass_terms(problem):
+        ps = problem.passes[term.pass_index]
+        cf = ImageTermCost(term, ps.nfree, control)
+        keep.append(cf)
+        cp.add_residual_block(cf, None, [ps.params])
     from solver.iop import camera_priors
 
     for prior in camera_priors(problem.cameras):
@@ -311,6 +335,9 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
     so.callbacks = [cb]
     summary = pyceres.SolverSummary()
     pyceres.solve(so, cp, summary)
+    from solver.orbit_pass import refresh_segments
+
+    refresh_segments(problem)  # the images' trajectory segments for the final pass states
     term = str(summary.termination_type).split(".")[-1]
     usable = bool(summary.IsSolutionUsable())
     converged = term == "CONVERGENCE" or (term == "USER_SUCCESS" and control.statistically_converged)

@@ -43,7 +43,8 @@ def _intersect(problem: Problem, rows: np.ndarray, start: np.ndarray, tables) ->
     for _ in range(20):
         res, _jf, _fc, jpt, _ok = all_observation_blocks(
             rec, img_tab, cam_tab, img_p, cam_p, x[None, :], zeros, np.ones(1, dtype=np.bool_),
-            np.zeros(len(problem.images), dtype=np.int64), np.zeros(len(cam_tab), dtype=np.int64), 70,
+            np.zeros(len(problem.images), dtype=np.int64), np.zeros(len(cam_tab), dtype=np.int64),
+            np.zeros(max(len(problem.passes), 1), dtype=np.int64), 76,
         )
         step = np.linalg.lstsq(jpt.reshape(-1, 3), -res.ravel(), rcond=None)[0]
         x += step

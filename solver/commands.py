@@ -209,6 +209,8 @@ def cmd_models(args: argparse.Namespace) -> int:
         print(f"{m['name']:<8} {m['title']}")
         print(f"         frame {m['frame']}; time {m['time_variable']}")
         print("         parameters: " + ", ".join(f"{p['name']} [{p['unit']}]" for p in m["parameters"]))
+        if m.get("pass_parameters"):
+            print("         per pass (shared by its images, at the reference epoch): " + ", ".join(f"{p['name']} [{p['unit']}]" for p in m["pass_parameters"]))
         if m["held"]:
             print("         held: " + ", ".join(m["held"]) + "  options: " + "; ".join(f"{k}: {v}" for k, v in m["options"].items()))
         print(f"         {m['reference']}")

@@ -93,6 +93,7 @@ def initialise(problem: Problem) -> None:
     job = problem.job
     frame = problem.frame
     issues: list[JobProblem] = []
+    states: dict[int, object] = {}
     for img, im_doc in zip(problem.images, job.images):
         specs = {p.name: p for p in img.model.parameters(img.options)}
         unknown = sorted(set(im_doc.initial) - set(specs))
@@ -107,11 +108,13 @@ def initialise(problem: Problem) -> None:
             continue
         v_ecef = None
         state = image_state(im_doc, job.options)  # approx_state or the interpolated ephemeris
+        states[img.index] = state
         if state is not None:
             r_ecef = np.array(state.position_ecef_m, dtype=float)
             v_ecef = np.array(state.velocity_ecef_m_s, dtype=float)
-            _set_position_from_state(img, frame, r_ecef, v_ecef)
-        else:
+            if not img.model.propagated:  # pass states: initialise_passes below
+                _set_position_from_state(img, frame, r_ecef, v_ecef)
+        elif not img.model.propagated:
             pos_names = {"X0", "Y0", "Z0"}
             if not pos_names <= set(im_doc.initial):
                 issues.append(
@@ -142,15 +145,18 @@ def initialise(problem: Problem) -> None:
                     img.base[coef_index(e, 0)] = math.radians(val)
         _apply_initial(img)
         img.params[:] = img.base[img.free_idx]
+    from solver.orbit_pass import initialise_passes
+
+    issues += initialise_passes(problem, states)
     if issues:
         raise JobError(issues)
     intersect_estimated_points(problem)
 
 
 def _attitude_by_resection(problem: Problem, img: ImageState, v_ecef) -> tuple[float, float, float]:
-    from solver.kernels import KIND_ORBIT_ATTITUDE
+    from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS
 
-    if img.kind == KIND_ORBIT_ATTITUDE:
+    if img.kind in (KIND_ORBIT_ATTITUDE, KIND_PASS):
         return 0.0, 0.0, 0.0  # attitude relative to the orbital frame: nominally zero
     obs = problem.obs
     sel = [
@@ -183,7 +189,9 @@ def intersect_estimated_points(problem: Problem) -> None:
         return
     kinds = np.array([im.kind for im in problem.images], dtype=np.int64)
     coefs = np.ascontiguousarray([im.coef() for im in problem.images])
-    kcs = np.ascontiguousarray([im.kc for im in problem.images])
+    kcs = np.zeros((len(problem.images), max(len(im.kc) for im in problem.images)))
+    for im in problem.images:  # pass images carry longer kc (their trajectory segment)
+        kcs[im.index, : len(im.kc)] = im.kc
     order = np.argsort(obs.pt, kind="stable")
     bounds = np.searchsorted(obs.pt[order], np.arange(len(problem.points) + 1))
     xyz = intersect_all(kinds, coefs, kcs, obs.img, obs.oc, order, bounds, which)

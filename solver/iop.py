@@ -146,18 +146,6 @@ def validate_self_calibration(job: Job) -> list[tuple[str, str, tuple]]:
             _expand(sc.estimate, cam, master or default_master_chip(cam))
         except ValueError as exc:
             out.append(("unknown_iop", str(exc), ("options", "self_calibration", "estimate")))
-    from solver.models import get_model
-
-    oa_cams = set()
-    for im in job.images:
-        try:
-            if get_model(im.model.name).kind == 2:
-                oa_cams.add(im.camera)
-        except KeyError:
-            pass
-    for cam in job.cameras:
-        if cam.id in oa_cams and (sc.cameras is None or cam.id in sc.cameras):
-            out.append(("unsupported", f"self-calibration of camera {cam.id!r} is not available with orbit-attitude models yet", ("options", "self_calibration")))
     for k in sc.sigmas:
         if k not in UNITS:
             out.append(("unknown_iop", f"unknown interior-orientation parameter {k!r} in sigmas", ("options", "self_calibration", "sigmas")))

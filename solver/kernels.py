@@ -32,9 +32,20 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from solver.propagation import (
+    PASS_ATT_OFF,
+    PASS_COEF_INDEX,
+    PASS_INDEX,
+    PASS_T_OFF,
+    ensure_segment,
+    gravity_and_gradient,
+    pass_state,
+)
+
 KIND_POLYNOMIAL = 0
 KIND_KEPLER = 1
 KIND_ORBIT_ATTITUDE = 2  # Kepler/J2 position, attitude relative to the orbital frame
+KIND_PASS = 3  # one propagated orbit per pass (solver.propagation), attitude as orbit-attitude
 N_COEF = 24
 N_OBS_CONST = 9
 N_KEPLER_CONST = 17
@@ -51,38 +62,6 @@ def rotation_and_derivatives(om: float, ph: float, ka: float):
 
 
 @njit(**_JIT)
-def gravity_and_gradient(r, gm: float, j2: float, ae: float):
-    """Acceleration (m/s^2) of point mass + J2 at ECEF position r (m) and its 3x3 gradient."""
-    x, y, z = r[0], r[1], r[2]
-    r2 = x * x + y * y + z * z
-    rn = np.sqrt(r2)
-    r3 = r2 * rn
-    r5 = r3 * r2
-    g = np.empty(3)
-    grad = np.empty((3, 3))
-    for i in range(3):
-        g[i] = -gm * r[i] / r3
-        for j in range(3):
-            grad[i, j] = -gm * ((1.0 if i == j else 0.0) / r3 - 3.0 * r[i] * r[j] / r5)
-    if j2 != 0.0:
-        k = 1.5 * j2 * gm * ae * ae
-        r7 = r5 * r2
-        r9 = r7 * r2
-        z2 = z * z
-        # g_i = -k * r_i * (c_i r^-5 - 5 z^2 r^-7), c = (1, 1, 3)
-        c = np.array([1.0, 1.0, 3.0])
-        for i in range(3):
-            g[i] += -k * r[i] * (c[i] / r5 - 5.0 * z2 / r7)
-            for j in range(3):
-                # d/dr_j of [c_i r^-5 - 5 z^2 r^-7]
-                dz2 = 2.0 * z if j == 2 else 0.0
-                dbr = -5.0 * c[i] * r[j] / r7 - 5.0 * (dz2 / r7 - 7.0 * z2 * r[j] / r9)
-                br = c[i] / r5 - 5.0 * z2 / r7
-                grad[i, j] += -k * ((1.0 if i == j else 0.0) * br + r[i] * dbr)
-    return g, grad
-
-
-@njit(**_JIT)
 def platform_state(kind: int, coef, kc, tau: float):
     """Perspective centre (LGS, m) and angles (rad) at scaled time tau, with derivatives.
 
@@ -95,8 +74,9 @@ def platform_state(kind: int, coef, kc, tau: float):
     da_dc = np.zeros((3, N_COEF))
     da_dt = np.zeros(3)
     tp = np.ones(4)
+    ta = _attitude_time(kind, kc, tau)
     for k in range(1, 4):
-        tp[k] = tp[k - 1] * tau
+        tp[k] = tp[k - 1] * ta
     # angles: polynomials for every model
     for e in range(3):
         for k in range(4):
@@ -105,6 +85,8 @@ def platform_state(kind: int, coef, kc, tau: float):
             da_dc[e, (3 + e) * 4 + k] = tp[k]
             if k >= 1:
                 da_dt[e] += k * c * tp[k - 1]
+    for k in range(1, 4):
+        tp[k] = tp[k - 1] * tau
     if kind == KIND_POLYNOMIAL:
         for e in range(3):
             for k in range(4):
@@ -113,6 +95,17 @@ def platform_state(kind: int, coef, kc, tau: float):
                 ds_dc[e, e * 4 + k] = tp[k]
                 if k >= 1:
                     ds_dt[e] += k * c * tp[k - 1]
+        return s, ds_dc, ds_dt, ang, da_dc, da_dt
+    rot = kc[0:9].reshape(3, 3)
+    org = kc[9:12]
+    if kind == KIND_PASS:
+        pe, ve, _ae, dse6, _dv6 = pass_state(kc, kc[PASS_T_OFF] + tau, True)
+        s = rot @ (pe - org)
+        ds6 = rot @ dse6
+        for q in range(6):
+            for i in range(3):
+                ds_dc[i, PASS_COEF_INDEX[q]] = ds6[i, q]
+        ds_dt = rot @ ve
         return s, ds_dc, ds_dt, ang, da_dc, da_dt
     # Kepler / J2 in the Earth-fixed frame
     r0 = np.array([coef[0], coef[4], coef[8]])
@@ -129,8 +122,6 @@ def platform_state(kind: int, coef, kc, tau: float):
         for j in range(3):
             dse[i, j * 4] = (1.0 if i == j else 0.0) + h * da_dr[i, j]
             dse[i, j * 4 + 1] = (tau if i == j else 0.0) + h * da_du[i, j]
-    rot = kc[0:9].reshape(3, 3)
-    org = kc[9:12]
     s = rot @ (se - org)
     ds_dc = rot @ dse
     ds_dt = rot @ sdt
@@ -203,8 +194,16 @@ def _kepler_terms(coef, kc):
 
 
 @njit(**_JIT)
-def _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot):
-    """Position (LGS) and its tau-derivative, angles and their tau-derivatives, at tau."""
+def _attitude_time(kind, kc, tau: float) -> float:
+    """Time variable of the angle polynomials: tau, shifted for pass images whose attitude is
+    shared by the images of one camera (then in s since the pass reference epoch)."""
+    if kind == KIND_PASS:
+        return tau + kc[PASS_ATT_OFF]
+    return tau
+
+
+@njit(**_JIT)
+def _attitude_angles(coef, tau, ang, angdot):
     for e in range(3):
         c0 = coef[(3 + e) * 4]
         c1 = coef[(3 + e) * 4 + 1]
@@ -212,6 +211,12 @@ def _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot):
         c3 = coef[(3 + e) * 4 + 3]
         ang[e] = c0 + tau * (c1 + tau * (c2 + tau * c3))
         angdot[e] = c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
+
+
+@njit(**_JIT)
+def _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot):
+    """Position (LGS) and its tau-derivative, angles and their tau-derivatives, at tau."""
+    _attitude_angles(coef, tau, ang, angdot)
     if kind == KIND_POLYNOMIAL:
         for e in range(3):
             c0 = coef[e * 4]
@@ -303,109 +308,245 @@ def _mount(angle: float):
 
 
 @njit(**_JIT)
-def _oa_state(coef, kc, acc, da_dr, tau, rot):
-    """Everything the orbit-attitude projection needs at tau: S, Sdot, M, dM/dtau, the attitude
-    part A = Ry(mount) R_att and its angle derivatives, and the orbital frame derivatives."""
-    s = np.empty(3)
-    sdot = np.empty(3)
+def _orbit_pos(kind, coef, kc, acc, tau, s, sdot, vdot):
+    """Position (LGS), velocity and acceleration (LGS axes) of the orbit-attitude kinds at tau:
+    the Kepler/J2 quadratic (KIND_ORBIT_ATTITUDE) or the propagated pass (KIND_PASS)."""
+    r0 = kc[0:9].reshape(3, 3)
+    if kind == KIND_PASS:
+        pe, ve, ae, _ds, _dv = pass_state(kc, kc[PASS_T_OFF] + tau, False)
+        for i in range(3):
+            pe[i] -= kc[9 + i]
+        s[:] = r0 @ pe
+        sdot[:] = r0 @ ve
+        vdot[:] = r0 @ ae
+        return
     ang = np.empty(3)
     angdot = np.empty(3)
     _pose(KIND_KEPLER, coef, kc, acc, tau, s, sdot, ang, angdot)
-    _rotation_into(ang[0], ang[1], ang[2], rot)
-    r0 = kc[0:9].reshape(3, 3)
-    c = r0 @ kc[9:12]
-    vdot = r0 @ acc
-    ro, d_s, d_v = _orbital_frame(s, sdot, c)
-    mnt = _mount(kc[16])
-    a_att = mnt @ rot[0]
-    dro_dt = np.zeros((3, 3))
-    for k in range(3):
-        dro_dt += d_s[:, :, k] * sdot[k] + d_v[:, :, k] * vdot[k]
-    m = a_att @ ro
-    dm_dt = a_att @ dro_dt
-    for e in range(3):
-        dm_dt += (mnt @ rot[1 + e]) * angdot[e] @ ro
-    return s, sdot, ang, m, dm_dt, a_att, mnt, ro, d_s, d_v
+    vdot[:] = r0 @ acc
 
 
 @njit(**_JIT)
-def _project_oa(coef, kc, p, oc, want_jac: bool):
-    """``project`` for the orbit-attitude kind (same returns)."""
-    f = oc[3]
-    px = oc[4]
-    xo = oc[5]
-    yo = oc[6]
-    cc = oc[7]
-    tpl = oc[8]
-    line = oc[0]
-    ok = False
-    rot = np.empty((4, 3, 3))
-    acc, da_dr = _kepler_terms(coef, kc)
-    d = np.zeros(3)
-    ddt = np.zeros(3)
-    for it in range(31):
-        tau = line * tpl
-        s, sdot, ang, m, dm_dt, a_att, mnt, ro, d_s, d_v = _oa_state(coef, kc, acc, da_dr, tau, rot)
-        v = p - s
-        d = m @ v
-        ddt = dm_dt @ v - m @ sdot
-        if it == 30 or ok:
-            break
-        step = _line_newton_step(d, ddt, f, xo, tpl)
-        if not np.isfinite(step):
-            break
-        line -= step
-        if abs(step) < 1e-8:
-            ok = True
-    iz = 1.0 / d[2]
-    y = -f * d[1] * iz
-    col = cc + (y - yo) / px
-    dl_dc = np.zeros(N_COEF)
-    dl_dp = np.zeros(3)
-    dc_dc = np.zeros(N_COEF)
-    dc_dp = np.zeros(3)
-    if not want_jac:
-        return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
-    tau = line * tpl
-    gx = np.array([-f * iz, 0.0, f * d[0] * iz * iz])
-    gy = np.array([0.0, -f * iz, f * d[1] * iz * iz])
-    dx_dl = (gx @ ddt) * tpl
-    dy_dl = (gy @ ddt) * tpl
-    for j in range(3):
-        dxp = gx[0] * m[0, j] + gx[1] * m[1, j] + gx[2] * m[2, j]
-        dyp = gy[0] * m[0, j] + gy[1] * m[1, j] + gy[2] * m[2, j]
-        dl_dp[j] = -dxp / dx_dl
-        dc_dp[j] = (dyp + dy_dl * dl_dp[j]) / px
-    # attitude angles (relative to the orbital frame)
-    tp = 1.0
-    for k in range(4):
-        for e in range(3):
-            dd = (mnt @ rot[1 + e] @ ro) @ v * tp
-            idx = (3 + e) * 4 + k
-            dl_dc[idx] = -(gx @ dd) / dx_dl
-            dc_dc[idx] = ((gy @ dd) + dy_dl * dl_dc[idx]) / px
-        tp *= tau
-    # state: S_lgs = R0 (S0 + u t + a h - O), V_lgs = R0 (u + a t); a = a(S0, u)
+def _orbit_jac(kind, kc, da_dr, tau):
+    """d(S, V)/d(state) in LGS axes (3 x 6 each): state = (S0, u) at line 0 for the Kepler
+    quadratic, the pass state x0 at the reference epoch for KIND_PASS."""
     r0 = kc[0:9].reshape(3, 3)
+    ds_dth = np.empty((3, 6))
+    dv_dth = np.empty((3, 6))
+    if kind == KIND_PASS:
+        _p, _v, _a, ds, dv = pass_state(kc, kc[PASS_T_OFF] + tau, True)
+        ds_dth[:, :] = r0 @ ds
+        dv_dth[:, :] = r0 @ dv
+        return ds_dth, dv_dth
+    # S_lgs = R0 (S0 + u t + a h - O), V_lgs = R0 (u + a t); a = a(S0, u)
     h = 0.5 * tau * tau
     da_du = np.zeros((3, 3))
     da_du[0, 1] = 2.0 * kc[13]
     da_du[1, 0] = -2.0 * kc[13]
-    ds_dth = np.empty((3, 6))
-    dv_dth = np.empty((3, 6))
     ds_dth[:, 0:3] = r0 @ (np.eye(3) + h * da_dr)
     ds_dth[:, 3:6] = r0 @ (tau * np.eye(3) + h * da_du)
     dv_dth[:, 0:3] = r0 @ (tau * da_dr)
     dv_dth[:, 3:6] = r0 @ (np.eye(3) + tau * da_du)
+    return ds_dth, dv_dth
+
+
+@njit(**_JIT)
+def ro_offset(kc):
+    """R_ecef->lgs @ LGS origin: added to an LGS position it gives the geocentric position in
+    LGS axes (the orbital frame's radial direction)."""
+    return kc[0:9].reshape(3, 3) @ kc[9:12]
+
+
+@njit(**_JIT)
+def _orbital_frame_rate(s, v, c, sdot, vdot):
+    """Orbital frame (as :func:`_orbital_frame`) and its time derivative along the trajectory
+    (position rate ``sdot``, velocity rate ``vdot``), without the state derivatives: the cheap
+    form for the Newton iterations on the line."""
+    g0, g1, g2 = s[0] + c[0], s[1] + c[1], s[2] + c[2]
+    gn = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+    z = np.array([g0 / gn, g1 / gn, g2 / gn])
+    zs = z[0] * sdot[0] + z[1] * sdot[1] + z[2] * sdot[2]
+    dz = (sdot - zs * z) / gn
+    vz = v[0] * z[0] + v[1] * z[1] + v[2] * z[2]
+    h = v - vz * z
+    hn = np.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
+    x = h / hn
+    dvz = vdot[0] * z[0] + vdot[1] * z[1] + vdot[2] * z[2] + v[0] * dz[0] + v[1] * dz[1] + v[2] * dz[2]
+    dh = vdot - dvz * z - vz * dz
+    xd = x[0] * dh[0] + x[1] * dh[1] + x[2] * dh[2]
+    dx = (dh - xd * x) / hn
+    r = np.empty((3, 3))
+    dr = np.empty((3, 3))
+    for i in range(3):
+        r[0, i] = x[i]
+        r[2, i] = z[i]
+        dr[0, i] = dx[i]
+        dr[2, i] = dz[i]
+    # y = z x x
+    r[1, 0] = z[1] * x[2] - z[2] * x[1]
+    r[1, 1] = z[2] * x[0] - z[0] * x[2]
+    r[1, 2] = z[0] * x[1] - z[1] * x[0]
+    dr[1, 0] = dz[1] * x[2] - dz[2] * x[1] + z[1] * dx[2] - z[2] * dx[1]
+    dr[1, 1] = dz[2] * x[0] - dz[0] * x[2] + z[2] * dx[0] - z[0] * dx[2]
+    dr[1, 2] = dz[0] * x[1] - dz[1] * x[0] + z[0] * dx[1] - z[1] * dx[0]
+    return r, dr
+
+
+@njit(**_JIT)
+def _oa_pose(kind, coef, kc, acc, tau, rot):
+    """What the orbit-attitude projection needs at tau: S, Sdot, M = A R_orbit, dM/dtau, the
+    attitude part A = Ry(mount) R_att, the mounting and R_orbit (``rot`` receives R_att and its
+    angle derivatives)."""
+    s = np.empty(3)
+    sdot = np.empty(3)
+    vdot = np.empty(3)
+    ang = np.empty(3)
+    angdot = np.empty(3)
+    _orbit_pos(kind, coef, kc, acc, tau, s, sdot, vdot)
+    _attitude_angles(coef, _attitude_time(kind, kc, tau), ang, angdot)
+    _rotation_into(ang[0], ang[1], ang[2], rot)
+    ro, dro_dt = _orbital_frame_rate(s, sdot, ro_offset(kc), sdot, vdot)
+    mnt = _mount(kc[16])
+    a_att = mnt @ rot[0]
+    m = a_att @ ro
+    dm_dt = a_att @ dro_dt
+    datt = rot[1] * angdot[0] + rot[2] * angdot[1] + rot[3] * angdot[2]
+    dm_dt += mnt @ datt @ ro
+    return s, sdot, m, dm_dt, a_att, mnt, ro
+
+
+@njit(**_JIT)
+def _state_directions(kind, kc, da_dr, tau, s, sdot, a_att, m, v):
+    """dd/d(state_q) (6 x 3) of the camera vector d = A R_orbit(S, V) (P - S) for the
+    orbit-attitude kinds: through S(t) and through the orbital frame's dependence on S and V."""
+    ds_dth, dv_dth = _orbit_jac(kind, kc, da_dr, tau)
+    _ro, d_s, d_v = _orbital_frame(s, sdot, ro_offset(kc))
+    out = np.empty((6, 3))
     for q in range(6):
         dro = np.zeros((3, 3))
         for k in range(3):
             dro += d_s[:, :, k] * ds_dth[k, q] + d_v[:, :, k] * dv_dth[k, q]
-        dd = a_att @ dro @ v - m @ np.ascontiguousarray(ds_dth[:, q])
-        idx = (q % 3) * 4 + (0 if q < 3 else 1)
-        dl_dc[idx] = -(gx @ dd) / dx_dl
-        dc_dc[idx] = ((gy @ dd) + dy_dl * dl_dc[idx]) / px
-    return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
+        out[q] = a_att @ dro @ v - m @ np.ascontiguousarray(ds_dth[:, q])
+    return out
+
+
+@njit(**_JIT)
+def _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, ang, angdot, v, d, ddt, mm, a_att, mnt, ro):
+    """Everything a projection needs at tau, for every kind, filled in place: S, dS/dtau, the
+    rotation M (``mm``), v = P - S, d = M v and dd/dtau; ``rot`` receives the angle rotation and
+    its angle derivatives (the attitude part for the orbit-attitude kinds), and for those kinds
+    ``a_att``, ``mnt``, ``ro`` the factors A = Ry(mount) R_att, Ry(mount) and R_orbit (left as
+    they are for the other kinds)."""
+    if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
+        s1, sdot1, m, dm_dt, a1, mnt1, ro1 = _oa_pose(kind, coef, kc, acc, tau, rot)
+        s[:] = s1
+        sdot[:] = sdot1
+        mm[:, :] = m
+        a_att[:, :] = a1
+        mnt[:, :] = mnt1
+        ro[:, :] = ro1
+        for i in range(3):
+            v[i] = p[i] - s[i]
+        d[:] = m @ v
+        ddt[:] = dm_dt @ v - m @ sdot
+        return
+    _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot)
+    _rotation_into(ang[0], ang[1], ang[2], rot)
+    mm[:, :] = rot[0]
+    for i in range(3):
+        v[i] = p[i] - s[i]
+    for i in range(3):
+        di = 0.0
+        dti = 0.0
+        for j in range(3):
+            mij = rot[0, i, j]
+            dmij = rot[1, i, j] * angdot[0] + rot[2, i, j] * angdot[1] + rot[3, i, j] * angdot[2]
+            di += mij * v[j]
+            dti += dmij * v[j] - mij * sdot[j]
+        d[i] = di
+        ddt[i] = dti
+
+
+@njit(**_JIT)
+def _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, gx0, gx2, gy1, gy2):
+    """Derivatives along every coefficient of two image functions whose gradients wrt the
+    camera vector d are (gx0, 0, gx2) and (0, gy1, gy2), at the line's tau: returns (gxs[24],
+    gys[24]). For KIND_PASS the pass-state derivatives are in the slots PASS_COEF_INDEX."""
+    gxs = np.zeros(N_COEF)
+    gys = np.zeros(N_COEF)
+    oa = kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS
+    # angles: dd/d(angle) = dM/d(angle) v (orbit-attitude: Ry(mount) dR_att R_orbit v), x t^k
+    ta = _attitude_time(kind, kc, tau)
+    rov = ro @ v if oa else v
+    for e in range(3):
+        if oa:
+            dd = mnt @ (rot[1 + e] @ rov)
+            d0, d1, d2 = dd[0], dd[1], dd[2]
+        else:  # scalar form: this runs for every observation of the per-image models
+            d0 = rot[1 + e, 0, 0] * v[0] + rot[1 + e, 0, 1] * v[1] + rot[1 + e, 0, 2] * v[2]
+            d1 = rot[1 + e, 1, 0] * v[0] + rot[1 + e, 1, 1] * v[1] + rot[1 + e, 1, 2] * v[2]
+            d2 = rot[1 + e, 2, 0] * v[0] + rot[1 + e, 2, 1] * v[1] + rot[1 + e, 2, 2] * v[2]
+        gxd = gx0 * d0 + gx2 * d2
+        gyd = gy1 * d1 + gy2 * d2
+        tp = 1.0
+        for k in range(4):
+            gxs[(3 + e) * 4 + k] = gxd * tp
+            gys[(3 + e) * 4 + k] = gyd * tp
+            tp *= ta
+    if oa:
+        # state (S0, u) or pass x0: through S(t) and the orbital frame R_orbit(S, V)
+        dds = _state_directions(kind, kc, da_dr, tau, s, sdot, a_att, mm, v)
+        for q in range(6):
+            idx = (q % 3) * 4 + (0 if q < 3 else 1)
+            gxs[idx] = gx0 * dds[q, 0] + gx2 * dds[q, 2]
+            gys[idx] = gy1 * dds[q, 1] + gy2 * dds[q, 2]
+        return gxs, gys
+    # position: dd/dS_lgs = -M
+    wx = np.empty(3)
+    wy = np.empty(3)
+    for j in range(3):
+        wx[j] = -(gx0 * mm[0, j] + gx2 * mm[2, j])
+        wy[j] = -(gy1 * mm[1, j] + gy2 * mm[2, j])
+    if kind == KIND_POLYNOMIAL:
+        tp = 1.0
+        for k in range(4):
+            for e in range(3):
+                gxs[e * 4 + k] = wx[e] * tp
+                gys[e * 4 + k] = wy[e] * tp
+            tp *= tau
+        return gxs, gys
+    # Kepler: S_lgs = R (S0 + u tau + a h - O); dS_ecef/dS0 = I + h da/dr, dS_ecef/du = tau I + h da/du
+    h = 0.5 * tau * tau
+    om2 = 2.0 * kc[13] * h
+    ex = np.empty(3)  # row vectors wx^T R and wy^T R (ECEF)
+    ey = np.empty(3)
+    for j in range(3):
+        ex[j] = wx[0] * kc[j] + wx[1] * kc[3 + j] + wx[2] * kc[6 + j]
+        ey[j] = wy[0] * kc[j] + wy[1] * kc[3 + j] + wy[2] * kc[6 + j]
+    for j in range(3):
+        gxj = ex[j]
+        gyj = ey[j]
+        for i in range(3):
+            gxj += ex[i] * h * da_dr[i, j]
+            gyj += ey[i] * h * da_dr[i, j]
+        gxs[j * 4] = gxj
+        gys[j * 4] = gyj
+    # d/du: tau I + h * [[0, 2W, 0], [-2W, 0, 0], [0, 0, 0]]
+    gxs[1] = ex[0] * tau - ex[1] * om2
+    gys[1] = ey[0] * tau - ey[1] * om2
+    gxs[5] = ex[1] * tau + ex[0] * om2
+    gys[5] = ey[1] * tau + ey[0] * om2
+    gxs[9] = ex[2] * tau
+    gys[9] = ey[2] * tau
+    return gxs, gys
+
+
+@njit(**_JIT)
+def _kepler_terms_for(kind, coef, kc):
+    """The Kepler acceleration terms a projection of this kind needs (zeros where none)."""
+    if kind == KIND_KEPLER or kind == KIND_ORBIT_ATTITUDE:
+        return _kepler_terms(coef, kc)
+    return np.zeros(3), np.zeros((3, 3))
 
 
 @njit(**_JIT)
@@ -414,10 +555,9 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
 
     Solves ``-f d_x(tau(L))/d_z = xo`` for the line L by Newton's method starting at the
     observed line, then evaluates the column. Returns (ok, line, column, dL_dcoef[24],
-    dL_dp[3], dC_dcoef[24], dC_dp[3]); derivatives by the implicit function theorem.
+    dL_dp[3], dC_dcoef[24], dC_dp[3]); derivatives by the implicit function theorem (for
+    KIND_PASS the pass-state derivatives are in the coefficient slots PASS_COEF_INDEX).
     """
-    if kind == KIND_ORBIT_ATTITUDE:
-        return _project_oa(coef, kc, p, oc, want_jac)
     f = oc[3]
     px = oc[4]
     xo = oc[5]
@@ -426,7 +566,10 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
     tpl = oc[8]
     line = oc[0]
     ok = False
+    acc, da_dr = _kepler_terms_for(kind, coef, kc)
     rot = np.empty((4, 3, 3))
+    fac = np.empty((4, 3, 3))  # M, then the orbit-attitude factors A, Ry(mount), R_orbit
+    mm, a_att, mnt, ro = fac[0], fac[1], fac[2], fac[3]
     s = np.empty(3)
     sdot = np.empty(3)
     ang = np.empty(3)
@@ -434,27 +577,9 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
     d = np.empty(3)
     ddt = np.empty(3)
     v = np.empty(3)
-    if kind == KIND_KEPLER:
-        acc, da_dr = _kepler_terms(coef, kc)
-    else:
-        acc = np.zeros(3)
-        da_dr = np.zeros((3, 3))
     for it in range(31):
         tau = line * tpl
-        _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot)
-        _rotation_into(ang[0], ang[1], ang[2], rot)
-        for i in range(3):
-            v[i] = p[i] - s[i]
-        for i in range(3):
-            di = 0.0
-            dti = 0.0
-            for j in range(3):
-                mij = rot[0, i, j]
-                dmij = rot[1, i, j] * angdot[0] + rot[2, i, j] * angdot[1] + rot[3, i, j] * angdot[2]
-                di += mij * v[j]
-                dti += dmij * v[j] - mij * sdot[j]
-            d[i] = di
-            ddt[i] = dti
+        _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, ang, angdot, v, d, ddt, mm, a_att, mnt, ro)
         if it == 30 or ok:
             break
         step = _line_newton_step(d, ddt, f, xo, tpl)
@@ -480,78 +605,14 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
     dy_dl = (gy1 * ddt[1] + gy2 * ddt[2]) * tpl
     # wrt P: dd/dP = M
     for j in range(3):
-        dxp = gx0 * rot[0, 0, j] + gx2 * rot[0, 2, j]
-        dyp = gy1 * rot[0, 1, j] + gy2 * rot[0, 2, j]
+        dxp = gx0 * mm[0, j] + gx2 * mm[2, j]
+        dyp = gy1 * mm[1, j] + gy2 * mm[2, j]
         dl_dp[j] = -dxp / dx_dl
         dc_dp[j] = (dyp + dy_dl * dl_dp[j]) / px
-    # wrt the coefficients: dd/dc = dM/dang (P - S) dang/dc - M dS/dc
-    # angles: dang_e/dc[(3+e)*4+k] = tau^k
-    gvx = np.empty(3)  # d x / d ang_e
-    gvy = np.empty(3)
-    for e in range(3):
-        a0 = 0.0
-        a1 = 0.0
-        a2 = 0.0
-        for j in range(3):
-            a0 += rot[1 + e, 0, j] * v[j]
-            a1 += rot[1 + e, 1, j] * v[j]
-            a2 += rot[1 + e, 2, j] * v[j]
-        gvx[e] = gx0 * a0 + gx2 * a2
-        gvy[e] = gy1 * a1 + gy2 * a2
-    tp = 1.0
-    for k in range(4):
-        for e in range(3):
-            idx = (3 + e) * 4 + k
-            dxc = gvx[e] * tp
-            dyc = gvy[e] * tp
-            dl_dc[idx] = -dxc / dx_dl
-            dc_dc[idx] = (dyc + dy_dl * dl_dc[idx]) / px
-        tp *= tau
-    # position: dx/dS_lgs = -(gx^T M), dy/dS_lgs likewise
-    wx = np.empty(3)
-    wy = np.empty(3)
-    for j in range(3):
-        wx[j] = -(gx0 * rot[0, 0, j] + gx2 * rot[0, 2, j])
-        wy[j] = -(gy1 * rot[0, 1, j] + gy2 * rot[0, 2, j])
-    if kind == KIND_POLYNOMIAL:
-        tp = 1.0
-        for k in range(4):
-            for e in range(3):
-                idx = e * 4 + k
-                dl_dc[idx] = -(wx[e] * tp) / dx_dl
-                dc_dc[idx] = (wy[e] * tp + dy_dl * dl_dc[idx]) / px
-            tp *= tau
-    else:
-        # S_lgs = R (S0 + u tau + a h - O); dS_ecef/dS0 = I + h da/dr, dS_ecef/du = tau I + h da/du
-        h = 0.5 * tau * tau
-        om2 = 2.0 * kc[13] * h
-        # row vectors wx^T R and wy^T R (ECEF)
-        ex = np.empty(3)
-        ey = np.empty(3)
-        for j in range(3):
-            ex[j] = wx[0] * kc[j] + wx[1] * kc[3 + j] + wx[2] * kc[6 + j]
-            ey[j] = wy[0] * kc[j] + wy[1] * kc[3 + j] + wy[2] * kc[6 + j]
-        for j in range(3):
-            # d/dS0_j
-            dxs = ex[j]
-            dys = ey[j]
-            for i in range(3):
-                dxs += ex[i] * h * da_dr[i, j]
-                dys += ey[i] * h * da_dr[i, j]
-            idx = j * 4
-            dl_dc[idx] = -dxs / dx_dl
-            dc_dc[idx] = (dys + dy_dl * dl_dc[idx]) / px
-        # d/du: tau I + h * [[0, 2W, 0], [-2W, 0, 0], [0, 0, 0]]
-        dxu0 = ex[0] * tau - ex[1] * om2
-        dyu0 = ey[0] * tau - ey[1] * om2
-        dxu1 = ex[1] * tau + ex[0] * om2
-        dyu1 = ey[1] * tau + ey[0] * om2
-        dxu2 = ex[2] * tau
-        dyu2 = ey[2] * tau
-        for j, dxu, dyu in ((0, dxu0, dyu0), (1, dxu1, dyu1), (2, dxu2, dyu2)):
-            idx = j * 4 + 1
-            dl_dc[idx] = -dxu / dx_dl
-            dc_dc[idx] = (dyu + dy_dl * dl_dc[idx]) / px
+    gxs, gys = _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, gx0, gx2, gy1, gy2)
+    for idx in range(N_COEF):
+        dl_dc[idx] = -gxs[idx] / dx_dl
+        dc_dc[idx] = (gys[idx] + dy_dl * dl_dc[idx]) / px
     return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
 
 
@@ -567,10 +628,10 @@ def assemble(base, free_idx, p):
 @njit(**_JIT)
 def object_to_camera(kind, coef, kc, tau: float):
     """The rotation M (object LGS -> camera) at scaled time tau, for every kind."""
-    if kind == KIND_ORBIT_ATTITUDE:
+    if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
         rot = np.empty((4, 3, 3))
-        acc, da_dr = _kepler_terms(coef, kc)
-        return _oa_state(coef, kc, acc, da_dr, tau, rot)[3]
+        acc = _kepler_terms(coef, kc)[0] if kind == KIND_ORBIT_ATTITUDE else np.zeros(3)
+        return _oa_pose(kind, coef, kc, acc, tau, rot)[2]
     ang = platform_state(kind, coef, kc, tau)[3]
     return rotation_and_derivatives(ang[0], ang[1], ang[2])[0]
 
@@ -697,31 +758,16 @@ def project_cam(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac
     d = np.empty(3)
     ddt = np.empty(3)
     v = np.empty(3)
-    if kind == KIND_KEPLER:
-        acc, da_dr = _kepler_terms(coef, kc)
-    else:
-        acc = np.zeros(3)
-        da_dr = np.zeros((3, 3))
+    acc, da_dr = _kepler_terms_for(kind, coef, kc)
+    fac = np.empty((4, 3, 3))  # M, then the orbit-attitude factors A, Ry(mount), R_orbit
+    mm, a_att, mnt, ro = fac[0], fac[1], fac[2], fac[3]
     xi = yi = big_f = dxi_dc = dyi_dc = 0.0
     dxi_diop = np.zeros(N_IOP)
     dyi_diop = np.zeros(N_IOP)
     j11 = j12 = j21 = j22 = 0.0
     for it in range(31):
         tau = line * tpl
-        _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot)
-        _rotation_into(ang[0], ang[1], ang[2], rot)
-        for i in range(3):
-            v[i] = p[i] - s[i]
-        for i in range(3):
-            di = 0.0
-            dti = 0.0
-            for j in range(3):
-                mij = rot[0, i, j]
-                dmij = rot[1, i, j] * angdot[0] + rot[2, i, j] * angdot[1] + rot[3, i, j] * angdot[2]
-                di += mij * v[j]
-                dti += dmij * v[j] - mij * sdot[j]
-            d[i] = di
-            ddt[i] = dti
+        _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, ang, angdot, v, d, ddt, mm, a_att, mnt, ro)
         xi, yi, big_f, dxi_dc, dyi_dc, dxi_diop, dyi_diop = camera_model(oc, iop, chip, chip_len, col, it == 30 or ok)
         if it == 30 or ok:
             break
@@ -765,62 +811,12 @@ def project_cam(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac
         return -(i11 * gx + i12 * gy), -(i21 * gx + i22 * gy)
 
     for j in range(3):
-        gx = hx0 * rot[0, 0, j] + hx2 * rot[0, 2, j]
-        gy = hy1 * rot[0, 1, j] + hy2 * rot[0, 2, j]
+        gx = hx0 * mm[0, j] + hx2 * mm[2, j]
+        gy = hy1 * mm[1, j] + hy2 * mm[2, j]
         dl_dp[j], dc_dp[j] = _solve(gx, gy)
-    gvx = np.empty(3)
-    gvy = np.empty(3)
-    for e in range(3):
-        a0 = 0.0
-        a1 = 0.0
-        a2 = 0.0
-        for j in range(3):
-            a0 += rot[1 + e, 0, j] * v[j]
-            a1 += rot[1 + e, 1, j] * v[j]
-            a2 += rot[1 + e, 2, j] * v[j]
-        gvx[e] = hx0 * a0 + hx2 * a2
-        gvy[e] = hy1 * a1 + hy2 * a2
-    tp = 1.0
-    for k in range(4):
-        for e in range(3):
-            idx = (3 + e) * 4 + k
-            dl_dc[idx], dc_dc[idx] = _solve(gvx[e] * tp, gvy[e] * tp)
-        tp *= tau
-    wx = np.empty(3)
-    wy = np.empty(3)
-    for j in range(3):
-        wx[j] = -(hx0 * rot[0, 0, j] + hx2 * rot[0, 2, j])
-        wy[j] = -(hy1 * rot[0, 1, j] + hy2 * rot[0, 2, j])
-    if kind == KIND_POLYNOMIAL:
-        tp = 1.0
-        for k in range(4):
-            for e in range(3):
-                idx = e * 4 + k
-                dl_dc[idx], dc_dc[idx] = _solve(wx[e] * tp, wy[e] * tp)
-            tp *= tau
-    else:
-        h = 0.5 * tau * tau
-        om2 = 2.0 * kc[13] * h
-        ex = np.empty(3)
-        ey = np.empty(3)
-        for j in range(3):
-            ex[j] = wx[0] * kc[j] + wx[1] * kc[3 + j] + wx[2] * kc[6 + j]
-            ey[j] = wy[0] * kc[j] + wy[1] * kc[3 + j] + wy[2] * kc[6 + j]
-        for j in range(3):
-            gxs = ex[j]
-            gys = ey[j]
-            for i in range(3):
-                gxs += ex[i] * h * da_dr[i, j]
-                gys += ey[i] * h * da_dr[i, j]
-            dl_dc[j * 4], dc_dc[j * 4] = _solve(gxs, gys)
-        for j in range(3):
-            if j == 0:
-                gxu, gyu = ex[0] * tau - ex[1] * om2, ey[0] * tau - ey[1] * om2
-            elif j == 1:
-                gxu, gyu = ex[1] * tau + ex[0] * om2, ey[1] * tau + ey[0] * om2
-            else:
-                gxu, gyu = ex[2] * tau, ey[2] * tau
-            dl_dc[j * 4 + 1], dc_dc[j * 4 + 1] = _solve(gxu, gyu)
+    gxs, gys = _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, hx0, hx2, hy1, hy2)
+    for idx in range(N_COEF):
+        dl_dc[idx], dc_dc[idx] = _solve(gxs[idx], gys[idx])
     # interior orientation: dg/diop = (dx_i/diop, dy_i/diop) + (d_x/d_z, d_y/d_z) for df
     for q in range(N_IOP):
         gx = dxi_diop[q]
@@ -847,11 +843,14 @@ def ideal_direction(oc, iop, chip: int, chip_len: float):
 # ---- residual blocks over image and camera tables ----------------------------------------
 # img_tab row (67): kind, nfree, free_idx[24], base[24], kc[17]
 # cam_tab row (2 + 2 N_IOP): nfree, has_iop, free_idx[N_IOP], base[N_IOP]
-# observation record (15): image, camera, image slot, camera slot (-1: constant), chip index,
-#                          chip length (mm), oc[9]
+# (the pass kind appends its propagated segment to kc: the row is then longer, see
+#  solver.propagation; kc is always it[50:])
+# observation record (16): image, camera, image slot, camera slot (-1: constant), chip index,
+#                          chip length (mm), oc[9], pass slot (-1: constant or no pass)
 IMG_TAB = 67
 CAM_TAB = 2 + 2 * N_IOP
-OBS_REC = 15
+OBS_REC = 16
+KC_START = 50
 
 
 @njit(**_JIT)
@@ -868,7 +867,9 @@ def _eval_record(r, img_tab, cam_tab, p, params, want: bool):
         pi = params[islot]
         for j in range(nf):
             coef[int(it[2 + j])] = pi[j]
-    kc = it[50:67]
+    kc = it[KC_START:]
+    if kind == KIND_PASS and r[15] >= 0:
+        ensure_segment(kc, params[int(r[15])])
     oc = r[6:15]
     ct = cam_tab[cm]
     if ct[1] != 0.0:
@@ -884,25 +885,30 @@ def _eval_record(r, img_tab, cam_tab, p, params, want: bool):
 
 
 @njit(**_JIT)
+def _put_rows(block, i, idx, dl, dc, w):
+    """Rows 2i, 2i+1 of a residual block's dense Jacobian wrt one parameter block whose entries
+    are dl[idx[j]], dc[idx[j]] (line and column derivatives), whitened and negated."""
+    n = idx.shape[0]
+    for j in range(n):
+        q = int(idx[j])
+        block[(2 * i) * n + j] = -dl[q] * w
+        block[(2 * i + 1) * n + j] = -dc[q] * w
+
+
+@njit(**_JIT)
 def _fill(i, r, img_tab, cam_tab, w, jacs, dl_dc, dc_dc, dl_di, dc_di):
+    """Observation i's rows in the Jacobians of its image, pass and camera blocks (slots)."""
     islot = int(r[2])
-    cslot = int(r[3])
     if islot >= 0:
         it = img_tab[int(r[0])]
-        nf = int(it[1])
-        ji = jacs[islot]
-        for j in range(nf):
-            fj = int(it[2 + j])
-            ji[(2 * i) * nf + j] = -dl_dc[fj] * w
-            ji[(2 * i + 1) * nf + j] = -dc_dc[fj] * w
+        _put_rows(jacs[islot], i, it[2 : 2 + int(it[1])], dl_dc, dc_dc, w)
+    pslot = int(r[15])
+    if pslot >= 0:
+        _put_rows(jacs[pslot], i, PASS_COEF_INDEX, dl_dc, dc_dc, w)
+    cslot = int(r[3])
     if cslot >= 0:
         ct = cam_tab[int(r[1])]
-        nc = int(ct[0])
-        jc = jacs[cslot]
-        for j in range(nc):
-            fj = int(ct[2 + j])
-            jc[(2 * i) * nc + j] = -dl_di[fj] * w
-            jc[(2 * i + 1) * nc + j] = -dc_di[fj] * w
+        _put_rows(jacs[cslot], i, ct[2 : 2 + int(ct[0])], dl_di, dc_di, w)
 
 
 @njit(**_JIT)
@@ -958,12 +964,13 @@ def fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, jacs, want_jac: boo
 
 
 @njit(**_JIT)
-def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, estimated, img_col, cam_col, width):
+def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, estimated, img_col, cam_col, pass_col, width):
     """Whitened residuals and dense Jacobian pieces of every record (for the covariance).
 
-    ``img_p`` (nimg, 24) and ``cam_p`` (ncam, N_IOP) hold the current free parameters; slots in
-    ``rec`` are ignored. Returns res (n, 2), jf (n, 2, width) with column indices fcol (n, width)
-    (-1 padding) over the image and camera parameters, jpt (n, 2, 3), ok (n).
+    ``img_p`` (nimg, 24) and ``cam_p`` (ncam, N_IOP) hold the current free parameters; pass
+    segments in ``img_tab`` must be current; slots in ``rec`` are ignored. Returns res (n, 2),
+    jf (n, 2, width) with column indices fcol (n, width) (-1 padding) over the image, camera and
+    pass parameters (``pass_col``: first column of each pass), jpt (n, 2, 3), ok (n).
     """
     n = rec.shape[0]
     res = np.empty((n, 2))
@@ -988,9 +995,9 @@ def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, est
             iop = ct[2 + N_IOP : 2 + 2 * N_IOP].copy()
             for j in range(nc):
                 iop[int(ct[2 + j])] = cam_p[cm, j]
-            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di = project_cam(int(it[0]), coef, it[50:67], p, oc, iop, int(r[4]), r[5], True)
+            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di = project_cam(int(it[0]), coef, it[KC_START:], p, oc, iop, int(r[4]), r[5], True)
         else:
-            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(int(it[0]), coef, it[50:67], p, oc, True)
+            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(int(it[0]), coef, it[KC_START:], p, oc, True)
             dl_di = np.zeros(N_IOP)
             dc_di = np.zeros(N_IOP)
         w = 1.0 / oc[2]
@@ -1007,6 +1014,13 @@ def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, est
             fcol[i, nf + j] = cam_col[cm] + j
             jf[i, 0, nf + j] = -dl_di[fj] * w
             jf[i, 1, nf + j] = -dc_di[fj] * w
+        if int(it[0]) == KIND_PASS:
+            pc = pass_col[int(it[KC_START + PASS_INDEX])]
+            for j in range(6):
+                fj = PASS_COEF_INDEX[j]
+                fcol[i, nf + nc + j] = pc + j
+                jf[i, 0, nf + nc + j] = -dl_dc[fj] * w
+                jf[i, 1, nf + nc + j] = -dc_dc[fj] * w
         if estimated[pt_idx[i]]:
             for j in range(3):
                 jpt[i, 0, j] = -dl_dp[j] * w

@@ -3,7 +3,8 @@
 The Jacobian is evaluated with the same kernels as the residual blocks, observation by
 observation as small dense blocks (2 x n_image_parameters and 2 x 3), plus the priors (survey
 coordinates of weighted control points, weighted platform states). Unknowns are ordered as all
-images' free parameters (image order, model order), then the estimated points (3 each, LGS).
+images' free parameters (image order, model order), the cameras' free interior orientation,
+the passes' states (6 each, ECEF), then the estimated points (3 each, LGS).
 
 Normal matrix N = J^T J of the whitened residuals (a-priori sigma0 = 1) in block form
 [[A, B], [B^T, C]] with C block-diagonal (3 x 3 per point). The points are eliminated
@@ -35,12 +36,18 @@ class Layout:
     n_img_params: int  # images and cameras: all columns before the points
     n_params: int
     cam_col: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (ncam,)
+    pass_col: np.ndarray = field(default_factory=lambda: np.zeros(1, dtype=np.int64))  # (npass,)
 
 
 def layout(problem: Problem) -> Layout:
     img_col = np.zeros(len(problem.images), dtype=np.int64)
     c = 0
+    first: dict[int, int] = {}  # images sharing a parameter block share its columns
     for img in problem.images:
+        if id(img.params) in first:
+            img_col[img.index] = first[id(img.params)]
+            continue
+        first[id(img.params)] = c
         img_col[img.index] = c
         c += img.nfree
     cam_col = -np.ones(max(len(problem.cameras), 1), dtype=np.int64)
@@ -48,13 +55,17 @@ def layout(problem: Problem) -> Layout:
         if cam.nfree:
             cam_col[cam.index] = c
             c += cam.nfree
+    pass_col = -np.ones(max(len(problem.passes), 1), dtype=np.int64)
+    for ps in problem.passes:
+        pass_col[ps.index] = c
+        c += ps.nfree
     n_f = c
     pt_col = -np.ones(len(problem.points), dtype=np.int64)
     for p in problem.points:
         if p.estimated:
             pt_col[p.index] = c
             c += 3
-    return Layout(img_col, pt_col, n_f, c, cam_col)
+    return Layout(img_col, pt_col, n_f, c, cam_col, pass_col)
 
 
 @dataclass
@@ -128,12 +139,12 @@ def linearise(problem: Problem) -> Linearisation:
     obs = problem.obs
     sel = np.flatnonzero(problem.adjusted_mask)
     img_tab, cam_tab, img_p, cam_p = current_tables(problem)
-    width = max(im.nfree for im in problem.images) + max([c.nfree for c in problem.cameras] + [0])
+    width = max(im.nfree for im in problem.images) + max([c.nfree for c in problem.cameras] + [0]) + (6 if problem.passes else 0)
     pts = np.ascontiguousarray([p.xyz for p in problem.points], dtype=float)
     est = np.array([p.estimated for p in problem.points], dtype=np.bool_)
     rec = records(problem, sel)
     op = np.ascontiguousarray(obs.pt[sel])
-    res, jf, fcol, jpt, ok = all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, op, est, lay.img_col, lay.cam_col, width)
+    res, jf, fcol, jpt, ok = all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, op, est, lay.img_col, lay.cam_col, lay.pass_col, width)
     point_prior = {}
     for p in problem.points:
         if p.estimated and p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
@@ -141,6 +152,12 @@ def linearise(problem: Problem) -> Linearisation:
     terms = list(image_terms(problem))
     term_col = [int(lay.img_col[t.image_index]) for t in terms]
     term_eval = [t.evaluate(problem.images[t.image_index].params) for t in terms]
+    from solver.orbit_pass import pass_terms
+
+    for pt in pass_terms(problem):
+        terms.append(pt)
+        term_col.append(int(lay.pass_col[pt.pass_index]))
+        term_eval.append(pt.evaluate(problem.passes[pt.pass_index].params))
     for prior in camera_priors(problem.cameras):
         terms.append(prior)
         term_col.append(int(lay.cam_col[prior.camera_index]))

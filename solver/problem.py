@@ -36,6 +36,7 @@ class ImageState:
     params: np.ndarray  # (nfree,) the parameter block handed to Ceres (C-contiguous)
     tau_per_line: float
     initial: dict = field(default_factory=dict)  # job's initial values, report units
+    pass_index: int = -1  # pass-propagated models: index in Problem.passes
 
     @property
     def kind(self) -> int:
@@ -88,6 +89,7 @@ class Problem:
     obs: Observations
     lines: Any = None  # solver.lines.LineSet: straight-line observations (None without lines)
     cameras: list = field(default_factory=list)  # solver.iop.CameraState per job camera
+    passes: list = field(default_factory=list)  # solver.orbit_pass.PassState per pass
 
     @property
     def adjusted_mask(self) -> np.ndarray:
@@ -184,6 +186,10 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
             )
         )
 
+    from solver.orbit_pass import build_passes
+
+    passes = build_passes(job, images)
+
     points: list[PointState] = []
     for j, p in enumerate(job.points):
         known = frame.to_lgs(ecef[p.id]) if p.id in ecef else None
@@ -230,9 +236,10 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
     lines = build_lines(job, frame, images, line_ecef) if job.lines else None
     problem = Problem(job, frame, images, points, obs, lines)
     problem.cameras = cams
+    problem.passes = passes
     return problem
 
 
 def is_kepler(image: ImageState) -> bool:
-    """Position from an Earth-fixed state vector (Kepler, J2 and orbit-attitude models)."""
-    return image.model.orbital
+    """Position from the image's own Earth-fixed state vector (Kepler, J2, orbit-attitude)."""
+    return image.model.orbital and not image.model.propagated

@@ -8,19 +8,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.kernels import CAM_TAB, IMG_TAB, N_IOP, OBS_REC
+from solver.kernels import CAM_TAB, IMG_TAB, KC_START, N_IOP, OBS_REC
 from solver.problem import Problem
 
 
 def image_table(problem: Problem) -> np.ndarray:
-    tab = np.zeros((len(problem.images), IMG_TAB))
+    """One row per image: kind, nfree, free indices, base coefficients, kc (pass images: with
+    their propagated segment, so rows are as long as the longest kc)."""
+    width = max([IMG_TAB] + [KC_START + len(im.kc) for im in problem.images])
+    tab = np.zeros((len(problem.images), width))
     for im in problem.images:
         r = tab[im.index]
         r[0] = im.kind
         r[1] = im.nfree
         r[2 : 2 + im.nfree] = im.free_idx
         r[26:50] = im.base
-        r[50:67] = im.kc
+        r[KC_START : KC_START + len(im.kc)] = im.kc
     return tab
 
 
@@ -35,7 +38,13 @@ def camera_table(problem: Problem) -> np.ndarray:
     return tab
 
 
-def records(problem: Problem, rows: np.ndarray, img_slot: np.ndarray | None = None, cam_slot: np.ndarray | None = None) -> np.ndarray:
+def records(
+    problem: Problem,
+    rows: np.ndarray,
+    img_slot: np.ndarray | None = None,
+    cam_slot: np.ndarray | None = None,
+    pass_slot: np.ndarray | None = None,
+) -> np.ndarray:
     """Observation records of ``rows``; slots default to -1 (filled by the block builders)."""
     obs = problem.obs
     rec = np.zeros((len(rows), OBS_REC))
@@ -47,11 +56,16 @@ def records(problem: Problem, rows: np.ndarray, img_slot: np.ndarray | None = No
     lens = np.array([problem.cameras[c].chip_len_mm[k] for c, k in zip(obs.cam[rows], obs.chip_idx[rows])])
     rec[:, 5] = lens
     rec[:, 6:15] = obs.oc[rows]
+    rec[:, 15] = -1 if pass_slot is None else pass_slot
     return np.ascontiguousarray(rec)
 
 
 def current_tables(problem: Problem):
-    """(image table, camera table, image free parameters (nimg, 24), camera free parameters)."""
+    """(image table, camera table, image free parameters (nimg, 24), camera free parameters);
+    pass segments are brought up to date with the passes' current states first."""
+    from solver.orbit_pass import refresh_segments
+
+    refresh_segments(problem)
     img_tab, cam_tab = image_table(problem), camera_table(problem)
     img_p = np.zeros((len(problem.images), 24))
     for im in problem.images:

@@ -102,7 +102,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
                 )
             )
         state = image_state(im, job.options)  # approx_state or the interpolated ephemeris
-        if state is None and not {"X0", "Y0", "Z0"} <= set(im.initial):
+        if state is None and not model.propagated and not {"X0", "Y0", "Z0"} <= set(im.initial):
             problems.append(
                 Problem(
                     "no_initial_position",
@@ -113,7 +113,9 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
                 )
             )
         n_unknowns += len(params)
-        if state is not None and state.sigma_position_m is not None:
+        if model.propagated:
+            pass  # counted per pass below (orbit_pass.n_pass_state_observations)
+        elif state is not None and state.sigma_position_m is not None:
             n_prior_obs += sum(1 for n in ("X0", "Y0", "Z0") if n in names)
             if state.sigma_velocity_m_s is not None:
                 n_prior_obs += sum(1 for n in ("ux", "uy", "uz", "X1", "Y1", "Z1") if n in names)
@@ -186,6 +188,14 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     problems += line_problems
     for image_id, n in line_counts["per_image"].items():
         obs_per_image[image_id] += n
+
+    from solver.orbit_pass import n_pass_state_observations, n_pass_unknowns, pass_problems
+
+    pass_issues = pass_problems(job)
+    problems += pass_issues
+    n_unknowns += n_pass_unknowns(job)
+    if not pass_issues:
+        n_prior_obs += n_pass_state_observations(job)
 
     from solver.iop import n_iop_unknowns, validate_self_calibration
 

@@ -19,12 +19,14 @@ from typing import Any
 
 import numpy as np
 
-from solver.kernels import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_POLYNOMIAL
+from solver.kernels import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL
 
 ELEMENTS = ("X", "Y", "Z", "omega", "phi", "kappa")
 ANGLES = ("omega", "phi", "kappa")
 HELD = -1  # order value meaning "held at a given value, not estimated"
 POLY_TIME_SCALE_LINES = 1000.0  # tau = L / 1000 for polynomial models (conditioning)
+# the state of a pass-propagated model (solver.orbit_pass), ECEF at the pass reference epoch
+PASS_STATE = (("X", "m"), ("Y", "m"), ("Z", "m"), ("VX", "m/s"), ("VY", "m/s"), ("VZ", "m/s"))
 
 
 def coef_index(element: str, power: int) -> int:
@@ -71,8 +73,13 @@ class PlatformModel:
     # ---- time ---------------------------------------------------------------------------
     @property
     def orbital(self) -> bool:
-        """Position from an Earth-fixed state vector (Kepler / J2 / orbit-attitude kinds)."""
-        return self.kind in (KIND_KEPLER, KIND_ORBIT_ATTITUDE)
+        """Position from an Earth-fixed state vector (Kepler / J2 / orbit-attitude / pass kinds)."""
+        return self.kind in (KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS)
+
+    @property
+    def propagated(self) -> bool:
+        """The state is shared by the images of a pass (a separate parameter block)."""
+        return self.kind == KIND_PASS
 
     @property
     def time_variable(self) -> str:
@@ -103,9 +110,9 @@ class PlatformModel:
         specs: list[ParameterSpec] = []
         deg = 180.0 / math.pi
         if self.orbital:
-            for e in ("X", "Y", "Z"):
+            for e in ("X", "Y", "Z") if not self.propagated else ():
                 specs.append(ParameterSpec(f"{e}0", "m", coef_index(e, 0), 1.0))
-            for e, u in zip(("X", "Y", "Z"), ("ux", "uy", "uz")):
+            for e, u in zip(("X", "Y", "Z"), ("ux", "uy", "uz")) if not self.propagated else ():
                 specs.append(ParameterSpec(u, "m/s", coef_index(e, 1), 1.0))
             for e, shown in zip(ANGLES, self.angle_names):
                 for k in range(orders[ELEMENTS.index(e)] + 1):
@@ -151,6 +158,7 @@ class PlatformModel:
             "frame": self.frame,
             "time_variable": self.time_variable,
             "parameters": [{"name": p.name, "unit": p.unit} for p in self.parameters({})],
+            "pass_parameters": [{"name": n, "unit": u} for n, u in PASS_STATE] if self.propagated else [],
             "held": sorted(self.held_defaults),
             "options": self.options_doc,
             "reference": self.reference,
@@ -206,6 +214,7 @@ def _ensure_loaded() -> None:
             return
         import solver.models.kepler  # noqa: F401
         import solver.models.orbit_attitude  # noqa: F401
+        import solver.models.orbit_pass  # noqa: F401
         import solver.models.polynomial  # noqa: F401
 
         _LOADED = True
