@@ -56,6 +56,9 @@ def _rows_of(report: dict[str, Any], table: str) -> list[dict[str, Any]]:
                         }
                     )
                 )
+        for ps in report.get("passes") or []:  # pass-propagated models: the shared orbit state
+            for p in ps.get("parameters") or []:
+                rows.append(_flatten({"image": None, "camera": None, "model": ps.get("model"), "pass": ps.get("id"), **p}))
         return rows
     raise KeyError(table)
 

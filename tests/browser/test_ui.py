@@ -241,3 +241,21 @@ def test_local_mode_model_comparison(page: Any, local_server: Server, artifacts:
     expect(page.locator(".param-card .meta").first).to_contain_text("P1")
     wait_plots(page, 5)
     page.locator("#result").screenshot(path=str(artifacts / "comparison-result.png"))
+
+
+def test_pass_propagated_model_shows_the_shared_orbit(page: Any, local_server: Server, artifacts: Path) -> None:
+    """Comparison of OA-J2 and PASS-J2 on the triplet: the pass model's result has one card for
+    the shared orbit state (six rows) besides the three attitude cards."""
+    open_ui(page, local_server)
+    page.select_option("#process", "model-comparison")
+    page.fill("#models", "OA-J2, PASS-J2")
+    pick_example(page, "prism-triplet")
+    page.click("#submit")
+    expect(page.locator("#cur-percent")).to_have_text("100%", timeout=SOLVE_MS)
+    expect(page.locator("#comparison-table tbody tr")).to_have_count(2)
+    page.select_option("#model-select", "PASS-J2")
+    card = page.locator('table.params[data-pass="1"] tbody tr')
+    expect(card).to_have_count(6)
+    expect(card.first).to_contain_text("X")
+    expect(page.locator("table.params[data-image]")).to_have_count(3)
+    page.locator("#result").screenshot(path=str(artifacts / "pass-model-result.png"))

@@ -713,6 +713,11 @@
         `${im.model || ""} · ${im.frame || ""} · ${im.n_observations ?? "?"} obs · RMSE ${fmtNum(rm.line_px, 2)} / ${fmtNum(rm.column_px, 2)} px`,
         { image: im.id }, (im.parameters || []).map((p) => paramRow(`${im.id}/${p.name}`, p))));
     }
+    for (const ps of report.passes || []) {
+      grid.append(paramTable(`pass ${ps.id}`,
+        `${ps.model || ""} · ECEF state at t = ${fmtNum(ps.reference_epoch_s, 3)} s · images ${(ps.images || []).join(", ")}`,
+        { pass: ps.id }, (ps.parameters || []).map((p) => paramRow(`pass:${ps.id}/${p.name}`, p))));
+    }
     for (const cam of report.cameras || []) {
       if (!(cam.parameters || []).length) continue;
       grid.append(paramTable(`camera ${cam.id}`, `interior orientation${cam.master_chip ? ` · master chip ${cam.master_chip}` : ""}`,
