@@ -234,56 +234,81 @@ def pushbroom_line(kind, coef, kc, p1, p2, oc1, oc2, mp1, mp2, form: int, want_j
 
 
 @njit(**_JIT)
+def _closest_point(kind, coef, kc, p1, u, oc0, ml, mc, si):
+    """Newton search of the object-line parameter s whose image is closest to the measured
+    point (ml, mc), from ``si``. Returns (found, s, line, column, tangent line, tangent column,
+    dL_dcoef, dL_dp, dC_dcoef, dC_dp) at the last projection."""
+    oc = oc0.copy()
+    q = np.empty(3)
+    converged = False
+    good = False
+    ln = cl = tl = tc = 0.0
+    dl_dc = np.zeros(24)
+    dc_dc = np.zeros(24)
+    dl_dp = np.zeros(3)
+    dc_dp = np.zeros(3)
+    for it in range(12):
+        for k in range(3):
+            q[k] = p1[k] + si * u[k]
+        good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(kind, coef, kc, q, oc, True)
+        tl = dl_dp[0] * u[0] + dl_dp[1] * u[1] + dl_dp[2] * u[2]
+        tc = dc_dp[0] * u[0] + dc_dp[1] * u[1] + dc_dp[2] * u[2]
+        t2 = tl * tl + tc * tc
+        ds = ((ml - ln) * tl + (mc - cl) * tc) / t2
+        if not np.isfinite(ds):
+            break
+        oc[0] = ln
+        if abs(ds) * math.sqrt(t2) < 1e-9:
+            converged = True
+            break
+        si += ds
+    return good and converged, si, ln, cl, tl, tc, dl_dc, dl_dp, dc_dc, dc_dp
+
+
+@njit(**_JIT)
 def line_distances(kind, coef, kc, p1, p2, ocs, s, want_jac: bool):
     """Signed image distances (px) of measured points from the exact pushbroom image of a line.
 
     ``ocs`` (n, 9): observation constants of each measured point (oc[0] = measured line,
     oc[1] = measured column, chip constants of that point). ``s`` (n,) holds the parameters of
-    the closest object-line points Q(s) = P1 + s (P2 - P1); it is the start of the search and
-    is updated in place. Returns (ok, d[n], d d/d coef [n, 24], d d/d (P1, P2) [n, 6]) with
-    d = n . (m - q(s*)), n the unit normal (-dC/ds, dL/ds)/|q'| of the projected line.
+    the closest object-line points Q(s) = P1 + s (P2 - P1). Each search starts from the
+    measured point projected on the chord of the endpoints' images at ``coef`` (as
+    :func:`start` does), so an evaluation does not depend on earlier ones; ``s`` is the
+    fallback start and is updated where a search converged. Returns (ok, d[n],
+    d d/d coef [n, 24], d d/d (P1, P2) [n, 6]) with d = n . (m - q(s*)), n the unit normal
+    (-dC/ds, dL/ds)/|q'| of the projected line.
     """
     n = ocs.shape[0]
     u = p2 - p1
     dist = np.full(n, np.nan)
     jc = np.zeros((n, 24))
     jp = np.zeros((n, 6))
-    if s.shape[0] != n or ocs.shape[1] < 9 or p1.shape[0] != 3 or p2.shape[0] != 3:
+    if n == 0 or s.shape[0] != n or ocs.shape[1] < 9 or p1.shape[0] != 3 or p2.shape[0] != 3:
         return False, dist, jc, jp
-    q = np.empty(3)
+    g1, l1, c1, _a, _b, _c, _d = project(kind, coef, kc, p1, ocs[0].copy(), False)
+    g2, l2, c2, _a, _b, _c, _d = project(kind, coef, kc, p2, ocs[n - 1].copy(), False)
+    chord2 = (l2 - l1) ** 2 + (c2 - c1) ** 2
+    chord = g1 and g2 and np.isfinite(chord2) and chord2 > 1e-12
     all_ok = True
     for i in range(n):
-        oc = ocs[i].copy()
         ml = ocs[i, 0]
         mc = ocs[i, 1]
-        si = s[i]
-        converged = False
-        good = False
-        ln = cl = tl = tc = 0.0
-        dl_dc = np.zeros(24)
-        dc_dc = np.zeros(24)
-        dl_dp = np.zeros(3)
-        dc_dp = np.zeros(3)
-        for it in range(12):
-            for k in range(3):
-                q[k] = p1[k] + si * u[k]
-            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(kind, coef, kc, q, oc, True)
-            tl = dl_dp[0] * u[0] + dl_dp[1] * u[1] + dl_dp[2] * u[2]
-            tc = dc_dp[0] * u[0] + dc_dp[1] * u[1] + dc_dp[2] * u[2]
-            t2 = tl * tl + tc * tc
-            ds = ((ml - ln) * tl + (mc - cl) * tc) / t2
-            if not np.isfinite(ds):
-                break
-            oc[0] = ln
-            if abs(ds) * math.sqrt(t2) < 1e-9:
-                converged = True
-                break
-            si += ds
+        start_s = s[i]
+        if chord:
+            start_s = ((ml - l1) * (l2 - l1) + (mc - c1) * (c2 - c1)) / chord2
+        found, si, ln, cl, tl, tc, dl_dc, dl_dp, dc_dc, dc_dp = _closest_point(
+            kind, coef, kc, p1, u, ocs[i], ml, mc, start_s
+        )
+        if not found and chord:
+            found, si, ln, cl, tl, tc, dl_dc, dl_dp, dc_dc, dc_dp = _closest_point(
+                kind, coef, kc, p1, u, ocs[i], ml, mc, s[i]
+            )
         nrm = math.sqrt(tl * tl + tc * tc)
         nl = -tc / nrm
         nc = tl / nrm
         dist[i] = nl * (ml - ln) + nc * (mc - cl)
-        s[i] = si
+        if found:
+            s[i] = si
         if want_jac:
             for k in range(24):
                 jc[i, k] = -(nl * dl_dc[k] + nc * dc_dc[k])
@@ -291,7 +316,7 @@ def line_distances(kind, coef, kc, p1, p2, ocs, s, want_jac: bool):
                 g = -(nl * dl_dp[k] + nc * dc_dp[k])
                 jp[i, k] = g * (1.0 - si)
                 jp[i, 3 + k] = g * si
-        all_ok = all_ok and good and converged and np.isfinite(dist[i])
+        all_ok = all_ok and found and np.isfinite(dist[i])
     return all_ok, dist, jc, jp
 
 

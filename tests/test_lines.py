@@ -175,6 +175,30 @@ def test_rigorous_distance_is_zero_on_the_projected_line_and_perpendicular():
     assert s[0] == pytest.approx(0.37, abs=1e-6)
 
 
+def test_distances_do_not_depend_on_where_earlier_evaluations_left_the_search():
+    """A wild trial step of the solver (phi off by 1.5 rad) makes closest-point searches fail
+    or converge far away. The next evaluation at a sane orientation must still succeed and give
+    the same distances, whatever the stored search starts hold. (They were overwritten once by
+    failed searches, every later evaluation failed, and a 10-line CBERS scene with 6 control
+    points stopped at its initial values.)"""
+    problem, _job, _truth = _problem("K2", n_lines=3, seed=1)
+    img = problem.images[0]
+    coef = img.coef()
+    li = problem.lines.active()[0]
+    gl = problem.lines.lines[li.line]
+    s = li.s.copy()
+    ok, d0, _jc, _jp = line_distances(img.kind, coef, img.kc, gl.p1, gl.p2, li.ocs, s, False)
+    assert ok
+    wild = coef.copy()
+    wild[16] -= 1.5  # phi0 (rad)
+    ok, _d, _jc, _jp = line_distances(img.kind, wild, img.kc, gl.p1, gl.p2, li.ocs, s, False)
+    assert not ok
+    for starts in (s, np.full_like(s, 40.0), np.full_like(s, np.nan)):
+        ok, d1, _jc, _jp = line_distances(img.kind, coef, img.kc, gl.p1, gl.p2, li.ocs, starts, False)
+        assert ok
+        np.testing.assert_allclose(d1, d0, atol=1e-9)
+
+
 @pytest.mark.parametrize("model", ["K2", "ON2", "MT8", "P1"])
 def test_pushbroom_line_jacobian_matches_finite_differences(model):
     problem, _job, _truth = _problem(model, n_lines=8, line_model="equivalent_planes", seed=8)
