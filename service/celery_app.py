@@ -22,8 +22,9 @@ cancel flag, report), so any worker that reaches the broker and the database can
   within one iteration on whichever worker holds it. ``PBA_JOB_TIME_LIMIT_S`` stops a solve
   through the same hook; Celery's hard time limit kills the pool process
   ``PBA_KILL_GRACE_S`` later if the solve does not stop, and the sweeper fails the job.
-* **Shutdown**: a warm shutdown (SIGTERM) stops running solves at their next iteration and
-  puts their jobs back in the queue for other workers.
+* **Shutdown**: a warm shutdown (SIGTERM) stops running solves at their next iteration, puts
+  their jobs back to ``accepted`` in the store (the run is not counted as an attempt) and
+  rejects their messages with requeue, so the broker hands the same message to another worker.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ import time
 from typing import Any
 
 from celery import Celery, signals
+from celery.exceptions import Reject
 
 from service.settings import Settings
 
@@ -97,7 +99,7 @@ def create_celery(settings: Settings) -> Celery:
     def run_job(self: Any, job_id: str) -> str:
         """Run one job (in a pool process)."""
         try:
-            return execute_job(self.app, job_id)
+            return execute_job(job_id)
         except StoreUnavailable as exc:  # keep the message: try again when the store answers
             raise self.retry(exc=exc, countdown=STORE_RETRY_S, max_retries=None) from None
 
@@ -164,8 +166,11 @@ class _Heartbeat(threading.Thread):
         self.join(timeout=5)
 
 
-def execute_job(app: Celery, job_id: str) -> str:
-    """Claim and run one job in this pool process; returns what happened (for the logs)."""
+def execute_job(job_id: str) -> str:
+    """Claim and run one job in this pool process; returns what happened (for the logs).
+
+    Raises :class:`celery.exceptions.Reject` (requeue) when the run was handed back at
+    shutdown."""
     from service.execution import SHUTDOWN, RunLimits, run_claimed_job
     from service.states import JobStatus
     from service.store.leases import claim_run, run_token
@@ -221,9 +226,12 @@ def execute_job(app: Celery, job_id: str) -> str:
         return "lost"
     rec = store.get_job(job_id)
     if rec is not None and rec.status == JobStatus.accepted:
-        publish(app, settings, job_id)  # handed back at shutdown: another worker takes it
+        # Handed back at shutdown: the broker puts this very message back at the head of the
+        # queue, so another worker takes it. Publishing a new message instead would lose the
+        # job if this worker died between acknowledging the old one and sending the new one;
+        # a rejected message that never reaches Redis is restored by its visibility timeout.
         log.info("run handed back to the queue", extra={**extra, "status": "requeued"})
-        return "requeued"
+        raise Reject("handed back at shutdown", requeue=True)
     log.info("run ended without a result of its own", extra={**extra, "status": "none"})
     return "none"
 
