@@ -26,7 +26,10 @@ system-deps:
 services:
 	@bash scripts/ensure-services.sh
 
+# pba warmup: the numba kernels compiled into their disk cache before the server starts
+# (one to two minutes the first time, a few seconds after), so no job waits for the compiler
 serve: $(STAMP)
+	$(BIN)/pba warmup
 	$(BIN)/pba serve --host 127.0.0.1 --port 8000
 
 test: $(STAMP) system-deps services

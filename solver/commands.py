@@ -36,6 +36,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", type=Path, help="camera definition (JSON); default stdout")
     p.set_defaults(func=cmd_export_camera)
 
+    p = sub.add_parser(
+        "warmup", help="compile the numba kernels into their disk cache (first job fast)"
+    )
+    p.set_defaults(func=cmd_warmup)
+
     p = sub.add_parser("compare", help="adjust one job with several platform models side by side")
     p.add_argument("job", type=Path)
     p.add_argument("--models", required=True, help="comma-separated, e.g. K1,K2,J2-1,J2-2,ON1,ON2,P1,P2")
@@ -252,4 +257,13 @@ def cmd_export_camera(args: argparse.Namespace) -> int:
         args.output.write_text(text)
     else:
         print(text)
+    return 0
+
+
+def cmd_warmup(args: argparse.Namespace) -> int:
+    """``pba warmup``: adjust the tiny warm-up jobs, printing each one's time."""
+    from solver.warmup import compile_kernels
+
+    total = compile_kernels(say=print)
+    print(f"kernels compiled or loaded from the cache in {total:.1f} s")
     return 0

@@ -1,0 +1,71 @@
+"""Compile the solver's numba kernels ahead of the first job (``pba warmup``).
+
+The kernels are compiled on first use and cached on disk (``cache=True``: next to the sources,
+or in ``NUMBA_CACHE_DIR``). A cold compile of every kernel takes one to two minutes on a small
+machine; a cached one loads in about a second. Without a warm-up that minute is paid by the
+first job a fresh server or worker runs, while its user watches the progress stand still.
+
+:func:`compile_kernels` adjusts a few tiny simulated jobs that between them reach every kernel
+(every platform-model kind with its Jacobians, self-calibration, ephemeris observations, the
+propagated pass state, straight lines with both line models, covariance and check points).
+The Docker image runs it at build time; ``make serve`` and the test suite run it once before
+they start processes that solve.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from typing import Any, Callable, Iterator
+
+Say = Callable[[str], None]
+
+
+def _triplet() -> dict[str, Any]:
+    """A PRISM triplet with 10 control, 2 check and 10 tie points (about 130 observations)."""
+    from solver.simulate import presets
+    from solver.simulate.scene import Settings
+
+    scene = presets.prism_triplet(Settings(preset="prism-triplet", seed=7), gcps=10, checks=2, tie_points=10)
+    return scene.job()
+
+
+def _lines() -> dict[str, Any]:
+    """A CBERS-like scene with 10 ground lines, 6 control and 2 check points."""
+    from solver.simulate.lines import cbers_lines
+    from solver.simulate.scene import Settings
+
+    return cbers_lines(Settings(preset="cbers-lines", seed=7), lines=10, gcps=6, checks=2).job()
+
+
+def warmup_jobs() -> Iterator[tuple[str, dict[str, Any]]]:
+    """(label, job document) of the warm-up adjustments."""
+    triplet = _triplet()
+    for model in ("P2", "K2", "OA-J2", "PASS-J2"):
+        job = copy.deepcopy(triplet)
+        for image in job["images"]:
+            image["model"] = {"name": model}
+        options = job.setdefault("options", {})
+        if model in ("OA-J2", "PASS-J2"):  # the ephemeris is consistent with these models only
+            options["ephemeris"] = {"sigma_position_m": 10.0, "sigma_velocity_m_s": 0.05}
+        if model in ("K2", "PASS-J2"):  # one kernel self-calibrates every model kind
+            options["self_calibration"] = {"estimate": ["df", "a0", "b0"]}
+        yield model, job
+    lines = _lines()
+    for line_model in ("rigorous", "equivalent_planes"):
+        job = copy.deepcopy(lines)
+        job.setdefault("options", {})["line_model"] = line_model
+        yield f"lines ({line_model})", job
+
+
+def compile_kernels(say: Say | None = None) -> float:
+    """Run the warm-up adjustments (compiling or loading every kernel); their total seconds."""
+    from solver.api import run
+
+    t0 = time.perf_counter()
+    for label, job in warmup_jobs():
+        t = time.perf_counter()
+        report = run(job)
+        if say is not None:
+            say(f"{label}: {time.perf_counter() - t:.1f} s, sigma0 {report['adjustment']['sigma0_aposteriori']:.2f}")
+    return time.perf_counter() - t0

@@ -1,0 +1,46 @@
+"""``pba warmup``: the warm-up jobs reach every platform-model kind and both line models, and
+are sound adjustments (a warm-up that fails quietly would hide kernels it never compiled)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from solver.api import run
+from solver.cli import main
+from solver.models import get_model, model_names
+from solver.warmup import warmup_jobs
+
+
+@pytest.fixture(scope="module")
+def jobs() -> list[tuple[str, dict]]:
+    return list(warmup_jobs())
+
+
+def test_warmup_jobs_cover_every_model_kind_and_both_line_models(jobs) -> None:
+    kinds = {get_model(im["model"]["name"]).kind for _, job in jobs for im in job["images"]}
+    assert kinds == {get_model(name).kind for name in model_names()}
+    line_models = {job["options"]["line_model"] for _, job in jobs if job.get("lines")}
+    assert line_models == {"rigorous", "equivalent_planes"}
+    options = [job.get("options", {}) for _, job in jobs]
+    assert any("self_calibration" in o for o in options) and any("ephemeris" in o for o in options)
+
+
+def test_warmup_jobs_are_sound_adjustments(jobs) -> None:
+    """Each gives a usable solution whose sigma0 is that of the simulated noise (0.5 px
+    observations, 0.5 px sigmas): the 10-line scene once ended at its initial values with a
+    NaN sigma0 (failed closest-point searches, tests/test_lines.py)."""
+    for label, job in jobs:
+        adj = run(job)["adjustment"]
+        sigma0 = adj["sigma0_aposteriori"]
+        assert math.isfinite(sigma0) and 0.5 < sigma0 < 2.0, (label, sigma0, adj["message"])
+        assert adj["iterations"] > 0, label
+
+
+def test_pba_warmup_reports_each_job(capsys) -> None:
+    assert main(["warmup"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    labels = [label for label, _ in warmup_jobs()]
+    assert [line.split(":")[0] for line in out[:-1]] == labels
+    assert out[-1].startswith("kernels compiled or loaded from the cache in")
