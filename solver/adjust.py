@@ -20,6 +20,7 @@ from solver.linalg import Covariance, check_rank, covariance, linearise, schur
 from solver.problem import Problem, build_problem
 from solver.statistics import chi2_test
 from solver.checkpoints import compute_checkpoints
+from solver.attitude_obs import attitude_report
 from solver.ephemeris import ephemeris_report
 from solver.lines import lines_report
 from solver.validate import require_valid
@@ -249,6 +250,7 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
         "checkpoints": compute_checkpoints(problem, opts.alpha, gsd),
         "lines": lines,
         "ephemeris": ephemeris_report(problem),
+        "attitude": attitude_report(problem),
         "warnings": warnings,
     }
 

@@ -132,6 +132,18 @@ class StateVector(_Strict):
     velocity_ecef_m_s: tuple[float, float, float]
 
 
+class AttitudeSample(_Strict):
+    """Measured platform attitude at one epoch (star tracker / AOCS telemetry), as roll, pitch
+    and yaw of the platform body relative to the orbital frame of the orbit-attitude models
+    (x along track, z radial up; M = Ry(mounting) Rx(roll) Ry(pitch) Rz(yaw) R_orbit, docs/models.md
+    section 10), degrees. Used with ``options.attitude`` by the OA-* and PASS-* models."""
+
+    time_s: float = Field(description="seconds, on the same time scale as first_line_time_s")
+    roll_deg: float
+    pitch_deg: float
+    yaw_deg: float
+
+
 class ApproxState(_Strict):
     """Approximate perspective-centre state at the image's first line (line 0), ECEF.
 
@@ -160,6 +172,11 @@ class Image(_Strict):
     approx_state: ApproxState | None = None
     first_line_time_s: float | None = None
     ephemeris: list[StateVector] = Field(default_factory=list)
+    attitude: list[AttitudeSample] = Field(
+        default_factory=list,
+        description="measured attitude samples (roll, pitch, yaw relative to the orbital frame); "
+        "weighted observations of the orbit-attitude and pass models with options.attitude",
+    )
     initial: dict[str, float] = Field(
         default_factory=dict, description="initial parameter values by model parameter name"
     )
@@ -276,6 +293,21 @@ class GroundLine(_Strict):
         return v
 
 
+class AttitudeOptions(_Strict):
+    """Use the images' ``attitude`` samples as weighted observations of the attitude angles
+    (orbit-attitude and pass models): each distinct sample within the time span of the images
+    sharing an attitude block observes roll, pitch and yaw at its own epoch."""
+
+    sigma_deg: tuple[float, float, float] = Field(description="roll, pitch, yaw standard deviations (deg)")
+
+    @field_validator("sigma_deg")
+    @classmethod
+    def _positive(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        if any(x <= 0 for x in v):
+            raise ValueError("sigmas must be positive")
+        return v
+
+
 class EphemerisOptions(_Strict):
     """Use each image's ``ephemeris`` (state vectors) for its line-0 state (seed 001 section 5).
 
@@ -358,6 +390,11 @@ class SolverOptions(_Strict):
         default=None,
         description="interpolate each image's ephemeris to its first line and use it as the "
         "line-0 state (weighted observation when sigmas are given; seed 001 eqs 38-43)",
+    )
+    attitude: AttitudeOptions | None = Field(
+        default=None,
+        description="the images' attitude samples as weighted observations of roll, pitch and yaw "
+        "(orbit-attitude and pass models)",
     )
 
 

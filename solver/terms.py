@@ -28,11 +28,13 @@ class ImageTerm(Protocol):
 
 def image_terms(problem: Problem) -> list[ImageTerm]:
     """Every image-only term of the problem, in a fixed order."""
+    from solver.attitude_obs import attitude_terms
     from solver.lines import line_terms
     from solver.priors import all_state_priors
 
     terms: list[ImageTerm] = []
     terms += all_state_priors(problem)
+    terms += attitude_terms(problem)
     terms += line_terms(problem)
     return terms
 

@@ -74,6 +74,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
 
     n_unknowns = 0
     n_prior_obs = 0
+    weighted_states = 0  # images whose line-0 state (header or ephemeris) is a weighted observation
     image_info = []
     for i, im in enumerate(job.images):
         if im.camera not in cameras:
@@ -113,6 +114,8 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
                 )
             )
         n_unknowns += len(params)
+        if state is not None and state.sigma_position_m is not None:
+            weighted_states += 1
         if model.propagated:
             pass  # counted per pass below (orbit_pass.n_pass_state_observations)
         elif state is not None and state.sigma_position_m is not None:
@@ -197,6 +200,13 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     if not pass_issues:
         n_prior_obs += n_pass_state_observations(job)
 
+    from solver.attitude_obs import attitude_problems, n_attitude_observations
+
+    att_problems = attitude_problems(job)
+    problems += [Problem(code, msg, loc) for code, msg, loc in att_problems]
+    n_attitude_obs = 0 if att_problems else n_attitude_observations(job)
+    n_prior_obs += n_attitude_obs
+
     from solver.iop import n_iop_unknowns, validate_self_calibration
 
     sc_problems = validate_self_calibration(job)
@@ -229,11 +239,16 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
             problems.append(
                 Problem("image_without_observations", f"image {im.id!r} has no control or tie observations", ("images", i))
             )
-    if not any(p.role == "gcp" for p in job.points) and line_counts["n_control"] == 0:
+    # direct georeferencing: weighted platform states and measured attitude define the datum
+    # without ground control (whether they fix every parameter is the rank check's to say)
+    direct = weighted_states > 0 and n_attitude_obs > 0
+    if not any(p.role == "gcp" for p in job.points) and line_counts["n_control"] == 0 and not direct:
         problems.append(
             Problem(
                 "no_control",
-                "the job has no control points (role gcp) and no observed control lines: the datum is undefined",
+                "the job has no control points (role gcp), no observed control lines and no weighted "
+                "platform states with measured attitude (options.ephemeris or approx_state sigmas, "
+                "and options.attitude): the datum is undefined",
                 ("points",),
             )
         )

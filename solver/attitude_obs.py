@@ -1,0 +1,182 @@
+"""Measured attitude as weighted observations of the orbit-attitude and pass models.
+
+Those models' rotation is ``M(t) = Ry(mounting) Rx(roll) Ry(pitch) Rz(yaw) R_orbit(S(t), V(t))``
+with each angle a polynomial in the attitude time t_a (docs/models.md sections 10 and 12)::
+
+    angle(t_a) = c0 + c1 t_a + c2 t_a^2 + c3 t_a^3      (rad; t_a in s)
+
+An attitude sample (roll, pitch, yaw relative to the orbital frame at epoch t, images[].attitude)
+therefore observes a linear function of the attitude coefficients, ``r = W (A p - b)``, the same
+form as the state priors (:class:`solver.priors.StatePrior`, reused here). t_a is the time
+since the image's first line for per-image attitude (OA-*, PASS-* with ``attitude: image``) and
+the time since the pass reference epoch for an attitude block shared by the images of one
+camera (PASS-* default).
+
+Each attitude block (one image, or the images sharing one) uses each *distinct* sample (by
+epoch) of its images once, when the epoch lies within the block's lines: a sample carried by
+three images of a shared block is one observation, not three, and the polynomials are not
+asked to extrapolate outside the time they describe.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS
+from solver.models import coef_index
+from solver.priors import StatePrior
+from solver.propagation import PASS_ATT_OFF
+
+if TYPE_CHECKING:
+    from solver.job import AttitudeSample, Job
+    from solver.problem import Problem
+
+ANGLES = ("omega", "phi", "kappa")  # the coefficient slots of roll, pitch, yaw
+ATTITUDE_KINDS = (KIND_ORBIT_ATTITUDE, KIND_PASS)
+
+
+def attitude_blocks(job: "Job") -> list[list[int]]:
+    """Indices of the images of each attitude block: orbit-attitude images alone, pass images
+    grouped by (pass, camera) when their attitude is per camera (as ``build_passes`` shares
+    the parameter arrays), in job order."""
+    from solver.models import get_model
+    from solver.orbit_pass import attitude_mode, pass_id
+
+    blocks: dict[tuple, list[int]] = {}
+    for i, im in enumerate(job.images):
+        try:
+            model = get_model(im.model.name)
+        except KeyError:
+            continue
+        if model.kind not in ATTITUDE_KINDS:
+            continue
+        opts = im.model.options
+        if model.kind == KIND_PASS and attitude_mode(opts) == "camera":
+            key: tuple = ("camera", pass_id(opts), im.camera)
+        else:
+            key = ("image", i)
+        blocks.setdefault(key, []).append(i)
+    return list(blocks.values())
+
+
+def block_samples(job: "Job", images: list[int]) -> list["AttitudeSample"]:
+    """The distinct attitude samples (by epoch) of a block's images that lie within the time
+    span of its images' lines, by epoch."""
+    from solver.orbit_pass import pass_line_span
+
+    if any(job.images[i].first_line_time_s is None for i in images):
+        return []
+    lo, hi = pass_line_span(job, images)
+    seen: dict[float, "AttitudeSample"] = {}
+    for i in images:
+        for sample in job.images[i].attitude:
+            if lo <= sample.time_s <= hi:
+                seen.setdefault(float(sample.time_s), sample)
+    return [seen[t] for t in sorted(seen)]
+
+
+def n_attitude_observations(job: "Job") -> int:
+    """How many weighted attitude observations :func:`attitude_terms` will make (validation)."""
+    if job.options.attitude is None:
+        return 0
+    return sum(3 * len(block_samples(job, block)) for block in attitude_blocks(job))
+
+
+def attitude_problems(job: "Job") -> list[tuple[str, str, tuple]]:
+    """(code, message, location) of attitude samples that cannot be used as asked."""
+    from solver.models import get_model
+
+    out: list[tuple[str, str, tuple]] = []
+    if job.options.attitude is None:
+        return out
+    for i, im in enumerate(job.images):
+        if not im.attitude:
+            continue
+        try:
+            model = get_model(im.model.name)
+        except KeyError:
+            continue  # reported by the model check
+        if model.kind not in ATTITUDE_KINDS:
+            out.append(
+                (
+                    "attitude_needs_orbital_frame",
+                    f"image {im.id!r}: attitude samples are roll, pitch and yaw relative to the "
+                    f"orbital frame, but model {model.name} has Earth-fixed angles; use an "
+                    "orbit-attitude (OA-*) or pass (PASS-*) model, or drop options.attitude",
+                    ("images", i, "attitude"),
+                )
+            )
+        elif im.first_line_time_s is None:
+            out.append(
+                (
+                    "attitude_needs_epoch",
+                    f"image {im.id!r}: attitude samples need the image's first_line_time_s",
+                    ("images", i, "first_line_time_s"),
+                )
+            )
+    return out
+
+
+def attitude_terms(problem: "Problem") -> list[StatePrior]:
+    """One linear term per attitude block with samples (3 rows per sample)."""
+    job = problem.job
+    opts = job.options.attitude
+    if opts is None:
+        return []
+    w_angle = [1.0 / math.radians(s) for s in opts.sigma_deg]
+    out = []
+    for block in attitude_blocks(job):
+        samples = block_samples(job, block)
+        if not samples:
+            continue
+        img = problem.images[block[0]]
+        t_first = job.images[block[0]].first_line_time_s
+        offset = img.kc[PASS_ATT_OFF] if img.kind == KIND_PASS else 0.0
+        where = {int(j): q for q, j in enumerate(img.free_idx)}
+        rows_a, rows_b, rows_w = [], [], []
+        for sample in samples:
+            t_a = sample.time_s - t_first + offset
+            observed = (sample.roll_deg, sample.pitch_deg, sample.yaw_deg)
+            for e, element in enumerate(ANGLES):
+                row = np.zeros(img.nfree)
+                b = math.radians(observed[e])
+                for power in range(4):
+                    k = coef_index(element, power)
+                    if k in where:
+                        row[where[k]] = t_a**power
+                    else:  # a held coefficient: a known part of the angle
+                        b -= img.base[k] * t_a**power
+                rows_a.append(row)
+                rows_b.append(b)
+                rows_w.append(w_angle[e])
+        out.append(StatePrior(img.index, np.array(rows_a), np.array(rows_b), np.array(rows_w)))
+    return out
+
+
+def attitude_report(problem: "Problem") -> list[dict]:
+    """The report's ``attitude`` section: per attitude block with weighted samples, its images,
+    the number of samples, the sigmas and the residuals (measured - adjusted, deg) at the
+    current parameters: RMS and largest absolute value per angle (roll, pitch, yaw)."""
+    job = problem.job
+    opts = job.options.attitude
+    if opts is None:
+        return []
+    blocks = {b[0]: b for b in attitude_blocks(job) if block_samples(job, b)}
+    out = []
+    for term in attitude_terms(problem):
+        img = problem.images[term.image_index]
+        r, _jac = term.evaluate(img.params)
+        resid = -np.degrees(r / term.w).reshape(-1, 3)  # measured - model
+        out.append(
+            {
+                "images": [job.images[i].id for i in blocks[term.image_index]],
+                "n_samples": int(resid.shape[0]),
+                "sigma_deg": [float(s) for s in opts.sigma_deg],
+                "rms_residual_deg": [float(x) for x in np.sqrt(np.mean(resid**2, axis=0))],
+                "max_abs_residual_deg": [float(x) for x in np.abs(resid).max(axis=0)],
+            }
+        )
+    return out
