@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from solver.geodesy import LocalFrame, ecef_to_geodetic, enu_rotation, from_ecef
-from solver.simulate.attitude import AttitudeModel, Platform, opk_from_matrix
+from solver.simulate.attitude import AttitudeModel, Platform, model_attitude_angles, opk_from_matrix
 from solver.simulate.camera import CameraSpec
 from solver.simulate.iop import resolve_iop
 from solver.simulate.orbit import EarthModel, Orbit, circular_state_over, sun_synchronous_semi_major_axis
@@ -62,6 +62,11 @@ class Settings:
     ephemeris_margin_s: float = 180.0
     ephemeris_position_sigma_m: float = 1.0
     ephemeris_velocity_sigma_m_s: float = 0.001
+    # measured attitude written with each image (images[].attitude): roll, pitch, yaw relative
+    # to the orbital frame in the models' convention, every attitude_step_s on the pass's epoch
+    # grid within the image's lines, with this noise (star-tracker class, ~7")
+    attitude_step_s: float = 1.0
+    attitude_sigma_deg: float = 0.002
     attitude_bias_rad: float = 2e-4
     attitude_rate_rad_s: tuple[float, float, float] = (1e-6, 1e-6, 1e-5)
     attitude_accel_rad_s2: float = 1e-8
@@ -257,6 +262,15 @@ class Scene:
         r0, v0, _ = self._line0_states()
         self.approx_r = r0 + self.rng.normal(0.0, s.approx_position_sigma_m, r0.shape)
         self.approx_v = v0 + self.rng.normal(0.0, s.approx_velocity_sigma_m_s, v0.shape)
+        # attitude samples: their own generator, so that adding them left every other draw as it was
+        t_lo = min(im.first_line_time_s for im in self.images)
+        t_hi = max(im.time_of_line(im.camera.lines - 1) for im in self.images)
+        k0 = np.ceil((s.epoch_s + t_lo) / s.attitude_step_s)
+        k1 = np.floor((s.epoch_s + t_hi) / s.attitude_step_s)
+        self.attitude_t = np.arange(k0, k1 + 1) * s.attitude_step_s - s.epoch_s
+        true_deg = np.degrees(model_attitude_angles(self.platform.attitude.angles(self.attitude_t)))
+        att_rng = np.random.default_rng([s.seed, 1])
+        self.attitude_deg = true_deg + att_rng.normal(0.0, s.attitude_sigma_deg, true_deg.shape)
 
     def _line0_states(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         t = np.array([im.first_line_time_s for im in self.images])
@@ -316,6 +330,11 @@ class Scene:
                             "velocity_ecef_m_s": [float(x) for x in v],
                         }
                         for t, r, v in zip(self.ephemeris_t[sel], self.ephemeris_r[sel], self.ephemeris_v[sel], strict=True)
+                    ],
+                    "attitude": [
+                        {"time_s": float(s.epoch_s + t), "roll_deg": float(a[0]), "pitch_deg": float(a[1]), "yaw_deg": float(a[2])}
+                        for t, a in zip(self.attitude_t, self.attitude_deg, strict=True)
+                        if t_first <= t <= t_last
                     ],
                 }
             )
