@@ -212,6 +212,9 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
         warnings.append(f"{int((~lin.ok).sum())} projections did not converge at the solution")
     if not outcome.converged:
         warnings.append(f"the solver did not converge: {outcome.message}")
+        creeping = _creeping_warning(problem, cov)
+        if creeping is not None:
+            warnings.append(creeping)
 
     adjustment = {
         "n_observations": n_obs,
@@ -358,15 +361,44 @@ def _cameras_report(problem: Problem, lin, cov: Covariance | None, var_factor: f
     return cameras_report(problem.cameras, block, var_factor)
 
 
+def _correlation_pairs(cov: Covariance) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """Upper-triangle indices and correlation coefficients of the platform/IOP/pass parameters."""
+    d = np.sqrt(np.clip(np.diag(cov.images), 1e-300, None))
+    rho = cov.images / np.outer(d, d)
+    iu = np.triu_indices_from(rho, k=1)
+    return iu, rho[iu]
+
+
+NEAR_SINGULAR_RHO = 0.9999
+
+
+def _creeping_warning(problem: Problem, cov: Covariance | None) -> str | None:
+    """Why a solve that ran out of iterations crept: the parameter pairs that are correlated to
+    |rho| >= NEAR_SINGULAR_RHO are nearly undetermined together, and Gauss-Newton moves along
+    that valley a little each iteration (e.g. a focal-length correction against the flying
+    height of per-image models)."""
+    if cov is None or cov.images.size == 0:
+        return None
+    iu, vals = _correlation_pairs(cov)
+    near = np.flatnonzero(np.abs(vals) >= NEAR_SINGULAR_RHO)
+    if not len(near):
+        return None
+    names = parameter_names(problem)
+    top = near[np.argsort(-np.abs(vals[near]))][:3]
+    pairs = ", ".join(f"{names[iu[0][k]]} ~ {names[iu[1][k]]} (rho {vals[k]:+.5f})" for k in top)
+    return (
+        f"{len(near)} parameter pair(s) are correlated beyond {NEAR_SINGULAR_RHO} ({pairs}): they are "
+        "nearly undetermined together and the solve creeps along that direction; hold or drop one "
+        "of them (for example a self-calibration parameter) or add control that separates them"
+    )
+
+
 def _correlations(problem: Problem, cov: Covariance | None, threshold: float, limit: int = 2000) -> dict[str, Any]:
     out: dict[str, Any] = {"threshold": threshold, "pairs": []}
     if cov is None or cov.images.size == 0:
         return out
     names = parameter_names(problem)
-    d = np.sqrt(np.clip(np.diag(cov.images), 1e-300, None))
-    rho = cov.images / np.outer(d, d)
-    iu = np.triu_indices_from(rho, k=1)
-    vals = rho[iu]
+    iu, vals = _correlation_pairs(cov)
     big = np.flatnonzero(np.abs(vals) > threshold)
     big = big[np.argsort(-np.abs(vals[big]))][:limit]
     def kind(name: str) -> str:

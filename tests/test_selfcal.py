@@ -90,3 +90,26 @@ def test_exported_calibration_improves_a_second_triplet(calibrated, use):
     rep2 = adjust_job(load_job(reuse))
     assert rmse3d(rep2) < 0.6 * rmse3d(base)
     assert rep2["adjustment"]["sigma0_aposteriori"] < 0.5 * base["adjustment"]["sigma0_aposteriori"]
+
+
+def test_a_creeping_solve_names_the_nearly_undetermined_pair():
+    """K2 on the simulated triplet with interior-orientation errors, df estimated and the header
+    states unweighted: df and each image's flying height are nearly one direction (rho beyond
+    0.9999, df sigma of hundreds of mm), Gauss-Newton creeps along it and runs out of
+    iterations; the report then names that pair. Without df the solve converges and the
+    warning is absent."""
+    from solver.simulate import presets
+    from solver.simulate.scene import Settings
+
+    job = presets.prism_triplet(Settings(preset="prism-triplet", seed=1, iop_errors="default")).job()
+    job["options"] = {"self_calibration": {"estimate": ["df", "a0", "b0"]}}
+    rep = adjust_job(load_job(job))
+    assert not rep["adjustment"]["converged"]
+    creep = [w for w in rep["warnings"] if "nearly undetermined together" in w]
+    assert len(creep) == 1 and "/df" in creep[0], rep["warnings"]
+    df = next(p for c in rep["cameras"] for p in c["parameters"] if p["name"] == "df")
+    assert df["sigma"] > 100.0 and not df["significant"]
+    job["options"]["self_calibration"]["estimate"] = ["a0", "b0"]
+    rep = adjust_job(load_job(job))
+    assert rep["adjustment"]["converged"], rep["adjustment"]["message"]
+    assert not [w for w in rep["warnings"] if "nearly undetermined together" in w]
