@@ -23,6 +23,25 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--jitter-rad", type=float, default=0.0, help="attitude jitter amplitude sigma, rad (default 0)")
     p.add_argument("--indent", type=int, default=None, help="pretty-print the JSON")
     p.add_argument(
+        "--attitude-noise-deg",
+        type=float,
+        default=0.002,
+        help="noise of the attitude samples written with each image, deg (default 0.002)",
+    )
+    p.add_argument(
+        "--weight-ephemeris",
+        metavar="SIGMA_M,SIGMA_M_S",
+        help="write options.ephemeris with these position / velocity sigmas (e.g. 10,0.05): "
+        "the simulated state vectors become weighted observations",
+    )
+    p.add_argument(
+        "--weight-attitude",
+        metavar="SIGMA_DEG",
+        type=float,
+        help="write options.attitude with this sigma for roll, pitch and yaw: the simulated "
+        "attitude samples become weighted observations (orbit-attitude and pass models)",
+    )
+    p.add_argument(
         "--iop-errors",
         default="none",
         help="interior-orientation errors of the simulated cameras: none (default), default "
@@ -72,6 +91,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.set_defaults(func=run)
 
 
+def _job_options(args: argparse.Namespace) -> dict:
+    """options.ephemeris / options.attitude from --weight-ephemeris and --weight-attitude."""
+    options: dict = {}
+    if args.weight_ephemeris:
+        try:
+            pos, vel = (float(x) for x in args.weight_ephemeris.split(","))
+        except ValueError:
+            raise SystemExit("--weight-ephemeris needs two numbers: SIGMA_M,SIGMA_M_S (e.g. 10,0.05)") from None
+        options["ephemeris"] = {"sigma_position_m": pos, "sigma_velocity_m_s": vel}
+    if args.weight_attitude is not None:
+        options["attitude"] = {"sigma_deg": [args.weight_attitude] * 3}
+    return options
+
+
 def _iop_errors(value: str):
     if value in ("none", "default"):
         return value
@@ -89,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
         truth_step_lines=args.truth_step,
         jitter_rad=args.jitter_rad,
         iop_errors=_iop_errors(args.iop_errors),
+        attitude_sigma_deg=args.attitude_noise_deg,
+        job_options=_job_options(args),
     )
     t0 = time.perf_counter()
     if args.preset == "prism-single":

@@ -79,6 +79,9 @@ class Settings:
     # interior-orientation errors of the simulated cameras (not written in the job): "none",
     # "default" (solver.simulate.iop.default_iop) or {camera id: {iop name: value}}
     iop_errors: Any = "none"
+    # solver options written into the job (e.g. {"ephemeris": {...}, "attitude": {...}} to weight
+    # the simulated state vectors and attitude samples); none by default
+    job_options: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -342,7 +345,7 @@ class Scene:
             {"image": self.images[o.image].id, "point": self.points[o.point].id, "line": float(line), "column": float(col), "sigma_px": max(s.noise_px, 1e-3)}
             for o, line, col in self.noisy_observations()
         ]
-        return {
+        job = {
             "schema_version": "1.0",
             "name": s.name,
             "crs": s.crs,
@@ -351,6 +354,9 @@ class Scene:
             "points": points,
             "observations": observations,
         }
+        if s.job_options:
+            job["options"] = json.loads(json.dumps(s.job_options))
+        return job
 
     def true_cameras(self) -> dict[str, Any]:
         """Per camera id: the true interior orientation (every parameter of docs/models.md
