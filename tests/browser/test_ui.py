@@ -259,3 +259,24 @@ def test_pass_propagated_model_shows_the_shared_orbit(page: Any, local_server: S
     expect(card.first).to_contain_text("X")
     expect(page.locator("table.params[data-image]")).to_have_count(3)
     page.locator("#result").screenshot(path=str(artifacts / "pass-model-result.png"))
+
+
+def test_direct_georeferencing_example_shows_the_measured_attitude(
+    page: Any, local_server: Server, artifacts: Path
+) -> None:
+    """examples/prism-triplet-direct.json (no control: ephemeris and attitude weighted): the
+    result has the measured-attitude table, one row per camera with the residual RMS of roll,
+    pitch and yaw at the level of their 0.002-deg sigma, and the check points."""
+    open_ui(page, local_server)
+    pick_example(page, "prism-triplet-direct")
+    page.click("#submit")
+    expect(page.locator("#cur-percent")).to_have_text("100%", timeout=SOLVE_MS)
+    rows = page.locator('table[data-attitude="1"] tbody tr')
+    expect(rows).to_have_count(3)
+    for k in range(3):
+        cells = rows.nth(k).locator("td")
+        expect(cells.nth(1)).to_have_text(re.compile(r"^[56]$"))  # 1-Hz samples over a ~6-s image
+        rms, _max, sigma = (float(x) for x in cells.nth(2).inner_text().split(" / "))
+        assert sigma == 0.002 and 0.0005 < rms < 0.005, (rms, sigma)
+    expect(page.locator("#result")).to_contain_text("Check points")
+    page.locator("#result").screenshot(path=str(artifacts / "direct-georeferencing-result.png"))

@@ -662,7 +662,26 @@
     }
     renderParameters(box, report);
     renderParameterAnalysis(box, report);
+    renderAttitude(box, report);
     renderCheckpoints(box, report);
+  }
+
+  // Measured attitude weighted in the adjustment: per attitude block, the residual RMS and
+  // largest residual of roll, pitch and yaw next to the sigma they were given.
+  function renderAttitude(box, report) {
+    const blocks = report.attitude || [];
+    if (!blocks.length) return;
+    const angles = ["roll", "pitch", "yaw"];
+    box.append(el("h3", { text: "Measured attitude" }));
+    box.append(el("p", { class: "legend-line", text: "Residuals (measured − adjusted) of the weighted attitude samples, degrees; RMS well above σ means the attitude data and the images disagree (misalignment, wrong time scale or frame)." }));
+    box.append(el("div", { class: "table-wrap" }, el("table", { class: "data", dataset: { attitude: "1" } },
+      el("thead", {}, el("tr", {}, el("th", { text: "images" }), el("th", { class: "num", text: "samples" }),
+        angles.map((a) => el("th", { class: "num", text: `${a} RMS / max / σ` })))),
+      el("tbody", {}, blocks.map((b) => el("tr", {},
+        el("td", {}, el("code", { text: (b.images || []).join(", ") })),
+        el("td", { class: "num", text: b.n_samples }),
+        angles.map((_, k) => el("td", { class: "num",
+          text: `${fmtNum(b.rms_residual_deg[k], 4)} / ${fmtNum(b.max_abs_residual_deg[k], 4)} / ${fmtNum(b.sigma_deg[k], 4)}` }))))))));
   }
 
   function renderParameters(box, report) {
