@@ -9,6 +9,7 @@ pointer (RFC 6901) to the offending field of the request body.
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any, Sequence
 
 from fastapi import FastAPI, Request
@@ -150,6 +151,18 @@ class NotReady(ServiceError):
     status, code, title = 503, "not-ready", "Service not ready"
 
 
+def _json_safe(value: Any) -> Any:
+    """``value`` with non-finite floats replaced by None (JSON has no NaN or infinity; a
+    problem detail must never turn a 4xx into a 500)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
 def problem_response(
     request: Request,
     status: int,
@@ -168,7 +181,7 @@ def problem_response(
         "instance": request.url.path,
     }
     if errors:
-        body["errors"] = list(errors)[:MAX_ERRORS]
+        body["errors"] = [_json_safe(e) for e in list(errors)[:MAX_ERRORS]]
         if len(errors) > MAX_ERRORS:
             body["detail"] += f" ({len(errors)} problems; the first {MAX_ERRORS} are listed)"
     return JSONResponse(body, status_code=status, media_type=PROBLEM_MEDIA_TYPE, headers=headers)

@@ -81,7 +81,11 @@ def assert_full_rank(problem: Problem) -> None:
                 f"singular, condition {rank.condition:.3g}): {names}. Add or spread control points, "
                 "or choose a model with fewer parameters.",
                 ("images",),
-                {"parameters": [n for n, _ in rank.null_parameters], "condition": rank.condition},
+                {
+                    "parameters": [n for n, _ in rank.null_parameters],
+                    # JSON has no infinity: an exactly singular matrix has no finite condition
+                    "condition": rank.condition if np.isfinite(rank.condition) else None,
+                },
             )
         )
     if issues:

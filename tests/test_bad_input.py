@@ -94,6 +94,23 @@ def test_rank_deficient_control_geometry_names_parameters():
     assert p.code == "rank_deficient"
     assert p.detail["parameters"], p.detail
     assert "undetermined" in p.message and "img-1/" in p.message
+    json.dumps(e.value.to_dict(), allow_nan=False)  # strict JSON even when exactly singular
+
+
+def test_exactly_singular_geometry_reports_strict_json():
+    """One control point on the simulated triplet: the normal matrix may be exactly singular
+    (condition infinite); the problem detail then says null, never Infinity."""
+    from solver.simulate import presets
+    from solver.simulate.scene import Settings
+
+    job = presets.prism_triplet(Settings(preset="prism-triplet", seed=2008)).job()
+    for p in [p for p in job["points"] if p["role"] == "gcp"][1:]:
+        p["role"] = "tie"
+    with pytest.raises(RankDeficientError) as e:
+        run(job)
+    detail = e.value.problems[-1].detail
+    assert detail["condition"] is None or detail["condition"] < float("inf")
+    json.dumps(e.value.to_dict(), allow_nan=False)
 
 
 def test_observation_outside_image(base):

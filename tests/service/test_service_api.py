@@ -139,7 +139,9 @@ def test_malformed_json_and_nan_are_400(local: TestClient) -> None:
 
 
 def test_nan_inside_the_job_is_refused(local: TestClient, triplet_doc: dict[str, Any]) -> None:
-    text = json.dumps(body(triplet_doc)).replace('"line": 481.82244928787185', '"line": NaN', 1)
+    job = copy.deepcopy(triplet_doc)
+    job["observations"][0]["line"] = 481.25  # a value to find in the text
+    text = json.dumps(body(job)).replace('"line": 481.25', '"line": NaN', 1)
     assert "NaN" in text
     r = local.post("/jobs/validate", content=text, headers={"content-type": "application/json"})
     assert_problem(r, 400)
@@ -307,3 +309,11 @@ def test_cors_origins(tmp_path: Path) -> None:
         assert r.headers.get("access-control-allow-origin") == "http://front.example"
         r = c.get("/jobs", headers={"Origin": "http://evil.example"})
         assert "access-control-allow-origin" not in r.headers
+
+
+def test_problem_details_are_strict_json() -> None:
+    """Non-finite numbers in a problem's details become null (a 4xx never turns into a 500)."""
+    from service.errors import _json_safe
+
+    safe = _json_safe([{"condition": float("inf"), "nested": {"x": float("nan"), "ok": [1.5, -float("inf")]}}])
+    assert json.loads(json.dumps(safe, allow_nan=False)) == [{"condition": None, "nested": {"x": None, "ok": [1.5, None]}}]
