@@ -25,8 +25,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS
+from solver.kernels import KIND_PASS
 from solver.models import coef_index
+from solver.orbit_pass import ATTITUDE_KINDS, attitude_blocks, image_attitude_blocks, pass_line_span
 from solver.priors import StatePrior
 from solver.propagation import PASS_ATT_OFF
 
@@ -35,38 +36,11 @@ if TYPE_CHECKING:
     from solver.problem import Problem
 
 ANGLES = ("omega", "phi", "kappa")  # the coefficient slots of roll, pitch, yaw
-ATTITUDE_KINDS = (KIND_ORBIT_ATTITUDE, KIND_PASS)
-
-
-def attitude_blocks(job: "Job") -> list[list[int]]:
-    """Indices of the images of each attitude block: orbit-attitude images alone, pass images
-    grouped by (pass, camera) when their attitude is per camera (as ``build_passes`` shares
-    the parameter arrays), in job order."""
-    from solver.models import get_model
-    from solver.orbit_pass import attitude_mode, pass_id
-
-    blocks: dict[tuple, list[int]] = {}
-    for i, im in enumerate(job.images):
-        try:
-            model = get_model(im.model.name)
-        except KeyError:
-            continue
-        if model.kind not in ATTITUDE_KINDS:
-            continue
-        opts = im.model.options
-        if model.kind == KIND_PASS and attitude_mode(opts) == "camera":
-            key: tuple = ("camera", pass_id(opts), im.camera)
-        else:
-            key = ("image", i)
-        blocks.setdefault(key, []).append(i)
-    return list(blocks.values())
 
 
 def block_samples(job: "Job", images: list[int]) -> list["AttitudeSample"]:
     """The distinct attitude samples (by epoch) of a block's images that lie within the time
     span of its images' lines, by epoch."""
-    from solver.orbit_pass import pass_line_span
-
     if any(job.images[i].first_line_time_s is None for i in images):
         return []
     lo, hi = pass_line_span(job, images)
@@ -120,15 +94,16 @@ def attitude_problems(job: "Job") -> list[tuple[str, str, tuple]]:
     return out
 
 
-def attitude_terms(problem: "Problem") -> list[StatePrior]:
-    """One linear term per attitude block with samples (3 rows per sample)."""
+def _block_terms(problem: "Problem") -> list[tuple[list[int], StatePrior]]:
+    """(image indices of the block, its term) per attitude block with samples: one linear term
+    of 3 rows per sample on the block's parameters (those of its first image)."""
     job = problem.job
     opts = job.options.attitude
     if opts is None:
         return []
     w_angle = [1.0 / math.radians(s) for s in opts.sigma_deg]
     out = []
-    for block in attitude_blocks(job):
+    for block in image_attitude_blocks(problem.images):
         samples = block_samples(job, block)
         if not samples:
             continue
@@ -152,29 +127,28 @@ def attitude_terms(problem: "Problem") -> list[StatePrior]:
                 rows_a.append(row)
                 rows_b.append(b)
                 rows_w.append(w_angle[e])
-        out.append(StatePrior(img.index, np.array(rows_a), np.array(rows_b), np.array(rows_w)))
+        out.append((block, StatePrior(img.index, np.array(rows_a), np.array(rows_b), np.array(rows_w))))
     return out
+
+
+def attitude_terms(problem: "Problem") -> list[StatePrior]:
+    """The weighted attitude observations: one term per attitude block with samples."""
+    return [term for _block, term in _block_terms(problem)]
 
 
 def attitude_report(problem: "Problem") -> list[dict]:
     """The report's ``attitude`` section: per attitude block with weighted samples, its images,
     the number of samples, the sigmas and the residuals (measured - adjusted, deg) at the
     current parameters: RMS and largest absolute value per angle (roll, pitch, yaw)."""
-    job = problem.job
-    opts = job.options.attitude
-    if opts is None:
-        return []
-    blocks = {b[0]: b for b in attitude_blocks(job) if block_samples(job, b)}
     out = []
-    for term in attitude_terms(problem):
-        img = problem.images[term.image_index]
-        r, _jac = term.evaluate(img.params)
+    for block, term in _block_terms(problem):
+        r, _jac = term.evaluate(problem.images[term.image_index].params)
         resid = -np.degrees(r / term.w).reshape(-1, 3)  # measured - model
         out.append(
             {
-                "images": [job.images[i].id for i in blocks[term.image_index]],
+                "images": [problem.images[i].id for i in block],
                 "n_samples": int(resid.shape[0]),
-                "sigma_deg": [float(s) for s in opts.sigma_deg],
+                "sigma_deg": [float(s) for s in problem.job.options.attitude.sigma_deg],
                 "rms_residual_deg": [float(x) for x in np.sqrt(np.mean(resid**2, axis=0))],
                 "max_abs_residual_deg": [float(x) for x in np.abs(resid).max(axis=0)],
             }

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from solver.errors import Problem as JobProblem
-from solver.kernels import N_KEPLER_CONST
+from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS, N_KEPLER_CONST
 from solver.models.base import PASS_STATE
 from solver.propagation import (
     NODE_STEP_S,
@@ -44,6 +44,7 @@ ATTITUDE_MODES = ("camera", "image")  # model option "attitude": one set per cam
 MARGIN_S = 5.0  # trajectory nodes beyond the image's first/last line (Newton iterates)
 STATE_NAMES = tuple(n for n, _u in PASS_STATE)
 STATE_UNITS = tuple(u for _n, u in PASS_STATE)
+ATTITUDE_KINDS = (KIND_ORBIT_ATTITUDE, KIND_PASS)  # attitude relative to the orbital frame
 
 
 @dataclass
@@ -68,6 +69,43 @@ def pass_id(options: dict) -> str:
 
 def attitude_mode(options: dict) -> str:
     return str(options.get("attitude", ATTITUDE_MODES[0]))
+
+
+def _attitude_blocks(entries) -> list[list[int]]:
+    """Positions of the images of each attitude parameter block, from (model or None, model
+    options, camera id) per image: an orbit-attitude or pass image alone, except that pass
+    images with ``attitude: camera`` (the default) share one block per (pass, camera). The one
+    statement of that rule: :func:`build_passes` shares the arrays by it, validation counts and
+    checks by it, and measured attitude attaches to it (:mod:`solver.attitude_obs`)."""
+    blocks: dict[tuple, list[int]] = {}
+    for i, (model, options, camera) in enumerate(entries):
+        if model is None or model.kind not in ATTITUDE_KINDS:
+            continue
+        if model.propagated and attitude_mode(options) == "camera":
+            key: tuple = ("camera", pass_id(options), camera)
+        else:
+            key = ("image", i)
+        blocks.setdefault(key, []).append(i)
+    return list(blocks.values())
+
+
+def attitude_blocks(job: "Job") -> list[list[int]]:
+    """:func:`_attitude_blocks` of the job's images with the models the document names."""
+    from solver.models import get_model
+
+    def model_of(im):
+        try:
+            return get_model(im.model.name)
+        except KeyError:
+            return None
+
+    return _attitude_blocks((model_of(im), im.model.options, im.camera) for im in job.images)
+
+
+def image_attitude_blocks(images: list["ImageState"]) -> list[list[int]]:
+    """:func:`_attitude_blocks` of a problem's images (with the models actually adjusted,
+    which a model comparison may override)."""
+    return _attitude_blocks((img.model, img.options, img.camera.id) for img in images)
 
 
 def _line_span(job_image, camera, lines_observed: list[float]) -> tuple[float, float]:
@@ -114,28 +152,20 @@ def build_passes(job: "Job", images: list["ImageState"]) -> list[PassState]:
             kc[PASS_ATT_OFF] = kc[PASS_T_OFF] if shared else 0.0
             img.kc = kc
             img.pass_index = q
-        # attitude per camera: the images of one camera share one parameter block (one array)
-        first_of_camera: dict[str, "ImageState"] = {}
-        for img in imgs:
-            if attitude_mode(img.options) != "camera":
-                continue
-            lead = first_of_camera.setdefault(img.camera.id, img)
-            if lead is not img:
-                img.params = lead.params
         passes.append(PassState(pid, q, imgs[0].model, [im.index for im in imgs], t_ref))
+    for block in image_attitude_blocks(images):  # images sharing an attitude share one array
+        for i in block[1:]:
+            images[i].params = images[block[0]].params
     return passes
 
 
 def attitude_groups(problem: "Problem") -> dict[int, list[str]]:
     """Image index -> ids of all images sharing its attitude block (only where shared by 2+)."""
-    by_block: dict[int, list] = {}
-    for img in problem.images:
-        by_block.setdefault(id(img.params), []).append(img)
     out = {}
-    for imgs in by_block.values():
-        if len(imgs) > 1:
-            for img in imgs:
-                out[img.index] = [i.id for i in imgs]
+    for block in image_attitude_blocks(problem.images):
+        if len(block) > 1:
+            for i in block:
+                out[i] = [problem.images[k].id for k in block]
     return out
 
 
@@ -294,7 +324,6 @@ def pass_problems(job: "Job") -> list[JobProblem]:
 
     out = []
     models: dict[str, tuple[str, int]] = {}
-    groups: dict[tuple[str, str], tuple] = {}
     for i, im in enumerate(job.images):
         try:
             model = get_model(im.model.name)
@@ -331,33 +360,6 @@ def pass_problems(job: "Job") -> list[JobProblem]:
                     ("images", i, "model", "options", "attitude"),
                 )
             )
-        elif mode == "camera":
-            key = (pid, im.camera)
-            orders = model.effective_orders(im.model.options) if _orders_ok(model, im.model.options) else None
-            if key in groups and (groups[key][0] != orders or groups[key][2] != model.name):
-                out.append(
-                    JobProblem(
-                        "inconsistent_attitude_group",
-                        f"image {im.id!r} shares the attitude of camera {im.camera!r} on pass {pid!r} with "
-                        f"image {job.images[groups[key][1]].id!r} but asks for other orders; give them the "
-                        "same orders or use the option attitude: image",
-                        ("images", i, "model", "options"),
-                    )
-                )
-            elif key in groups:
-                first = job.images[groups[key][1]].initial
-                clash = sorted(n for n in set(first) & set(im.initial) if first[n] != im.initial[n])
-                if clash:
-                    out.append(
-                        JobProblem(
-                            "inconsistent_attitude_group",
-                            f"image {im.id!r} shares the attitude of camera {im.camera!r} on pass {pid!r} with "
-                            f"image {job.images[groups[key][1]].id!r} but gives other initial values for "
-                            f"{', '.join(clash)}; give one value (or use the option attitude: image)",
-                            ("images", i, "initial"),
-                        )
-                    )
-            groups.setdefault(key, (orders, i, model.name))
         if job.lines:
             out.append(
                 JobProblem(
@@ -367,6 +369,48 @@ def pass_problems(job: "Job") -> list[JobProblem]:
                     ("images", i, "model", "name"),
                 )
             )
+    return out + _attitude_group_problems(job)
+
+
+def _attitude_group_problems(job: "Job") -> list[JobProblem]:
+    """Images sharing one attitude block (:func:`attitude_blocks`) must ask for the same model
+    orders and give the same initial values as the block's first image."""
+    from solver.models import get_model
+
+    def signature(i: int):
+        im = job.images[i]
+        model = get_model(im.model.name)
+        orders = model.effective_orders(im.model.options) if _orders_ok(model, im.model.options) else None
+        return orders, model.name
+
+    out = []
+    for block in attitude_blocks(job):
+        lead = job.images[block[0]]
+        for i in block[1:]:
+            im = job.images[i]
+            pid = pass_id(im.model.options)
+            if signature(i) != signature(block[0]):
+                out.append(
+                    JobProblem(
+                        "inconsistent_attitude_group",
+                        f"image {im.id!r} shares the attitude of camera {im.camera!r} on pass {pid!r} with "
+                        f"image {lead.id!r} but asks for other orders; give them the "
+                        "same orders or use the option attitude: image",
+                        ("images", i, "model", "options"),
+                    )
+                )
+                continue
+            clash = sorted(n for n in set(lead.initial) & set(im.initial) if lead.initial[n] != im.initial[n])
+            if clash:
+                out.append(
+                    JobProblem(
+                        "inconsistent_attitude_group",
+                        f"image {im.id!r} shares the attitude of camera {im.camera!r} on pass {pid!r} with "
+                        f"image {lead.id!r} but gives other initial values for "
+                        f"{', '.join(clash)}; give one value (or use the option attitude: image)",
+                        ("images", i, "initial"),
+                    )
+                )
     return out
 
 
@@ -413,23 +457,22 @@ def n_pass_unknowns(job: "Job") -> int:
     camera share (counted once, not per image, by the validation's per-image count)."""
     from solver.models import get_model
 
-    ids = set()
-    shared: dict[tuple[str, str], int] = {}
-    n = 0
-    for im in job.images:
+    def valid(i: int):
+        """The image's model when it propagates and its orders are valid, else None."""
+        im = job.images[i]
         try:
             model = get_model(im.model.name)
         except KeyError:
-            continue
-        if not model.propagated or not _orders_ok(model, im.model.options):
-            continue
-        ids.add(pass_id(im.model.options))
-        if attitude_mode(im.model.options) == "camera":
-            key = (pass_id(im.model.options), im.camera)
-            if key in shared:
-                n -= shared[key]
-            else:
-                shared[key] = len(model.parameters(im.model.options))
+            return None
+        return model if model.propagated and _orders_ok(model, im.model.options) else None
+
+    ids = {pass_id(im.model.options) for i, im in enumerate(job.images) if valid(i) is not None}
+    n = 0
+    for block in attitude_blocks(job):
+        members = [i for i in block if valid(i) is not None]
+        if len(members) > 1:  # counted once per image by the validation: once is enough
+            lead = members[0]
+            n -= (len(members) - 1) * len(valid(lead).parameters(job.images[lead].model.options))
     return 6 * len(ids) + n
 
 

@@ -114,11 +114,9 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
                 )
             )
         n_unknowns += len(params)
-        if state is not None and state.sigma_position_m is not None:
-            weighted_states += 1
-        if model.propagated:
-            pass  # counted per pass below (orbit_pass.n_pass_state_observations)
-        elif state is not None and state.sigma_position_m is not None:
+        weighted = state is not None and state.sigma_position_m is not None
+        weighted_states += weighted
+        if weighted and not model.propagated:  # pass states: orbit_pass.n_pass_state_observations
             n_prior_obs += sum(1 for n in ("X0", "Y0", "Z0") if n in names)
             if state.sigma_velocity_m_s is not None:
                 n_prior_obs += sum(1 for n in ("ux", "uy", "uz", "X1", "Y1", "Z1") if n in names)

@@ -228,3 +228,16 @@ def test_monte_carlo_sigmas_with_attitude_observations():
     assert abs(np.mean(s0) - 1.0) < 0.03, np.mean(s0)
     assert abs(np.median(ratio) - 1.0) < 0.1, r
     assert np.all((ratio > 0.8) & (ratio < 1.2)), r
+
+
+def test_model_comparison_attaches_attitude_only_to_orbital_frame_models():
+    """In a comparison the models actually adjusted decide: the samples observe OA-J2's angles
+    and are left out of K2's run (whose angles are Earth-fixed), whatever the document names."""
+    from solver.api import compare
+
+    job = _pass_job("PASS-J2")
+    problem = prepare(load_job(job))
+    _samples_from(problem, job, 1.0, 0.002, np.random.default_rng(4))
+    job["options"] = {"attitude": {"sigma_deg": [0.002, 0.002, 0.002]}}
+    reports = compare(job, ["OA-J2", "K2"])["reports"]
+    assert len(reports["OA-J2"]["attitude"]) == 3 and reports["K2"]["attitude"] == []

@@ -54,13 +54,10 @@ def model_attitude_angles(phi: np.ndarray) -> np.ndarray:
     The body frame here is the yaw-steered frame F turned actively by the rotation vector phi
     (frame components), i.e. body rows B = exp([phi]x)^T F; the models write B = Rx(roll)
     Ry(pitch) Rz(yaw) R_orbit with R_orbit = F (docs/models.md section 10). So
-    Rx Ry Rz = exp([phi]x)^T, decomposed exactly (to first order the angles are -phi).
+    Rx Ry Rz = exp([phi]x)^T, decomposed exactly by :func:`opk_from_matrix` (to first order
+    the angles are -phi).
     """
-    a = np.transpose(rotation_from_vector(phi), (0, 2, 1))
-    roll = np.arctan2(-a[:, 1, 2], a[:, 2, 2])
-    pitch = np.arcsin(np.clip(a[:, 0, 2], -1.0, 1.0))
-    yaw = np.arctan2(-a[:, 0, 1], a[:, 0, 0])
-    return np.stack([roll, pitch, yaw], axis=1)
+    return np.array([opk_from_matrix(r.T) for r in rotation_from_vector(phi)]).reshape(-1, 3)
 
 
 @dataclass(frozen=True)
