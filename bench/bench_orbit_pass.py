@@ -7,8 +7,9 @@ Run by hand (never in CI)::
 Variants: P2, OA-J2, PASS-J2 (attitude per camera, roll, pitch, yaw linear: the defaults),
 PASS-J2/image (attitude per image), PASS-J2/quadratic (per camera, quadratic over the pass). The strip comes
 from the physical simulator (`pba simulate strip`: J2-J4 orbit, attitude in the
-orbital frame with drift). Each model is adjusted twice: header states as initial values only,
-and with the simulated ephemeris weighted (10 m, 0.05 m/s). Prints iterations, solve and total
+orbital frame with drift). Each model is adjusted three times: header states as initial values
+only, with the simulated ephemeris weighted (10 m, 0.05 m/s), and with the simulated attitude
+samples weighted as well (0.002 deg; orbit-attitude and pass models only). Prints iterations, solve and total
 time (adjust_job, covariance and report included), sigma0, 3D check-point RMSE and the mean
 distance of the line-0 state from the simulated orbit.
 """
@@ -30,6 +31,8 @@ from solver.adjust import adjust_job
 from solver.job import load_job
 
 EPHEMERIS = {"sigma_position_m": 10.0, "sigma_velocity_m_s": 0.05}
+ATTITUDE = {"sigma_deg": [0.002, 0.002, 0.002]}  # the simulated 1-Hz attitude samples (0.002 deg noise)
+WEIGHTS = ("initial only", "ephemeris", "ephemeris + attitude")
 QUADRATIC = {"omega": 2, "phi": 2, "kappa": 2}
 # label -> (model, options)
 VARIANTS = {
@@ -70,10 +73,13 @@ def main() -> None:
     t = time.perf_counter()
     job, truth = simulate(args.triplets, args.tie_points, args.seed)
     print(f"simulated {len(job['images'])} images, {len(job['observations'])} observations in {time.perf_counter() - t:.1f} s")
-    print("model | ephemeris | iterations | solve s | total s | sigma0 | check RMSE 3D m | |dS0| m | |dv| m/s")
+    print("model | weighted | iterations | solve s | total s | sigma0 | check RMSE 3D m | |dS0| m | |dv| m/s")
     for label in args.models.split(","):
         model, options = VARIANTS[label]
-        for eph in (False, True):
+        for weights in WEIGHTS:
+            eph = weights != "initial only"
+            if weights.endswith("attitude") and model == "P2":
+                continue  # Earth-fixed angles: measured attitude does not apply
             j = copy.deepcopy(job)
             for im in j["images"]:
                 im["model"] = {"name": model, "options": copy.deepcopy(options)}
@@ -81,6 +87,8 @@ def main() -> None:
                     im.pop("approx_state", None)
             if eph:
                 j.setdefault("options", {})["ephemeris"] = dict(EPHEMERIS)
+            if weights.endswith("attitude"):
+                j["options"]["attitude"] = dict(ATTITUDE)
             t0 = time.perf_counter()
             rep = adjust_job(load_job(j))
             total = time.perf_counter() - t0
@@ -88,7 +96,7 @@ def main() -> None:
             r = rep["checkpoints"]["rmse_m"]
             rm = float(np.sqrt(r["e"] ** 2 + r["n"] ** 2 + r["u"] ** 2))
             dp, dv = state_errors(rep, truth)
-            print(f"{label} | {'weighted' if eph else 'initial only'} | {a['iterations']} | {a['solve_time_s']:.2f} | "
+            print(f"{label} | {weights} | {a['iterations']} | {a['solve_time_s']:.2f} | "
                   f"{total:.2f} | {a['sigma0_aposteriori']:.3f} | {rm:.2f} | {dp:.0f} | {dv:.2f}", flush=True)
 
 
