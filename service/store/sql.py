@@ -341,6 +341,16 @@ class SqlStore:
                 ).scalar_one()
             )
 
+    @staticmethod
+    def _drop_payloads(conn: Connection, job_id: str) -> None:
+        """Forget a dismissed job's inputs and report (and their bytes in the quota)."""
+        conn.execute(
+            update(JobPayloadRow)
+            .where(JobPayloadRow.job_id == job_id)
+            .values(document=None, results=None, document_z=None, results_z=None)
+        )
+        conn.execute(update(JobRow).where(JobRow.id == job_id).values(stored_bytes=0))
+
     def request_cancel(self, job_id: str, reason: str = "user") -> JobRecord | None:
         """Dismiss an accepted or finished job (dropping its payloads) or flag a running one."""
         with self.engine.begin() as conn:
@@ -354,7 +364,7 @@ class SqlStore:
                 [JobStatus.accepted],
                 message="dismissed before it started",
             ):
-                pass
+                self._drop_payloads(conn, job_id)
             elif self._cas(
                 conn,
                 job_id,
@@ -363,12 +373,7 @@ class SqlStore:
                 message="dismissed; results deleted",
                 finished=rec.finished,
             ):
-                conn.execute(
-                    update(JobPayloadRow)
-                    .where(JobPayloadRow.job_id == job_id)
-                    .values(document=None, results=None, document_z=None, results_z=None)
-                )
-                conn.execute(update(JobRow).where(JobRow.id == job_id).values(stored_bytes=0))
+                self._drop_payloads(conn, job_id)
             else:
                 conn.execute(
                     update(JobRow)
