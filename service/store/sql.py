@@ -268,6 +268,7 @@ class SqlStore:
         """Insert an ``accepted`` job with its execute inputs."""
         now = utcnow()
         job_id = str(uuid.uuid4())
+        packed = pack(json.dumps(document))
         with self.engine.begin() as conn:
             conn.execute(
                 insert(JobRow).values(
@@ -282,13 +283,10 @@ class SqlStore:
                     updated=now,
                     attempts=0,
                     n_observations=n_observations,
+                    stored_bytes=len(packed),
                 )
             )
-            packed = pack(json.dumps(document))
             conn.execute(insert(JobPayloadRow).values(job_id=job_id, document_z=packed))
-            conn.execute(
-                update(JobRow).where(JobRow.id == job_id).values(stored_bytes=len(packed))
-            )
             rec = self._fetch(conn, job_id)
         assert rec is not None
         return rec
@@ -471,6 +469,7 @@ class SqlStore:
 
     def complete(self, job_id: str, worker: str, results_text: str, message: str) -> bool:
         """running -> successful, storing the report; only for the worker that runs it."""
+        packed = pack(results_text)  # before the transaction: seconds for a big report
         with self.engine.begin() as conn:
             ok = self._cas(
                 conn,
@@ -482,7 +481,6 @@ class SqlStore:
                 message=message,
             )
             if ok:
-                packed = pack(results_text)
                 conn.execute(
                     update(JobPayloadRow)
                     .where(JobPayloadRow.job_id == job_id)
