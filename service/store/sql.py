@@ -670,7 +670,10 @@ class SqlStore:
                 .where(*conds)
                 .order_by(JobRow.finished, JobRow.id)
             ).all()
-            pruned = [PrunedJob(r.id, r.owner, JobStatus(r.status), r.finished, r.stored_bytes) for r in rows]
+            pruned = [
+                PrunedJob(r.id, r.owner, JobStatus(r.status), r.finished, r.stored_bytes)
+                for r in rows
+            ]
             if dry_run or not pruned:
                 return pruned
             for start in range(0, len(pruned), 500):

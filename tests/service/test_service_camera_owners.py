@@ -42,6 +42,19 @@ def definition(triplet_doc: dict[str, Any], focal_mm: float) -> dict[str, Any]:
     return d
 
 
+def post_camera(
+    c: TestClient,
+    headers: dict[str, str],
+    triplet_doc: dict[str, Any],
+    name: str,
+    focal_mm: float,
+    **fields: Any,
+) -> Any:
+    """``POST /cameras`` of the triplet's first camera with ``focal_mm`` as ``name``."""
+    request = {"name": name, "definition": definition(triplet_doc, focal_mm), **fields}
+    return c.post("/cameras", json=request, headers=headers)
+
+
 def resolved_camera(
     c: TestClient, headers: dict[str, str], triplet_doc: dict[str, Any], ref: dict[str, Any]
 ) -> dict[str, Any]:
@@ -60,19 +73,25 @@ def ref_problem(
     job = copy.deepcopy(triplet_doc)
     job["cameras"][0] = {"id": job["cameras"][0]["id"], "ref": ref}
     for path in (EXECUTE, "/jobs/validate"):
-        assert_problem(c.post(path, json=body(job), headers=headers), 422, "/inputs/job/cameras/0/ref")
+        r = c.post(path, json=body(job), headers=headers)
+        assert_problem(r, 422, "/inputs/job/cameras/0/ref")
 
 
 def test_another_users_camera_is_invisible(
     lab: tuple[TestClient, dict[str, dict[str, str]]], triplet_doc: dict[str, Any]
 ) -> None:
     c, h = lab
-    r = c.post("/cameras", json={"name": "bcam", "definition": definition(triplet_doc, 1.0)}, headers=h["bob"])
+    r = post_camera(c, h["bob"], triplet_doc, "bcam", 1.0)
     assert r.status_code == 201 and r.json()["shared"] is False
     # read, versions, one version, list, shared path: 404 / nothing, as if it did not exist
-    for path in ("/cameras/bcam", "/cameras/bcam/versions", "/cameras/bcam/versions/1",
-                 "/cameras/shared/bcam", "/cameras/shared/bcam/versions",
-                 "/cameras/shared/bcam/versions/1"):
+    for path in (
+        "/cameras/bcam",
+        "/cameras/bcam/versions",
+        "/cameras/bcam/versions/1",
+        "/cameras/shared/bcam",
+        "/cameras/shared/bcam/versions",
+        "/cameras/shared/bcam/versions/1",
+    ):
         assert_problem(c.get(path, headers=h["alice"]), 404)
     assert c.get("/cameras", headers=h["alice"]).json()["numberMatched"] == 0
     assert c.get("/cameras", headers=h["bob"]).json()["numberMatched"] == 1
@@ -90,8 +109,8 @@ def test_posting_the_same_name_does_not_touch_the_owners_camera(
 ) -> None:
     """The reported attack: alice posts bob's name; bob's jobs keep running bob's camera."""
     c, h = lab
-    c.post("/cameras", json={"name": "bcam", "definition": definition(triplet_doc, 1.0)}, headers=h["bob"])
-    r = c.post("/cameras", json={"name": "bcam", "definition": definition(triplet_doc, 2.0)}, headers=h["alice"])
+    post_camera(c, h["bob"], triplet_doc, "bcam", 1.0)
+    r = post_camera(c, h["alice"], triplet_doc, "bcam", 2.0)
     assert r.status_code == 201 and r.json()["version"] == 1  # alice's own bcam, version 1
     got = c.get("/cameras/bcam", headers=h["bob"]).json()
     assert (got["version"], got["definition"]["focal_mm"]) == (1, 1.0)
@@ -106,7 +125,7 @@ def test_shared_namespace(
     lab: tuple[TestClient, dict[str, dict[str, str]]], triplet_doc: dict[str, Any]
 ) -> None:
     c, h = lab
-    c.post("/cameras", json={"name": "prism", "description": "bob's", "definition": definition(triplet_doc, 1.0)}, headers=h["bob"])
+    post_camera(c, h["bob"], triplet_doc, "prism", 1.0, description="bob's")
     r = c.post("/cameras/prism/share", headers=h["bob"])
     assert r.status_code == 201, r.text
     assert r.json()["shared"] is True and r.json()["version"] == 1
@@ -122,10 +141,10 @@ def test_shared_namespace(
     assert cam["focal_mm"] == 1.0 and cam["ref"] == {"name": "shared/prism", "version": 1}
     # the shared namespace is read-only for alice: no new version under bob's shared name
     assert_problem(
-        c.post("/cameras", json={"name": "prism", "shared": True, "definition": definition(triplet_doc, 9.0)}, headers=h["alice"]),
+        post_camera(c, h["alice"], triplet_doc, "prism", 9.0, shared=True),
         403,
     )
-    c.post("/cameras", json={"name": "prism", "definition": definition(triplet_doc, 2.0)}, headers=h["alice"])
+    post_camera(c, h["alice"], triplet_doc, "prism", 2.0)
     assert_problem(c.post("/cameras/prism/share", headers=h["alice"]), 403)
     assert c.get("/cameras/shared/prism", headers=h["bob"]).json()["version"] == 1
     # name clash: alice's own prism wins; shared/prism still reaches the shared one
@@ -136,9 +155,9 @@ def test_shared_namespace(
     assert cam["focal_mm"] == 1.0
     assert c.get("/cameras", headers=h["alice"]).json()["numberMatched"] == 2
     # the publisher and an admin add versions to the shared name
-    c.post("/cameras", json={"name": "prism", "definition": definition(triplet_doc, 3.0)}, headers=h["bob"])
+    post_camera(c, h["bob"], triplet_doc, "prism", 3.0)
     assert c.post("/cameras/prism/share", headers=h["bob"]).json()["version"] == 2
-    r = c.post("/cameras", json={"name": "prism", "shared": True, "definition": definition(triplet_doc, 4.0)}, headers=h["root"])
+    r = post_camera(c, h["root"], triplet_doc, "prism", 4.0, shared=True)
     assert r.status_code == 201 and r.json()["version"] == 3 and r.json()["shared"] is True
     r = c.post("/cameras/prism/share", json={"version": 1}, headers=h["bob"])
     assert r.json()["version"] == 4 and r.json()["definition"]["focal_mm"] == 1.0
@@ -147,7 +166,7 @@ def test_shared_namespace(
     assert c.get("/cameras/prism/versions", headers=h["bob"]).json()["numberMatched"] == 2
     # "shared" is not a camera name
     assert_problem(
-        c.post("/cameras", json={"name": "shared", "definition": definition(triplet_doc, 1.0)}, headers=h["bob"]),
+        post_camera(c, h["bob"], triplet_doc, "shared", 1.0),
         422,
         "/name",
     )
@@ -177,8 +196,9 @@ def test_camera_from_another_users_job(
 def test_single_user_mode_owns_and_shares(tmp_path: Path, triplet_doc: dict[str, Any]) -> None:
     """Without keys the local user owns every camera; refs resolve as before."""
     with make_client(tmp_path) as c:
-        r = c.post("/cameras", json={"name": "cam", "definition": definition(triplet_doc, 5.0)})
+        r = post_camera(c, {}, triplet_doc, "cam", 5.0)
         assert r.status_code == 201 and r.json()["shared"] is False
         assert c.get("/cameras/cam").json()["version"] == 1
-        assert resolved_camera(c, {}, triplet_doc, {"name": "cam"})["ref"] == {"name": "cam", "version": 1}
+        cam = resolved_camera(c, {}, triplet_doc, {"name": "cam"})
+        assert cam["ref"] == {"name": "cam", "version": 1}
         assert c.post("/cameras/cam/share").json()["shared"] is True

@@ -105,7 +105,9 @@ def test_storage_quota(tmp_path: Path, triplet_doc: dict[str, Any]) -> None:
 def run_pba(args: list[str], data_dir: Path, **env: str) -> subprocess.CompletedProcess[str]:
     environ = {k: v for k, v in os.environ.items() if not k.startswith("PBA_")}
     environ.update(PBA_DATA_DIR=str(data_dir), **env)
-    return subprocess.run([str(PBA), *args], env=environ, capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [str(PBA), *args], env=environ, capture_output=True, text=True, timeout=120
+    )
 
 
 def test_pba_db_prune(tmp_path: Path) -> None:

@@ -249,8 +249,9 @@ def test_camera_versions(store: Store) -> None:
     assert (c1.version, c2.version) == (1, 2) and c1.owner == "u1" and not c1.shared
     latest = store.get_camera("prism-n", owner="u1")
     assert latest is not None and latest.version == 2 and latest.source_job == "j1"
-    assert store.get_camera("prism-n", 1, owner="u1").definition == {"focal_mm": 1939.0}  # type: ignore[union-attr]
-    assert store.get_camera("prism-n", 0, owner="u1").version == 1  # type: ignore[union-attr]
+    first = store.get_camera("prism-n", 1, owner="u1")
+    assert first is not None and first.definition == {"focal_mm": 1939.0}
+    assert store.get_camera("prism-n", 0, owner="u1") == first  # 0: the first version
     assert store.get_camera("prism-n", 3, owner="u1") is None
     cams, total = store.list_cameras(owners=["u1", "u2"])
     assert total == 2 and {(c.name, c.version) for c in cams} == {("prism-n", 2), ("other", 1)}
@@ -265,7 +266,8 @@ def test_camera_namespaces_are_separate(store: Store) -> None:
     b = store.add_camera("cam", "", {"focal_mm": 2.0}, "u2")
     s = store.add_camera("cam", "", {"focal_mm": 3.0}, "u1", owner=SHARED)
     assert (b.version, b.owner, s.version, s.shared) == (1, "u2", 1, True)
-    assert store.get_camera("cam", owner="u1").definition == {"focal_mm": 1.0}  # type: ignore[union-attr]
+    own = store.get_camera("cam", owner="u1")
+    assert own is not None and own.definition == {"focal_mm": 1.0}
     assert store.get_camera("cam", owner="u3") is None
     cams, total = store.list_cameras(owners=["u1", SHARED])
     assert total == 2 and [c.shared for c in cams] == [False, True]  # own first on a tie
@@ -321,7 +323,8 @@ def test_payloads_are_stored_compressed_and_counted(store: Store) -> None:
 
     from service.store.sql import JobPayloadRow
 
-    report = json.dumps({"observations": [{"id": i, "residual_px": [0.5, -0.25]} for i in range(2000)]})
+    rows = [{"id": i, "residual_px": [0.5, -0.25]} for i in range(2000)]
+    report = json.dumps({"observations": rows})
     doc = {"job": {"name": "x", "points": [{"id": f"p{i}"} for i in range(500)]}}
     rec = store.create_job("u", "bundle-adjustment", doc, 1, "x")
     _finish(store, rec.id, report)
