@@ -24,6 +24,7 @@ from service.jobs import JobService
 from service.metrics import Metrics
 from service.middleware import AccessLogMiddleware, BodyLimitMiddleware, ServicesContextMiddleware
 from service.queue import make_backend
+from service.retention import RetentionLoop
 from service.settings import Settings
 from service.store import open_store
 
@@ -64,6 +65,12 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings: Settings = app.state.settings
     services = _start_services(settings)
     app.state.services = services
+    retention = None
+    if settings.job_retention_days > 0:
+        retention = RetentionLoop(
+            services.store, settings.job_retention_days, settings.retention_interval_s
+        )
+        retention.start()
     log.info(
         "server ready: store %s, queue %s, %d workers, keys %s",
         settings.resolved_database_url.split("://")[0],
@@ -75,6 +82,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         yield
     finally:
         app.state.services = None
+        if retention is not None:
+            retention.stop()
         services.backend.stop()
         services.store.close()
         log.info("server stopped")

@@ -1,8 +1,16 @@
-"""The camera library: resolving ``ref`` cameras of a job, and cameras from self-calibration.
+"""The camera library: namespaces, resolving ``ref`` cameras of a job, and cameras from
+self-calibration.
+
+Namespaces: every camera name lives in the namespace of the user who created it, or in the
+shared namespace (read-only for users; the owner of a camera or an admin publishes to it, see
+:func:`check_may_publish`). A name is looked up in the user's own namespace first, then in
+the shared one (own wins on a clash); ``shared/NAME`` addresses the shared namespace
+explicitly. Another user's unshared camera is not found (404), so names do not leak. Without
+keys (local single-user mode) the only user owns every camera, as before namespaces existed.
 
 A job camera with ``ref: {name, version}`` takes every field from that library version;
 fields the job sets itself override the library's. The resolved camera keeps ``ref`` (with
-the version actually used) for provenance.
+the namespace-qualified name and the version actually used) for provenance.
 """
 
 from __future__ import annotations
@@ -11,16 +19,56 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from service.errors import InvalidInput, NotFound
+from service.errors import Forbidden, InvalidInput, NotFound
 from service.problems import json_pointer, pydantic_errors
-from service.store import CameraRecord, Store
+from service.store import SHARED, CameraRecord, Store, UserRecord
 from solver.job import Camera, Job
 
 JOB_CAMERA_FIELDS = frozenset(Camera.model_fields) - {"id", "ref"}
+SHARED_PREFIX = SHARED + "/"
 
 
-def resolve_camera_refs(job: Job, store: Store, prefix: tuple[str, ...] = ("inputs", "job")) -> Job:
-    """A copy of ``job`` whose ref cameras are complete; InvalidInput on unknown refs."""
+def namespace_of(store: Store, user_id: str, name: str) -> tuple[str, str]:
+    """(namespace, bare name) that ``name`` means for a user: ``shared/NAME`` the shared
+    namespace; otherwise the user's own when it has a camera of that name, else shared."""
+    if name.startswith(SHARED_PREFIX):
+        return SHARED, name[len(SHARED_PREFIX) :]
+    if store.get_camera(name, owner=user_id) is not None:
+        return user_id, name
+    return SHARED, name
+
+
+def find_camera(
+    store: Store, user_id: str, name: str, version: int | None = None
+) -> CameraRecord | None:
+    """The camera version ``name`` means for a user (latest when ``version`` is None)."""
+    owner, bare = namespace_of(store, user_id, name)
+    return store.get_camera(bare, version, owner=owner)
+
+
+def qualified_name(rec: CameraRecord) -> str:
+    """The name that addresses ``rec`` from any user's view (``shared/NAME`` when shared)."""
+    return SHARED_PREFIX + rec.name if rec.shared else rec.name
+
+
+def check_may_publish(store: Store, user: UserRecord, name: str) -> None:
+    """Forbidden unless ``user`` may add a version of ``name`` to the shared namespace: an
+    admin always; another user when the shared name is new or was first published by them."""
+    if user.is_admin:
+        return
+    first = store.get_camera(name, 0, owner=SHARED)
+    if first is not None and first.created_by != user.id:
+        raise Forbidden(
+            f"the shared camera {name!r} was published by another user; only they or an admin "
+            "add versions to it (publish under another name)"
+        )
+
+
+def resolve_camera_refs(
+    job: Job, store: Store, user_id: str, prefix: tuple[str, ...] = ("inputs", "job")
+) -> Job:
+    """A copy of ``job`` whose ref cameras are complete, each ref resolved in the namespaces
+    of user ``user_id`` (:func:`find_camera`); InvalidInput on unknown refs."""
     if not any(c.ref is not None for c in job.cameras):
         return job
     errors: list[dict[str, Any]] = []
@@ -29,7 +77,7 @@ def resolve_camera_refs(job: Job, store: Store, prefix: tuple[str, ...] = ("inpu
         if cam.ref is None:
             cameras.append(cam.model_dump(mode="json"))
             continue
-        rec = store.get_camera(cam.ref.name, cam.ref.version)
+        rec = find_camera(store, user_id, cam.ref.name, cam.ref.version)
         if rec is None:
             which = f"version {cam.ref.version}" if cam.ref.version else "any version"
             errors.append(
@@ -43,7 +91,12 @@ def resolve_camera_refs(job: Job, store: Store, prefix: tuple[str, ...] = ("inpu
         base = {k: v for k, v in rec.definition.items() if k in JOB_CAMERA_FIELDS}
         own = cam.model_dump(mode="json", exclude_unset=True, exclude={"id", "ref"})
         cameras.append(
-            {**base, **own, "id": cam.id, "ref": {"name": rec.name, "version": rec.version}}
+            {
+                **base,
+                **own,
+                "id": cam.id,
+                "ref": {"name": qualified_name(rec), "version": rec.version},
+            }
         )
     if errors:
         raise InvalidInput("camera references could not be resolved", errors)
@@ -86,15 +139,16 @@ def camera_from_report(
 
 
 def camera_links(rec: CameraRecord, base_url: str) -> list[dict[str, str]]:
-    """Links of a camera version."""
+    """Links of a camera version (``cameras/shared/NAME/...`` for shared ones)."""
+    path = f"{base_url}cameras/{qualified_name(rec)}"
     return [
         {
-            "href": f"{base_url}cameras/{rec.name}/versions/{rec.version}",
+            "href": f"{path}/versions/{rec.version}",
             "rel": "self",
             "type": "application/json",
         },
         {
-            "href": f"{base_url}cameras/{rec.name}",
+            "href": path,
             "rel": "latest-version",
             "type": "application/json",
         },

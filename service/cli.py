@@ -1,6 +1,7 @@
 """``pba serve`` and ``pba admin ...`` (registered into the ``pba`` command by solver.cli).
 
-``pba worker`` runs a distributed (Celery) worker and ``pba db`` migrates the store (issue 8).
+``pba worker`` runs a distributed (Celery) worker and ``pba db`` migrates the store (issue 8)
+and prunes old jobs (issue 13).
 """
 
 from __future__ import annotations
@@ -40,6 +41,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     db_sub.add_parser("current", help="print the store's schema revision").set_defaults(
         func=cmd_db_current
     )
+    prune = db_sub.add_parser(
+        "prune", help="delete finished jobs older than N days (PBA_JOB_RETENTION_DAYS)"
+    )
+    prune.add_argument(
+        "--older-than-days",
+        type=float,
+        default=None,
+        help="age of the finished jobs to delete (default PBA_JOB_RETENTION_DAYS)",
+    )
+    prune.add_argument(
+        "--dry-run", action="store_true", help="list what would be deleted, delete nothing"
+    )
+    prune.add_argument(
+        "--vacuum",
+        action="store_true",
+        help="then give the freed space back to the file system (SQLite VACUUM; locks the store)",
+    )
+    prune.set_defaults(func=cmd_db_prune)
     db.set_defaults(func=lambda args: db.print_help() or 2)
 
     admin = subparsers.add_parser("admin", help="administration: API keys")
@@ -174,4 +193,36 @@ def cmd_db_current(args: argparse.Namespace) -> int:
     finally:
         engine.dispose()
     print(f"{current or 'none'} (newest: {head_revision()})")
+    return 0
+
+
+def cmd_db_prune(args: argparse.Namespace) -> int:
+    """Delete finished jobs older than --older-than-days (or PBA_JOB_RETENTION_DAYS)."""
+    from service.retention import MB, prune
+    from service.store import open_store
+
+    settings = _settings(args)
+    days = args.older_than_days
+    if days is None:
+        days = settings.job_retention_days or None
+    if days is None or days < 0:
+        print(
+            "give --older-than-days N (N >= 0) or set PBA_JOB_RETENTION_DAYS", file=sys.stderr
+        )
+        return 2
+    store = open_store(settings.resolved_database_url)
+    try:
+        pruned = prune(store, days, dry_run=args.dry_run)
+        for p in pruned:
+            print(f"{p.id}\t{p.status.value}\t{p.finished.isoformat()}\t{p.stored_bytes}")
+        if args.vacuum and not args.dry_run:
+            store.compact()
+    finally:
+        store.close()
+    verb = "would delete" if args.dry_run else "deleted"
+    total = sum(p.stored_bytes for p in pruned) / MB
+    print(
+        f"{verb} {len(pruned)} finished jobs older than {days:g} days ({total:.1f} MB)",
+        file=sys.stderr,
+    )
     return 0

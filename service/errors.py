@@ -31,9 +31,10 @@ OGC_EXC = "http://www.opengis.net/def/exceptions/ogcapi-processes-1/1.0/"
 PROBLEM_DESCRIPTIONS = {
     400: "Bad request: malformed JSON (NaN included) or an invalid parameter",
     401: "API key missing or not valid",
+    403: "Forbidden: you may not change this resource (e.g. another user's shared camera)",
     404: "Not found (also: a job of another user)",
     409: "Conflict with the state of the resource",
-    413: "Request body or job over the size limit",
+    413: "Request body or job over the size limit, or the user's storage quota is used up",
     422: "Invalid input; each entry of errors points at the offending field",
     429: "Too many queued jobs for this user",
     500: "The job failed on the server side (worker crash, time limit)",
@@ -145,6 +146,10 @@ class TooManyJobs(ServiceError):
 
 class JobTooLarge(ServiceError):
     status, code, title = 413, "job-too-large", "Job too large"
+
+
+class StorageQuotaExceeded(ServiceError):
+    status, code, title = 413, "storage-quota-exceeded", "Storage quota exceeded"
 
 
 class NotReady(ServiceError):

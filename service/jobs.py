@@ -23,6 +23,7 @@ from service.errors import (
 from service.problems import job_error_entries, problem_entries, pydantic_errors
 from service.processes import MODEL_COMPARISON, PROCESSES, model_names
 from service.queue import QueueBackend
+from service.retention import check_quota
 from service.schemas import ExecuteInputs, Link, StatusInfo
 from service.settings import Settings
 from service.states import JobStatus
@@ -40,9 +41,9 @@ def check_process(process_id: str) -> None:
 
 
 def validate_inputs(
-    process_id: str, inputs: ExecuteInputs, store: Store
+    process_id: str, inputs: ExecuteInputs, store: Store, user: UserRecord
 ) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Resolve camera refs and dry-run the solver's checks.
+    """Resolve camera refs (in ``user``'s camera namespaces) and dry-run the solver's checks.
 
     Returns (the document to store ``{"job": ..., "models": ...}``, the solver's validation
     summary); raises InvalidInput with pointers into the request on any problem.
@@ -50,7 +51,7 @@ def validate_inputs(
     import solver.api
 
     check_process(process_id)
-    job = resolve_camera_refs(inputs.job, store, PREFIX)
+    job = resolve_camera_refs(inputs.job, store, user.id, PREFIX)
     models: list[str] | None = None
     if process_id == MODEL_COMPARISON:
         models = list(inputs.models or job.options.models)
@@ -130,7 +131,8 @@ class JobService:
         n_obs = len(inputs.job.observations)
         if n_obs > max_obs:
             raise JobTooLarge(f"the job has {n_obs} observations; your limit is {max_obs}")
-        document, _ = validate_inputs(process_id, inputs, self.store)
+        document, _ = validate_inputs(process_id, inputs, self.store, user)
+        check_quota(self.store, user, document, self.settings.user_storage_quota_mb)
         if self.store.count_queued(user.id) >= max_queued:
             raise TooManyJobs(
                 f"you already have {max_queued} jobs queued or running; wait for some to finish",

@@ -6,9 +6,9 @@ The job document itself is :class:`solver.job.Job`, defined once and used here u
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from service.states import JobStatus
 from solver.job import Camera, Job
@@ -206,14 +206,44 @@ class CameraDefinition(Camera):
         return self
 
 
+def _not_reserved(name: str) -> str:
+    if name == "shared":
+        raise ValueError("'shared' names the shared camera namespace; choose another name")
+    return name
+
+
+CameraName = Annotated[
+    str,
+    Field(min_length=1, max_length=128, pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$"),
+    AfterValidator(_not_reserved),
+]
+
+
 class CameraCreate(BaseModel):
-    """Body of ``POST /cameras``: a new version of a named camera."""
+    """Body of ``POST /cameras``: a new version of a named camera in your own namespace, or
+    (``shared: true``) in the shared namespace."""
 
     model_config = ConfigDict(extra="forbid")
 
-    name: str = Field(min_length=1, max_length=128, pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+    name: CameraName
     description: str = Field(default="", max_length=2000)
     definition: CameraDefinition
+    shared: bool = Field(
+        default=False,
+        description="publish to the shared namespace (an admin, or the user who first "
+        "published this shared name)",
+    )
+
+
+class CameraShare(BaseModel):
+    """Body of ``POST /cameras/{name}/share``: publish one of your versions to the shared
+    namespace (as its next version there)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    version: int | None = Field(
+        default=None, ge=1, le=2_000_000_000, description="your version to share (latest if absent)"
+    )
 
 
 class CameraFromJob(BaseModel):
@@ -223,7 +253,7 @@ class CameraFromJob(BaseModel):
 
     job_id: str = Field(min_length=1, max_length=64)
     camera: str = Field(min_length=1, max_length=64, description="camera id inside the job")
-    name: str = Field(min_length=1, max_length=128, pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+    name: CameraName
     description: str = Field(default="", max_length=2000)
 
 
@@ -232,6 +262,9 @@ class CameraPublic(BaseModel):
 
     name: str
     version: int
+    shared: bool = Field(
+        default=False, description="in the shared namespace (a job refers to it as shared/NAME)"
+    )
     description: str
     definition: dict[str, Any]
     created: datetime

@@ -97,6 +97,18 @@ class Settings(BaseSettings):
     sweep_interval_s: float = Field(
         10.0, gt=0, description="how often expired leases are looked for (API and workers)"
     )
+    # -- retention (README "Retention") ----------------------------------------------------
+    job_retention_days: float = Field(
+        0.0, ge=0, description="finished jobs older than this are deleted (0: keep forever)"
+    )
+    retention_interval_s: float = Field(
+        3600.0, gt=0, description="how often the server deletes jobs past retention"
+    )
+    user_storage_quota_mb: float = Field(
+        0.0,
+        ge=0,
+        description="per-user limit on stored job inputs and reports, MB (0: no limit)",
+    )
     log_level: str = Field("INFO", description="logging level")
     log_format: Literal["json", "text"] = Field("json", description="log line format")
 

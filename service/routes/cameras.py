@@ -1,16 +1,29 @@
 """The camera library: named, versioned camera definitions (focal plane, chips, IOP with
-covariance) that jobs reference with ``cameras[].ref = {name, version}``. The library is
-shared by all users of the server; every new definition of a name is a new version."""
+covariance) that jobs reference with ``cameras[].ref = {name, version}``.
+
+Each camera belongs to the user who created it; other users see it only once it is
+published to the shared namespace (``POST /cameras/{name}/share``, or ``shared: true`` on
+``POST /cameras``). Names resolve in the caller's own namespace, then the shared one;
+``/cameras/shared/{name}`` addresses the shared one explicitly (service.cameras).
+"""
 
 from __future__ import annotations
 
+import json
 from typing import Annotated
 
 from fastapi import APIRouter, Path, Query
 from fastapi.responses import JSONResponse
 
-from service.cameras import camera_from_report, camera_links
-from service.deps import BaseUrl, CurrentUser, ServicesDep
+from service.cameras import (
+    SHARED_PREFIX,
+    camera_from_report,
+    camera_links,
+    check_may_publish,
+    find_camera,
+    namespace_of,
+)
+from service.deps import BaseUrl, CurrentUser, Services, ServicesDep
 from service.errors import Conflict, NotFound, problem_responses
 from service.jobs import results_text
 from service.routes import StrictJSONRoute
@@ -20,19 +33,24 @@ from service.schemas import (
     CameraFromJob,
     CameraList,
     CameraPublic,
+    CameraShare,
     Link,
 )
-from service.store import CameraRecord
+from service.store import SHARED, CameraRecord, Store, UserRecord
 
 router = APIRouter(prefix="/cameras", tags=["cameras"], route_class=StrictJSONRoute)
 
 Name = Annotated[str, Path(min_length=1, max_length=128, description="camera name")]
+Version = Annotated[int, Path(ge=1, le=2_000_000_000, description="version number")]
+Limit = Annotated[int, Query(ge=1, le=1000)]
+Offset = Annotated[int, Query(ge=0, le=10_000_000)]
 
 
 def _public(rec: CameraRecord, base: str) -> CameraPublic:
     return CameraPublic(
         name=rec.name,
         version=rec.version,
+        shared=rec.shared,
         description=rec.description,
         definition=rec.definition,
         created=rec.created,
@@ -43,13 +61,20 @@ def _public(rec: CameraRecord, base: str) -> CameraPublic:
 
 def _created(rec: CameraRecord, base: str) -> JSONResponse:
     body = _public(rec, base).model_dump(mode="json", exclude_none=True)
-    return JSONResponse(
-        body, 201, headers={"Location": f"{base}cameras/{rec.name}/versions/{rec.version}"}
-    )
+    return JSONResponse(body, 201, headers={"Location": camera_links(rec, base)[0]["href"]})
 
 
 def _definition(defn: CameraDefinition) -> dict:
     return defn.model_dump(mode="json", exclude={"id", "ref"}, exclude_none=True)
+
+
+def _owner_for_write(user: UserRecord, shared: bool, name: str, store: Store) -> str:
+    """The namespace a new version of ``name`` goes to (Forbidden for a shared name the
+    user may not publish to)."""
+    if not shared:
+        return user.id
+    check_may_publish(store, user, name)
+    return SHARED
 
 
 @router.get(
@@ -62,11 +87,11 @@ def list_cameras(
     user: CurrentUser,
     services: ServicesDep,
     base: BaseUrl,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
+    limit: Limit = 100,
+    offset: Offset = 0,
 ) -> CameraList:
-    """The latest version of every camera in the library."""
-    records, total = services.store.list_cameras(None, limit, offset)
+    """The latest version of every camera you own and of every shared camera."""
+    records, total = services.store.list_cameras(None, limit, offset, owners=[user.id, SHARED])
     return CameraList(
         cameras=[_public(r, base) for r in records],
         numberMatched=total,
@@ -78,14 +103,16 @@ def list_cameras(
     "",
     status_code=201,
     response_model=CameraPublic,
-    responses={**problem_responses(401, 413, 422)},
+    responses={**problem_responses(401, 403, 413, 422)},
 )
 def create_camera(
     body: CameraCreate, user: CurrentUser, services: ServicesDep, base: BaseUrl
 ) -> JSONResponse:
-    """Store a camera definition as the next version of its name."""
+    """Store a camera definition as the next version of its name in your namespace (or, with
+    ``shared``, in the shared namespace)."""
+    owner = _owner_for_write(user, body.shared, body.name, services.store)
     rec = services.store.add_camera(
-        body.name, body.description, _definition(body.definition), user.id
+        body.name, body.description, _definition(body.definition), user.id, owner=owner
     )
     return _created(rec, base)
 
@@ -99,10 +126,8 @@ def create_camera(
 def camera_from_job(
     body: CameraFromJob, user: CurrentUser, services: ServicesDep, base: BaseUrl
 ) -> JSONResponse:
-    """Save the camera a self-calibration job estimated (IOP values and covariance) as the next
-    version of ``name``."""
-    import json
-
+    """Save the camera a self-calibration job of yours estimated (IOP values and covariance)
+    as the next version of ``name`` in your namespace."""
     job = services.jobs.get_visible(body.job_id, user)
     report = json.loads(results_text(job))
     if report.get("kind") == "comparison":
@@ -116,6 +141,113 @@ def camera_from_job(
     return _created(rec, base)
 
 
+@router.post(
+    "/{name}/share",
+    status_code=201,
+    response_model=CameraPublic,
+    responses={**problem_responses(401, 403, 404, 422)},
+)
+def share_camera(
+    name: Name,
+    user: CurrentUser,
+    services: ServicesDep,
+    base: BaseUrl,
+    body: CameraShare | None = None,
+) -> JSONResponse:
+    """Publish a version of your camera ``name`` (the latest unless ``version`` is given) as
+    the next version of ``shared/name``, which every user can read and reference."""
+    version = body.version if body else None
+    rec = services.store.get_camera(name, version, owner=user.id)
+    if rec is None:
+        which = f" version {version}" if version else ""
+        raise NotFound(f"you have no camera {name!r}{which}")
+    check_may_publish(services.store, user, name)
+    shared = services.store.add_camera(
+        name,
+        rec.description,
+        rec.definition,
+        user.id,
+        source_job=rec.source_job,
+        owner=SHARED,
+    )
+    return _created(shared, base)
+
+
+def _get(services: Services, user: UserRecord, name: str, base: str) -> CameraPublic:
+    rec = find_camera(services.store, user.id, name)
+    if rec is None:
+        raise NotFound(f"the camera library has no {name!r}")
+    return _public(rec, base)
+
+
+def _versions(
+    services: Services, user: UserRecord, name: str, base: str, limit: int, offset: int
+) -> CameraList:
+    owner, bare = namespace_of(services.store, user.id, name)
+    records, total = services.store.list_cameras(bare, limit, offset, owners=[owner])
+    if total == 0:
+        raise NotFound(f"the camera library has no {name!r}")
+    return CameraList(
+        cameras=[_public(r, base) for r in records],
+        numberMatched=total,
+        links=[Link(href=f"{base}cameras/{name}/versions", rel="self", type="application/json")],
+    )
+
+
+def _version(
+    services: Services, user: UserRecord, name: str, version: int, base: str
+) -> CameraPublic:
+    rec = find_camera(services.store, user.id, name, version)
+    if rec is None:
+        raise NotFound(f"the camera library has no {name!r} version {version}")
+    return _public(rec, base)
+
+
+# the shared namespace's paths come first: "shared" is not a valid camera name
+@router.get(
+    "/shared/{name}",
+    response_model=CameraPublic,
+    response_model_exclude_none=True,
+    responses={**problem_responses(401, 404)},
+)
+def get_shared_camera(
+    name: Name, user: CurrentUser, services: ServicesDep, base: BaseUrl
+) -> CameraPublic:
+    """The latest version of a shared camera."""
+    return _get(services, user, SHARED_PREFIX + name, base)
+
+
+@router.get(
+    "/shared/{name}/versions",
+    response_model=CameraList,
+    response_model_exclude_none=True,
+    responses={**problem_responses(401, 404)},
+)
+def list_shared_versions(
+    name: Name,
+    user: CurrentUser,
+    services: ServicesDep,
+    base: BaseUrl,
+    limit: Limit = 100,
+    offset: Offset = 0,
+) -> CameraList:
+    """Every version of a shared camera, newest first."""
+    return _versions(services, user, SHARED_PREFIX + name, base, limit, offset)
+
+
+@router.get(
+    "/shared/{name}/versions/{version}",
+    response_model=CameraPublic,
+    response_model_exclude_none=True,
+    responses={**problem_responses(401, 404)},
+)
+def get_shared_camera_version(
+    name: Name, version: Version, user: CurrentUser, services: ServicesDep, base: BaseUrl
+) -> CameraPublic:
+    """One version of a shared camera."""
+    return _version(services, user, SHARED_PREFIX + name, version, base)
+
+
 @router.get(
     "/{name}",
     response_model=CameraPublic,
@@ -123,11 +255,8 @@ def camera_from_job(
     responses={**problem_responses(401, 404)},
 )
 def get_camera(name: Name, user: CurrentUser, services: ServicesDep, base: BaseUrl) -> CameraPublic:
-    """The latest version of a camera."""
-    rec = services.store.get_camera(name)
-    if rec is None:
-        raise NotFound(f"the camera library has no {name!r}")
-    return _public(rec, base)
+    """The latest version of your camera ``name``, else of the shared one."""
+    return _get(services, user, name, base)
 
 
 @router.get(
@@ -141,18 +270,11 @@ def list_versions(
     user: CurrentUser,
     services: ServicesDep,
     base: BaseUrl,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
+    limit: Limit = 100,
+    offset: Offset = 0,
 ) -> CameraList:
-    """Every version of a camera, newest first."""
-    records, total = services.store.list_cameras(name, limit, offset)
-    if total == 0:
-        raise NotFound(f"the camera library has no {name!r}")
-    return CameraList(
-        cameras=[_public(r, base) for r in records],
-        numberMatched=total,
-        links=[Link(href=f"{base}cameras/{name}/versions", rel="self", type="application/json")],
-    )
+    """Every version of your camera ``name`` (else of the shared one), newest first."""
+    return _versions(services, user, name, base, limit, offset)
 
 
 @router.get(
@@ -162,14 +284,7 @@ def list_versions(
     responses={**problem_responses(401, 404)},
 )
 def get_camera_version(
-    name: Name,
-    version: Annotated[int, Path(ge=1, le=2_000_000_000)],
-    user: CurrentUser,
-    services: ServicesDep,
-    base: BaseUrl,
+    name: Name, version: Version, user: CurrentUser, services: ServicesDep, base: BaseUrl
 ) -> CameraPublic:
-    """One version of a camera."""
-    rec = services.store.get_camera(name, version)
-    if rec is None:
-        raise NotFound(f"the camera library has no {name!r} version {version}")
-    return _public(rec, base)
+    """One version of your camera ``name`` (else of the shared one)."""
+    return _version(services, user, name, version, base)

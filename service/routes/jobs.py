@@ -94,7 +94,7 @@ def validate_job(
     """Dry run: schema, camera references, model names, degrees of freedom; nothing is queued.
     Answers 200 with the counts, or 422 with every problem pointing at its field."""
     process_id = MODEL_COMPARISON if process == MODEL_COMPARISON else BUNDLE_ADJUSTMENT
-    _, summary = validate_inputs(process_id, body.inputs, services.store)
+    _, summary = validate_inputs(process_id, body.inputs, services.store, user)
     return ValidationReport.model_validate(summary)
 
 

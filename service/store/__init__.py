@@ -1,6 +1,14 @@
 """Persistence of jobs, users, keys and cameras behind the :class:`Store` interface."""
 
-from service.store.base import CameraRecord, FinishedRun, JobRecord, Store, UserRecord
+from service.store.base import (
+    SHARED,
+    CameraRecord,
+    FinishedRun,
+    JobRecord,
+    PrunedJob,
+    Store,
+    UserRecord,
+)
 
 
 def open_store(url: str, create: bool = True) -> Store:
@@ -10,4 +18,13 @@ def open_store(url: str, create: bool = True) -> Store:
     return SqlStore(url, create=create)
 
 
-__all__ = ["CameraRecord", "FinishedRun", "JobRecord", "Store", "UserRecord", "open_store"]
+__all__ = [
+    "SHARED",
+    "CameraRecord",
+    "FinishedRun",
+    "JobRecord",
+    "PrunedJob",
+    "Store",
+    "UserRecord",
+    "open_store",
+]

@@ -18,6 +18,9 @@ from typing import Any, Callable, Iterable, Protocol
 
 from service.states import JobStatus
 
+SHARED = "shared"
+"""The ``owner`` of cameras in the shared namespace (user ids are UUIDs, so it names no user)."""
+
 
 @dataclass
 class JobRecord:
@@ -89,7 +92,8 @@ class UserRecord:
 
 @dataclass(frozen=True)
 class CameraRecord:
-    """One version of a named camera definition in the library."""
+    """One version of a named camera definition in the library; ``owner`` is the namespace
+    (the owning user's id, or :data:`SHARED`)."""
 
     name: str
     version: int
@@ -98,6 +102,23 @@ class CameraRecord:
     created: datetime
     created_by: str
     source_job: str | None = None
+    owner: str = ""
+
+    @property
+    def shared(self) -> bool:
+        """True for a camera of the shared namespace."""
+        return self.owner == SHARED
+
+
+@dataclass(frozen=True)
+class PrunedJob:
+    """A finished job deleted (or to be deleted) by retention; ``stored_bytes`` of payloads."""
+
+    id: str
+    owner: str
+    status: JobStatus
+    finished: datetime
+    stored_bytes: int
 
 
 @dataclass(frozen=True)
@@ -203,6 +224,17 @@ class Store(Protocol):
     def finished_since(self, after: datetime) -> list[FinishedRun]:
         """For metrics."""
 
+    # -- retention -------------------------------------------------------------------------
+    def storage_used(self, owner: str) -> int:
+        """Bytes of stored payloads of a user's jobs (the quota's measure)."""
+
+    def prune_jobs(self, finished_before: datetime, dry_run: bool = False) -> list[PrunedJob]:
+        """Delete successful/failed/dismissed jobs finished before the cutoff (never accepted
+        or running ones); what was (with ``dry_run``: would be) deleted."""
+
+    def compact(self) -> None:
+        """Return the space of deleted rows to the file system where the database needs it."""
+
     # -- users and keys --------------------------------------------------------------------
     def create_user(
         self,
@@ -233,13 +265,21 @@ class Store(Protocol):
         definition: dict[str, Any],
         created_by: str,
         source_job: str | None = None,
+        owner: str | None = None,
     ) -> CameraRecord:
-        """Store the next version of ``name``."""
+        """Store the next version of ``name`` in namespace ``owner`` (default ``created_by``)."""
 
-    def get_camera(self, name: str, version: int | None = None) -> CameraRecord | None:
-        """A version (latest when None)."""
+    def get_camera(
+        self, name: str, version: int | None = None, *, owner: str
+    ) -> CameraRecord | None:
+        """A version of a camera of namespace ``owner`` (latest when None, first when 0)."""
 
     def list_cameras(
-        self, name: str | None = None, limit: int = 100, offset: int = 0
+        self,
+        name: str | None = None,
+        limit: int = 100,
+        offset: int = 0,
+        *,
+        owners: Iterable[str],
     ) -> tuple[list[CameraRecord], int]:
-        """Latest version of each name, or all versions of one."""
+        """Latest version of each name, or all versions of one, in the given namespaces."""

@@ -19,6 +19,7 @@ from sqlalchemy import (
     ForeignKey,
     Index,
     Integer,
+    LargeBinary,
     String,
     Text,
     TypeDecorator,
@@ -39,7 +40,8 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 from sqlalchemy.pool import NullPool
 
 from service.states import JobStatus, check_transition
-from service.store.base import CameraRecord, FinishedRun, JobRecord, UserRecord
+from service.store.base import SHARED, CameraRecord, FinishedRun, JobRecord, PrunedJob, UserRecord
+from service.store.payloads import pack, unpack
 
 
 def utcnow() -> datetime:
@@ -92,6 +94,8 @@ class JobRow(Base):
     cancel_requested: Mapped[str | None] = mapped_column(String(32), nullable=True)
     n_observations: Mapped[int] = mapped_column(Integer, default=0)
     error: Mapped[str | None] = mapped_column(Text, nullable=True)
+    # bytes of this job's payloads as stored (the per-user storage quota sums these)
+    stored_bytes: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
 
     __table_args__ = (
         Index("ix_jobs_status_created", "status", "created"),
@@ -100,7 +104,9 @@ class JobRow(Base):
 
 
 class JobPayloadRow(Base):
-    """``job_payloads``: the execute inputs and the report, as JSON text."""
+    """``job_payloads``: the execute inputs and the report as zlib-compressed JSON
+    (``document_z``, ``results_z``; service.store.payloads). Rows written before revision
+    0003 keep plain JSON text in ``document`` / ``results``; readers take whichever is set."""
 
     __tablename__ = "job_payloads"
     job_id: Mapped[str] = mapped_column(
@@ -108,6 +114,8 @@ class JobPayloadRow(Base):
     )
     document: Mapped[str | None] = mapped_column(Text, nullable=True)
     results: Mapped[str | None] = mapped_column(Text, nullable=True)
+    document_z: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
+    results_z: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
 
 
 class UserRow(Base):
@@ -133,10 +141,12 @@ class ApiKeyRow(Base):
 
 
 class CameraRow(Base):
-    """``cameras``: named, versioned camera definitions."""
+    """``cameras``: named, versioned camera definitions, each name in the namespace of its
+    ``owner`` (a user id, or :data:`~service.store.base.SHARED` for the shared namespace)."""
 
     __tablename__ = "cameras"
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    owner: Mapped[str] = mapped_column(String(36))
     name: Mapped[str] = mapped_column(String(128))
     version: Mapped[int] = mapped_column(Integer)
     description: Mapped[str] = mapped_column(Text, default="")
@@ -145,7 +155,9 @@ class CameraRow(Base):
     created_by: Mapped[str] = mapped_column(String(36))
     source_job: Mapped[str | None] = mapped_column(String(36), nullable=True)
 
-    __table_args__ = (UniqueConstraint("name", "version", name="uq_cameras_name_version"),)
+    __table_args__ = (
+        UniqueConstraint("owner", "name", "version", name="uq_cameras_owner_name_version"),
+    )
 
 
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
@@ -256,6 +268,7 @@ class SqlStore:
         """Insert an ``accepted`` job with its execute inputs."""
         now = utcnow()
         job_id = str(uuid.uuid4())
+        packed = pack(json.dumps(document))
         with self.engine.begin() as conn:
             conn.execute(
                 insert(JobRow).values(
@@ -270,9 +283,10 @@ class SqlStore:
                     updated=now,
                     attempts=0,
                     n_observations=n_observations,
+                    stored_bytes=len(packed),
                 )
             )
-            conn.execute(insert(JobPayloadRow).values(job_id=job_id, document=json.dumps(document)))
+            conn.execute(insert(JobPayloadRow).values(job_id=job_id, document_z=packed))
             rec = self._fetch(conn, job_id)
         assert rec is not None
         return rec
@@ -325,6 +339,16 @@ class SqlStore:
                 ).scalar_one()
             )
 
+    @staticmethod
+    def _drop_payloads(conn: Connection, job_id: str) -> None:
+        """Forget a dismissed job's inputs and report (and their bytes in the quota)."""
+        conn.execute(
+            update(JobPayloadRow)
+            .where(JobPayloadRow.job_id == job_id)
+            .values(document=None, results=None, document_z=None, results_z=None)
+        )
+        conn.execute(update(JobRow).where(JobRow.id == job_id).values(stored_bytes=0))
+
     def request_cancel(self, job_id: str, reason: str = "user") -> JobRecord | None:
         """Dismiss an accepted or finished job (dropping its payloads) or flag a running one."""
         with self.engine.begin() as conn:
@@ -338,7 +362,7 @@ class SqlStore:
                 [JobStatus.accepted],
                 message="dismissed before it started",
             ):
-                pass
+                self._drop_payloads(conn, job_id)
             elif self._cas(
                 conn,
                 job_id,
@@ -347,11 +371,7 @@ class SqlStore:
                 message="dismissed; results deleted",
                 finished=rec.finished,
             ):
-                conn.execute(
-                    update(JobPayloadRow)
-                    .where(JobPayloadRow.job_id == job_id)
-                    .values(document=None, results=None)
-                )
+                self._drop_payloads(conn, job_id)
             else:
                 conn.execute(
                     update(JobRow)
@@ -449,6 +469,7 @@ class SqlStore:
 
     def complete(self, job_id: str, worker: str, results_text: str, message: str) -> bool:
         """running -> successful, storing the report; only for the worker that runs it."""
+        packed = pack(results_text)  # before the transaction: seconds for a big report
         with self.engine.begin() as conn:
             ok = self._cas(
                 conn,
@@ -463,7 +484,12 @@ class SqlStore:
                 conn.execute(
                     update(JobPayloadRow)
                     .where(JobPayloadRow.job_id == job_id)
-                    .values(results=results_text)
+                    .values(results_z=packed)
+                )
+                conn.execute(
+                    update(JobRow)
+                    .where(JobRow.id == job_id)
+                    .values(stored_bytes=JobRow.stored_bytes + len(packed))
                 )
             return ok
 
@@ -597,19 +623,72 @@ class SqlStore:
 
     # -- jobs: reading ---------------------------------------------------------------------
     def get_results_text(self, job_id: str) -> str | None:
-        """The stored report as JSON text."""
+        """The stored report as JSON text (compressed rows and pre-0003 plain rows alike)."""
         with self.engine.connect() as conn:
-            return conn.execute(
-                select(JobPayloadRow.results).where(JobPayloadRow.job_id == job_id)
-            ).scalar_one_or_none()
+            row = conn.execute(
+                select(JobPayloadRow.results_z, JobPayloadRow.results).where(
+                    JobPayloadRow.job_id == job_id
+                )
+            ).first()
+        return unpack(row.results_z, row.results) if row else None
 
     def get_document(self, job_id: str) -> dict[str, Any] | None:
-        """The stored execute inputs."""
+        """The stored execute inputs (compressed rows and pre-0003 plain rows alike)."""
         with self.engine.connect() as conn:
-            doc = conn.execute(
-                select(JobPayloadRow.document).where(JobPayloadRow.job_id == job_id)
-            ).scalar_one_or_none()
+            row = conn.execute(
+                select(JobPayloadRow.document_z, JobPayloadRow.document).where(
+                    JobPayloadRow.job_id == job_id
+                )
+            ).first()
+        doc = unpack(row.document_z, row.document) if row else None
         return json.loads(doc) if doc else None
+
+    # -- retention -------------------------------------------------------------------------
+    def storage_used(self, owner: str) -> int:
+        """Bytes of stored payloads of a user's jobs."""
+        with self.engine.connect() as conn:
+            total = conn.execute(
+                select(func.coalesce(func.sum(JobRow.stored_bytes), 0)).where(
+                    JobRow.owner == owner
+                )
+            ).scalar_one()
+        return int(total)
+
+    def prune_jobs(self, finished_before: datetime, dry_run: bool = False) -> list[PrunedJob]:
+        """Delete finished jobs (successful, failed, dismissed) that finished before
+        ``finished_before``, with their payloads; accepted and running jobs are never touched.
+        Returns what was (or, with ``dry_run``, would be) deleted, oldest first."""
+        finished = [JobStatus.successful.value, JobStatus.failed.value, JobStatus.dismissed.value]
+        conds = (
+            JobRow.status.in_(finished),
+            JobRow.finished.is_not(None),
+            JobRow.finished < finished_before,
+        )
+        with self.engine.begin() as conn:
+            rows = conn.execute(
+                select(JobRow.id, JobRow.owner, JobRow.status, JobRow.finished, JobRow.stored_bytes)
+                .where(*conds)
+                .order_by(JobRow.finished, JobRow.id)
+            ).all()
+            pruned = [
+                PrunedJob(r.id, r.owner, JobStatus(r.status), r.finished, r.stored_bytes)
+                for r in rows
+            ]
+            if dry_run or not pruned:
+                return pruned
+            for start in range(0, len(pruned), 500):
+                ids = [p.id for p in pruned[start : start + 500]]
+                conn.execute(delete(JobPayloadRow).where(JobPayloadRow.job_id.in_(ids)))
+                conn.execute(delete(JobRow).where(JobRow.id.in_(ids), *conds))
+        return pruned
+
+    def compact(self) -> None:
+        """Give the space of deleted rows back to the file system (SQLite ``VACUUM``; on
+        PostgreSQL autovacuum reuses it, so nothing is done)."""
+        if self.engine.dialect.name != "sqlite":
+            return
+        with self.engine.connect().execution_options(isolation_level="AUTOCOMMIT") as conn:
+            conn.exec_driver_sql("VACUUM")
 
     def counts_by_status(self) -> dict[JobStatus, int]:
         """Jobs per status, every status present (zero when none)."""
@@ -724,6 +803,7 @@ class SqlStore:
             created=row.created,
             created_by=row.created_by,
             source_job=row.source_job,
+            owner=row.owner,
         )
 
     def add_camera(
@@ -733,17 +813,23 @@ class SqlStore:
         definition: dict[str, Any],
         created_by: str,
         source_job: str | None = None,
+        owner: str | None = None,
     ) -> CameraRecord:
-        """Store the next version of ``name`` (retries when two writers race)."""
+        """Store the next version of ``name`` in the namespace ``owner`` (default: the
+        creator's own); retries when two writers race."""
+        owner = owner or created_by
         for _ in range(10):
             try:
                 with self.engine.begin() as conn:
                     latest = conn.execute(
-                        select(func.max(CameraRow.version)).where(CameraRow.name == name)
+                        select(func.max(CameraRow.version)).where(
+                            CameraRow.owner == owner, CameraRow.name == name
+                        )
                     ).scalar_one_or_none()
                     version = (latest or 0) + 1
                     conn.execute(
                         insert(CameraRow).values(
+                            owner=owner,
                             name=name,
                             version=version,
                             description=description,
@@ -753,18 +839,23 @@ class SqlStore:
                             source_job=source_job,
                         )
                     )
-                rec = self.get_camera(name, version)
+                rec = self.get_camera(name, version, owner=owner)
                 assert rec is not None
                 return rec
             except IntegrityError:
                 continue
         raise RuntimeError(f"could not store a new version of camera {name!r}")
 
-    def get_camera(self, name: str, version: int | None = None) -> CameraRecord | None:
-        """One version of a camera (the latest when ``version`` is None)."""
-        stmt = select(CameraRow).where(CameraRow.name == name)
+    def get_camera(
+        self, name: str, version: int | None = None, *, owner: str
+    ) -> CameraRecord | None:
+        """One version of a camera of namespace ``owner`` (the latest when ``version`` is
+        None; the first with ``version=0``)."""
+        stmt = select(CameraRow).where(CameraRow.owner == owner, CameraRow.name == name)
         if version is None:
             stmt = stmt.order_by(CameraRow.version.desc()).limit(1)
+        elif version == 0:
+            stmt = stmt.order_by(CameraRow.version).limit(1)
         else:
             stmt = stmt.where(CameraRow.version == version)
         with self.engine.connect() as conn:
@@ -772,22 +863,34 @@ class SqlStore:
         return self._camera(row) if row else None
 
     def list_cameras(
-        self, name: str | None = None, limit: int = 100, offset: int = 0
+        self,
+        name: str | None = None,
+        limit: int = 100,
+        offset: int = 0,
+        *,
+        owners: Iterable[str],
     ) -> tuple[list[CameraRecord], int]:
-        """All versions of ``name`` (newest first), or the latest version of every name."""
+        """All versions of ``name`` (newest first), or the latest version of every name, in
+        the namespaces ``owners``; ordered by name, then namespace."""
+        owners = list(owners)
         with self.engine.connect() as conn:
             if name is not None:
-                cond = CameraRow.name == name
+                cond = CameraRow.owner.in_(owners) & (CameraRow.name == name)
             else:
                 latest = (
-                    select(CameraRow.name, func.max(CameraRow.version).label("v"))
-                    .group_by(CameraRow.name)
+                    select(
+                        CameraRow.owner, CameraRow.name, func.max(CameraRow.version).label("v")
+                    )
+                    .where(CameraRow.owner.in_(owners))
+                    .group_by(CameraRow.owner, CameraRow.name)
                     .subquery()
                 )
                 cond = CameraRow.id.in_(
                     select(CameraRow.id).join(
                         latest,
-                        (CameraRow.name == latest.c.name) & (CameraRow.version == latest.c.v),
+                        (CameraRow.owner == latest.c.owner)
+                        & (CameraRow.name == latest.c.name)
+                        & (CameraRow.version == latest.c.v),
                     )
                 )
             total = conn.execute(
@@ -796,7 +899,7 @@ class SqlStore:
             rows = conn.execute(
                 select(CameraRow)
                 .where(cond)
-                .order_by(CameraRow.name, CameraRow.version.desc())
+                .order_by(CameraRow.name, CameraRow.owner == SHARED, CameraRow.version.desc())
                 .limit(limit)
                 .offset(offset)
             ).all()

@@ -5,6 +5,7 @@ existed is upgraded in place with its rows, and every migration can be undone.""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 from pathlib import Path
@@ -139,3 +140,53 @@ def test_pba_db_commands(tmp_path: Path) -> None:
         [str(PBA), "db", "current"], env=env, capture_output=True, text=True, timeout=60
     )
     assert cur.returncode == 0 and cur.stdout.split()[0] == head_revision(), cur
+
+
+def test_upgrade_from_0002_keeps_cameras_with_their_authors_and_old_payloads(
+    url: str, engine: Engine
+) -> None:
+    """Revision 0003 on a 0002 store with rows: each camera version goes to the namespace of
+    the user who wrote it (bob's ``bcam`` v1 and the v2 alice wrote under his name part), old
+    plain payloads are still read and counted for the quota."""
+    from service.store import SHARED
+
+    assert upgrade(engine, "0002") == "0002"
+    t = {"t": "2026-01-01 00:00:00"}
+    with engine.begin() as conn:
+        for version, author in ((1, "bob"), (2, "alice")):
+            conn.execute(
+                text(
+                    "INSERT INTO cameras (name, version, description, definition, created, "
+                    "created_by) VALUES ('bcam', :v, '', :d, :t, :a)"
+                ),
+                {"v": version, "a": author, "d": json.dumps({"focal_mm": float(version)}), **t},
+            )
+        conn.execute(
+            text(
+                "INSERT INTO jobs (id, owner, process_id, name, status, progress, message, "
+                "created, updated, finished, attempts, n_observations) VALUES ('j1', 'bob', "
+                "'bundle-adjustment', 'old', 'successful', 100, 'done', :t, :t, :t, 1, 3)"
+            ),
+            t,
+        )
+        conn.execute(
+            text(
+                "INSERT INTO job_payloads (job_id, document, results) "
+                "VALUES ('j1', '{\"job\": {}}', '{\"report\": 1}')"
+            )
+        )
+    assert upgrade(engine) == head_revision() == "0003"
+    assert schema_differences(engine) == []
+    store = open_store(url)
+    try:
+        bob = store.get_camera("bcam", owner="bob")
+        alice = store.get_camera("bcam", owner="alice")
+        assert bob is not None and bob.version == 1 and bob.definition == {"focal_mm": 1.0}
+        assert alice is not None and alice.version == 2
+        assert store.get_camera("bcam", owner=SHARED) is None
+        assert store.add_camera("bcam", "", {}, "bob").version == 2  # per-namespace versions
+        assert store.get_document("j1") == {"job": {}}
+        assert store.get_results_text("j1") == '{"report": 1}'
+        assert store.storage_used("bob") == len('{"job": {}}') + len('{"report": 1}')
+    finally:
+        store.close()
