@@ -6,7 +6,8 @@ of the first delivered pixel) is covered by chip k when
 ``first_k - 0.5 <= C <= first_k + n_k - 0.5`` (each pixel extends half a pixel either side).
 Where several chips cover it, it belongs to **the covering chip whose centre column
 ``first_k + (n_k - 1)/2`` is nearest**; a tie (a column exactly half-way between two centres)
-goes to the chip listed first. For neighbouring chips of equal width this splits each overlap in
+goes to the chip with the larger centre column (so a column on the boundary of two chips that
+touch, ``first_k + n_k - 0.5``, starts the next chip, as rounding half up would). For neighbouring chips of equal width this splits each overlap in
 the middle: with 32 overlapping columns, 16 go to either chip. An observation may also name its
 chip explicitly, which overrides the rule (:mod:`solver.problem`).
 """
@@ -32,9 +33,10 @@ def chip_index_of_column(
     c = np.atleast_1d(np.asarray(column, dtype=float))
     best = np.full(c.shape, -1, dtype=np.int64)
     best_dist = np.full(c.shape, np.inf)
-    for k, (first, n) in enumerate(zip(first_columns, widths, strict=True)):
-        dist = np.abs(c - (first + (n - 1) / 2.0))
-        take = covers(first, n, c) & (dist < best_dist)  # strict: ties keep the earlier chip
+    centres = [first + (n - 1) / 2.0 for first, n in zip(first_columns, widths, strict=True)]
+    for k in sorted(range(len(centres)), key=lambda j: centres[j]):
+        dist = np.abs(c - centres[k])
+        take = covers(first_columns[k], widths[k], c) & (dist <= best_dist)  # ties: the later centre
         best[take] = k
         best_dist[take] = dist[take]
     return best.reshape(np.shape(column))
