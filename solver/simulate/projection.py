@@ -168,7 +168,10 @@ class ImageGeometry:
         # (solver.chips); if two chips do (misregistered chips at a hand-over), the one that sees
         # it farther from its ends
         cols_a, margins_a = np.array(cols), np.array(margins)
-        own = np.array([cam.chip_of_column(cols_a[k]) == k for k in range(len(cam.chips))])
+        own = margins_a >= 0
+        for k in range(len(cam.chips)):
+            on = np.flatnonzero(own[k])
+            own[k, on] = cam.chip_of_column(cols_a[k, on]) == k
         best = np.where(own.any(axis=0), np.argmax(np.where(own, margins_a, -np.inf), axis=0), np.argmax(margins_a, axis=0))
         idx = np.arange(len(p))
         line = np.array(lines)[best, idx]
