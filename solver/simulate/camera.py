@@ -155,10 +155,16 @@ def chips_partition(
     total = sum(widths)
     chips, first = [], 0
     for i, (w, dx, sh) in enumerate(zip(widths, dx_mm, dy_shift_mm, strict=True)):
-        nominal = (first + (w - 1) / 2.0 - (total - 1) / 2.0) * pixel_mm
-        chips.append(ChipSpec(str(i + 1), first, w, float(dx), float(nominal + sh)))
+        chips.append(_nominal_chip(i, first, w, total, pixel_mm, dx, sh))
         first += w
     return tuple(chips)
+
+
+def _nominal_chip(i: int, first: int, width: int, image_columns: int, pixel_mm: float, dx_mm: float, dy_shift_mm: float) -> ChipSpec:
+    """Chip ``str(i + 1)`` at its nominal place: dy (mm) the offset of its centre column from the
+    image centre, plus ``dy_shift_mm``; x = ``dx_mm``."""
+    nominal = (first + (width - 1) / 2.0 - (image_columns - 1) / 2.0) * pixel_mm
+    return ChipSpec(str(i + 1), first, width, float(dx_mm), float(nominal + dy_shift_mm))
 
 
 def chips_butted(
@@ -173,9 +179,7 @@ def chips_butted(
     first0 = -((span - image_columns) // 2)
     chips = []
     for i, (dx, sh) in enumerate(zip(dx_mm, dy_shift_mm, strict=True)):
-        first = first0 + i * (width - overlap)
-        nominal = (first + (width - 1) / 2.0 - (image_columns - 1) / 2.0) * pixel_mm
-        chips.append(ChipSpec(str(i + 1), first, width, float(dx), float(nominal + sh)))
+        chips.append(_nominal_chip(i, first0 + i * (width - overlap), width, image_columns, pixel_mm, dx, sh))
     return tuple(chips)
 
 
