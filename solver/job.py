@@ -38,10 +38,15 @@ class Chip(_Strict):
     coordinate is ``y_s = (C - first_column - (columns - 1)/2) * pixel_mm`` and its camera
     coordinates ``x_c = dx_mm``, ``y_c = y_s + dy_mm`` (translations from the chip centre to the
     principal point, in the focal plane, mm).
+
+    Chips may overlap (butted CCDs) and may extend beyond the delivered image: ``first_column``
+    may be negative and the last column beyond the image's. A column covered by several chips
+    belongs to the one whose centre column is nearest (the overlap split in the middle,
+    :mod:`solver.chips`) unless its observation names its ``chip``.
     """
 
     id: str = Field(min_length=1, max_length=64)
-    first_column: int = Field(ge=0)
+    first_column: int
     columns: int = Field(gt=0)
     dx_mm: float = 0.0
     dy_mm: float = 0.0
@@ -220,13 +225,20 @@ class GroundPoint(_Strict):
 
 
 class ImageObservation(_Strict):
-    """A measured image point: (line, column) in pixels with its standard deviation."""
+    """A measured image point: (line, column) in pixels with its standard deviation.
+
+    ``chip`` optionally names the CCD chip (its ``id`` in the camera's ``chips``; "1" for a camera
+    without chips) that imaged the point, for columns where chips overlap; the column must lie on
+    that chip. Without it the column's chip follows the rule of :mod:`solver.chips` (the covering
+    chip whose centre column is nearest).
+    """
 
     image: str = Field(min_length=1, max_length=64)
     point: str = Field(min_length=1, max_length=64)
     line: float
     column: float
     sigma_px: float = Field(default=0.5, gt=0)
+    chip: str | None = Field(default=None, min_length=1, max_length=64)
 
 
 LineRole = Literal["control", "check"]

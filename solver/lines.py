@@ -413,8 +413,20 @@ def control_line_points_ecef(job, ecef: dict[str, np.ndarray]) -> np.ndarray:
     return np.concatenate(pts) if pts else np.zeros((0, 3))
 
 
+def _on_a_chip(camera, column: float) -> bool:
+    """True if ``column`` is in the delivered image and on a CCD chip (:mod:`solver.chips`)."""
+    from solver.problem import camera_chip
+
+    try:
+        camera_chip(camera, column)
+    except KeyError:
+        return False
+    return True
+
+
 def _chip_constants(camera, column: float) -> tuple[float, float, float]:
-    """(xo, yo, centre column) of the chip containing ``column`` (clamped into the image)."""
+    """(xo, yo, centre column) of the chip of ``column`` (clamped into the image) by the rule of
+    :mod:`solver.chips` (line points do not name their chip)."""
     from solver.problem import camera_chip
 
     ncols = camera.columns or 1
@@ -873,12 +885,12 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[JobPro
                     bad = True
                 if cam is not None and cam.lines is not None and cam.columns is not None:
                     for q, pt in enumerate(o.points):
-                        if not (-0.5 <= pt.line <= cam.lines - 0.5 and -0.5 <= pt.column <= cam.columns - 0.5):
+                        if not (-0.5 <= pt.line <= cam.lines - 0.5 and _on_a_chip(cam, pt.column)):
                             problems.append(
                                 JobProblem(
                                     "outside_image",
                                     f"line {gl.id!r} in image {o.image!r}: point {q} ({pt.line}, {pt.column}) is "
-                                    f"outside the image (0..{cam.lines - 1}, 0..{cam.columns - 1})",
+                                    f"outside the image (0..{cam.lines - 1}, 0..{cam.columns - 1}) or on no CCD chip",
                                     oloc + ("points", q),
                                 )
                             )

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from solver.chips import chip_index_of_column, covers
 from solver.geodesy import LocalFrame, to_ecef
 from solver.job import Camera, Job
 from solver.kernels import KIND_KEPLER, N_COEF, N_KEPLER_CONST, N_OBS_CONST
@@ -110,20 +111,38 @@ def kepler_constants(model: PlatformModel, frame: LocalFrame, mounting_pitch_deg
     return kc
 
 
-def camera_chip(camera: Camera, column: float) -> tuple[str, float, float, float]:
-    """(chip id, dx_mm, dy_mm, centre column) of the chip containing ``column``; KeyError if none.
+def in_image_columns(camera: Camera, column: float) -> bool:
+    """True if ``column`` lies in the delivered image (``-0.5 .. columns - 0.5``)."""
+    return -0.5 <= column <= (camera.columns or 0) - 0.5
 
-    A camera without chips is one chip centred on the principal point.
+
+def camera_chip(camera: Camera, column: float, chip: str | None = None) -> tuple[str, float, float, float]:
+    """(chip id, dx_mm, dy_mm, centre column) of the chip of image column ``column``.
+
+    ``chip`` names the chip (its id); without it the chip follows the rule of
+    :mod:`solver.chips` (the covering chip whose centre column is nearest). KeyError if the column
+    is outside the delivered image, on no chip, or not on the named chip. A camera without chips
+    is one chip "1" centred on the principal point.
     """
-    ncols = camera.columns or 0
-    if not camera.chips:
-        if -0.5 <= column <= ncols - 0.5:
-            return "1", 0.0, 0.0, (ncols - 1) / 2.0
+    if not in_image_columns(camera, column):
         raise KeyError(column)
-    for chip in camera.chips:
-        if chip.first_column - 0.5 <= column <= chip.first_column + chip.columns - 0.5:
-            return chip.id, chip.dx_mm, chip.dy_mm, chip.first_column + (chip.columns - 1) / 2.0
-    raise KeyError(column)
+    if not camera.chips:
+        if chip not in (None, "1"):
+            raise KeyError(chip)
+        return "1", 0.0, 0.0, ((camera.columns or 0) - 1) / 2.0
+    if chip is None:
+        k = int(chip_index_of_column([c.first_column for c in camera.chips], [c.columns for c in camera.chips], column))
+        if k < 0:
+            raise KeyError(column)
+    else:
+        ids = [c.id for c in camera.chips]
+        if chip not in ids:
+            raise KeyError(chip)
+        k = ids.index(chip)
+        if not covers(camera.chips[k].first_column, camera.chips[k].columns, column):
+            raise KeyError(column)
+    c = camera.chips[k]
+    return c.id, c.dx_mm, c.dy_mm, c.first_column + (c.columns - 1) / 2.0
 
 
 def control_frame(job: Job, points_ecef: dict[str, np.ndarray], line_points_ecef: np.ndarray | None = None) -> LocalFrame:
@@ -210,7 +229,7 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
     for k, o in enumerate(job.observations):
         im = images[img_index[o.image]]
         cam = im.camera
-        chip_id, dx, dy, centre = camera_chip(cam, o.column)
+        chip_id, dx, dy, centre = camera_chip(cam, o.column, o.chip)
         x0, y0 = cam.principal_point_mm
         obs_img[k] = im.index
         obs_pt[k] = pt_index[o.point]

@@ -14,9 +14,9 @@ from typing import Any
 from solver.ephemeris import ephemeris_problems, image_state
 from solver.errors import JobError, Problem
 from solver.geodesy import UnknownCRSError, parse_crs
-from solver.job import Job
+from solver.job import Camera, ImageObservation, Job
 from solver.models import get_model
-from solver.problem import camera_chip
+from solver.problem import camera_chip, in_image_columns
 
 
 def _duplicates(items: list[Any], what: str, key: str) -> list[Problem]:
@@ -26,6 +26,38 @@ def _duplicates(items: list[Any], what: str, key: str) -> list[Problem]:
         for i, n in counts.items()
         if n > 1
     ]
+
+
+def _duplicate_chips(cam: Camera, i: int) -> list[Problem]:
+    """Chip ids must be unique within a camera (observations and IOP names refer to them).
+    Chips may overlap and extend beyond the image (butted CCDs, :mod:`solver.chips`)."""
+    counts = Counter(c.id for c in cam.chips)
+    return [
+        Problem("duplicate_id", f"camera {cam.id!r}: chip id {c!r} is used {n} times", ("cameras", i, "chips"))
+        for c, n in counts.items()
+        if n > 1
+    ]
+
+
+def _column_problems(cam: Camera, o: ImageObservation, k: int) -> list[Problem]:
+    """The observation's column in the delivered image, on its named chip or on some chip."""
+    loc = ("observations", k)
+    what = f"observation {k} ({o.point!r} in {o.image!r})"
+    ncols = cam.columns or 0
+    if not in_image_columns(cam, o.column):
+        return [Problem("outside_image", f"{what}: column {o.column} is outside 0..{ncols - 1}", loc + ("column",))]
+    ids = [c.id for c in cam.chips] if cam.chips else ["1"]
+    if o.chip is not None and o.chip not in ids:
+        return [Problem("unknown_chip", f"{what}: camera {cam.id!r} has no chip {o.chip!r} (chips: {', '.join(ids)})", loc + ("chip",))]
+    try:
+        camera_chip(cam, o.column, o.chip)
+    except KeyError:
+        if o.chip is not None:
+            c = cam.chips[ids.index(o.chip)]
+            msg = f"{what}: column {o.column} is not on chip {o.chip!r} (columns {c.first_column}..{c.first_column + c.columns - 1})"
+            return [Problem("outside_chip", msg, loc + ("column",))]
+        return [Problem("outside_image", f"{what}: column {o.column} is on no CCD chip of camera {cam.id!r}", loc + ("column",))]
+    return []
 
 
 def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
@@ -47,30 +79,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
                 )
             )
             continue
-        used = []
-        for k, chip in enumerate(cam.chips):
-            end = chip.first_column + chip.columns
-            if end > (cam.columns or 0):
-                problems.append(
-                    Problem(
-                        "chip_outside_image",
-                        f"camera {cam.id!r} chip {chip.id!r} ends at column {end - 1}, "
-                        f"beyond the image's {cam.columns} columns",
-                        ("cameras", i, "chips", k),
-                    )
-                )
-            used.append((chip.first_column, end, k))
-        used.sort()
-        for (a0, a1, ka), (b0, b1, kb) in zip(used, used[1:]):
-            if b0 < a1:
-                problems.append(
-                    Problem(
-                        "chips_overlap",
-                        f"camera {cam.id!r}: chips {cam.chips[ka].id!r} and {cam.chips[kb].id!r} "
-                        "cover the same image columns (each image column belongs to one chip)",
-                        ("cameras", i, "chips", kb),
-                    )
-                )
+        problems += _duplicate_chips(cam, i)
 
     n_unknowns = 0
     n_prior_obs = 0
@@ -167,17 +176,9 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
                     )
                 )
                 continue
-            try:
-                camera_chip(cam, o.column)
-            except KeyError:
-                problems.append(
-                    Problem(
-                        "outside_image",
-                        f"observation {k} ({o.point!r} in {o.image!r}): column {o.column} is on no "
-                        f"CCD chip of camera {cam.id!r} (0..{(cam.columns or 0) - 1})",
-                        loc + ("column",),
-                    )
-                )
+            column_issues = _column_problems(cam, o, k)
+            if column_issues:
+                problems += column_issues
                 continue
         images_of_point[o.point].add(o.image)
         if points[o.point].role != "check":

@@ -434,6 +434,7 @@ def test_attitude_per_camera_is_one_block_per_camera_of_the_pass(strip_job):
     for ims in by_cam.values():
         assert len(ims) == 2
         assert ims[0]["attitude_shared_with"] == [ims[0]["id"], ims[1]["id"]]
+        # exact on purpose: one shared parameter block reported under both images
         assert [p["value"] for p in ims[0]["parameters"]] == [p["value"] for p in ims[1]["parameters"]]
     assert all(im["attitude_shared_with"] is None for im in rep_img["images"])
     for rep in (rep_cam, rep_img):

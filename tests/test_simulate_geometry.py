@@ -43,10 +43,12 @@ def test_chip_columns_partition_the_image(camera: CameraSpec):
 
 
 def test_bad_chip_layout_is_refused():
+    # chips must cover every image column; they may overlap and extend beyond the image
     with pytest.raises(ValueError):
-        CameraSpec("bad", 1000, 0.01, 1e-3, 10, 100, (ChipSpec("1", 0, 60), ChipSpec("2", 50, 50)))
+        CameraSpec("gap", 1000, 0.01, 1e-3, 10, 100, (ChipSpec("1", 0, 40), ChipSpec("2", 50, 50)))
     with pytest.raises(ValueError):
         CameraSpec("short", 1000, 0.01, 1e-3, 10, 100, (ChipSpec("1", 0, 60),))
+    CameraSpec("butted", 1000, 0.01, 1e-3, 10, 100, (ChipSpec("1", -5, 60), ChipSpec("2", 50, 60)))
 
 
 def test_prism_cameras_have_table1_focal_lengths_and_pitches():

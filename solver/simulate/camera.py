@@ -6,6 +6,8 @@ direction), z_c away from the scene, y_c = z_c x x_c. A point with camera coordi
 covers image columns ``first_column .. first_column + columns - 1``; its pixels lie at
 x = dx_mm (along-track stagger) and y = dy_mm + (C - first_column - (columns - 1)/2) * pixel_mm,
 so the column of a focal-plane y is ``C = first_column + (columns - 1)/2 + (y - dy_mm) / pixel_mm``.
+Chips may overlap and extend beyond the delivered image; a column covered by several chips
+belongs to the one the solver assigns it to (:mod:`solver.chips`: the nearest chip centre).
 Lines grow with time: t(L) = first_line_time + L * line_time (L continuous). The origin of
 (line, column) is the centre of the top-left pixel.
 """
@@ -16,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from solver.chips import chip_index_of_column, chip_seams
 from solver.simulate.iop import NO_IOP, CameraIOP
 
 # Seed 001 Table 1: calibrated focal lengths of the PRISM cameras (mm)
@@ -25,8 +28,16 @@ PRISM_PIXEL_MM = 0.0071
 PRISM_LINE_TIME_S = 0.00037
 PRISM_LINES = 16000
 PRISM_COLUMNS = 14496
-# Four chips assembled into the 14496-column image (seed 001 section 3, Figure 4).
+# Four chips assembled into the 14496-column image (seed 001 section 3, Figure 4), as an
+# invented partition of the image ("partition" layout, the default of the presets).
 PRISM_CHIP_COLUMNS = (3616, 3632, 3632, 3616)
+# The real focal planes (seed 001 section 3): six chips of 4992 columns (nadir) or eight of 4928
+# (backward, forward), neighbours overlapping by 32 columns; four of them make the delivered
+# image, the outer two only in part ("butted" layout: the four chips with their full width,
+# the outer ones starting before column 0 and ending after column 14495).
+PRISM_FOCAL_PLANE_CHIP_COLUMNS = {"backward": 4928, "nadir": 4992, "forward": 4928}
+PRISM_CHIP_OVERLAP = 32
+PRISM_LAYOUTS = ("partition", "butted")
 # Small departures of each chip from its nominal place (mm): along-track stagger dx and an
 # across-track shift added to the nominal dy. Fixed "calibration" values, per camera.
 _PRISM_CHIP_DX_MM = {
@@ -71,14 +82,8 @@ class CameraSpec:
     iop: CameraIOP = NO_IOP  # true interior-orientation errors (not written in the job)
 
     def __post_init__(self) -> None:
-        cols = sorted((c.first_column, c.columns) for c in self.chips)
-        expect = 0
-        for first, n in cols:
-            if first != expect:
-                raise ValueError(f"camera {self.id}: chip column ranges must partition 0..{self.columns - 1}")
-            expect = first + n
-        if expect != self.columns:
-            raise ValueError(f"camera {self.id}: chips cover {expect} columns, image has {self.columns}")
+        if np.any(self.chip_of_column(np.arange(self.columns)) < 0):
+            raise ValueError(f"camera {self.id}: the chips must cover every image column 0..{self.columns - 1}")
 
     def column_from_y(self, y_mm: np.ndarray, chip: int) -> np.ndarray:
         """Image column of focal-plane y (mm) on chip index ``chip``."""
@@ -86,12 +91,12 @@ class CameraSpec:
         return c.centre_column + (np.asarray(y_mm) - c.dy_mm) / self.pixel_mm
 
     def chip_of_column(self, column: np.ndarray) -> np.ndarray:
-        """Chip index whose column range contains round(column); -1 outside the image."""
-        col = np.floor(np.asarray(column, dtype=float) + 0.5)
-        out = np.full(col.shape, -1, dtype=int)
-        for k, c in enumerate(self.chips):
-            out[(col >= c.first_column) & (col < c.first_column + c.columns)] = k
-        return out
+        """Chip index of image columns by the solver's rule (:mod:`solver.chips`); -1 on no chip."""
+        return chip_index_of_column([c.first_column for c in self.chips], [c.columns for c in self.chips], column)
+
+    def seams(self) -> np.ndarray:
+        """Columns inside the image where one chip hands over to the next (half-integers)."""
+        return chip_seams([c.first_column for c in self.chips], [c.columns for c in self.chips], self.columns)
 
     def focal_from_image(self, column: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x_mm, y_mm, chip index) of image columns (the line only gives the time)."""
@@ -150,14 +155,50 @@ def chips_partition(
     total = sum(widths)
     chips, first = [], 0
     for i, (w, dx, sh) in enumerate(zip(widths, dx_mm, dy_shift_mm, strict=True)):
-        nominal = (first + (w - 1) / 2.0 - (total - 1) / 2.0) * pixel_mm
-        chips.append(ChipSpec(str(i + 1), first, w, float(dx), float(nominal + sh)))
+        chips.append(_nominal_chip(i, first, w, total, pixel_mm, dx, sh))
         first += w
     return tuple(chips)
 
 
-def prism_camera(view: str) -> CameraSpec:
-    """A PRISM-like camera: ``backward``, ``nadir`` or ``forward`` (seed 001 Table 1)."""
+def _nominal_chip(i: int, first: int, width: int, image_columns: int, pixel_mm: float, dx_mm: float, dy_shift_mm: float) -> ChipSpec:
+    """Chip ``str(i + 1)`` at its nominal place: dy (mm) the offset of its centre column from the
+    image centre, plus ``dy_shift_mm``; x = ``dx_mm``."""
+    nominal = (first + (width - 1) / 2.0 - (image_columns - 1) / 2.0) * pixel_mm
+    return ChipSpec(str(i + 1), first, width, float(dx_mm), float(nominal + dy_shift_mm))
+
+
+def chips_butted(
+    width: int, overlap: int, image_columns: int, pixel_mm: float, dx_mm: tuple[float, ...], dy_shift_mm: tuple[float, ...]
+) -> tuple[ChipSpec, ...]:
+    """``len(dx_mm)`` chips of ``width`` columns, neighbours overlapping by ``overlap`` columns,
+    centred on an image of ``image_columns`` (the outer chips start before column 0 and end after
+    the last column); dy is the chip centre's nominal offset from the image centre plus
+    ``dy_shift_mm``, so every chip sees a column where the others see it."""
+    n = len(dx_mm)
+    span = n * width - (n - 1) * overlap
+    first0 = -((span - image_columns) // 2)
+    chips = []
+    for i, (dx, sh) in enumerate(zip(dx_mm, dy_shift_mm, strict=True)):
+        chips.append(_nominal_chip(i, first0 + i * (width - overlap), width, image_columns, pixel_mm, dx, sh))
+    return tuple(chips)
+
+
+def prism_chips(view: str, layout: str = "partition") -> tuple[ChipSpec, ...]:
+    """The four chips of a PRISM-like view: ``partition`` (side by side over the image) or
+    ``butted`` (the real focal-plane chips, overlapping by 32 columns, seed 001 section 3)."""
+    if layout == "partition":
+        return chips_partition(PRISM_CHIP_COLUMNS, PRISM_PIXEL_MM, _PRISM_CHIP_DX_MM[view], _PRISM_CHIP_DY_SHIFT_MM[view])
+    if layout == "butted":
+        return chips_butted(
+            PRISM_FOCAL_PLANE_CHIP_COLUMNS[view], PRISM_CHIP_OVERLAP, PRISM_COLUMNS, PRISM_PIXEL_MM,
+            _PRISM_CHIP_DX_MM[view], _PRISM_CHIP_DY_SHIFT_MM[view],
+        )
+    raise ValueError(f"unknown PRISM chip layout {layout!r} (one of {', '.join(PRISM_LAYOUTS)})")
+
+
+def prism_camera(view: str, layout: str = "partition") -> CameraSpec:
+    """A PRISM-like camera: ``backward``, ``nadir`` or ``forward`` (seed 001 Table 1), with the
+    chip ``layout`` of :func:`prism_chips`."""
     if view not in PRISM_FOCAL_MM:
         raise ValueError(f"unknown PRISM view {view!r}")
     return CameraSpec(
@@ -167,7 +208,7 @@ def prism_camera(view: str) -> CameraSpec:
         line_time_s=PRISM_LINE_TIME_S,
         lines=PRISM_LINES,
         columns=PRISM_COLUMNS,
-        chips=chips_partition(PRISM_CHIP_COLUMNS, PRISM_PIXEL_MM, _PRISM_CHIP_DX_MM[view], _PRISM_CHIP_DY_SHIFT_MM[view]),
+        chips=prism_chips(view, layout),
         mounting_pitch_deg=PRISM_PITCH_DEG[view],
     )
 

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from solver.simulate import presets
+from solver.simulate.camera import PRISM_LAYOUTS
 from solver.simulate.scene import Settings, write_documents
 
 
@@ -50,6 +51,17 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _chip_layout(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--chip-layout",
+        choices=PRISM_LAYOUTS,
+        default="partition",
+        help="PRISM CCD chips: partition (default: four chips side by side over the 14496 columns) or "
+        "butted (the real focal-plane chips of 4992 / 4928 columns overlapping by 32, the outer ones "
+        "extending beyond the image; seed 001 section 3)",
+    )
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``simulate`` and its presets to the ``pba`` command line."""
     sim = subparsers.add_parser("simulate", help="simulate a scene: job document + truth file")
@@ -60,12 +72,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--camera", choices=presets.PRISM_VIEWS, default="nadir")
     p.add_argument("--gcps", type=int, default=14)
     p.add_argument("--checks", type=int, default=9)
+    _chip_layout(p)
 
     p = sub.add_parser("prism-triplet", help="PRISM-like backward/nadir/forward triplet (seed 001)")
     _common(p)
     p.add_argument("--gcps", type=int, default=22)
     p.add_argument("--checks", type=int, default=20)
     p.add_argument("--tie-points", type=int, default=40)
+    _chip_layout(p)
 
     p = sub.add_parser("cbers-scene", help="CBERS-like CCD scene, SAD69 / UTM 22S (seed 002)")
     _common(p)
@@ -127,9 +141,9 @@ def run(args: argparse.Namespace) -> int:
     )
     t0 = time.perf_counter()
     if args.preset == "prism-single":
-        scene = presets.prism_single(settings, args.camera, args.gcps, args.checks)
+        scene = presets.prism_single(settings, args.camera, args.gcps, args.checks, args.chip_layout)
     elif args.preset == "prism-triplet":
-        scene = presets.prism_triplet(settings, args.gcps, args.checks, args.tie_points)
+        scene = presets.prism_triplet(settings, args.gcps, args.checks, args.tie_points, args.chip_layout)
     elif args.preset == "cbers-scene":
         scene = presets.cbers_scene(settings, args.gcps, args.checks)
     elif args.preset == "cbers-lines":

@@ -22,15 +22,20 @@ CBERS_SITE = (-51.147, -22.372)  # centre of the seed 002 scene (orbit 159, poin
 CBERS_INCLINATION_DEG = 98.5
 
 
-def prism_single(settings: Settings, camera: str = "nadir", gcps: int = 14, checks: int = 9) -> Scene:
-    """One PRISM-like image of the default area."""
-    group = Group([prism_camera(camera)], gcps, checks, 0)
+def prism_single(
+    settings: Settings, camera: str = "nadir", gcps: int = 14, checks: int = 9, chip_layout: str = "partition"
+) -> Scene:
+    """One PRISM-like image of the default area (``chip_layout``: :func:`solver.simulate.camera.prism_chips`)."""
+    group = Group([prism_camera(camera, chip_layout)], gcps, checks, 0)
     return Scene(replace(settings, preset="prism-single"), [group]).simulate()
 
 
-def prism_triplet(settings: Settings, gcps: int = 22, checks: int = 20, tie_points: int = 40) -> Scene:
-    """A PRISM-like triplet (backward, nadir, forward) of the default area."""
-    group = Group([prism_camera(v) for v in PRISM_VIEWS], gcps, checks, tie_points)
+def prism_triplet(
+    settings: Settings, gcps: int = 22, checks: int = 20, tie_points: int = 40, chip_layout: str = "partition"
+) -> Scene:
+    """A PRISM-like triplet (backward, nadir, forward) of the default area (``chip_layout``:
+    :func:`solver.simulate.camera.prism_chips`)."""
+    group = Group([prism_camera(v, chip_layout) for v in PRISM_VIEWS], gcps, checks, tie_points)
     return Scene(replace(settings, preset="prism-triplet"), [group]).simulate()
 
 

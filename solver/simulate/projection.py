@@ -5,8 +5,9 @@ Ground to image: for each chip k, the acquisition time t of a ground point P is 
 chip's line of pixels); it is found by Newton iteration to |dt| < 1e-12 s (about 3e-9 lines
 for PRISM). Then ``L = (t - first_line_time) / line_time`` and
 ``C = first_column + (columns - 1)/2 + (y - dy_k) / pixel`` with y = -f Y / Z. The chip is the one
-whose column range contains C (with unequal chip offsets a point near a seam may fall in
-none: a gap between chips, reported as outside).
+to which C belongs by the solver's rule (:mod:`solver.chips`: among the chips covering C, the
+nearest centre; with unequal chip offsets a point near a hand-over may fall in none: a gap
+between chips, reported as outside).
 
 A camera with interior-orientation errors (:mod:`solver.simulate.iop`, docs/models.md section 8)
 bends each chip's line of pixels and moves it in the focal plane: then the time and the scanline
@@ -163,12 +164,20 @@ class ImageGeometry:
             lines.append(self.line_of_time(t))
             cols.append(col)
             times.append(t)
-        best = np.argmax(np.array(margins), axis=0)
+        # a chip images the point if the column it sees there belongs to it by the solver's rule
+        # (solver.chips); if two chips do (misregistered chips at a hand-over), the one that sees
+        # it farther from its ends
+        cols_a, margins_a = np.array(cols), np.array(margins)
+        own = margins_a >= 0
+        for k in range(len(cam.chips)):
+            on = np.flatnonzero(own[k])
+            own[k, on] = cam.chip_of_column(cols_a[k, on]) == k
+        best = np.where(own.any(axis=0), np.argmax(np.where(own, margins_a, -np.inf), axis=0), np.argmax(margins_a, axis=0))
         idx = np.arange(len(p))
         line = np.array(lines)[best, idx]
-        column = np.array(cols)[best, idx]
+        column = cols_a[best, idx]
         time = np.array(times)[best, idx]
-        chip = np.where(np.array(margins)[best, idx] >= 0, best, -1)
+        chip = np.where(own[best, idx], best, -1)
         inside = (chip >= 0) & (line >= -0.5) & (line <= cam.lines - 0.5)
         return ImageProjection(line, column, chip, inside, time)
 

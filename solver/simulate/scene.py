@@ -182,7 +182,7 @@ class Scene:
         projs = []
         for im in imgs:
             pr = im.ground_to_image(pts)
-            seams = np.array([c.first_column - 0.5 for c in im.camera.chips[1:]])
+            seams = im.camera.seams()
             clear = np.all(np.abs(pr.column[:, None] - seams[None, :]) > SEAM_CLEARANCE_PX, axis=1) if len(seams) else True
             ok &= pr.inside & clear
             projs.append(pr)

@@ -35,4 +35,6 @@ def test_owslib_lists_executes_and_reads_results(
     with server.client(keys["alice"]) as c:
         assert wait_status(c, status["jobID"])["status"] == "successful"
         again = c.get(f"/jobs/{status['jobID']}/results").json()["report"]
-    assert again["adjustment"]["sigma0_aposteriori"] == report["adjustment"]["sigma0_aposteriori"]
+    # the same job solved again in another process: Ceres's threads may sum in another order, so
+    # 1e-9 relative (far below any difference a user could act on) rather than equality
+    assert again["adjustment"]["sigma0_aposteriori"] == pytest.approx(report["adjustment"]["sigma0_aposteriori"], rel=1e-9)
