@@ -95,9 +95,12 @@ def _velocity(v: tuple[float, float, float]) -> tuple[float, float, float]:
 
 
 def _unique(values: list[str], what: str) -> list[str]:
-    seen = [v for i, v in enumerate(values) if v in values[:i]]
-    if seen:
-        raise ValueError(f"{what} {sorted(set(seen))[0]!r} is listed twice")
+    """``values``, or ValueError naming the first one listed twice."""
+    seen: set[str] = set()
+    for v in values:
+        if v in seen:
+            raise ValueError(f"{what} {v!r} is listed twice")
+        seen.add(v)
     return values
 
 
