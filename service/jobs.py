@@ -21,7 +21,7 @@ from service.errors import (
     TooManyJobs,
 )
 from service.problems import job_error_entries, problem_entries, pydantic_errors
-from service.processes import MODEL_COMPARISON, PROCESSES, model_names
+from service.processes import MODEL_COMPARISON, PROCESSES
 from service.queue import QueueBackend
 from service.retention import check_quota
 from service.schemas import ExecuteInputs, Link, StatusInfo
@@ -66,18 +66,14 @@ def validate_inputs(
                     }
                 ],
             )
-        known = {n.upper() for n in model_names()}
-        unknown = [
-            {
-                "pointer": f"/inputs/models/{i}",
-                "code": "unknown_model",
-                "message": f"unknown platform model {m!r}; known: {', '.join(model_names())}",
-            }
-            for i, m in enumerate(models)
-            if m.upper() not in known
-        ]
-        if unknown:
-            raise InvalidInput("unknown platform models", unknown)
+        from solver.compare import comparison_problems
+
+        where = ("inputs", "models") if inputs.models else (*PREFIX, "options", "models")
+        problems = [p.to_dict() for p in comparison_problems(models, ())]
+        if problems:
+            raise InvalidInput(
+                "; ".join(str(p["message"]) for p in problems[:5]), problem_entries(problems, where)
+            )
     elif inputs.models:
         raise InvalidInput(
             "models is an input of model-comparison only",

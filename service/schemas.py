@@ -11,7 +11,7 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from service.states import JobStatus
-from solver.job import Camera, Job
+from solver.job import MAX_COMPARED_MODELS, Camera, IopCovariance, Job
 
 
 class ProblemEntry(BaseModel):
@@ -116,6 +116,7 @@ class ExecuteInputs(BaseModel):
     job: Job
     models: list[str] | None = Field(
         default=None,
+        max_length=MAX_COMPARED_MODELS,
         description="model-comparison only: platform models to compare (default: the job's "
         "options.models)",
     )
@@ -174,22 +175,6 @@ class ValidationReport(BaseModel):
     dof: int | None = None
     images: list[dict[str, Any]] = Field(default_factory=list)
     problems: list[dict[str, Any]] = Field(default_factory=list)
-
-
-class IopCovariance(BaseModel):
-    """Covariance of interior-orientation values, rows and columns in ``names`` order."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-    names: list[str] = Field(min_length=1, max_length=64)
-    matrix: list[list[float]]
-
-    @model_validator(mode="after")
-    def _square(self) -> "IopCovariance":
-        n = len(self.names)
-        if len(self.matrix) != n or any(len(row) != n for row in self.matrix):
-            raise ValueError(f"matrix must be {n} x {n} (one row and column per name)")
-        return self
 
 
 class CameraDefinition(Camera):

@@ -10,14 +10,40 @@ decreases, a short human message and a dict (``iteration``, ``cost`` when solvin
 :class:`solver.errors.Cancelled` within one solver iteration.
 
 Bad input raises :class:`solver.errors.JobError` (with every problem found); a solve that
-does not converge is a normal report with ``adjustment.converged = false``.
+does not converge is a normal report with ``adjustment.converged = false``. As a last line of
+defence, an arithmetic, linear-algebra or PROJ failure that escapes the checks (numbers the
+validation let through but the mathematics cannot use) is also a JobError, ``unusable_values``
+located at the document's root; any other exception is a bug of the solver and propagates.
 """
 
 from __future__ import annotations
 
-from typing import Any, Callable, Protocol
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator, Protocol
 
+import numpy as np
+from pyproj.exceptions import ProjError
+
+from solver.errors import JobError, Problem
 from solver.job import Job, load_job
+
+# failures that only the numbers of a document can cause in code that passed its tests
+CLIENT_FAULTS = (ArithmeticError, np.linalg.LinAlgError, ProjError)
+
+
+@contextmanager
+def _input_faults_as_job_errors() -> Iterator[None]:
+    try:
+        yield
+    except CLIENT_FAULTS as exc:
+        raise JobError(
+            Problem(
+                "unusable_values",
+                f"the job's numbers cannot be used by the adjustment ({type(exc).__name__}: {exc}); "
+                "check coordinates, states, camera constants and sigmas",
+                (),
+            )
+        ) from exc
 
 
 class ProgressFn(Protocol):
@@ -40,7 +66,8 @@ def validate(job: Job | dict[str, Any] | str | bytes) -> dict[str, Any]:
     """
     from solver.validate import validate_job
 
-    return validate_job(_as_job(job))
+    with _input_faults_as_job_errors():
+        return validate_job(_as_job(job))
 
 
 def run(
@@ -57,7 +84,8 @@ def run(
         return compare(j, j.options.models, progress=progress, cancel=cancel)
     from solver.adjust import adjust_job
 
-    return adjust_job(j, progress=progress, cancel=cancel)
+    with _input_faults_as_job_errors():
+        return adjust_job(j, progress=progress, cancel=cancel)
 
 
 def compare(
@@ -69,4 +97,5 @@ def compare(
     """Adjust the same observations with each platform model; one report per model + a table."""
     from solver.compare import compare_models
 
-    return compare_models(_as_job(job), models, progress=progress, cancel=cancel)
+    with _input_faults_as_job_errors():
+        return compare_models(_as_job(job), models, progress=progress, cancel=cancel)

@@ -135,7 +135,7 @@ class ImageBatchCost(pyceres.CostFunction):
         self.img_tab, self.cam_tab = tables
         self.blocks, img_slot, cam_slot, pass_slot = _slots(problem, obs_rows)
         self.rec = records(problem, obs_rows, img_slot, cam_slot, pass_slot)
-        self.pts = np.ascontiguousarray([problem.points[problem.obs.pt[k]].xyz for k in obs_rows], dtype=float)
+        self.pts = np.ascontiguousarray(np.array([problem.points[problem.obs.pt[k]].xyz for k in obs_rows], dtype=float).reshape(-1, 3))
         m = len(obs_rows)
         self.scratch = tuple(np.zeros(2 * m * len(b)) for b in self.blocks)
         self.control = control

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from solver.iop_names import camera_iop_names
 from solver.job import Camera, Job
 from solver.kernels import IOP_CHIP, IOP_OPTICAL, MAX_CHIPS, N_IOP
 
@@ -32,10 +33,7 @@ def chip_ids(camera: Camera) -> list[str]:
 
 def iop_names(camera: Camera) -> list[str]:
     """Names of the full IOP vector (padding slots of absent chips are unnamed)."""
-    names = list(IOP_OPTICAL)
-    for cid in chip_ids(camera):
-        names += [f"{p}@{cid}" for p in IOP_CHIP]
-    return names
+    return camera_iop_names(chip_ids(camera))
 
 
 def default_master_chip(camera: Camera) -> str:

@@ -18,13 +18,90 @@ so that every problem in a document is reported at once.
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationInfo, field_validator, model_validator
+from typing_extensions import TypedDict
+
+from solver.iop_names import camera_iop_names
 
 SCHEMA_VERSION = "1.0"
 
 Role = Literal["gcp", "check", "tie"]
+
+# ---- number types: strict (no "481.8" -> 481.8, no true -> 1), finite, of plausible size ------
+MAX_ABS = 1e15  # no number of a job is larger: squares and products stay finite
+MAX_COORDINATE = 1e8  # ground coordinates (m or deg) in any CRS: beyond this none is on Earth
+MAX_ANGLE_DEG = 360.0
+MAX_TIME_S = 1e10  # |epoch| in seconds on any time scale (GPS seconds are 1.4e9)
+MIN_SIGMA_PX = 1e-6  # smaller image sigmas give weights that swamp every other observation
+MIN_SIGMA_M = 1e-6  # 1 micrometre: survey, state and endpoint standard deviations
+MIN_FOCAL_MM = 0.1  # focal length after the df correction
+MAX_FOCAL_MM = 1e5
+MIN_STATE_RADIUS_M = 6.3e6  # a platform state closer to the geocentre is inside the Earth
+MAX_STATE_RADIUS_M = 1e8  # four times the geostationary radius
+MAX_SPEED_M_S = 1e5
+MAX_LINES = 10**8
+MAX_COLUMNS = 10**6
+MAX_COMPARED_MODELS = 16
+MAX_IOP = 64  # names of an iop_covariance (optical + 8 chips x 5 is 46)
+
+
+def _num(**bounds: float) -> Any:
+    """A strict finite JSON number within +-MAX_ABS (an integer is accepted), with ``bounds``
+    (ge, gt, le, lt) added."""
+    limits = {"ge": -MAX_ABS, "le": MAX_ABS, **bounds}
+    if "gt" in bounds:
+        limits.pop("ge")
+    if "lt" in bounds:
+        limits.pop("le")
+    return Annotated[float, Strict(), Field(allow_inf_nan=False, **limits)]
+
+
+def _int(**bounds: int) -> Any:
+    """A strict JSON integer (3.0, "3" and true are refused) with ``bounds``."""
+    return Annotated[int, Strict(), Field(**bounds)]
+
+
+Num = _num()
+Coordinate = _num(ge=-MAX_COORDINATE, le=MAX_COORDINATE)
+AngleDeg = _num(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)
+TimeS = _num(ge=-MAX_TIME_S, le=MAX_TIME_S)
+SigmaM = _num(ge=MIN_SIGMA_M, le=1e7)
+SigmaPx = _num(ge=MIN_SIGMA_PX, le=1e6)
+Bool = Annotated[bool, Strict()]
+Xyz = tuple[Num, Num, Num]
+
+
+def _state_vector(v: tuple[float, float, float], what: str) -> tuple[float, float, float]:
+    """A platform position (ECEF m) outside the Earth and within MAX_STATE_RADIUS_M."""
+    r = math.sqrt(sum(x * x for x in v))
+    if r < MIN_STATE_RADIUS_M:
+        raise ValueError(
+            f"{what} is {r:.6g} m from the geocentre: inside the Earth (ECEF metres expected, "
+            f"at least {MIN_STATE_RADIUS_M:g} m)"
+        )
+    if r > MAX_STATE_RADIUS_M:
+        raise ValueError(f"{what} is {r:.6g} m from the geocentre: beyond {MAX_STATE_RADIUS_M:g} m")
+    return v
+
+
+def _velocity(v: tuple[float, float, float]) -> tuple[float, float, float]:
+    speed = math.sqrt(sum(x * x for x in v))
+    if speed > MAX_SPEED_M_S:
+        raise ValueError(f"speed {speed:.6g} m/s is beyond {MAX_SPEED_M_S:g} m/s (m/s expected)")
+    return v
+
+
+def _unique(values: list[str], what: str) -> list[str]:
+    """``values``, or ValueError naming the first one listed twice."""
+    seen: set[str] = set()
+    for v in values:
+        if v in seen:
+            raise ValueError(f"{what} {v!r} is listed twice")
+        seen.add(v)
+    return values
 
 
 class _Strict(BaseModel):
@@ -46,30 +123,45 @@ class Chip(_Strict):
     """
 
     id: str = Field(min_length=1, max_length=64)
-    first_column: int
-    columns: int = Field(gt=0)
-    dx_mm: float = 0.0
-    dy_mm: float = 0.0
+    first_column: _int(ge=-MAX_COLUMNS, le=MAX_COLUMNS)
+    columns: _int(gt=0, le=MAX_COLUMNS)
+    dx_mm: _num(ge=-1e3, le=1e3) = 0.0
+    dy_mm: _num(ge=-1e3, le=1e3) = 0.0
 
 
 class CameraRef(_Strict):
     """Reference to a camera stored in the server's camera library."""
 
     name: str = Field(min_length=1, max_length=128)
-    version: int | None = Field(default=None, ge=1)
+    version: _int(ge=1, le=2**31) | None = None
 
 
 class IopCovariance(_Strict):
     """Covariance of interior-orientation parameters (as exported by a self-calibration)."""
 
-    names: list[str]
-    matrix: list[list[float]]
+    names: list[str] = Field(min_length=1, max_length=MAX_IOP)
+    matrix: list[list[Num]] = Field(max_length=MAX_IOP)
+
+    @field_validator("names")
+    @classmethod
+    def _distinct(cls, v: list[str]) -> list[str]:
+        return _unique(v, "interior-orientation parameter")
 
     @model_validator(mode="after")
-    def _square(self) -> "IopCovariance":
+    def _covariance(self) -> "IopCovariance":
         n = len(self.names)
         if len(self.matrix) != n or any(len(r) != n for r in self.matrix):
             raise ValueError(f"iop_covariance matrix must be {n} x {n}")
+        m = np.array(self.matrix, dtype=float)
+        if not np.allclose(m, m.T, rtol=1e-6, atol=0.0):
+            raise ValueError("iop_covariance matrix is not symmetric")
+        try:
+            np.linalg.cholesky(m)
+        except np.linalg.LinAlgError:
+            raise ValueError(
+                "iop_covariance matrix is not positive definite (every variance must be positive "
+                "and every correlation within -1..1)"
+            ) from None
         return self
 
 
@@ -83,26 +175,49 @@ class Camera(_Strict):
 
     id: str = Field(min_length=1, max_length=64)
     ref: CameraRef | None = None
-    focal_mm: float | None = Field(default=None, gt=0)
-    pixel_mm: float | None = Field(default=None, gt=0)
-    line_time_s: float | None = Field(default=None, gt=0)
-    lines: int | None = Field(default=None, gt=0)
-    columns: int | None = Field(default=None, gt=0)
-    principal_point_mm: tuple[float, float] = (0.0, 0.0)
+    focal_mm: _num(ge=MIN_FOCAL_MM, le=MAX_FOCAL_MM) | None = None
+    pixel_mm: _num(ge=1e-6, le=10.0) | None = None
+    line_time_s: _num(ge=1e-9, le=10.0) | None = None
+    lines: _int(gt=0, le=MAX_LINES) | None = None
+    columns: _int(gt=0, le=MAX_COLUMNS) | None = None
+    principal_point_mm: tuple[_num(ge=-1e3, le=1e3), _num(ge=-1e3, le=1e3)] = (0.0, 0.0)
     chips: list[Chip] = Field(default_factory=list)
-    mounting_pitch_deg: float = Field(
+    mounting_pitch_deg: Num = Field(
         default=0.0,
         ge=-60,
         le=60,
         description="nominal along-track tilt of the camera (backward PRISM -23.8, forward +23.8)",
     )
-    iop: dict[str, Any] = Field(default_factory=dict)
+    iop: dict[str, _num(ge=-1e6, le=1e6)] = Field(
+        default_factory=dict,
+        description="interior-orientation values by name: x0, y0, df, k1, k2, sy and per chip "
+        "a0, b0, a1, b1, delta as '<name>@<chip id>'",
+    )
     iop_covariance: IopCovariance | None = None
     iop_use: Literal["fixed", "weighted"] = Field(
         default="fixed",
         description="reuse of a calibration: 'fixed' holds iop values; 'weighted' makes the values "
         "estimated in this job (options.self_calibration) weighted by iop_covariance",
     )
+
+    @field_validator("iop")
+    @classmethod
+    def _iop_values(cls, v: dict[str, float], info: ValidationInfo) -> dict[str, float]:
+        _known_iop(v, info)
+        focal = info.data.get("focal_mm")
+        if focal is not None and focal + v.get("df", 0.0) < MIN_FOCAL_MM:
+            raise ValueError(
+                f"focal_mm + df = {focal + v.get('df', 0.0):.6g} mm: the corrected focal length "
+                f"must be at least {MIN_FOCAL_MM} mm"
+            )
+        return v
+
+    @field_validator("iop_covariance")
+    @classmethod
+    def _covariance_names(cls, v: IopCovariance | None, info: ValidationInfo) -> IopCovariance | None:
+        if v is not None:
+            _known_iop(v.names, info)
+        return v
 
     @model_validator(mode="after")
     def _complete_unless_ref(self) -> "Camera":
@@ -117,24 +232,69 @@ class Camera(_Strict):
         return self
 
 
+def _known_iop(names: Any, info: ValidationInfo) -> None:
+    """ValueError naming the first IOP name that is not one of the camera's (chips as given)."""
+    chips = info.data.get("chips")
+    if chips is None:  # the chips themselves are invalid (reported on their own)
+        return
+    known = camera_iop_names([c.id for c in chips])
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ValueError(
+            f"unknown interior-orientation parameter {unknown[0]!r} (known: x0, y0, df, k1, k2, sy "
+            f"and a0, b0, a1, b1, delta @ chip id {', '.join(c.id for c in chips) or '1'})"
+        )
+
+
+Element = Literal["X", "Y", "Z", "omega", "phi", "kappa"]
+
+
+# Options of a platform model; which ones a model takes is in ``pba models`` (others are refused
+# by validation). Functional form: "pass" is a Python keyword.
+ModelOptions = TypedDict(
+    "ModelOptions",
+    {
+        "orders": dict[Element, _int(ge=-1, le=3)],
+        "omega_deg": AngleDeg,
+        "phi_deg": AngleDeg,
+        "kappa_deg": AngleDeg,
+        "pass": Annotated[str, Field(min_length=1, max_length=64)],
+        "attitude": Annotated[str, Field(min_length=1, max_length=32)],
+    },
+    total=False,
+)
+ModelOptions.__pydantic_config__ = ConfigDict(extra="forbid", allow_inf_nan=False)  # type: ignore[attr-defined]
+
+
 class ModelChoice(_Strict):
     """Platform model of an image: a registered name and its options.
 
     Options by model (see ``pba models``): ON1/ON2/MT8/MT12 ``omega_deg``/``phi_deg`` (held
     values; default: 0 and the camera's mounting pitch); GENERAL ``orders`` {X,Y,Z,omega,phi,
-    kappa: 0..3}.
+    kappa: -1..3} and ``<angle>_deg`` of held angles; OA-* ``orders``; PASS-* ``orders``,
+    ``pass``, ``attitude``.
     """
 
     name: str = Field(min_length=1, max_length=32)
-    options: dict[str, Any] = Field(default_factory=dict)
+    options: ModelOptions = Field(default_factory=dict)  # type: ignore[arg-type]
 
 
 class StateVector(_Strict):
     """Platform state in the Earth-fixed frame (WGS 84 / ITRF ECEF)."""
 
-    time_s: float = Field(description="seconds, on the same time scale as first_line_time_s")
-    position_ecef_m: tuple[float, float, float]
-    velocity_ecef_m_s: tuple[float, float, float]
+    time_s: TimeS = Field(description="seconds, on the same time scale as first_line_time_s")
+    position_ecef_m: Xyz
+    velocity_ecef_m_s: Xyz
+
+    @field_validator("position_ecef_m")
+    @classmethod
+    def _outside_earth(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        return _state_vector(v, "the position")
+
+    @field_validator("velocity_ecef_m_s")
+    @classmethod
+    def _speed(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        return _velocity(v)
 
 
 class AttitudeSample(_Strict):
@@ -143,10 +303,10 @@ class AttitudeSample(_Strict):
     (x along track, z radial up; M = Ry(mounting) Rx(roll) Ry(pitch) Rz(yaw) R_orbit, docs/models.md
     section 10), degrees. Used with ``options.attitude`` by the OA-* and PASS-* models."""
 
-    time_s: float = Field(description="seconds, on the same time scale as first_line_time_s")
-    roll_deg: float
-    pitch_deg: float
-    yaw_deg: float
+    time_s: TimeS = Field(description="seconds, on the same time scale as first_line_time_s")
+    roll_deg: AngleDeg
+    pitch_deg: AngleDeg
+    yaw_deg: AngleDeg
 
 
 class ApproxState(_Strict):
@@ -161,11 +321,21 @@ class ApproxState(_Strict):
     (seed 001 eqs 38-43: state = ephemeris value + correction with weighted constraints).
     """
 
-    position_ecef_m: tuple[float, float, float]
-    velocity_ecef_m_s: tuple[float, float, float]
-    attitude_deg: tuple[float, float, float] | None = None
-    sigma_position_m: float | None = Field(default=None, gt=0)
-    sigma_velocity_m_s: float | None = Field(default=None, gt=0)
+    position_ecef_m: Xyz
+    velocity_ecef_m_s: Xyz
+    attitude_deg: tuple[AngleDeg, AngleDeg, AngleDeg] | None = None
+    sigma_position_m: SigmaM | None = None
+    sigma_velocity_m_s: _num(ge=1e-9, le=1e5) | None = None
+
+    @field_validator("position_ecef_m")
+    @classmethod
+    def _outside_earth(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        return _state_vector(v, "the position")
+
+    @field_validator("velocity_ecef_m_s")
+    @classmethod
+    def _speed(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        return _velocity(v)
 
 
 class Image(_Strict):
@@ -175,24 +345,16 @@ class Image(_Strict):
     camera: str = Field(min_length=1, max_length=64)
     model: ModelChoice
     approx_state: ApproxState | None = None
-    first_line_time_s: float | None = None
+    first_line_time_s: TimeS | None = None
     ephemeris: list[StateVector] = Field(default_factory=list)
     attitude: list[AttitudeSample] = Field(
         default_factory=list,
         description="measured attitude samples (roll, pitch, yaw relative to the orbital frame); "
         "weighted observations of the orbit-attitude and pass models with options.attitude",
     )
-    initial: dict[str, float] = Field(
+    initial: dict[str, _num(ge=-1e9, le=1e9)] = Field(
         default_factory=dict, description="initial parameter values by model parameter name"
     )
-
-    @field_validator("initial")
-    @classmethod
-    def _finite(cls, v: dict[str, float]) -> dict[str, float]:
-        for k, x in v.items():
-            if not math.isfinite(x):
-                raise ValueError(f"initial value {k!r} is not finite")
-        return v
 
 
 class GroundPoint(_Strict):
@@ -206,16 +368,9 @@ class GroundPoint(_Strict):
 
     id: str = Field(min_length=1, max_length=64)
     role: Role
-    coordinates: tuple[float, float, float] | None = None
-    crs: str | None = None
-    sigma_m: tuple[float, float, float] | None = None
-
-    @field_validator("sigma_m")
-    @classmethod
-    def _positive(cls, v: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
-        if v is not None and any(s <= 0 for s in v):
-            raise ValueError("sigmas must be positive")
-        return v
+    coordinates: tuple[Coordinate, Coordinate, Coordinate] | None = None
+    crs: str | None = Field(default=None, min_length=1, max_length=4096)
+    sigma_m: tuple[SigmaM, SigmaM, SigmaM] | None = None
 
     @model_validator(mode="after")
     def _coords_needed(self) -> "GroundPoint":
@@ -235,9 +390,9 @@ class ImageObservation(_Strict):
 
     image: str = Field(min_length=1, max_length=64)
     point: str = Field(min_length=1, max_length=64)
-    line: float
-    column: float
-    sigma_px: float = Field(default=0.5, gt=0)
+    line: _num(ge=-MAX_LINES, le=MAX_LINES)
+    column: _num(ge=-MAX_COLUMNS, le=MAX_COLUMNS)
+    sigma_px: SigmaPx = 0.5
     chip: str | None = Field(default=None, min_length=1, max_length=64)
 
 
@@ -248,8 +403,8 @@ LineForm = Literal["y=ax+b", "x=a'y+b'"]
 class LineImagePoint(_Strict):
     """A measured image point of a straight line: (line, column) in pixels."""
 
-    line: float
-    column: float
+    line: _num(ge=-MAX_LINES, le=MAX_LINES)
+    column: _num(ge=-MAX_COLUMNS, le=MAX_COLUMNS)
 
 
 class FittedImageLine(_Strict):
@@ -263,11 +418,11 @@ class FittedImageLine(_Strict):
     """
 
     form: LineForm
-    a: float
-    b: float
-    sigma_a: float = Field(gt=0)
-    sigma_b: float = Field(gt=0)
-    correlation: float = Field(default=0.0, gt=-1, lt=1)
+    a: _num(ge=-1e9, le=1e9)
+    b: _num(ge=-1e9, le=1e9)
+    sigma_a: _num(ge=1e-12, le=1e6)
+    sigma_b: SigmaPx
+    correlation: _num(gt=-1, lt=1) = 0.0
 
 
 class LineObservation(_Strict):
@@ -276,7 +431,7 @@ class LineObservation(_Strict):
 
     image: str = Field(min_length=1, max_length=64)
     points: list[LineImagePoint] = Field(default_factory=list)
-    sigma_px: float = Field(default=0.5, gt=0)
+    sigma_px: SigmaPx = 0.5
     fitted: FittedImageLine | None = None
 
 
@@ -292,17 +447,12 @@ class GroundLine(_Strict):
 
     id: str = Field(min_length=1, max_length=64)
     role: LineRole = "control"
-    endpoints: tuple[tuple[float, float, float], tuple[float, float, float]]
-    crs: str | None = None
-    sigma_m: tuple[float, float, float] | None = None
+    endpoints: tuple[
+        tuple[Coordinate, Coordinate, Coordinate], tuple[Coordinate, Coordinate, Coordinate]
+    ]
+    crs: str | None = Field(default=None, min_length=1, max_length=4096)
+    sigma_m: tuple[SigmaM, SigmaM, SigmaM] | None = None
     observations: list[LineObservation] = Field(default_factory=list)
-
-    @field_validator("sigma_m")
-    @classmethod
-    def _positive(cls, v: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
-        if v is not None and any(s <= 0 for s in v):
-            raise ValueError("sigmas must be positive")
-        return v
 
 
 class AttitudeOptions(_Strict):
@@ -310,14 +460,9 @@ class AttitudeOptions(_Strict):
     (orbit-attitude and pass models): each distinct sample within the time span of the images
     sharing an attitude block observes roll, pitch and yaw at its own epoch."""
 
-    sigma_deg: tuple[float, float, float] = Field(description="roll, pitch, yaw standard deviations (deg)")
-
-    @field_validator("sigma_deg")
-    @classmethod
-    def _positive(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
-        if any(x <= 0 for x in v):
-            raise ValueError("sigmas must be positive")
-        return v
+    sigma_deg: tuple[_num(ge=1e-9, le=360), _num(ge=1e-9, le=360), _num(ge=1e-9, le=360)] = Field(
+        description="roll, pitch, yaw standard deviations (deg)"
+    )
 
 
 class EphemerisOptions(_Strict):
@@ -331,9 +476,9 @@ class EphemerisOptions(_Strict):
     interpolated state only initialises the models.
     """
 
-    sigma_position_m: float | None = Field(default=None, gt=0)
-    sigma_velocity_m_s: float | None = Field(default=None, gt=0)
-    nodes: int = Field(default=4, ge=2, le=8, description="samples used around the epoch")
+    sigma_position_m: SigmaM | None = None
+    sigma_velocity_m_s: _num(ge=1e-9, le=1e5) | None = None
+    nodes: _int(ge=2, le=8) = Field(default=4, description="samples used around the epoch")
 
     @model_validator(mode="after")
     def _velocity_needs_position(self) -> "EphemerisOptions":
@@ -352,40 +497,46 @@ class SelfCalibration(_Strict):
     sigma, re-adjusting each time (seed 001 Figure 14).
     """
 
-    estimate: list[str] = Field(min_length=1)
+    estimate: list[str] = Field(min_length=1, max_length=MAX_IOP)
     cameras: list[str] | None = None
     master_chip: dict[str, str] = Field(default_factory=dict)
-    sigmas: dict[str, float | None] = Field(default_factory=dict)
+    sigmas: dict[str, _num(ge=1e-20, le=1e6) | None] = Field(default_factory=dict)
     exclude: list[str] = Field(
         default_factory=list, description="'<camera id>/<parameter>' left out of the estimation (held)"
     )
-    significance_analysis: bool = False
-    significance_threshold: float = Field(
+    significance_analysis: Bool = False
+    significance_threshold: _num(gt=0, le=1e3) = Field(
         default=1.0,
-        gt=0,
         description="drop while |estimate| < threshold * sigma (seed 001: 1; 3 removes the spurious "
         "chip bendings measured in docs/experiments.md, seed001 section)",
     )
+
+    @field_validator("estimate", "cameras", "exclude")
+    @classmethod
+    def _distinct(cls, v: list[str] | None) -> list[str] | None:
+        return v if v is None else _unique(v, "name")
 
 
 class SolverOptions(_Strict):
     """How to solve and what to report."""
 
-    max_iterations: int = Field(default=50, ge=1, le=1000)
-    function_tolerance: float = Field(default=1e-10, gt=0)
-    parameter_tolerance: float = Field(default=1e-10, gt=0)
+    max_iterations: _int(ge=1, le=1000) = 50
+    function_tolerance: _num(gt=0, le=1) = 1e-10
+    parameter_tolerance: _num(gt=0, le=1) = 1e-10
     control: Literal["weighted", "fixed"] = "weighted"
-    sigma0_apriori: float = Field(default=1.0, gt=0)
-    alpha: float = Field(default=0.05, gt=0, lt=0.5)
-    correlation_threshold: float = Field(default=0.75, gt=0, le=1)
-    covariance: bool = True
+    sigma0_apriori: _num(ge=1e-6, le=1e6) = 1.0
+    alpha: _num(gt=0, lt=0.5) = 0.05
+    correlation_threshold: _num(gt=0, le=1) = 0.75
+    covariance: Bool = True
     loss: Literal["none", "huber", "cauchy"] = "none"
-    loss_scale: float = Field(default=3.0, gt=0)
+    loss_scale: _num(ge=1e-6, le=1e6) = 3.0
     kernel: Literal["auto", "python"] = "auto"
     self_calibration: SelfCalibration | None = None
     models: list[str] = Field(
         default_factory=list,
-        description="model comparison: adjust the same observations with each of these models",
+        max_length=MAX_COMPARED_MODELS,
+        description="model comparison: adjust the same observations with each of these models "
+        f"(distinct, at most {MAX_COMPARED_MODELS})",
     )
     line_model: Literal["rigorous", "equivalent_planes"] = Field(
         default="rigorous",
@@ -415,7 +566,9 @@ class Job(_Strict):
 
     schema_version: Literal["1.0"] = SCHEMA_VERSION
     name: str = Field(default="job", max_length=200)
-    crs: str = Field(default="EPSG:4326", description="default CRS of ground coordinates")
+    crs: str = Field(
+        default="EPSG:4326", min_length=1, max_length=4096, description="default CRS of ground coordinates"
+    )
     cameras: list[Camera] = Field(min_length=1)
     images: list[Image] = Field(min_length=1)
     points: list[GroundPoint] = Field(default_factory=list)

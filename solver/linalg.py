@@ -140,7 +140,7 @@ def linearise(problem: Problem) -> Linearisation:
     sel = np.flatnonzero(problem.adjusted_mask)
     img_tab, cam_tab, img_p, cam_p = current_tables(problem)
     width = max(im.nfree for im in problem.images) + max([c.nfree for c in problem.cameras] + [0]) + (6 if problem.passes else 0)
-    pts = np.ascontiguousarray([p.xyz for p in problem.points], dtype=float)
+    pts = np.ascontiguousarray(np.array([p.xyz for p in problem.points], dtype=float).reshape(-1, 3))  # (0, 3) without points
     est = np.array([p.estimated for p in problem.points], dtype=np.bool_)
     rec = records(problem, sel)
     op = np.ascontiguousarray(obs.pt[sel])

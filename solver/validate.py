@@ -11,12 +11,19 @@ from __future__ import annotations
 from collections import Counter, defaultdict
 from typing import Any
 
+import numpy as np
+from pyproj.exceptions import ProjError
+
 from solver.ephemeris import ephemeris_problems, image_state
 from solver.errors import JobError, Problem
-from solver.geodesy import UnknownCRSError, parse_crs
+from solver.geodesy import UnknownCRSError, ecef_to_geodetic, parse_crs, to_ecef
 from solver.job import Camera, ImageObservation, Job
-from solver.models import get_model
+from solver.models import HELD, PlatformModel, get_model
 from solver.problem import camera_chip, in_image_columns
+
+# ellipsoidal heights of ground points: the deepest ocean trench to far above any aircraft
+MIN_HEIGHT_M = -5e4
+MAX_HEIGHT_M = 2e5
 
 
 def _duplicates(items: list[Any], what: str, key: str) -> list[Problem]:
@@ -59,6 +66,108 @@ def _column_problems(cam: Camera, o: ImageObservation, k: int) -> list[Problem]:
         return [Problem("outside_image", f"{what}: column {o.column} is on no CCD chip of camera {cam.id!r}", loc + ("column",))]
     return []
 
+def model_option_problems(model: PlatformModel, options: dict[str, Any], loc: tuple) -> list[Problem]:
+    """Options the model does not take, orders of elements it does not order, a held position,
+    or nothing left to estimate (``loc`` is the image's ``model``)."""
+    out = [
+        Problem(
+            "invalid_model_options",
+            f"model {model.name} has no option {key!r}"
+            + (f" (its options: {', '.join(sorted(model.option_names))})" if model.option_names else ""),
+            (*loc, "options", key),
+        )
+        for key in options
+        if key not in model.option_names
+    ]
+    orders = options.get("orders") or {}
+    for e, order in orders.items():
+        if e not in model.order_elements():
+            out.append(
+                Problem(
+                    "invalid_model_options",
+                    f"model {model.name} takes orders of {', '.join(model.order_elements())} only",
+                    (*loc, "options", "orders", e),
+                )
+            )
+        elif e in ("X", "Y", "Z") and order == HELD:
+            out.append(
+                Problem(
+                    "invalid_model_options",
+                    f"the position element {e} cannot be held (order -1 holds an angle at <angle>_deg)",
+                    (*loc, "options", "orders", e),
+                )
+            )
+    if not out and not model.propagated and not model.parameters(options):
+        out.append(
+            Problem(
+                "invalid_model_options",
+                f"model {model.name} with these orders estimates no parameter",
+                (*loc, "options", "orders"),
+            )
+        )
+    return out
+
+
+def coordinate_problems(job: Job) -> list[Problem]:
+    """Ground coordinates (points and line endpoints) that do not transform to ECEF or are not
+    near the Earth's surface (ellipsoidal height outside MIN_HEIGHT_M..MAX_HEIGHT_M); a CRS
+    whose transformation cannot be built (a missing geoid grid) is reported at the CRS."""
+    by_crs: dict[str, list[tuple[tuple, tuple]]] = {}
+    for j, p in enumerate(job.points):
+        if p.coordinates is not None:
+            by_crs.setdefault(p.crs or job.crs, []).append((("points", j, "coordinates"), p.coordinates))
+    for k, gl in enumerate(job.lines):
+        for e, xyz in enumerate(gl.endpoints):
+            by_crs.setdefault(gl.crs or job.crs, []).append((("lines", k, "endpoints", e), xyz))
+    out: list[Problem] = []
+    for crs, items in by_crs.items():
+        try:
+            parse_crs(crs)
+        except UnknownCRSError:
+            continue  # reported as unknown_crs
+        xyz = np.array([c for _, c in items], dtype=float)
+        try:
+            ecef = _ecef_rows(xyz, crs)
+        except ProjError as exc:
+            where = next((loc[:2] + ("crs",) for loc, _ in items if _crs_of(job, loc)), ("crs",))
+            out.append(Problem("unusable_crs", f"CRS {crs!r} cannot be used: {exc}", where))
+            continue
+        h = np.full(len(items), np.nan)
+        ok = np.all(np.isfinite(ecef), axis=1)
+        if ok.any():
+            h[ok] = ecef_to_geodetic(ecef[ok])[:, 2]
+        for (loc, c), hq in zip(items, h):
+            if not np.isfinite(hq):
+                out.append(Problem("invalid_coordinates", f"coordinates {list(c)} cannot be transformed from {crs!r}", loc))
+            elif not MIN_HEIGHT_M <= hq <= MAX_HEIGHT_M:
+                out.append(
+                    Problem(
+                        "invalid_coordinates",
+                        f"coordinates {list(c)} in {crs!r} are {hq:.6g} m from the ellipsoid: not a "
+                        "ground point (check the CRS and the x/y order)",
+                        loc,
+                    )
+                )
+    return out
+
+
+def _crs_of(job: Job, loc: tuple) -> str | None:
+    return job.points[loc[1]].crs if loc[0] == "points" else job.lines[loc[1]].crs
+
+
+def _ecef_rows(xyz: np.ndarray, crs: str) -> np.ndarray:
+    """ECEF of each row (NaN rows where the transformation fails)."""
+    try:
+        return to_ecef(xyz, crs)
+    except UnknownCRSError:  # some rows are out of the CRS's domain: find them
+        rows = []
+        for row in xyz:
+            try:
+                rows.append(to_ecef(row[None, :], crs)[0])
+            except UnknownCRSError:
+                rows.append(np.full(3, np.nan))
+        return np.array(rows)
+
 
 def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     """All problems of a job plus the counts (observations, unknowns, dof) when computable."""
@@ -95,6 +204,10 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
             model = get_model(im.model.name)
         except KeyError as exc:
             problems.append(Problem("unknown_model", str(exc.args[0]), ("images", i, "model", "name")))
+            continue
+        option_problems = model_option_problems(model, im.model.options, ("images", i, "model"))
+        if option_problems:
+            problems += option_problems
             continue
         try:
             params = model.parameters(im.model.options)
@@ -141,6 +254,12 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
             except UnknownCRSError as exc:
                 crs_checked[crs] = False
                 problems.append(Problem("unknown_crs", str(exc), ("points", j, "crs") if p.crs else ("crs",)))
+
+    problems += coordinate_problems(job)
+    if job.options.models:
+        from solver.compare import comparison_problems
+
+        problems += comparison_problems(job.options.models, ("options", "models"))
 
     images = {im.id: im for im in job.images}
     points = {p.id: p for p in job.points}

@@ -144,3 +144,68 @@ def test_missing_initial_position(base):
 def test_validate_reports_degrees_of_freedom(base):
     r = api.validate(base)
     assert r["valid"] and r["n_observations"] == 28 and r["n_unknowns"] == 14 and r["dof"] == 14
+
+
+# -- issue 13: every malformed input is refused with its location, never an exception -----------
+from bad_job_cases import CASES, bad_job  # noqa: E402 (tests/ is on sys.path)
+
+
+def refused_at(doc: dict, fn) -> set[tuple]:
+    """Locations named when ``fn`` (api.validate or api.run) refuses ``doc``; fails the test
+    when it is accepted or raises anything but a schema or job error."""
+    try:
+        result = fn(copy.deepcopy(doc))
+    except ValidationError as exc:
+        return {tuple(e["loc"]) for e in exc.errors()}
+    except JobError as exc:
+        return {tuple(p.location) for p in exc.problems}
+    assert fn is api.validate and not result["valid"], "accepted"
+    return {tuple(p["location"]) for p in result["problems"]}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_malformed_job_is_refused_with_its_location(case):
+    doc, where = bad_job(case), CASES[case][1]
+    assert where in refused_at(doc, api.validate)
+    if case != "models_500_times":  # refused by the schema before any solve either way
+        assert where in refused_at(doc, api.run)
+
+
+def test_lines_only_job_without_points_solves():
+    """A job with control lines and "points": [] (once a numba typing error: the empty point
+    array had shape (0,) instead of (0, 3))."""
+    from solver.synthetic_lines import lines_job
+
+    doc, _ = lines_job("P2", n_check=0, n_gcp=0)
+    doc["points"] = []
+    assert api.validate(doc)["valid"]
+    assert api.run(doc)["adjustment"]["converged"]
+
+
+def test_numerical_failure_of_the_solve_is_a_job_error(monkeypatch):
+    """The last line of defence: linear-algebra, arithmetic and PROJ failures escaping the
+    checks are the document's numbers' fault (JobError at the root); other exceptions are bugs
+    and propagate (the service answers those 500)."""
+    import numpy as np
+
+    import solver.adjust
+
+    doc = bad_job("lines_as_float")
+    doc["cameras"][0]["lines"] = 16000
+
+    def fails(exc):
+        def adjust_job(*args, **kwargs):
+            raise exc
+
+        return adjust_job
+
+    monkeypatch.setattr(solver.adjust, "adjust_job", fails(np.linalg.LinAlgError("SVD did not converge")))
+    with pytest.raises(JobError) as e:
+        api.run(copy.deepcopy(doc))
+    assert e.value.problems[0].code == "unusable_values" and e.value.problems[0].location == ()
+    monkeypatch.setattr(solver.adjust, "adjust_job", fails(OverflowError("overflow")))
+    with pytest.raises(JobError):
+        api.run(copy.deepcopy(doc))
+    monkeypatch.setattr(solver.adjust, "adjust_job", fails(KeyError("a bug")))
+    with pytest.raises(KeyError):
+        api.run(copy.deepcopy(doc))

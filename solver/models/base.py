@@ -92,6 +92,18 @@ class PlatformModel:
         return line_time_s if self.orbital else 1.0 / POLY_TIME_SCALE_LINES
 
     # ---- parameters -----------------------------------------------------------------------
+    @property
+    def option_names(self) -> frozenset[str]:
+        """The options this model takes: those documented, and ``<angle>_deg`` of the angles it
+        can hold."""
+        return frozenset(self.options_doc) | {f"{e}_deg" for e in self.held_defaults}
+
+    def order_elements(self) -> tuple[str, ...]:
+        """Elements whose order the ``orders`` option sets (orbital kinds: the angles only)."""
+        if not self.order_option:
+            return ()
+        return ANGLES if self.orbital else ELEMENTS
+
     def effective_orders(self, options: dict[str, Any]) -> tuple[int, ...]:
         if not self.order_option:
             return self.orders

@@ -257,7 +257,7 @@ def test_per_user_limits(
 def test_camera_library_and_refs(local: TestClient, triplet_doc: dict[str, Any]) -> None:
     definition = {k: v for k, v in triplet_doc["cameras"][0].items() if k != "id"}
     definition["iop"] = {}
-    definition["iop_covariance"] = {"names": ["dx_mm"], "matrix": [[1e-6]]}
+    definition["iop_covariance"] = {"names": ["df"], "matrix": [[1e-6]]}
     r = local.post(
         "/cameras", json={"name": "prism-backward", "description": "v1", "definition": definition}
     )
