@@ -10,7 +10,7 @@ from fastapi import APIRouter, Path, Query
 from fastapi.responses import JSONResponse
 
 from service.cameras import camera_from_report, camera_links
-from service.deps import BaseUrl, CurrentUser, ServicesDep
+from service.deps import JSON_BODY, BaseUrl, CurrentUser, ServicesDep
 from service.errors import Conflict, NotFound, problem_responses
 from service.jobs import results_text
 from service.routes import StrictJSONRoute
@@ -78,7 +78,8 @@ def list_cameras(
     "",
     status_code=201,
     response_model=CameraPublic,
-    responses={**problem_responses(401, 413, 422)},
+    dependencies=JSON_BODY,
+    responses={**problem_responses(401, 413, 415, 422)},
 )
 def create_camera(
     body: CameraCreate, user: CurrentUser, services: ServicesDep, base: BaseUrl
@@ -94,7 +95,8 @@ def create_camera(
     "/from-job",
     status_code=201,
     response_model=CameraPublic,
-    responses={**problem_responses(401, 404, 409, 422)},
+    dependencies=JSON_BODY,
+    responses={**problem_responses(401, 404, 409, 415, 422)},
 )
 def camera_from_job(
     body: CameraFromJob, user: CurrentUser, services: ServicesDep, base: BaseUrl
