@@ -243,3 +243,39 @@ def test_csv_of_a_comparison_escapes_too() -> None:
     rows = tables.table_rows({"kind": "comparison", "reports": {"K2": copy.deepcopy(sub)}}, "observations")
     text = tables.to_csv(rows)
     assert text.splitlines() == ["model,point,residual_line_px", "K2,'=X(),-1.0"]
+
+
+# -- an unusable solve is a failed job -------------------------------------------------------
+def test_an_unusable_solve_fails_the_job_with_a_problem_document(
+    local: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The worker's run (in this process, so the residual blocks can be made to fail: Ceres
+    then ends with FAILURE) records a failed job; status and results say why, as a 422."""
+    import solver.backend as backend
+    from service.execution import RunLimits, run_claimed_job
+    from service.states import JobStatus
+
+    doc = json.loads((Path(__file__).resolve().parents[2] / "examples" / "prism-nadir.json").read_text())
+    r = local.post(
+        "/processes/bundle-adjustment/execution",
+        json={"inputs": {"job": doc}},
+        headers={"Prefer": "respond-async"},
+    )
+    assert r.status_code == 201, r.text[:300]
+    job_id = r.headers["location"].rsplit("/", 1)[1]
+    for cls in (backend.ImageBatchCost, backend.PointCost):
+        monkeypatch.setattr(cls, "Evaluate", lambda self, parameters, residuals, jacobians: False)
+    store = store_of(tmp_path)
+    job = store.claim(job_id, "test-worker")
+    assert job is not None
+    assert run_claimed_job(store, job, "test-worker", RunLimits(job_time_limit_s=600)) == JobStatus.failed
+    store.close()
+    st = local.get(f"/jobs/{job_id}").json()
+    assert st["status"] == "failed", st
+    assert st["message"].startswith("the adjustment did not produce a usable solution")
+    assert st["problems"][0]["code"] == "unusable_solution"
+    assert st["problems"][0]["pointer"] == "/inputs/job"
+    assert st["problems"][0]["detail"]["termination"] == "FAILURE"
+    res = local.get(f"/jobs/{job_id}/results")
+    assert res.status_code == 422 and res.headers["content-type"].startswith(PROBLEM)
+    assert res.json()["errors"][0]["code"] == "unusable_solution"
