@@ -43,8 +43,10 @@ async def readyz(services: ServicesDep) -> JSONResponse:
     return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
 
 
+# the same security schemes as service.deps (same names and descriptions in the OpenAPI);
+# /metrics takes no ?api_key= (a scraper sends a header)
 _key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="API key")
-_bearer = HTTPBearer(auto_error=False, description="API key or PBA_METRICS_TOKEN")
+_bearer = HTTPBearer(auto_error=False, description="API key as a bearer token")
 
 
 def metrics_reader(
