@@ -22,7 +22,12 @@ from service.deps import Services
 from service.errors import install_error_handlers, problem_responses
 from service.jobs import JobService
 from service.metrics import Metrics
-from service.middleware import AccessLogMiddleware, BodyLimitMiddleware, ServicesContextMiddleware
+from service.middleware import (
+    AccessLogMiddleware,
+    BodyLimitMiddleware,
+    SecurityHeadersMiddleware,
+    ServicesContextMiddleware,
+)
 from service.queue import make_backend
 from service.retention import RetentionLoop
 from service.settings import Settings
@@ -44,7 +49,7 @@ def _operation_id(route: APIRoute) -> str:
 
 
 def _start_services(settings: Settings) -> Services:
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    settings.data_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     store = open_store(settings.resolved_database_url)
     backend = make_backend(settings, store)
     services = Services(
@@ -131,4 +136,5 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             expose_headers=["Location", "Preference-Applied"],
         )
     app.add_middleware(AccessLogMiddleware)
+    app.add_middleware(SecurityHeadersMiddleware)  # outermost: every response, errors included
     return app

@@ -7,11 +7,14 @@
 * :func:`get_job_for_user` - a job the user may see (404 otherwise); its record exposes
   ``.id``, ``.status`` and ``.results`` (the report dict, None unless successful). It reads
   the store, so call it from ``def`` (thread-pool) handlers;
-* :data:`VisibleJob` - the same as a dependency on the ``jobId`` path parameter.
+* :data:`VisibleJob` - the same as a dependency on the ``jobId`` path parameter;
+* :data:`JSON_BODY` - route dependencies of every endpoint that reads a JSON body (415 for
+  another Content-Type).
 """
 
 from __future__ import annotations
 
+import email.message
 from contextvars import ContextVar
 from dataclasses import dataclass
 from typing import Annotated
@@ -20,7 +23,7 @@ from fastapi import Depends, Path, Request, Security
 from fastapi.security import APIKeyHeader, APIKeyQuery, HTTPAuthorizationCredentials, HTTPBearer
 
 from service.auth import user_for_key
-from service.errors import NotReady, Unauthorized
+from service.errors import NotReady, Unauthorized, UnsupportedMediaType
 from service.jobs import JobService
 from service.metrics import Metrics
 from service.queue import QueueBackend
@@ -127,3 +130,24 @@ def base_url(request: Request) -> str:
 
 
 BaseUrl = Annotated[str, Depends(base_url)]
+
+
+def is_json_media_type(content_type: str) -> bool:
+    """True for ``application/json`` and ``application/*+json`` (parameters ignored)."""
+    message = email.message.Message()
+    message["content-type"] = content_type
+    if message.get_content_maintype() != "application":
+        return False
+    subtype = message.get_content_subtype()
+    return subtype == "json" or subtype.endswith("+json")
+
+
+def require_json(request: Request) -> None:
+    """Dependency: refuse a request whose Content-Type is not JSON (415 problem). A request
+    without the header is read as JSON, as FastAPI does."""
+    content_type = request.headers.get("content-type")
+    if content_type is not None and not is_json_media_type(content_type):
+        raise UnsupportedMediaType(content_type[:100])
+
+
+JSON_BODY = [Depends(require_json)]

@@ -31,10 +31,11 @@ OGC_EXC = "http://www.opengis.net/def/exceptions/ogcapi-processes-1/1.0/"
 PROBLEM_DESCRIPTIONS = {
     400: "Bad request: malformed JSON (NaN included) or an invalid parameter",
     401: "API key missing or not valid",
-    403: "Forbidden: you may not change this resource (e.g. another user's shared camera)",
+    403: "Forbidden: the key is valid but not allowed here (e.g. another user's shared camera)",
     404: "Not found (also: a job of another user)",
     409: "Conflict with the state of the resource",
     413: "Request body or job over the size limit, or the user's storage quota is used up",
+    415: "The request body is not JSON (Content-Type must be application/json)",
     422: "Invalid input; each entry of errors points at the offending field",
     429: "Too many queued jobs for this user",
     500: "The job failed on the server side (worker crash, time limit)",
@@ -140,6 +141,23 @@ class Conflict(ServiceError):
     status, code, title = 409, "conflict", "Conflict"
 
 
+class UnsupportedMediaType(ServiceError):
+    status, code, title = 415, "unsupported-media-type", "Unsupported media type"
+
+    def __init__(self, content_type: str) -> None:
+        super().__init__(
+            f"the request body must be JSON (Content-Type: application/json), not {content_type!r}",
+            errors=[
+                {
+                    "pointer": "",
+                    "code": "unsupported_media_type",
+                    "message": "the Content-Type header names no JSON media type",
+                }
+            ],
+            headers={"Accept-Post": "application/json"},
+        )
+
+
 class TooManyJobs(ServiceError):
     status, code, title = 429, "too-many-jobs", "Too many queued jobs"
 
@@ -189,6 +207,8 @@ def problem_response(
         body["errors"] = [_json_safe(e) for e in list(errors)[:MAX_ERRORS]]
         if len(errors) > MAX_ERRORS:
             body["detail"] += f" ({len(errors)} problems; the first {MAX_ERRORS} are listed)"
+    # nosniff here too: a 500 is sent by Starlette's outermost middleware, past ours
+    headers = {"X-Content-Type-Options": "nosniff", **(headers or {})}
     return JSONResponse(body, status_code=status, media_type=PROBLEM_MEDIA_TYPE, headers=headers)
 
 

@@ -146,7 +146,7 @@ def run_claimed_job(
     """
     from pydantic import ValidationError
 
-    from solver.errors import Cancelled, JobError
+    from solver.errors import Cancelled, JobError, UnusableSolution
 
     extra = {"job_id": job.id, "worker": worker}
     hooks = JobHooks(store, job, worker, limits, stop_reason)
@@ -178,7 +178,7 @@ def run_claimed_job(
         problems = exc.to_dict()["problems"]
         ok = store.fail(
             job.id,
-            f"invalid job: {exc}",
+            str(exc) if isinstance(exc, UnusableSolution) else f"invalid job: {exc}",
             {"status": 422, "code": exc.code, "errors": problem_entries(problems)},
             worker=worker,
         )

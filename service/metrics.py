@@ -1,30 +1,53 @@
-"""Prometheus metrics, read from the store at scrape time so they hold for any queue backend.
+"""Prometheus metrics, computed from the store at scrape time so they hold for any queue
+backend and agree between API processes and across restarts.
 
 * ``pba_jobs{status}``: jobs per status (gauge);
 * ``pba_queue_depth``: accepted jobs waiting for a worker;
 * ``pba_workers``: workers able to take jobs (this server's backend);
-* ``pba_solve_duration_seconds{status}``: start-to-finish time of solves that finished since
-  this server started (histogram fed from the store's finished jobs at each scrape).
+* ``pba_solve_duration_seconds{status}``: start-to-finish time (seconds) of every finished
+  solve the store holds (histogram built from the store's finished jobs at each scrape; it
+  shrinks when jobs are deleted from the store, which Prometheus reads as a counter reset).
 """
 
 from __future__ import annotations
 
-import threading
+import bisect
 from datetime import datetime, timezone
 from typing import Iterator
 
-from prometheus_client import CollectorRegistry, Histogram, generate_latest
-from prometheus_client.core import GaugeMetricFamily, Metric
+from prometheus_client import CollectorRegistry, generate_latest
+from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily, Metric
 
 from service.queue import QueueBackend
 from service.states import JobStatus
-from service.store import Store
+from service.store import FinishedRun, Store
 
 DURATION_BUCKETS = (0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60, 120, 300, 600, 1800, 3600)
+EPOCH = datetime(1970, 1, 1, tzinfo=timezone.utc)
+
+
+def duration_histogram(runs: list[FinishedRun]) -> HistogramMetricFamily:
+    """The solve-duration histogram of ``runs``, one series per final status (cumulative
+    buckets in seconds, ``+Inf`` last, as the exposition format wants)."""
+    family = HistogramMetricFamily(
+        "pba_solve_duration_seconds", "Start-to-finish time of solves", labels=["status"]
+    )
+    by_status: dict[str, list[float]] = {}
+    for run in runs:
+        seconds = max(0.0, (run.finished - run.started).total_seconds())
+        by_status.setdefault(run.status.value, []).append(seconds)
+    for status, durations in sorted(by_status.items()):
+        durations.sort()
+        buckets = [
+            (f"{bound:g}", bisect.bisect_right(durations, bound)) for bound in DURATION_BUCKETS
+        ]
+        buckets.append(("+Inf", len(durations)))
+        family.add_metric([status], buckets, sum_value=sum(durations))
+    return family
 
 
 class StoreCollector:
-    """Gauges computed from the store at each scrape."""
+    """Every metric, computed from the store at each scrape."""
 
     def __init__(self, store: Store, backend: QueueBackend) -> None:
         self.store = store
@@ -44,6 +67,7 @@ class StoreCollector:
         yield GaugeMetricFamily(
             "pba_workers", "Workers able to take jobs", value=self.backend.worker_count()
         )
+        yield duration_histogram(self.store.finished_since(EPOCH))
 
 
 class Metrics:
@@ -53,33 +77,7 @@ class Metrics:
         self.store = store
         self.registry = CollectorRegistry()
         self.registry.register(StoreCollector(store, backend))  # type: ignore[arg-type]
-        self.durations = Histogram(
-            "pba_solve_duration_seconds",
-            "Start-to-finish time of solves",
-            labelnames=["status"],
-            buckets=DURATION_BUCKETS,
-            registry=self.registry,
-        )
-        self._watermark = datetime.now(timezone.utc)
-        self._seen: set[str] = set()
-        self._lock = threading.Lock()
-
-    def _feed_durations(self) -> None:
-        with self._lock:
-            runs = self.store.finished_since(self._watermark)
-            for run in runs:
-                if run.id in self._seen:
-                    continue
-                self._seen.add(run.id)
-                seconds = max(0.0, (run.finished - run.started).total_seconds())
-                self.durations.labels(status=run.status.value).observe(seconds)
-            if runs:
-                newest = max(r.finished for r in runs)
-                # keep ids finished at the watermark itself so equal timestamps are not lost
-                self._seen = {r.id for r in runs if r.finished == newest}
-                self._watermark = newest
 
     def render(self) -> bytes:
         """The exposition text."""
-        self._feed_durations()
         return generate_latest(self.registry)

@@ -1,4 +1,5 @@
-"""ASGI middlewares: request body size limit (413 problem), services context, access log."""
+"""ASGI middlewares: request body size limit (413 problem), services context, access log,
+security headers on every response."""
 
 from __future__ import annotations
 
@@ -137,3 +138,29 @@ class AccessLogMiddleware:
                     "duration_ms": round((time.perf_counter() - t0) * 1000, 1),
                 },
             )
+
+
+class SecurityHeadersMiddleware:
+    """Adds ``X-Content-Type-Options: nosniff`` to every HTTP response (JSON, problem
+    documents, CSV, static files, the web page, and the 413 refusals of the body limit), so a
+    browser never reads a response as another type than the one declared."""
+
+    HEADERS: tuple[tuple[bytes, bytes], ...] = ((b"x-content-type-options", b"nosniff"),)
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+
+        async def send_with_headers(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                headers = list(message.get("headers") or [])
+                present = {name.lower() for name, _ in headers}
+                headers += [(k, v) for k, v in self.HEADERS if k not in present]
+                message = {**message, "headers": headers}
+            await send(message)
+
+        await self.app(scope, receive, send_with_headers)

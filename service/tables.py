@@ -1,17 +1,35 @@
 """CSV tables of a report: observations, check points, parameters (no computation, only
 flattening of the report's own numbers; docs/report-contract.md names the fields).
 
-A model comparison gives the same tables with a leading ``model`` column.
+A model comparison gives the same tables with a leading ``model`` column. Text cells are
+escaped against formula injection (:func:`csv_cell`), numbers are written as numbers.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import re
 from typing import Any, Iterable
 
 TABLES = ("observations", "checkpoints", "parameters")
 ENU = ("e", "n", "u")
+# OWASP "CSV injection": a spreadsheet runs a cell beginning with one of these as a formula
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+# a plain decimal number, or a ';'-joined list of them: no letters to call a function with
+_NUMBER = r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
+PLAIN_NUMBERS = re.compile(rf"{_NUMBER}(?:;{_NUMBER})*")
+
+
+def csv_cell(value: Any) -> Any:
+    """A cell value safe to open in a spreadsheet: text beginning with ``= + - @`` TAB or CR
+    gets a leading single quote, unless it is a plain number (``-1.5``, ``-1;2``); numbers,
+    booleans and None are returned unchanged."""
+    if not isinstance(value, str) or not value.startswith(FORMULA_START):
+        return value
+    if PLAIN_NUMBERS.fullmatch(value):
+        return value
+    return "'" + value
 
 
 def _flatten(row: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -84,8 +102,8 @@ def to_csv(rows: Iterable[dict[str, Any]]) -> str:
         for k in r:
             columns.setdefault(k, None)
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(columns), lineterminator="\n")
-    writer.writeheader()
+    writer = csv.writer(buf, lineterminator="\r\n")  # RFC 4180; a CR or LF in a cell is quoted
+    writer.writerow([csv_cell(k) for k in columns])
     for r in rows:
-        writer.writerow({k: ("" if v is None else v) for k, v in r.items()})
+        writer.writerow([csv_cell("" if r.get(k) is None else r[k]) for k in columns])
     return buf.getvalue()

@@ -11,7 +11,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from solver.errors import Cancelled, JobError, Problem as JobProblem, RankDeficientError
+from solver.errors import Cancelled, JobError, Problem as JobProblem, RankDeficientError, UnusableSolution
 from solver.geodesy import ecef_to_geodetic
 from solver.initialize import initialise
 from solver.job import Job
@@ -184,11 +184,30 @@ def adjust_job(
     outcome = solve_problem(problem, control)
     if outcome.cancelled:
         raise Cancelled(f"cancelled after {outcome.iterations} iterations")
+    reasons = outcome.unusable_reasons()
+    if reasons:
+        raise UnusableSolution.from_outcome(reasons, _outcome_detail(outcome))
     _progress(progress, frac(0.92), "assessing the solution")
     report = assess(problem, outcome)
     report["adjustment"]["total_time_s"] = time.perf_counter() - t_start
     _progress(progress, frac(1.0), "done", {"sigma0": report["adjustment"]["sigma0_aposteriori"]})
     return report
+
+
+def _outcome_detail(outcome) -> dict[str, Any]:
+    """The solver's own account of a solve, JSON-ready (a non-finite cost is null)."""
+
+    def finite(x: float) -> float | None:
+        return float(x) if math.isfinite(x) else None
+
+    return {
+        "termination": outcome.termination,
+        "message": outcome.message,
+        "iterations": outcome.iterations,
+        "successful_iterations": outcome.successful_steps,
+        "initial_cost": finite(outcome.initial_cost),
+        "final_cost": finite(outcome.final_cost),
+    }
 
 
 def assess(problem: Problem, outcome) -> dict[str, Any]:
@@ -211,7 +230,10 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
         try:
             cov = covariance(lin, parts, problem)
         except np.linalg.LinAlgError:
-            warnings.append("the normal matrix is singular at the solution: no covariance")
+            warnings.append(
+                "the normal matrix is not positive definite at the solution: no covariance, "
+                "sigmas or correlation coefficients"
+            )
     if not lin.ok.all():
         warnings.append(f"{int((~lin.ok).sum())} projections did not converge at the solution")
     if not outcome.converged:
@@ -368,7 +390,8 @@ def _cameras_report(problem: Problem, lin, cov: Covariance | None, var_factor: f
 def _correlation_pairs(cov: Covariance) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
     """Upper-triangle indices and correlation coefficients of the platform/IOP/pass parameters."""
     d = np.sqrt(np.clip(np.diag(cov.images), 1e-300, None))
-    rho = cov.images / np.outer(d, d)
+    # the covariance is a Gram matrix (linalg.positive_definite_inverse): |rho| <= 1 up to rounding
+    rho = np.clip(cov.images / np.outer(d, d), -1.0, 1.0)
     iu = np.triu_indices_from(rho, k=1)
     return iu, rho[iu]
 

@@ -10,7 +10,9 @@ decreases, a short human message and a dict (``iteration``, ``cost`` when solvin
 :class:`solver.errors.Cancelled` within one solver iteration.
 
 Bad input raises :class:`solver.errors.JobError` (with every problem found); a solve that
-does not converge is a normal report with ``adjustment.converged = false``. As a last line of
+does not converge is a normal report with ``adjustment.converged = false``; a solve that leaves
+no usable solution (Ceres FAILURE, a non-finite cost, no successful iteration) raises
+:class:`solver.errors.UnusableSolution`, a JobError (docs/report-contract.md). As a last line of
 defence, an arithmetic, linear-algebra or PROJ failure that escapes the checks (numbers the
 validation let through but the mathematics cannot use) is also a JobError, ``unusable_values``
 located at the document's root; any other exception is a bug of the solver and propagates.

@@ -229,6 +229,21 @@ class SolveOutcome:
     history: list[dict[str, float]] = field(default_factory=list)
     cancelled: bool = False
     timing_s: dict[str, float] = field(default_factory=dict)
+    successful_steps: int = 0
+
+    def unusable_reasons(self) -> list[str]:
+        """Why the parameters this solve left are not a solution (empty: usable): Ceres
+        reports the solution unusable (termination FAILURE), a cost is not finite, or no
+        iteration succeeded without the start being already converged."""
+        reasons = []
+        if not self.usable:
+            reasons.append(f"Ceres termination {self.termination}: {self.message}")
+        for name, cost in (("initial", self.initial_cost), ("final", self.final_cost)):
+            if not math.isfinite(cost):
+                reasons.append(f"the {name} cost is not finite ({cost})")
+        if self.successful_steps == 0 and self.termination != "CONVERGENCE":
+            reasons.append(f"no successful iteration in {self.iterations}")
+        return reasons
 
 
 def _loss(options: SolverOptions) -> Any:
@@ -347,6 +362,8 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
         message = f"chi-square changed by less than {SolveControl.CHI2_TOLERANCE} in two successive iterations"
     return SolveOutcome(
         iterations=int(summary.num_successful_steps + summary.num_unsuccessful_steps),
+        # Ceres counts the evaluation at the start (iteration 0) as a successful step
+        successful_steps=max(int(summary.num_successful_steps) - 1, 0),
         termination=term,
         converged=converged,
         usable=usable,

@@ -56,5 +56,22 @@ class RankDeficientError(JobError):
     """The normal equations are singular: the control geometry does not fix these parameters."""
 
 
+class UnusableSolution(JobError):
+    """The solve ended without a usable solution (Ceres termination FAILURE, a non-finite cost,
+    or no successful iteration): the job fails instead of reporting its starting values as an
+    adjustment. The problem's ``detail`` carries the termination, iterations and costs."""
+
+    @classmethod
+    def from_outcome(cls, reasons: list[str], detail: dict[str, Any]) -> "UnusableSolution":
+        return cls(
+            Problem(
+                "unusable_solution",
+                "the adjustment did not produce a usable solution: " + "; ".join(reasons),
+                (),
+                {"reasons": reasons, **detail},
+            )
+        )
+
+
 class Cancelled(SolverError):
     """The solve was cancelled through the cancellation hook."""

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import solve_triangular
 from numba import njit
 
 from solver.kernels import all_observation_blocks
@@ -357,9 +358,29 @@ class Covariance:
     leverage: np.ndarray  # (n_obs_rows,) h_ii of the observation rows
 
 
+def positive_definite_inverse(s: np.ndarray) -> np.ndarray:
+    """The inverse of a symmetric positive-definite matrix, as the Gram matrix ``G^T G`` of
+    ``G = L^-1`` (Cholesky factor of the Jacobi-scaled matrix): positive semi-definite by
+    construction, so every correlation derived from it lies in [-1, 1].
+
+    Raises :class:`numpy.linalg.LinAlgError` when ``s`` is not positive definite (a singular
+    or indefinite normal matrix has no covariance).
+    """
+    if s.size == 0:
+        return s
+    diag = np.diag(s)
+    if not np.all(np.isfinite(s)) or np.any(diag <= 0.0):
+        raise np.linalg.LinAlgError("the normal matrix is not positive definite")
+    d = np.sqrt(diag)
+    lower = np.linalg.cholesky(s / np.outer(d, d))  # LinAlgError when not positive definite
+    g = solve_triangular(lower, np.eye(len(d)), lower=True) / d[None, :]
+    return g.T @ g
+
+
 def covariance(lin: Linearisation, parts: SchurParts, problem: Problem) -> Covariance:
-    """Inverse normal-matrix blocks and observation leverages (a-priori sigma0 = 1)."""
-    s_inv = np.linalg.inv(parts.s) if parts.s.size else parts.s
+    """Inverse normal-matrix blocks and observation leverages (a-priori sigma0 = 1); raises
+    :class:`numpy.linalg.LinAlgError` when the reduced normal matrix is not positive definite."""
+    s_inv = positive_definite_inverse(parts.s)
     lev = np.zeros(lin.n_obs_rows)
     points: dict[int, np.ndarray] = {}
     lay = lin.layout

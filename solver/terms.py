@@ -74,6 +74,7 @@ def solve_with_refreshes(problem: Problem, options, control, solve):
         outcome = dataclasses.replace(
             nxt,
             iterations=outcome.iterations + nxt.iterations,
+            successful_steps=outcome.successful_steps + nxt.successful_steps,
             initial_cost=outcome.initial_cost,
             time_s=outcome.time_s + nxt.time_s,
             timing_s=timing,

@@ -23,7 +23,7 @@ from service.cameras import (
     find_camera,
     namespace_of,
 )
-from service.deps import BaseUrl, CurrentUser, Services, ServicesDep
+from service.deps import JSON_BODY, BaseUrl, CurrentUser, Services, ServicesDep
 from service.errors import Conflict, NotFound, problem_responses
 from service.jobs import results_text
 from service.routes import StrictJSONRoute
@@ -103,7 +103,8 @@ def list_cameras(
     "",
     status_code=201,
     response_model=CameraPublic,
-    responses={**problem_responses(401, 403, 413, 422)},
+    dependencies=JSON_BODY,
+    responses={**problem_responses(401, 403, 413, 415, 422)},
 )
 def create_camera(
     body: CameraCreate, user: CurrentUser, services: ServicesDep, base: BaseUrl
@@ -121,7 +122,8 @@ def create_camera(
     "/from-job",
     status_code=201,
     response_model=CameraPublic,
-    responses={**problem_responses(401, 404, 409, 422)},
+    dependencies=JSON_BODY,
+    responses={**problem_responses(401, 404, 409, 415, 422)},
 )
 def camera_from_job(
     body: CameraFromJob, user: CurrentUser, services: ServicesDep, base: BaseUrl
@@ -145,7 +147,8 @@ def camera_from_job(
     "/{name}/share",
     status_code=201,
     response_model=CameraPublic,
-    responses={**problem_responses(401, 403, 404, 422)},
+    dependencies=JSON_BODY,
+    responses={**problem_responses(401, 403, 404, 415, 422)},
 )
 def share_camera(
     name: Name,

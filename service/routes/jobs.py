@@ -11,7 +11,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from fastapi.sse import EventSourceResponse, ServerSentEvent
 
-from service.deps import BaseUrl, CurrentUser, ServicesDep, VisibleJob
+from service.deps import JSON_BODY, BaseUrl, CurrentUser, ServicesDep, VisibleJob
 from service.errors import problem_responses
 from service.jobs import results_text, status_info, validate_inputs
 from service.processes import BUNDLE_ADJUSTMENT, MODEL_COMPARISON
@@ -80,7 +80,8 @@ def list_jobs(
 @router.post(
     "/validate",
     response_model=ValidationReport,
-    responses={**problem_responses(400, 401, 413, 422)},
+    dependencies=JSON_BODY,
+    responses={**problem_responses(400, 401, 413, 415, 422)},
 )
 def validate_job(
     body: Execute,

@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+import hmac
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Security
 from fastapi.concurrency import run_in_threadpool
+from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST
 
+from service.auth import user_for_key
 from service.deps import ServicesDep
+from service.errors import Forbidden, Unauthorized, problem_responses
 from service.schemas import Health
 
 router = APIRouter(tags=["operations"])
@@ -37,8 +43,42 @@ async def readyz(services: ServicesDep) -> JSONResponse:
     return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
 
 
+# the same security schemes as service.deps (same names and descriptions in the OpenAPI);
+# /metrics takes no ?api_key= (a scraper sends a header)
+_key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="API key")
+_bearer = HTTPBearer(auto_error=False, description="API key as a bearer token")
+
+
+def metrics_reader(
+    services: ServicesDep,
+    header_key: Annotated[str | None, Security(_key_header)] = None,
+    bearer: Annotated[HTTPAuthorizationCredentials | None, Security(_bearer)] = None,
+) -> None:
+    """Dependency: when keys are required, /metrics needs ``PBA_METRICS_TOKEN`` as a bearer
+    token or an admin's API key (the figures cover every user's jobs)."""
+    settings = services.settings
+    if not settings.auth_required:
+        return
+    key = header_key or (bearer.credentials if bearer else None)
+    if not key:
+        raise Unauthorized("/metrics needs an admin's API key or the metrics token")
+    token = settings.metrics_token
+    if token is not None and hmac.compare_digest(
+        key.encode("utf-8"), token.get_secret_value().encode("utf-8")
+    ):
+        return
+    user = user_for_key(services.store, key)
+    if user is None:
+        raise Unauthorized("the API key is not valid")
+    if not user.is_admin:
+        raise Forbidden("/metrics is for admins and the metrics token")
+
+
 @router.get(
-    "/metrics", response_class=Response, responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}}
+    "/metrics",
+    response_class=Response,
+    dependencies=[Depends(metrics_reader)],
+    responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}, **problem_responses(401, 403)},
 )
 async def metrics(services: ServicesDep) -> Response:
     """Prometheus metrics: jobs by state, queue depth, workers, solve durations."""

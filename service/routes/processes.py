@@ -10,7 +10,7 @@ from fastapi import APIRouter, Header, Path
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
-from service.deps import BaseUrl, CurrentUser, ServicesDep
+from service.deps import JSON_BODY, BaseUrl, CurrentUser, ServicesDep
 from service.errors import NoSuchProcess, ServiceError, problem_responses
 from service.jobs import results_text, status_info
 from service.processes import PROCESSES, describe
@@ -68,13 +68,14 @@ def _accepted(rec: JobRecord, base: str, preference: bool) -> JSONResponse:
 
 @router.post(
     "/{processId}/execution",
+    dependencies=JSON_BODY,
     responses={
         200: {
             "description": "synchronous execution: the report (raw) or {report} (document)",
             "content": {"application/json": {}},
         },
         201: {"description": "job accepted (asynchronous execution)", "model": StatusInfo},
-        **problem_responses(401, 404, 413, 422, 429, 500),
+        **problem_responses(401, 404, 413, 415, 422, 429, 500),
     },
 )
 async def execute(

@@ -291,6 +291,8 @@ def test_metrics_health_and_structured_logs(
         assert c.get("/healthz").json()["status"] == "ok"
         ready = c.get("/readyz").json()
         assert ready["status"] == "ok" and ready["checks"]["store"] == "ok"
+        assert c.get("/metrics").status_code == 403  # keys required: an admin's or the token
+    with server.client(keys["root"]) as c:
         text = c.get("/metrics").text
     assert 'pba_jobs{status="successful"}' in text
     assert "pba_queue_depth" in text and "pba_workers 2.0" in text

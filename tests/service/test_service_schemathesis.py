@@ -28,7 +28,7 @@ CHECKS = ",".join(
 def test_schemathesis_finds_no_server_error(
     server: Server, small_doc: dict[str, Any], tmp_path: Path
 ) -> None:
-    key = server.create_key("fuzzer")
+    key = server.create_key("fuzzer", admin=True)  # an admin: /metrics answers admins only
     with server.client(key) as c:
         r = c.post("/processes/bundle-adjustment/execution", json=execute_body(small_doc))
         assert r.status_code == 200
