@@ -22,6 +22,8 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
+import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+
 from solver.kernels import all_observation_blocks
 from solver.terms import ImageTerm, image_terms
 from solver.problem import Problem
