@@ -53,34 +53,33 @@ def defines_kernels(tree: ast.AST) -> bool:
     return False
 
 
-def _solver_imports(tree: ast.AST) -> set[Path]:
-    """Source files of the ``solver`` modules a parsed module imports by name (one level)."""
+def _constant_sources(tree: ast.AST) -> set[Path]:
+    """Source files of the ``solver`` modules a parsed module takes constants from
+    (``from solver.x import UPPER_CASE``): the only globals, besides other kernels, that a
+    jitted function can read and freeze into its compiled code."""
     out: set[Path] = set()
     for node in ast.walk(tree):
-        names: list[str] = []
-        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names = [node.module]
-        elif isinstance(node, ast.Import):
-            names = [a.name for a in node.names]
-        for name in names:
-            if not name.startswith("solver."):
-                continue
-            rel = Path(*name.split(".")[1:])
-            for candidate in (SOLVER_DIR / rel.with_suffix(".py"), SOLVER_DIR / rel / "__init__.py"):
-                if candidate.is_file():
-                    out.add(candidate)
+        if not (isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("solver.")):
+            continue
+        if not any(a.name.isupper() for a in node.names):
+            continue
+        rel = Path(*node.module.split(".")[1:])
+        for candidate in (SOLVER_DIR / rel.with_suffix(".py"), SOLVER_DIR / rel / "__init__.py"):
+            if candidate.is_file():
+                out.add(candidate)
     return out
 
 
 def kernel_sources() -> list[Path]:
-    """The files the compiled kernels depend on: every ``solver`` module that defines ``@njit``
-    functions, and the ``solver`` modules those import (a jitted function freezes the globals it
-    reads from them: other kernels, constants), sorted."""
+    """The files the compiled kernels depend on, sorted: every ``solver`` module that defines
+    jitted functions (a kernel inlines the kernels it calls, from whichever module) and the
+    ``solver`` modules those take constants from. Other modules (problem.py, adjust.py...) do
+    not reach compiled code, so editing them keeps the cache."""
     deps: set[Path] = set()
     for p in SOLVER_DIR.rglob("*.py"):
         tree = ast.parse(p.read_text(encoding="utf-8"))
         if defines_kernels(tree):
-            deps |= {p} | _solver_imports(tree)
+            deps |= {p} | _constant_sources(tree)
     return sorted(deps)
 
 

@@ -84,10 +84,12 @@ def test_every_kernel_module_registers_the_locator_before_its_first_kernel() -> 
         assert hook and hook[0] < first_kernel, path.name
 
 
-def test_digest_covers_the_kernel_modules_and_their_solver_imports() -> None:
+def test_digest_covers_the_kernel_modules_and_the_constants_they_read() -> None:
     names = {p.relative_to(SOLVER).as_posix() for p in kernel_cache.kernel_sources()}
-    # propagation.py is imported by kernels.py; geodesy.py by lines.py; none is the web service
-    assert {"kernels.py", "propagation.py", "linalg.py", "lines.py", "geodesy.py"} <= names
+    # propagation.py holds kernels that kernels.py inlines, and the PASS_* layout constants
+    assert {"kernels.py", "propagation.py", "linalg.py", "lines.py"} <= names
+    # modules that cannot reach compiled code keep the cache when edited
+    assert not names & {"problem.py", "adjust.py", "statistics.py", "checkpoints.py", "kernel_cache.py"}
     assert not any(n.startswith("simulate/") for n in names)
 
 
