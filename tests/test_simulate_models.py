@@ -57,5 +57,7 @@ def test_remaining_models_recover_the_simulated_scene(model: str):
     row = compare_models(job, [model])["table"][0]
     assert "error" not in row and row["converged"], row
     assert row["check_rmse_planimetric_m"] <= GSD_M, row
-    assert 0.002 < row["rmse_x_mm"] < 0.0055 and 0.002 < row["rmse_y_mm"] < 0.0055, row
+    # residuals no larger than the noise; their lower end depends on the degrees of freedom
+    # (GENERAL: 10 of 28), which sigma0 accounts for
+    assert row["rmse_x_mm"] < 0.0055 and row["rmse_y_mm"] < 0.0055, row
     assert 0.6 < row["sigma0"] < 1.5, row
