@@ -74,6 +74,26 @@ def test_edit_of_a_dependency_module_is_not_served_from_the_cache(tmp_path: Path
     assert len(list(cache.glob("pba-kernels-*"))) == 2  # one directory per version of the sources
 
 
+def test_processes_compiling_into_one_empty_cache_at_once_agree(tmp_path: Path) -> None:
+    """Server workers starting together share one cache directory: numba writes each file
+    under a temporary name and renames it, so concurrent writers neither fail nor corrupt it."""
+    root = tmp_path / "pkg"
+    shutil.copytree(SOLVER, root / "solver", ignore=shutil.ignore_patterns("__pycache__"))
+    cache = tmp_path / "cache"
+    env = dict(os.environ, PYTHONPATH=str(root), NUMBA_CACHE_DIR=str(cache))
+    env.pop("NUMBA_CACHE_LOCATOR_CLASSES", None)
+    procs = [
+        subprocess.Popen([sys.executable, "-c", _PROBE], env=env, cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for _ in range(3)
+    ]
+    outs = [p.communicate(timeout=600) for p in procs]
+    assert all(p.returncode == 0 for p in procs), [err[-500:] for _out, err in outs]
+    values = [np.array(json.loads(out.strip().splitlines()[-1])) for out, _err in outs]
+    for v in values[1:]:  # the same machine code (1e-12 m/s^2)
+        np.testing.assert_allclose(v, values[0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(_probe(root, cache), values[0], rtol=0, atol=1e-12)  # and it loads
+
+
 def test_every_kernel_module_registers_the_locator_before_its_first_kernel() -> None:
     modules = [p for p in SOLVER.rglob("*.py") if kernel_cache.defines_kernels(ast.parse(p.read_text()))]
     assert {p.name for p in modules} >= {"kernels.py", "propagation.py", "lines.py", "linalg.py"}
