@@ -30,6 +30,7 @@ from __future__ import annotations
 import ast
 import hashlib
 import os
+import re
 from functools import lru_cache
 from pathlib import Path
 
@@ -39,6 +40,7 @@ from numba.misc.appdirs import AppDirs
 SOLVER_DIR = Path(__file__).resolve().parent
 _CACHE_IMPL = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")  # numba >= 0.61 / older
 _JIT_DECORATORS = {"njit", "jit", "vectorize", "guvectorize", "cfunc"}
+_DECORATOR_LINE = re.compile(r"^\s*@\s*(?:numba\.)?(?:njit|jit|vectorize|guvectorize|cfunc)\b", re.M)
 
 
 def defines_kernels(tree: ast.AST) -> bool:
@@ -77,7 +79,10 @@ def kernel_sources() -> list[Path]:
     not reach compiled code, so editing them keeps the cache."""
     deps: set[Path] = set()
     for p in SOLVER_DIR.rglob("*.py"):
-        tree = ast.parse(p.read_text(encoding="utf-8"))
+        text = p.read_text(encoding="utf-8")
+        if not _DECORATOR_LINE.search(text):
+            continue  # no decorator line of a numba compiler: no need to parse it
+        tree = ast.parse(text)
         if defines_kernels(tree):
             deps |= {p} | _constant_sources(tree)
     return sorted(deps)
