@@ -264,6 +264,8 @@ def cmd_warmup(args: argparse.Namespace) -> int:
     """``pba warmup``: adjust the tiny warm-up jobs, printing each one's time."""
     from solver.warmup import compile_kernels
 
+    from solver.kernel_cache import cache_dir
+
     total = compile_kernels(say=print)
-    print(f"kernels compiled or loaded from the cache in {total:.1f} s")
+    print(f"kernels compiled or loaded from the cache in {total:.1f} s ({cache_dir()})")
     return 0

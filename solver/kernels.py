@@ -32,6 +32,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+
 from solver.propagation import (
     PASS_ATT_OFF,
     PASS_COEF_INDEX,

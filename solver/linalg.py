@@ -23,6 +23,8 @@ import scipy.sparse as sp
 from scipy.linalg import solve_triangular
 from numba import njit
 
+import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+
 from solver.kernels import all_observation_blocks
 from solver.terms import ImageTerm, image_terms
 from solver.problem import Problem

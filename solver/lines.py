@@ -76,6 +76,8 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+
 from solver.errors import JobError, Problem as JobProblem
 from solver.geodesy import UnknownCRSError, parse_crs, to_ecef
 from solver.kernels import N_OBS_CONST, assemble, platform_state, project, rotation_and_derivatives

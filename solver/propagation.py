@@ -39,6 +39,8 @@ import math
 import numpy as np
 from numba import njit
 
+import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+
 _JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
 # kc layout (indices into an image's constant vector)

@@ -172,7 +172,8 @@ def test_direct_georeferencing_without_control():
     rep = adjust_job(load_job(job))
     assert rep["adjustment"]["converged"] and 0.7 < rep["adjustment"]["sigma0_aposteriori"] < 1.3
     r = rep["checkpoints"]["rmse_m"]
-    assert math.sqrt(r["e"] ** 2 + r["n"] ** 2 + r["u"] ** 2) < 60.0, r
+    # 3D check RMSE 13.8-33.9 m over simulate(1..4) (27 m documented for seed 2); 1.5 x the worst
+    assert math.sqrt(r["e"] ** 2 + r["n"] ** 2 + r["u"] ** 2) < 51.0, r
 
 
 def test_simulated_attitude_samples_use_the_models_convention():

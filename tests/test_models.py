@@ -72,8 +72,11 @@ def test_triplet_bundle_recovers_images_and_tie_points(model):
     for t in rep["tie_points"]:
         tz += list((np.array(t["lgs_m"]) - np.array(truth["points_lgs"][t["id"]])) / np.array(t["sigma_m"]))
     # tie-point errors share the images' orientation error, so their RMS over one scene scatters
-    # widely between noise draws; calibration is tested by Monte Carlo
-    assert np.sqrt(np.mean(np.square(tz))) < 2.5 and np.max(np.abs(tz)) < 5.0
+    # widely between noise draws; calibration is tested by Monte Carlo. Measured over seeds 2-5
+    # and the five models (2026-11-23): RMS 0.86-1.62, max 2.1-4.65, seed 2 (this one) the
+    # worst for every model; RMS bound 1.5 x the worst, max bound 1.07 x (5 sigma is already
+    # the largest z-score a calibrated covariance gives in 90 coordinates)
+    assert np.sqrt(np.mean(np.square(tz))) < 2.4 and np.max(np.abs(tz)) < 5.0
     cp = rep["checkpoints"]
     assert cp["method"] == "intersection" and cp["n"] == 6
     assert cp["rmse_m"]["u"] is not None

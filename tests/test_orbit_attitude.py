@@ -27,20 +27,23 @@ def test_orbit_attitude_velocity_is_physical_where_position_rotation_is_not():
         results[model] = (rep, *exp.state_errors(rep, truth))
     k2, _dp_k2, dv_k2 = results["K2"]
     oa, _dp_oa, dv_oa = results["OA-K"]
-    # both fit the images and the check points alike
-    assert abs(k2["adjustment"]["sigma0_aposteriori"] - oa["adjustment"]["sigma0_aposteriori"]) < 0.1
-    assert oa["checkpoints"]["rmse_m"]["planimetric"] < 2.5
+    # bounds 1.5 x the worst of simulate(1..4) (measured 2026-11-23; this test uses seed 2)
+    # both fit the images and the check points alike (sigma0 difference 0.003-0.006)
+    assert abs(k2["adjustment"]["sigma0_aposteriori"] - oa["adjustment"]["sigma0_aposteriori"]) < 0.01
+    assert oa["checkpoints"]["rmse_m"]["planimetric"] < 1.85  # 0.82-1.23 m
     # the position-rotation model absorbs the attitude's rotation with the orbit into the velocity
-    assert dv_k2 > 300.0
-    assert dv_oa < 30.0
+    assert dv_k2 > 530.0  # 798-801 m/s
+    assert dv_oa < 15.0  # 5.8-10.3 m/s
     # and the reported velocity sigma of the orbit-attitude model covers its error
     im = oa["images"][1]
     sig = np.array([p["sigma"] for p in im["parameters"] if p["name"] in ("ux", "uy", "uz")])
-    assert dv_oa < 4 * np.linalg.norm(sig) + 1.0
+    assert dv_oa < 1.8 * np.linalg.norm(sig)  # error / |sigma| 0.69-1.21
 
 
 def test_ephemeris_as_observations_is_consistent_only_with_orbit_attitude():
-    """Weighted state vectors (10 m, 0.05 m/s): K2 fights them, OA-K agrees with them."""
+    """Weighted state vectors (10 m, 0.05 m/s): K2 fights them (sigma0 ~560); OA-K comes close
+    to them but does not pass the chi-square test on most scenes (sigma0 1.05-1.78 over
+    simulate(1..4), chi2 passed on seed 3 only; 1.78 on this test's seed 2)."""
     job, truth = exp.simulate(2)
     out = {}
     for model in ("K2", "OA-K"):
@@ -50,7 +53,8 @@ def test_ephemeris_as_observations_is_consistent_only_with_orbit_attitude():
         rep = adjust_job(load_job(exp.with_ephemeris(j)))
         out[model] = (rep, *exp.state_errors(rep, truth))
     k2, oa = out["K2"][0], out["OA-K"][0]
-    assert k2["adjustment"]["sigma0_aposteriori"] > 50
-    assert oa["adjustment"]["sigma0_aposteriori"] < 2
-    assert oa["checkpoints"]["rmse_m"]["planimetric"] < 3.0
-    assert out["OA-K"][1] < 30 and out["OA-K"][2] < 1.0  # position (m) and velocity (m/s) errors
+    # bounds about 1.5 x the worst of simulate(1..4), measured 2026-11-23
+    assert k2["adjustment"]["sigma0_aposteriori"] > 370  # 556-575
+    assert oa["adjustment"]["sigma0_aposteriori"] < 2  # 1.05-1.78: close, not a chi-square pass
+    assert oa["checkpoints"]["rmse_m"]["planimetric"] < 3.0  # 1.2-2.8 m (2.77 m on seed 2)
+    assert out["OA-K"][1] < 12.5 and out["OA-K"][2] < 0.31  # position 3.5-8.3 m, velocity 0.05-0.20 m/s

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import time
 from collections import Counter
 
 import numpy as np
@@ -134,13 +133,11 @@ def test_cli_writes_job_and_truth(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_strip_scale_generation_is_vectorised(tmp_path):
-    t0 = time.perf_counter()
+def test_strip_scale_generation(tmp_path):
+    """A strip of 60 images and 30000 tie points is generated whole (its time: bench/bench_simulate.py)."""
     scene = presets.strip(Settings(preset="strip", seed=1), triplets=20, tie_points=30000)
     job = scene.job()
-    elapsed = time.perf_counter() - t0
     assert len(scene.images) == 60
     roles = Counter(p["role"] for p in job["points"])
     assert roles["tie"] == 30000 and roles["gcp"] == 80 and roles["check"] == 40
     assert len(job["observations"]) > 0.99 * 3 * 30120
-    assert elapsed < 30.0

@@ -128,10 +128,8 @@ def test_jobs_run_on_celery_workers(
         long = deployment.submit(strip_doc)
         rec = wait_job(store, long, {"running"}, min_progress=10)  # iterating
         assert rec.worker and holder_pid(rec) != ws[0].pid  # solved in a pool process
-        t0 = time.monotonic()
         store.request_cancel(long)
-        rec = wait_job(store, long, {"dismissed"}, timeout=30)
-        assert time.monotonic() - t0 < 10.0, rec.message  # an iteration is < 1 s unloaded
+        rec = wait_job(store, long, {"dismissed"}, timeout=30)  # a liveness limit, not a speed claim
         assert rec.message == "cancelled by the user"
         assert ended_runs(ws, long) == [(rec.worker, "dismissed")]
 

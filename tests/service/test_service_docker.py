@@ -82,8 +82,7 @@ def test_compose_config_validates_where_the_plugin_exists() -> None:
         and subprocess.run([docker, "compose", "version"], capture_output=True).returncode == 0
     )
     if not has_compose:
-        print("docker compose plugin not installed: structural checks only")
-        return
+        pytest.skip("docker compose plugin not installed here (no Docker on this machine): the structural checks above still run")
     res = subprocess.run(
         [docker, "compose", "-f", str(DOCKER / "compose.yaml"), "config", "-q"],
         capture_output=True,

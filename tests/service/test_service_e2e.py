@@ -137,14 +137,13 @@ def test_sse_progress_and_cancel_a_running_large_job(
             until=lambda e: e["status"] == "running" and "iteration" in e["message"],
         )
         assert events[0]["status"] in ("accepted", "running")
-        t0 = time.monotonic()
         r = c.delete(f"/jobs/{job_id}")
         assert r.status_code == 200 and r.json()["status"] in ("running", "dismissed")
         rest = read_events(c, job_id, keys["alice"])
-        stopped_after = time.monotonic() - t0
+        # stopped, not finished: the solve would take many more iterations (how fast a cancel
+        # takes effect is measured in bench/, not asserted here)
         assert rest[-1]["status"] == "dismissed", rest[-1]
         assert "cancel" in rest[-1]["message"]
-        assert stopped_after < 5.0, f"cancellation took {stopped_after:.1f} s"
         progress = [e["progress"] for e in events + rest]
         assert progress == sorted(progress), progress  # never decreases
         assert c.get(f"/jobs/{job_id}/results").status_code == 404

@@ -1,0 +1,123 @@
+"""The compiled-kernel disk cache is keyed on every kernel source (solver/kernel_cache.py).
+
+numba alone invalidates a cached function only when its own file changes: after an edit of
+solver/propagation.py the J2 term reached through solver/kernels.py came from the cache
+unchanged (0.0079 m/s^2 off). These tests edit a dependency in a scratch copy of the package
+and require the new value.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from solver import kernel_cache
+
+SOLVER = Path(kernel_cache.__file__).resolve().parent
+
+# _kepler_terms (solver/kernels.py) inlines gravity_and_gradient (solver/propagation.py)
+_PROBE = """
+import json, numpy as np
+from solver.kernels import _kepler_terms
+coef = np.zeros(24); coef[0], coef[4], coef[8] = 4.0e6, 3.0e6, 4.5e6
+coef[1], coef[5], coef[9] = 1000.0, -2000.0, 6000.0
+kc = np.zeros(17); kc[12], kc[13], kc[14], kc[15] = 3.986004418e14, 7.292115e-5, 1.08263e-3, 6378137.0
+a, _ = _kepler_terms(coef, kc)
+print(json.dumps([float(x) for x in a]))
+"""
+
+
+def _j2_acceleration(r: np.ndarray, gm: float, j2: float, ae: float) -> np.ndarray:
+    """J2 part of the gravity acceleration (m/s^2), written out independently of the solver."""
+    x, y, z = r
+    rn = np.linalg.norm(r)
+    k = 1.5 * j2 * gm * ae**2 / rn**5
+    f = 5.0 * z**2 / rn**2
+    return np.array([-k * x * (1.0 - f), -k * y * (1.0 - f), -k * z * (3.0 - f)])
+
+
+def _probe(root: Path, cache: Path) -> np.ndarray:
+    env = dict(os.environ, PYTHONPATH=str(root), NUMBA_CACHE_DIR=str(cache))
+    env.pop("NUMBA_CACHE_LOCATOR_CLASSES", None)
+    out = subprocess.run([sys.executable, "-c", _PROBE], env=env, cwd=root, capture_output=True, text=True, check=True)
+    return np.array(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
+def test_edit_of_a_dependency_module_is_not_served_from_the_cache(tmp_path: Path) -> None:
+    root = tmp_path / "pkg"
+    shutil.copytree(SOLVER, root / "solver", ignore=shutil.ignore_patterns("__pycache__"))
+    cache = tmp_path / "cache"
+    r = np.array([4.0e6, 3.0e6, 4.5e6])
+    gm, j2, ae = 3.986004418e14, 1.08263e-3, 6378137.0
+    j2_part = _j2_acceleration(r, gm, j2, ae)
+    assert np.linalg.norm(j2_part) > 1e-3  # the edit below changes the answer by this much
+
+    first = _probe(root, cache)
+    assert list(cache.rglob("kernels._kepler_terms*.nbi")), "the probe must have written the cache"
+    again = _probe(root, cache)  # loaded from the cache: same value (1e-12 m/s^2: same machine code)
+    np.testing.assert_allclose(again, first, rtol=0, atol=1e-12)
+
+    prop = root / "solver" / "propagation.py"
+    text = prop.read_text()
+    assert text.count("k = 1.5 * j2 * gm * ae * ae") == 1
+    prop.write_text(text.replace("k = 1.5 * j2 * gm * ae * ae", "k = 3.0 * j2 * gm * ae * ae"))
+    edited = _probe(root, cache)
+    # doubling the J2 coefficient adds one more J2 term; 1e-9 m/s^2 is rounding on ~10 m/s^2
+    np.testing.assert_allclose(edited - first, j2_part, rtol=0, atol=1e-9)
+    assert len(list(cache.glob("pba-kernels-*"))) == 2  # one directory per version of the sources
+
+
+def test_processes_compiling_into_one_empty_cache_at_once_agree(tmp_path: Path) -> None:
+    """Server workers starting together share one cache directory: numba writes each file
+    under a temporary name and renames it, so concurrent writers neither fail nor corrupt it."""
+    root = tmp_path / "pkg"
+    shutil.copytree(SOLVER, root / "solver", ignore=shutil.ignore_patterns("__pycache__"))
+    cache = tmp_path / "cache"
+    env = dict(os.environ, PYTHONPATH=str(root), NUMBA_CACHE_DIR=str(cache))
+    env.pop("NUMBA_CACHE_LOCATOR_CLASSES", None)
+    procs = [
+        subprocess.Popen([sys.executable, "-c", _PROBE], env=env, cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for _ in range(3)
+    ]
+    outs = [p.communicate(timeout=600) for p in procs]
+    assert all(p.returncode == 0 for p in procs), [err[-500:] for _out, err in outs]
+    values = [np.array(json.loads(out.strip().splitlines()[-1])) for out, _err in outs]
+    for v in values[1:]:  # the same machine code (1e-12 m/s^2)
+        np.testing.assert_allclose(v, values[0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(_probe(root, cache), values[0], rtol=0, atol=1e-12)  # and it loads
+
+
+def test_every_kernel_module_registers_the_locator_before_its_first_kernel() -> None:
+    modules = [p for p in SOLVER.rglob("*.py") if kernel_cache.defines_kernels(ast.parse(p.read_text()))]
+    assert {p.name for p in modules} >= {"kernels.py", "propagation.py", "lines.py", "linalg.py"}
+    for path in modules:
+        lines = path.read_text().splitlines()
+        hook = [i for i, s in enumerate(lines) if s.startswith("import solver.kernel_cache")]
+        first_kernel = min(i for i, s in enumerate(lines) if s.startswith("@njit") or s.startswith("@jit"))
+        assert hook and hook[0] < first_kernel, path.name
+
+
+def test_digest_covers_the_kernel_modules_and_the_constants_they_read() -> None:
+    names = {p.relative_to(SOLVER).as_posix() for p in kernel_cache.kernel_sources()}
+    # propagation.py holds kernels that kernels.py inlines, and the PASS_* layout constants
+    assert {"kernels.py", "propagation.py", "linalg.py", "lines.py"} <= names
+    # modules that cannot reach compiled code keep the cache when edited
+    assert not names & {"problem.py", "adjust.py", "statistics.py", "checkpoints.py", "kernel_cache.py"}
+    assert not any(n.startswith("simulate/") for n in names)
+
+
+def test_kernels_are_cached_under_the_digest_directory() -> None:
+    from solver import kernels
+
+    path = kernel_cache.cache_dir()
+    assert f"pba-kernels-{kernel_cache.sources_digest()}" in path.parts
+    locator = kernels.platform_state._cache._impl.locator
+    assert isinstance(locator, kernel_cache.KernelSourceLocator)
+    assert Path(locator.get_cache_path()) == path
