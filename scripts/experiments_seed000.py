@@ -230,7 +230,7 @@ def monte_carlo(seeds: list[int]) -> dict[tuple[str, int, str], dict[str, float]
 
 def table_monte_carlo(mc: dict, n: int) -> str:
     lines = [
-        f"| model | " + " | ".join(f"{v} {CONFIGS[c][0]}/{CONFIGS[c][1]}" for v in VIEWS for c in range(2)) + " |",
+        "| model | " + " | ".join(f"{v} {CONFIGS[c][0]}/{CONFIGS[c][1]}" for v in VIEWS for c in range(2)) + " |",
         "|---|" + "---:|" * 4,
     ]
     for m in MODELS + [ON_TRUE]:

@@ -11,18 +11,20 @@ from typing import Any, Callable
 
 import numpy as np
 
-from solver.errors import Cancelled, JobError, Problem as JobProblem, RankDeficientError, UnusableSolution
+from solver.attitude_obs import attitude_report
+from solver.checkpoints import compute_checkpoints
+from solver.ephemeris import ephemeris_report
+from solver.errors import Cancelled, RankDeficientError, UnusableSolution
+from solver.errors import Problem as JobProblem
 from solver.geodesy import ecef_to_geodetic
 from solver.initialize import initialise
 from solver.job import Job
 from solver.kernels import platform_state
 from solver.linalg import Covariance, check_rank, covariance, linearise, schur
-from solver.problem import Problem, build_problem
-from solver.statistics import chi2_test
-from solver.checkpoints import compute_checkpoints
-from solver.attitude_obs import attitude_report
-from solver.ephemeris import ephemeris_report
 from solver.lines import lines_report
+from solver.problem import build_problem
+from solver.state import Problem
+from solver.statistics import chi2_test
 from solver.validate import require_valid
 
 REPORT_SCHEMA_VERSION = "1.0"

@@ -26,14 +26,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from solver.kernels import KIND_PASS
-from solver.models import coef_index
+from solver.models import coef_index, get_model
 from solver.orbit_pass import ATTITUDE_KINDS, attitude_blocks, image_attitude_blocks, pass_line_span
 from solver.priors import StatePrior
 from solver.propagation import PASS_ATT_OFF
 
 if TYPE_CHECKING:
     from solver.job import AttitudeSample, Job
-    from solver.problem import Problem
+    from solver.state import Problem
 
 ANGLES = ("omega", "phi", "kappa")  # the coefficient slots of roll, pitch, yaw
 
@@ -61,7 +61,6 @@ def n_attitude_observations(job: "Job") -> int:
 
 def attitude_problems(job: "Job") -> list[tuple[str, str, tuple]]:
     """(code, message, location) of attitude samples that cannot be used as asked."""
-    from solver.models import get_model
 
     out: list[tuple[str, str, tuple]] = []
     if job.options.attitude is None:

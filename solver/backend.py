@@ -27,7 +27,7 @@ import pyceres
 
 from solver.job import SolverOptions
 from solver.kernels import fixed_obs_block, point_obs_block
-from solver.problem import Problem
+from solver.state import Problem
 
 
 class SolveControl:

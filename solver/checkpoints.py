@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 
 from solver.kernels import ray_cam
-from solver.tables import current_tables
-from solver.problem import Problem
+from solver.state import Problem
 from solver.statistics import axis_summary, shapiro_wilk, t_test
+from solver.tables import current_tables
 
 
 def _ray(problem: Problem, r: int):

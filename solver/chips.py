@@ -9,14 +9,18 @@ Where several chips cover it, it belongs to **the covering chip whose centre col
 goes to the chip with the larger centre column (so a column on the boundary of two chips that
 touch, ``first_k + n_k - 0.5``, starts the next chip, as rounding half up would). For neighbouring chips of equal width this splits each overlap in
 the middle: with 32 overlapping columns, 16 go to either chip. An observation may also name its
-chip explicitly, which overrides the rule (:mod:`solver.problem`).
+chip explicitly, which overrides the rule (:func:`camera_chip`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # annotations only: the job schema is not needed to run these
+    from solver.job import Camera
 
 
 def covers(first_column: float, columns: float, column: np.ndarray | float) -> np.ndarray:
@@ -47,3 +51,37 @@ def chip_seams(first_columns: Sequence[float], widths: Sequence[int], image_colu
     rule passes from one chip to another (or to a gap), for keeping points clear of them."""
     k = chip_index_of_column(first_columns, widths, np.arange(image_columns, dtype=float))
     return np.flatnonzero(k[1:] != k[:-1]) + 0.5
+
+
+def in_image_columns(camera: Camera, column: float) -> bool:
+    """True if ``column`` lies in the delivered image (``-0.5 .. columns - 0.5``)."""
+    return -0.5 <= column <= (camera.columns or 0) - 0.5
+
+
+def camera_chip(camera: Camera, column: float, chip: str | None = None) -> tuple[str, float, float, float]:
+    """(chip id, dx_mm, dy_mm, centre column) of the chip of image column ``column``.
+
+    ``chip`` names the chip (its id); without it the chip follows the rule of
+    :mod:`solver.chips` (the covering chip whose centre column is nearest). KeyError if the column
+    is outside the delivered image, on no chip, or not on the named chip. A camera without chips
+    is one chip "1" centred on the principal point.
+    """
+    if not in_image_columns(camera, column):
+        raise KeyError(column)
+    if not camera.chips:
+        if chip not in (None, "1"):
+            raise KeyError(chip)
+        return "1", 0.0, 0.0, ((camera.columns or 0) - 1) / 2.0
+    if chip is None:
+        k = int(chip_index_of_column([c.first_column for c in camera.chips], [c.columns for c in camera.chips], column))
+        if k < 0:
+            raise KeyError(column)
+    else:
+        ids = [c.id for c in camera.chips]
+        if chip not in ids:
+            raise KeyError(chip)
+        k = ids.index(chip)
+        if not covers(camera.chips[k].first_column, camera.chips[k].columns, column):
+            raise KeyError(column)
+    c = camera.chips[k]
+    return c.id, c.dx_mm, c.dy_mm, c.first_column + (c.columns - 1) / 2.0

@@ -12,42 +12,12 @@ from typing import Any, Callable
 
 import numpy as np
 
-from solver.errors import JobError, Problem
-from solver.job import MAX_COMPARED_MODELS, Job
-from solver.models import get_model
+from solver.adjust import adjust_job
+from solver.errors import JobError
+from solver.job import Job
+from solver.validate import comparison_problems
 
-
-def comparison_problems(models: list[str], location: tuple[str | int, ...]) -> list[Problem]:
-    """Problems of a list of models to compare (``location`` is where the list is): none, more
-    than MAX_COMPARED_MODELS, unknown names, or one model named twice (aliases included)."""
-    if not models:
-        return [Problem("no_models", "a model comparison needs at least one model", location)]
-    if len(models) > MAX_COMPARED_MODELS:
-        return [
-            Problem(
-                "too_many_models",
-                f"{len(models)} models to compare; at most {MAX_COMPARED_MODELS}",
-                location,
-            )
-        ]
-    out: list[Problem] = []
-    seen: dict[str, int] = {}
-    for i, name in enumerate(models):
-        try:
-            model = get_model(name)
-        except KeyError as exc:
-            out.append(Problem("unknown_model", str(exc.args[0]), (*location, i)))
-            continue
-        if model.name in seen:
-            out.append(
-                Problem(
-                    "duplicate_model",
-                    f"{name!r} is the model {model.name} already listed at position {seen[model.name]}",
-                    (*location, i),
-                )
-            )
-        seen.setdefault(model.name, i)
-    return out
+__all__ = ["compare_models", "comparison_problems"]
 
 
 def _row(model: str, report: dict[str, Any]) -> dict[str, Any]:
@@ -84,8 +54,6 @@ def compare_models(
     cancel: Callable[[], bool] | None = None,
 ) -> dict[str, Any]:
     """Adjust ``job`` once per model (every image switched to that model)."""
-    from solver.adjust import adjust_job
-
     problems = comparison_problems(models, ("options", "models"))
     if problems:
         raise JobError(problems)

@@ -39,9 +39,11 @@ import numpy as np
 
 from solver.errors import Problem as JobProblem
 from solver.job import ApproxState, Image, SolverOptions
+from solver.kernels import platform_state
+from solver.state import is_kepler
 
 if TYPE_CHECKING:  # pragma: no cover
-    from solver.problem import Problem
+    from solver.state import Problem
 
 DEFAULT_NODES = 4
 
@@ -244,8 +246,6 @@ def ephemeris_problems(image: Image, index: int) -> list[JobProblem]:
 
 def line0_state_ecef(problem: "Problem", image_index: int) -> tuple[np.ndarray, np.ndarray]:
     """The adjusted model's perspective centre position (m) and velocity (m/s) at line 0, ECEF."""
-    from solver.kernels import platform_state
-    from solver.problem import is_kepler
 
     img = problem.images[image_index]
     s, _, ds_dtau, *_ = platform_state(img.kind, img.coef(), img.kc, 0.0)

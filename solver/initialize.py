@@ -20,12 +20,13 @@ import math
 
 import numpy as np
 
-from solver.errors import JobError, Problem as JobProblem
 from solver.ephemeris import image_state
+from solver.errors import JobError
+from solver.errors import Problem as JobProblem
 from solver.kernels import gravity_and_gradient, intersect_all, platform_state
 from solver.models import ANGLES, ELEMENTS, HELD, coef_index
 from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
-from solver.problem import ImageState, Problem, is_kepler
+from solver.state import ImageState, Problem, is_kepler
 
 
 def angles_from_matrix(m: np.ndarray) -> tuple[float, float, float]:

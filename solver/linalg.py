@@ -20,14 +20,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import solve_triangular
 from numba import njit
+from scipy.linalg import solve_triangular
 
 import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
-
 from solver.kernels import all_observation_blocks
-from solver.terms import ImageTerm, image_terms
-from solver.problem import Problem
+from solver.state import Problem
+from solver.terms import image_terms
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 

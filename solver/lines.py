@@ -77,8 +77,9 @@ import numpy as np
 from numba import njit
 
 import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
-
-from solver.errors import JobError, Problem as JobProblem
+from solver.chips import camera_chip
+from solver.errors import JobError
+from solver.errors import Problem as JobProblem
 from solver.geodesy import UnknownCRSError, parse_crs, to_ecef
 from solver.kernels import N_OBS_CONST, assemble, platform_state, project, rotation_and_derivatives
 
@@ -417,7 +418,6 @@ def control_line_points_ecef(job, ecef: dict[str, np.ndarray]) -> np.ndarray:
 
 def _on_a_chip(camera, column: float) -> bool:
     """True if ``column`` is in the delivered image and on a CCD chip (:mod:`solver.chips`)."""
-    from solver.problem import camera_chip
 
     try:
         camera_chip(camera, column)
@@ -429,7 +429,6 @@ def _on_a_chip(camera, column: float) -> bool:
 def _chip_constants(camera, column: float) -> tuple[float, float, float]:
     """(xo, yo, centre column) of the chip of ``column`` (clamped into the image) by the rule of
     :mod:`solver.chips` (line points do not name their chip)."""
-    from solver.problem import camera_chip
 
     ncols = camera.columns or 1
     col = min(max(column, 0.0), ncols - 1.0)

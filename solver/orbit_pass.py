@@ -16,8 +16,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from solver.ephemeris import image_state, usable
 from solver.errors import Problem as JobProblem
 from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS, N_KEPLER_CONST
+from solver.models import get_model
 from solver.models.base import PASS_STATE
 from solver.propagation import (
     NODE_STEP_S,
@@ -37,7 +39,7 @@ from solver.propagation import (
 if TYPE_CHECKING:  # pragma: no cover
     from solver.job import Job
     from solver.models import PlatformModel
-    from solver.problem import ImageState, Problem
+    from solver.state import ImageState, Problem
 
 DEFAULT_PASS = "1"
 ATTITUDE_MODES = ("camera", "image")  # model option "attitude": one set per camera of a pass / per image
@@ -91,7 +93,6 @@ def _attitude_blocks(entries) -> list[list[int]]:
 
 def attitude_blocks(job: "Job") -> list[list[int]]:
     """:func:`_attitude_blocks` of the job's images with the models the document names."""
-    from solver.models import get_model
 
     def model_of(im):
         try:
@@ -284,7 +285,6 @@ def pass_terms(problem: "Problem") -> list[PassStateTerm]:
     (a 60-image strip on 15 samples: 4 times). Images without a usable ephemeris but with a
     weighted ``approx_state`` observe the state at their first line.
     """
-    from solver.ephemeris import image_state, usable
 
     job = problem.job
     eph = job.options.ephemeris
@@ -320,7 +320,6 @@ def pass_terms(problem: "Problem") -> list[PassStateTerm]:
 
 def pass_problems(job: "Job") -> list[JobProblem]:
     """Validation of the pass-propagated images: epochs, one model per pass, no lines/IOP."""
-    from solver.models import get_model
 
     out = []
     models: dict[str, tuple[str, int]] = {}
@@ -375,7 +374,6 @@ def pass_problems(job: "Job") -> list[JobProblem]:
 def _attitude_group_problems(job: "Job") -> list[JobProblem]:
     """Images sharing one attitude block (:func:`attitude_blocks`) must ask for the same model
     orders and give the same initial values as the block's first image."""
-    from solver.models import get_model
 
     def signature(i: int):
         im = job.images[i]
@@ -417,8 +415,6 @@ def _attitude_group_problems(job: "Job") -> list[JobProblem]:
 def n_pass_state_observations(job: "Job") -> int:
     """Number of weighted state observations :func:`pass_terms` will make (for validation; the
     pass span is taken from the images' first-line epochs and line counts)."""
-    from solver.ephemeris import image_state, usable
-    from solver.models import get_model
 
     eph = job.options.ephemeris
     by_samples = eph is not None and eph.sigma_position_m is not None
@@ -455,7 +451,6 @@ def _orders_ok(model, options) -> bool:
 def n_pass_unknowns(job: "Job") -> int:
     """Unknowns the passes add (6 per pass) minus the attitude parameters that images of one
     camera share (counted once, not per image, by the validation's per-image count)."""
-    from solver.models import get_model
 
     def valid(i: int):
         """The image's model when it propagates and its orders are valid, else None."""

@@ -18,7 +18,7 @@ import numpy as np
 
 from solver.ephemeris import image_state
 from solver.models import coef_index
-from solver.problem import ImageState, Problem, is_kepler
+from solver.state import ImageState, Problem, is_kepler
 
 
 @dataclass

@@ -9,94 +9,18 @@ from __future__ import annotations
 
 import math
 
-from dataclasses import dataclass, field
-from typing import Any
-
 import numpy as np
 
-from solver.chips import chip_index_of_column, covers
+from solver.chips import camera_chip
 from solver.geodesy import LocalFrame, to_ecef
-from solver.job import Camera, Job
-from solver.kernels import KIND_KEPLER, N_COEF, N_KEPLER_CONST, N_OBS_CONST
+from solver.iop import build_cameras, chip_ids
+from solver.job import Job
+from solver.kernels import N_COEF, N_KEPLER_CONST, N_OBS_CONST
+from solver.lines import build_lines, control_line_points_ecef, lines_ecef
 from solver.models import PlatformModel, get_model
 from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
-
-
-@dataclass
-class ImageState:
-    """One image in the adjustment: model, constants, and current parameter values."""
-
-    id: str
-    index: int
-    camera: Camera
-    model: PlatformModel
-    options: dict
-    kc: np.ndarray  # (16,) Kepler constants (also set, unused, for polynomial models)
-    base: np.ndarray  # (24,) full coefficients (held values and current free values)
-    free_idx: np.ndarray  # (nfree,) int64
-    params: np.ndarray  # (nfree,) the parameter block handed to Ceres (C-contiguous)
-    tau_per_line: float
-    initial: dict = field(default_factory=dict)  # job's initial values, report units
-    pass_index: int = -1  # pass-propagated models: index in Problem.passes
-
-    @property
-    def kind(self) -> int:
-        return self.model.kind
-
-    @property
-    def nfree(self) -> int:
-        return int(self.free_idx.shape[0])
-
-    def coef(self) -> np.ndarray:
-        """Current full coefficient vector."""
-        c = self.base.copy()
-        c[self.free_idx] = self.params
-        return c
-
-
-@dataclass
-class PointState:
-    """A ground point: known LGS coordinates (gcp/check), estimated parameter block (tie or
-    weighted gcp), or both."""
-
-    id: str
-    index: int
-    role: str
-    known_lgs: np.ndarray | None
-    sigma_m: np.ndarray | None  # survey sigmas (east, north, up) for weighted gcps
-    estimated: bool  # True: a 3-parameter block in the adjustment
-    xyz: np.ndarray = field(default_factory=lambda: np.zeros(3))  # current LGS (parameter block)
-
-
-@dataclass
-class Observations:
-    """Image observations as arrays (one row each)."""
-
-    img: np.ndarray  # (n,) image index
-    pt: np.ndarray  # (n,) point index
-    oc: np.ndarray  # (n, 9) observation constants (see solver.kernels)
-    chip: list[str]
-    source_index: np.ndarray  # (n,) index in job.observations
-    cam: np.ndarray | None = None  # (n,) camera index (solver.iop.CameraState order)
-    chip_idx: np.ndarray | None = None  # (n,) chip position in the camera's chip list
-
-
-@dataclass
-class Problem:
-    job: Job
-    frame: LocalFrame
-    images: list[ImageState]
-    points: list[PointState]
-    obs: Observations
-    lines: Any = None  # solver.lines.LineSet: straight-line observations (None without lines)
-    cameras: list = field(default_factory=list)  # solver.iop.CameraState per job camera
-    passes: list = field(default_factory=list)  # solver.orbit_pass.PassState per pass
-
-    @property
-    def adjusted_mask(self) -> np.ndarray:
-        """Observations that enter the adjustment (not of check points)."""
-        roles = np.array([self.points[i].role for i in self.obs.pt])
-        return roles != "check"
+from solver.orbit_pass import build_passes
+from solver.state import ImageState, Observations, PointState, Problem
 
 
 def kepler_constants(model: PlatformModel, frame: LocalFrame, mounting_pitch_deg: float = 0.0) -> np.ndarray:
@@ -109,40 +33,6 @@ def kepler_constants(model: PlatformModel, frame: LocalFrame, mounting_pitch_deg
     kc[14] = J2 if model.j2 else 0.0
     kc[15] = AE_M
     return kc
-
-
-def in_image_columns(camera: Camera, column: float) -> bool:
-    """True if ``column`` lies in the delivered image (``-0.5 .. columns - 0.5``)."""
-    return -0.5 <= column <= (camera.columns or 0) - 0.5
-
-
-def camera_chip(camera: Camera, column: float, chip: str | None = None) -> tuple[str, float, float, float]:
-    """(chip id, dx_mm, dy_mm, centre column) of the chip of image column ``column``.
-
-    ``chip`` names the chip (its id); without it the chip follows the rule of
-    :mod:`solver.chips` (the covering chip whose centre column is nearest). KeyError if the column
-    is outside the delivered image, on no chip, or not on the named chip. A camera without chips
-    is one chip "1" centred on the principal point.
-    """
-    if not in_image_columns(camera, column):
-        raise KeyError(column)
-    if not camera.chips:
-        if chip not in (None, "1"):
-            raise KeyError(chip)
-        return "1", 0.0, 0.0, ((camera.columns or 0) - 1) / 2.0
-    if chip is None:
-        k = int(chip_index_of_column([c.first_column for c in camera.chips], [c.columns for c in camera.chips], column))
-        if k < 0:
-            raise KeyError(column)
-    else:
-        ids = [c.id for c in camera.chips]
-        if chip not in ids:
-            raise KeyError(chip)
-        k = ids.index(chip)
-        if not covers(camera.chips[k].first_column, camera.chips[k].columns, column):
-            raise KeyError(column)
-    c = camera.chips[k]
-    return c.id, c.dx_mm, c.dy_mm, c.first_column + (c.columns - 1) / 2.0
 
 
 def control_frame(job: Job, points_ecef: dict[str, np.ndarray], line_points_ecef: np.ndarray | None = None) -> LocalFrame:
@@ -177,8 +67,6 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
     """
     cameras = {c.id: c for c in job.cameras}
     ecef = ground_points_ecef(job)
-    from solver.lines import build_lines, control_line_points_ecef, lines_ecef
-
     line_ecef = lines_ecef(job) if job.lines else {}
     frame = control_frame(job, ecef, control_line_points_ecef(job, line_ecef))
     weighted = job.options.control == "weighted"
@@ -204,8 +92,6 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
                 initial=dict(im.initial),
             )
         )
-
-    from solver.orbit_pass import build_passes
 
     passes = build_passes(job, images)
 
@@ -245,8 +131,6 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
             im.tau_per_line,
         )
         chips.append(chip_id)
-    from solver.iop import build_cameras, chip_ids
-
     cams = build_cameras(job)
     cam_index = {c.id: c.index for c in cams}
     obs_cam = np.array([cam_index[images[i].camera.id] for i in obs_img], dtype=np.int64)
@@ -257,8 +141,3 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
     problem.cameras = cams
     problem.passes = passes
     return problem
-
-
-def is_kepler(image: ImageState) -> bool:
-    """Position from the image's own Earth-fixed state vector (Kepler, J2, orbit-attitude)."""
-    return image.model.orbital and not image.model.propagated

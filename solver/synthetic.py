@@ -284,10 +284,10 @@ PRISM_PITCH_DEG = {"backward": -23.8, "nadir": 0.0, "forward": 23.8}
 
 def _project_true(img: SyntheticImage, cam: dict, p: np.ndarray, line_guess: float, iop: dict[str, float] | None) -> tuple[float, float]:
     """Projection with the true interior orientation (chips and IOP) of ``cam``."""
-    from solver.job import Camera
+    from solver.chips import camera_chip
     from solver.iop import iop_names
+    from solver.job import Camera
     from solver.kernels import N_IOP, project_cam
-    from solver.problem import camera_chip
 
     if not iop and not cam.get("chips"):
         return project_point(img, cam, p, line_guess)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from solver.kernels import CAM_TAB, IMG_TAB, KC_START, N_IOP, OBS_REC
-from solver.problem import Problem
+from solver.state import Problem
 
 
 def image_table(problem: Problem) -> np.ndarray:

@@ -12,7 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
-from solver.problem import Problem
+from solver.state import Problem
 
 
 class ImageTerm(Protocol):

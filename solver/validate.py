@@ -14,12 +14,12 @@ from typing import Any
 import numpy as np
 from pyproj.exceptions import ProjError
 
+from solver.chips import camera_chip, in_image_columns
 from solver.ephemeris import ephemeris_problems, image_state
 from solver.errors import JobError, Problem
 from solver.geodesy import UnknownCRSError, ecef_to_geodetic, parse_crs, to_ecef
-from solver.job import Camera, ImageObservation, Job
+from solver.job import MAX_COMPARED_MODELS, Camera, ImageObservation, Job
 from solver.models import HELD, PlatformModel, get_model
-from solver.problem import camera_chip, in_image_columns
 
 # ellipsoidal heights of ground points: the deepest ocean trench to far above any aircraft
 MIN_HEIGHT_M = -5e4
@@ -169,6 +169,39 @@ def _ecef_rows(xyz: np.ndarray, crs: str) -> np.ndarray:
         return np.array(rows)
 
 
+def comparison_problems(models: list[str], location: tuple[str | int, ...]) -> list[Problem]:
+    """Problems of a list of models to compare (``location`` is where the list is): none, more
+    than MAX_COMPARED_MODELS, unknown names, or one model named twice (aliases included)."""
+    if not models:
+        return [Problem("no_models", "a model comparison needs at least one model", location)]
+    if len(models) > MAX_COMPARED_MODELS:
+        return [
+            Problem(
+                "too_many_models",
+                f"{len(models)} models to compare; at most {MAX_COMPARED_MODELS}",
+                location,
+            )
+        ]
+    out: list[Problem] = []
+    seen: dict[str, int] = {}
+    for i, name in enumerate(models):
+        try:
+            model = get_model(name)
+        except KeyError as exc:
+            out.append(Problem("unknown_model", str(exc.args[0]), (*location, i)))
+            continue
+        if model.name in seen:
+            out.append(
+                Problem(
+                    "duplicate_model",
+                    f"{name!r} is the model {model.name} already listed at position {seen[model.name]}",
+                    (*location, i),
+                )
+            )
+        seen.setdefault(model.name, i)
+    return out
+
+
 def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     """All problems of a job plus the counts (observations, unknowns, dof) when computable."""
     problems: list[Problem] = []
@@ -257,8 +290,6 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
 
     problems += coordinate_problems(job)
     if job.options.models:
-        from solver.compare import comparison_problems
-
         problems += comparison_problems(job.options.models, ("options", "models"))
 
     images = {im.id: im for im in job.images}

@@ -13,11 +13,12 @@ import pytest
 from fastapi.testclient import TestClient
 
 from solver.api import run
+from solver.chips import camera_chip
 from solver.errors import JobError
 from solver.iop import iop_names
 from solver.job import Camera, load_job
 from solver.kernels import N_IOP, camera_model
-from solver.problem import build_problem, camera_chip
+from solver.problem import build_problem
 from solver.simulate import presets
 from solver.simulate.camera import CameraSpec, ChipSpec, prism_camera
 from solver.simulate.iop import CameraIOP
@@ -176,9 +177,9 @@ def test_simulated_overlap_points_carry_the_rule_s_chip():
     """Ground points seen through each overlap of a butted camera (IOP errors shift the chips by
     3-4 px): the simulator's projection assigns every point the chip the solver's rule gives its
     column, and both chips of each overlap image some."""
-    from tests.test_simulate_geometry import PLATFORM, TERRAIN
     from solver.simulate.iop import default_iop
     from solver.simulate.projection import ImageGeometry
+    from tests.test_simulate_geometry import PLATFORM, TERRAIN
 
     spec = prism_camera("nadir", "butted")
     spec = CameraSpec(

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from solver.cli import main
+from solver.geodesy import ecef_to_geodetic
 from solver.job import load_job
 from solver.simulate import presets
-from solver.geodesy import ecef_to_geodetic
 from solver.simulate.attitude import AttitudeModel, Platform
 from solver.simulate.camera import prism_camera
 from solver.simulate.iop import MASTER_CHIP, CameraIOP, default_iop

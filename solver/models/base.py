@@ -13,7 +13,6 @@ docs/models.md, and a test in tests/test_models.py (the parametrised tests pick 
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -192,7 +191,6 @@ def register(model: PlatformModel, aliases: tuple[str, ...] = ()) -> PlatformMod
 
 def get_model(name: str) -> PlatformModel:
     """Look a model up by name (case-insensitive); KeyError lists the known names."""
-    _ensure_loaded()
     try:
         return _REGISTRY[name.upper()]
     except KeyError:
@@ -200,7 +198,6 @@ def get_model(name: str) -> PlatformModel:
 
 
 def model_names() -> list[str]:
-    _ensure_loaded()
     seen: dict[str, None] = {}
     for m in _REGISTRY.values():
         seen.setdefault(m.name, None)
@@ -209,27 +206,6 @@ def model_names() -> list[str]:
 
 def all_models() -> list[PlatformModel]:
     return [get_model(n) for n in model_names()]
-
-
-_LOADED = False
-_LOAD_LOCK = threading.RLock()
-
-
-def _ensure_loaded() -> None:
-    """Import the model modules once; thread-safe (a server validates jobs in threads). The
-    lock is re-entrant because the model modules call :func:`register` while importing."""
-    global _LOADED
-    if _LOADED:
-        return
-    with _LOAD_LOCK:
-        if _LOADED:
-            return
-        import solver.models.kepler  # noqa: F401
-        import solver.models.orbit_attitude  # noqa: F401
-        import solver.models.orbit_pass  # noqa: F401
-        import solver.models.polynomial  # noqa: F401
-
-        _LOADED = True
 
 
 __all__ = [

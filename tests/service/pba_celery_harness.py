@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import pytest
-from pba_service_harness import PBA, FINISHED
+from pba_service_harness import FINISHED, PBA
 
 from service.store import JobRecord, Store
 

@@ -26,9 +26,9 @@ from pba_celery_harness import (
     KEY_PREFIX,
     celery_env,
     delete_redis_keys,
+    ended_runs,
     holder_pid,
     pg_database,
-    ended_runs,
     run_outcomes,
     same_numbers,
     settings_for,
@@ -108,7 +108,6 @@ def test_jobs_run_on_celery_workers(
     deployment: Deployment, tmp_path: Path, nadir_doc: dict[str, Any], strip_doc: dict[str, Any]
 ) -> None:
     import solver.api
-
     from service.execution import report_to_json
 
     direct = json.loads(report_to_json(solver.api.run(copy.deepcopy(nadir_doc))))
@@ -285,7 +284,6 @@ def test_http_api_with_celery_queue(
     """The OGC API unchanged over Celery: synchronous and asynchronous execution with the
     solver's numbers, status, CSV, cancel, readiness and metrics."""
     import solver.api
-
     from service.execution import report_to_json
 
     direct = json.loads(report_to_json(solver.api.run(copy.deepcopy(triplet_doc))))

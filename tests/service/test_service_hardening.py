@@ -18,11 +18,11 @@ from typing import Any, Iterator
 import pytest
 from fastapi.testclient import TestClient
 
+from service import tables
 from service.app import create_app
 from service.auth import create_key, local_user
 from service.settings import Settings
 from service.store import Store, open_store
-from service import tables
 
 PROBLEM = "application/problem+json"
 METRICS_TOKEN = "metrics-token-0123456789abcdef"

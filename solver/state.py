@@ -1,0 +1,99 @@
+"""The adjustment's data: images, ground points and image observations as the solver's arrays.
+
+Data only: built by :mod:`solver.problem` (assembly from a job), filled by
+:mod:`solver.initialize`, read by every later stage. Frames: ground points are carried in the
+LGS (east, north, up at the centroid of the control points, metres) whatever the platform model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from solver.geodesy import LocalFrame
+from solver.job import Camera, Job
+from solver.models import PlatformModel
+
+
+@dataclass
+class ImageState:
+    """One image in the adjustment: model, constants, and current parameter values."""
+
+    id: str
+    index: int
+    camera: Camera
+    model: PlatformModel
+    options: dict
+    kc: np.ndarray  # (N_KEPLER_CONST,) = (17,) Kepler constants (also set, unused, for polynomial models)
+    base: np.ndarray  # (24,) full coefficients (held values and current free values)
+    free_idx: np.ndarray  # (nfree,) int64
+    params: np.ndarray  # (nfree,) the parameter block handed to Ceres (C-contiguous)
+    tau_per_line: float
+    initial: dict = field(default_factory=dict)  # job's initial values, report units
+    pass_index: int = -1  # pass-propagated models: index in Problem.passes
+
+    @property
+    def kind(self) -> int:
+        return self.model.kind
+
+    @property
+    def nfree(self) -> int:
+        return int(self.free_idx.shape[0])
+
+    def coef(self) -> np.ndarray:
+        """Current full coefficient vector."""
+        c = self.base.copy()
+        c[self.free_idx] = self.params
+        return c
+
+
+@dataclass
+class PointState:
+    """A ground point: known LGS coordinates (gcp/check), estimated parameter block (tie or
+    weighted gcp), or both."""
+
+    id: str
+    index: int
+    role: str
+    known_lgs: np.ndarray | None
+    sigma_m: np.ndarray | None  # survey sigmas (east, north, up) for weighted gcps
+    estimated: bool  # True: a 3-parameter block in the adjustment
+    xyz: np.ndarray = field(default_factory=lambda: np.zeros(3))  # current LGS (parameter block)
+
+
+@dataclass
+class Observations:
+    """Image observations as arrays (one row each)."""
+
+    img: np.ndarray  # (n,) image index
+    pt: np.ndarray  # (n,) point index
+    oc: np.ndarray  # (n, 9) observation constants (see solver.kernels)
+    chip: list[str]
+    source_index: np.ndarray  # (n,) index in job.observations
+    cam: np.ndarray | None = None  # (n,) camera index (solver.iop.CameraState order)
+    chip_idx: np.ndarray | None = None  # (n,) chip position in the camera's chip list
+
+
+@dataclass
+class Problem:
+    job: Job
+    frame: LocalFrame
+    images: list[ImageState]
+    points: list[PointState]
+    obs: Observations
+    lines: Any = None  # solver.lines.LineSet: straight-line observations (None without lines)
+    cameras: list = field(default_factory=list)  # solver.iop.CameraState per job camera
+    passes: list = field(default_factory=list)  # solver.orbit_pass.PassState per pass
+
+    @property
+    def adjusted_mask(self) -> np.ndarray:
+        """Observations that enter the adjustment (not of check points)."""
+        roles = np.array([self.points[i].role for i in self.obs.pt])
+        return roles != "check"
+
+
+def is_kepler(image: ImageState) -> bool:
+    """Position from the image's own Earth-fixed state vector (Kepler, J2, orbit-attitude)."""
+    return image.model.orbital and not image.model.propagated
