@@ -1,11 +1,12 @@
 # make serve  - local single-user server on http://127.0.0.1:8000 (SQLite, local worker pool)
-# make test   - bootstrap .venv (and the system pieces the tests need) and run the whole suite
+# make test   - bootstrap .venv (and the system pieces the tests need), lint (ruff), check the
+#               architecture contracts (lint-imports, docs/architecture.md) and run the whole suite
 PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: serve test venv services system-deps bench clean openapi
+.PHONY: serve test lint venv services system-deps bench clean openapi
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -33,7 +34,14 @@ serve: $(STAMP)
 	$(BIN)/pba serve --host 127.0.0.1 --port 8000
 
 test: $(STAMP) system-deps services
+	$(BIN)/ruff check solver service tests bench scripts
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q
+
+# ruff and the import contracts alone (seconds; also the first step of make test)
+lint: $(STAMP)
+	$(BIN)/ruff check solver service tests bench scripts
+	$(BIN)/lint-imports
 
 openapi: $(STAMP)
 	$(BIN)/python -m service.openapi_dump > openapi.yaml

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from solver.adjust import adjust_job
-from solver.job import load_job
+from solver.schema.job import load_job
 
 EPHEMERIS = {"sigma_position_m": 10.0, "sigma_velocity_m_s": 0.05}
 ATTITUDE = {"sigma_deg": [0.002, 0.002, 0.002]}  # the simulated 1-Hz attitude samples (0.002 deg noise)

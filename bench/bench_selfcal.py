@@ -10,7 +10,7 @@ import statistics
 import time
 
 from solver.adjust import adjust_job
-from solver.job import load_job
+from solver.schema.job import load_job
 from solver.synthetic import block_job
 
 TRUTH = {"df": 2.0, "a0@1": 0.03, "b0@1": -0.02, "a0@3": -0.03, "b0@4": 0.03}

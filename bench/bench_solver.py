@@ -13,8 +13,8 @@ import statistics
 import time
 
 from solver.adjust import adjust_job, assert_full_rank, prepare, solve_problem
-from solver.backend import SolveControl
-from solver.job import load_job
+from solver.engine.backend import SolveControl
+from solver.schema.job import load_job
 from solver.synthetic import block_job, single_image_job
 
 CASES = {

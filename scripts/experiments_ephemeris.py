@@ -5,7 +5,7 @@ Regenerates the ``ephemeris`` section of docs/experiments.md:
 
 1. Interpolator: 60-s state vectors of the simulator's numerically integrated orbit (DOP853,
    J2-J4, an independent integration) interpolated at random epochs by the Hermite interpolator
-   of :mod:`solver.ephemeris` with 2-6 nodes, against the integration; leave-one-out (seed 001's
+   of :mod:`solver.observations.ephemeris` with 2-6 nodes, against the integration; leave-one-out (seed 001's
    measure) on the same exact samples and on the noisy ephemeris the simulator writes into jobs.
 2. Weight sweep: simulated PRISM triplets (22 control / 20 check / 40 tie points, 0.5 px,
    ephemeris noise 1 m / 1 mm/s per sample) adjusted with K2 (seed 001's model) and P2, with
@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 
 from solver.api import run
-from solver.ephemeris import Ephemeris
-from solver.geodesy import LocalFrame
-from solver.job import load_job
+from solver.geometry.geodesy import LocalFrame
+from solver.observations.ephemeris import Ephemeris
+from solver.schema.job import load_job
 from solver.simulate import presets
 from solver.simulate.orbit import EarthModel, Orbit, circular_state_over, sun_synchronous_semi_major_axis
 from solver.simulate.scene import Settings
@@ -325,7 +325,7 @@ def render(seed: int, n_rep: int, interp: tuple, sweep: dict, selfcal: dict, ext
         "### Interpolator (60-s state vectors of a numerically integrated orbit)",
         "",
         "Hermite interpolation with positions and velocities over the nearest `nodes` samples "
-        "(`solver/ephemeris.py`), against the simulator's DOP853 J2-J4 integration at 300 random "
+        "(`solver/observations/ephemeris.py`), against the simulator's DOP853 J2-J4 integration at 300 random "
         "epochs; leave-one-out as seed 001 reports it (each inner sample dropped and interpolated "
         "from the others). Seed 001 (spline on real ALOS data): 6 mm and 7 um/s. The 4-node errors "
         "are at the level of the reference integration itself.",

@@ -33,7 +33,7 @@ import numpy as np
 
 from solver.adjust import adjust_job
 from solver.errors import JobError
-from solver.job import load_job
+from solver.schema.job import load_job
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from doc_sections import replace_section  # noqa: E402

@@ -31,8 +31,8 @@ import numpy as np
 
 from solver.api import run
 from solver.compare import compare_models
-from solver.geodesy import LocalFrame, to_ecef
-from solver.job import load_job
+from solver.geometry.geodesy import LocalFrame, to_ecef
+from solver.schema.job import load_job
 from solver.simulate.attitude import opk_from_matrix
 from solver.simulate.camera import prism_camera
 from solver.simulate.scene import Group, Scene, Settings

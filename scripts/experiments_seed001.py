@@ -23,7 +23,7 @@ at 300 ppm, chip 2 the master), then the significance analysis drops, one at a t
 parameter whose |estimate| is below its sigma (``self_calibration.significance_analysis``).
 Two variants show what the rule lets through: 2b estimates only df, a0, b0; 2c applies the same
 one-at-a-time analysis with the bending weighted (1e-3 rad) and a 3-sigma threshold. Experiment 4
-reuses the cameras exported from 2 (``solver.iop.camera_from_report``) as fixed values; 4b and 4c
+reuses the cameras exported from 2 (``solver.observations.interior.camera_from_report``) as fixed values; 4b and 4c
 reuse 2b's and 2c's; 4w reuses 2b's as weighted observations with their covariance.
 
 Usage (from the repository root; a few minutes)::
@@ -45,8 +45,8 @@ from typing import Any
 import numpy as np
 
 from solver.api import run
-from solver.iop import camera_from_report
-from solver.job import load_job
+from solver.observations.interior import camera_from_report
+from solver.schema.job import load_job
 from solver.simulate.camera import prism_camera
 from solver.simulate.scene import Group, Scene, Settings
 

@@ -42,7 +42,7 @@ import numpy as np
 
 from solver.api import run
 from solver.errors import JobError
-from solver.geodesy import from_ecef
+from solver.geometry.geodesy import from_ecef
 from solver.simulate.lines import GRID, LineScene, LineSet, PointSet, cbers_settings
 from solver.simulate.scene import Settings
 
@@ -306,7 +306,7 @@ def header_vs_adjusted(scene: LineScene) -> tuple[float, float, float]:
     """(header speed, adjusted footprint speed in m/s, kappa change in deg) for configuration A
     lines with the iterated correction: what 'corrected once' gets wrong."""
     from solver.adjust import prepare
-    from solver.job import load_job
+    from solver.schema.job import load_job
 
     job = configure(base_job(scene), CONFIGS[0], True, False, "equivalent_planes", "iterated")
     rep = run(job)

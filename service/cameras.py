@@ -22,7 +22,7 @@ from pydantic import ValidationError
 from service.errors import Forbidden, InvalidInput, NotFound
 from service.problems import json_pointer, pydantic_errors
 from service.store import SHARED, CameraRecord, Store, UserRecord
-from solver.job import Camera, Job
+from solver.schema.job import Camera, Job
 
 JOB_CAMERA_FIELDS = frozenset(Camera.model_fields) - {"id", "ref"}
 SHARED_PREFIX = SHARED + "/"

@@ -29,7 +29,7 @@ from service.settings import Settings
 from service.states import JobStatus
 from service.store import JobRecord, Store, UserRecord
 from solver.errors import JobError
-from solver.job import Job
+from solver.schema.job import Job
 
 PREFIX = ("inputs", "job")
 

@@ -12,7 +12,7 @@ from functools import lru_cache
 from typing import Any
 
 from service.schemas import InputDescription, Link, OutputDescription, ProcessDescription
-from solver.job import Job
+from solver.schema.job import Job
 
 BUNDLE_ADJUSTMENT = "bundle-adjustment"
 MODEL_COMPARISON = "model-comparison"
@@ -54,7 +54,7 @@ def job_schema() -> dict[str, Any]:
 
 def model_names() -> list[str]:
     """Names of the registered platform models."""
-    from solver.models import model_names as names
+    from solver.platforms import model_names as names
 
     return list(names())
 

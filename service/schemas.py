@@ -1,6 +1,6 @@
 """Public request and response models (OGC API - Processes 1.0 names where it defines them).
 
-The job document itself is :class:`solver.job.Job`, defined once and used here unchanged.
+The job document itself is :class:`solver.schema.job.Job`, defined once and used here unchanged.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from service.states import JobStatus
-from solver.job import MAX_COMPARED_MODELS, Camera, IopCovariance, Job
+from solver.schema.job import MAX_COMPARED_MODELS, Camera, IopCovariance, Job
 
 
 class ProblemEntry(BaseModel):

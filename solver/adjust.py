@@ -1,6 +1,6 @@
 """The adjustment driver: validate, build, initialise, check rank, solve, assess, report.
 
-Small verbs, one per step; pyceres is used only through :mod:`solver.backend`.
+Small verbs, one per step; pyceres is used only through :mod:`solver.engine.backend`.
 """
 
 from __future__ import annotations
@@ -11,21 +11,21 @@ from typing import Any, Callable
 
 import numpy as np
 
-from solver.attitude_obs import attitude_report
-from solver.checkpoints import compute_checkpoints
-from solver.ephemeris import ephemeris_report
+from solver.engine.assemble import build_problem
+from solver.engine.initialize import initialise
+from solver.engine.linalg import Covariance, check_rank, covariance, linearise, schur
+from solver.engine.validate import require_valid
 from solver.errors import Cancelled, RankDeficientError, UnusableSolution
 from solver.errors import Problem as JobProblem
-from solver.geodesy import ecef_to_geodetic
-from solver.initialize import initialise
-from solver.job import Job
+from solver.geometry.geodesy import ecef_to_geodetic
 from solver.kernels import platform_state
-from solver.linalg import Covariance, check_rank, covariance, linearise, schur
-from solver.lines import lines_report
-from solver.problem import build_problem
+from solver.observations.attitude import attitude_report
+from solver.observations.ephemeris import ephemeris_report
+from solver.observations.lines import lines_report
+from solver.report.checkpoints import compute_checkpoints
+from solver.report.statistics import chi2_test
+from solver.schema.job import Job
 from solver.state import Problem
-from solver.statistics import chi2_test
-from solver.validate import require_valid
 
 REPORT_SCHEMA_VERSION = "1.0"
 
@@ -46,7 +46,7 @@ def parameter_names(problem: Problem) -> list[str]:
         names += [f"{img.id}/{p.name}" for p in img.model.parameters(img.options)]
     for cam in problem.cameras:
         names += [f"camera:{cam.id}/{cam.names[i]}" for i in cam.free_idx]
-    from solver.orbit_pass import parameter_names as pass_names
+    from solver.observations.passes import parameter_names as pass_names
 
     return names + pass_names(problem)
 
@@ -101,8 +101,8 @@ def solve_problem(problem: Problem, control):
     image along its weakly determined pitch / along-track-position direction, and the bundle then
     needs 3-4x more iterations (triplet: 21 instead of 6) than from the header state.
     """
-    from solver.backend import solve
-    from solver.terms import solve_with_refreshes
+    from solver.engine.backend import solve
+    from solver.engine.terms import solve_with_refreshes
 
     # terms that linearise around the solution (line corrections) are refreshed between solves
     return solve_with_refreshes(problem, problem.job.options, control, solve)
@@ -165,7 +165,7 @@ def adjust_job(
 
     ``models`` optionally overrides the platform model per image id (model comparison).
     """
-    from solver.backend import SolveControl  # imports pyceres: workers only
+    from solver.engine.backend import SolveControl  # imports pyceres: workers only
 
     sc = job.options.self_calibration
     if sc is not None and sc.significance_analysis:
@@ -288,7 +288,7 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
 
 def _state_line0(problem: Problem, index: int) -> dict[str, list[float]]:
     """The adjusted perspective-centre position and velocity at line 0 (ECEF), every model."""
-    from solver.ephemeris import line0_state_ecef
+    from solver.observations.ephemeris import line0_state_ecef
 
     r, v = line0_state_ecef(problem, index)
     return {"position_ecef_m": [float(x) for x in r], "velocity_ecef_m_s": [float(x) for x in v]}
@@ -301,7 +301,7 @@ def _images_report(problem: Problem, lin, cov: Covariance | None, var_factor: fl
     res = lin.res_obs.ravel()
     obs = problem.obs
     sel = lin.obs_sel
-    from solver.orbit_pass import attitude_groups
+    from solver.observations.passes import attitude_groups
 
     groups = attitude_groups(problem)
     for img in problem.images:
@@ -365,7 +365,7 @@ def _images_report(problem: Problem, lin, cov: Covariance | None, var_factor: fl
 
 
 def _passes_report(problem: Problem, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
-    from solver.orbit_pass import passes_report
+    from solver.observations.passes import passes_report
 
     def block(pi: int):
         if cov is None:
@@ -377,7 +377,7 @@ def _passes_report(problem: Problem, lin, cov: Covariance | None, var_factor: fl
 
 
 def _cameras_report(problem: Problem, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
-    from solver.iop import cameras_report
+    from solver.observations.interior import cameras_report
 
     def block(ci: int):
         cam = problem.cameras[ci]

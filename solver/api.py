@@ -27,7 +27,7 @@ import numpy as np
 from pyproj.exceptions import ProjError
 
 from solver.errors import JobError, Problem
-from solver.job import Job, load_job
+from solver.schema.job import Job, load_job
 
 # failures that only the numbers of a document can cause in code that passed its tests
 CLIENT_FAULTS = (ArithmeticError, np.linalg.LinAlgError, ProjError)
@@ -66,7 +66,7 @@ def validate(job: Job | dict[str, Any] | str | bytes) -> dict[str, Any]:
     "images": [{"id", "model", "n_parameters"}]}``. Schema errors raise pydantic's
     ValidationError (the caller maps it); everything else is reported in ``problems``.
     """
-    from solver.validate import validate_job
+    from solver.engine.validate import validate_job
 
     with _input_faults_as_job_errors():
         return validate_job(_as_job(job))

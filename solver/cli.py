@@ -1,9 +1,10 @@
 """The ``pba`` command line.
 
 Subcommands live in small modules, each exposing ``register(subparsers)`` which adds its
-parsers and sets ``func`` on them. The solver's own commands come first; the service's
-(``serve``, ``worker``, ``admin``) are added when the ``service`` package is installed, so the
-solver library never imports web code.
+parsers and sets ``func`` on them. The solver's own commands are plain imports. The service's
+(``serve``, ``worker``, ``admin``, ``db``) are looked up by name: the solver never imports the
+service (an import-linter contract, docs/architecture.md), and a solver-only installation has
+no ``service`` package, so that one lookup stays dynamic.
 """
 
 from __future__ import annotations
@@ -12,11 +13,10 @@ import argparse
 import importlib
 import sys
 
-SUBCOMMAND_MODULES = (
-    "solver.commands",  # run, models, compare, validate
-    "solver.simulate.cli",  # simulate
-    "service.cli",  # serve, worker, admin
-)
+from solver import commands
+from solver.simulate import cli as simulate_cli
+
+SERVICE_COMMANDS = "service.cli"  # serve, worker, admin, db
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -24,14 +24,15 @@ def build_parser() -> argparse.ArgumentParser:
         prog="pba", description="Pushbroom bundle adjustment: orientation of linear-array images"
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in SUBCOMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name and name.startswith(exc.name):
-                continue  # optional part not installed
+    commands.register(sub)  # run, models, compare, validate, export-camera, warmup
+    simulate_cli.register(sub)  # simulate
+    try:
+        service = importlib.import_module(SERVICE_COMMANDS)
+    except ModuleNotFoundError as exc:
+        if not (exc.name and SERVICE_COMMANDS.startswith(exc.name)):
             raise
-        module.register(sub)
+    else:
+        service.register(sub)
     return parser
 
 

@@ -70,7 +70,7 @@ class ProgressBar:
 
 
 def _load(path: Path) -> Any:
-    from solver.job import load_job
+    from solver.schema.job import load_job
 
     try:
         return load_job(path.read_text())
@@ -204,7 +204,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 
 def cmd_models(args: argparse.Namespace) -> int:
-    from solver.models import all_models
+    from solver.platforms import all_models
 
     models = [m.describe() for m in all_models()]
     if args.json:
@@ -243,7 +243,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_export_camera(args: argparse.Namespace) -> int:
     """Write the job's camera with the estimated IOP and their covariance, ready to reuse in
     another job (``iop_use``: "fixed", or "weighted" with the same parameters estimated)."""
-    from solver.iop import camera_from_report
+    from solver.observations.interior import camera_from_report
 
     job = json.loads(args.job.read_text())
     report = json.loads(args.report.read_text())

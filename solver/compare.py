@@ -13,9 +13,9 @@ from typing import Any, Callable
 import numpy as np
 
 from solver.adjust import adjust_job
+from solver.engine.validate import comparison_problems
 from solver.errors import JobError
-from solver.job import Job
-from solver.validate import comparison_problems
+from solver.schema.job import Job
 
 __all__ = ["compare_models", "comparison_problems"]
 

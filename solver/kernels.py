@@ -682,7 +682,7 @@ def intersect_all(kinds, coefs, kcs, obs_img, ocs, order, bounds, which):
 
 # ---- interior orientation (docs/models.md section 8) ----------------------------------------
 # Full IOP vector of a camera: x0, y0, df, k1, k2, sy, then per chip (a0, b0, a1, b1, delta).
-from solver.iop_names import IOP_CHIP, IOP_OPTICAL, MAX_CHIPS  # noqa: E402 (shared with the job schema)
+from solver.schema.iop_names import IOP_CHIP, IOP_OPTICAL, MAX_CHIPS  # noqa: E402 (shared with the job schema)
 
 N_IOP = len(IOP_OPTICAL) + len(IOP_CHIP) * MAX_CHIPS
 

@@ -1,6 +1,6 @@
 """Orbit propagation in the Earth-fixed frame with its variational equations (numba).
 
-Used by the pass-propagated platform models (:mod:`solver.models.orbit_pass`, docs/models.md
+Used by the pass-propagated platform models (:mod:`solver.platforms.orbit_pass`, docs/models.md
 section 12): one state x0 = (position, velocity) in ECEF at the pass reference epoch is
 integrated to the epoch of every image line.
 

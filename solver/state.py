@@ -1,7 +1,7 @@
 """The adjustment's data: images, ground points and image observations as the solver's arrays.
 
-Data only: built by :mod:`solver.problem` (assembly from a job), filled by
-:mod:`solver.initialize`, read by every later stage. Frames: ground points are carried in the
+Data only: built by :mod:`solver.engine.assemble` (assembly from a job), filled by
+:mod:`solver.engine.initialize`, read by every later stage. Frames: ground points are carried in the
 LGS (east, north, up at the centroid of the control points, metres) whatever the platform model.
 """
 
@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from solver.geodesy import LocalFrame
-from solver.job import Camera, Job
-from solver.models import PlatformModel
+from solver.geometry.geodesy import LocalFrame
+from solver.platforms import PlatformModel
+from solver.schema.job import Camera, Job
 
 
 @dataclass
@@ -72,7 +72,7 @@ class Observations:
     oc: np.ndarray  # (n, 9) observation constants (see solver.kernels)
     chip: list[str]
     source_index: np.ndarray  # (n,) index in job.observations
-    cam: np.ndarray | None = None  # (n,) camera index (solver.iop.CameraState order)
+    cam: np.ndarray | None = None  # (n,) camera index (solver.observations.interior.CameraState order)
     chip_idx: np.ndarray | None = None  # (n,) chip position in the camera's chip list
 
 
@@ -83,9 +83,9 @@ class Problem:
     images: list[ImageState]
     points: list[PointState]
     obs: Observations
-    lines: Any = None  # solver.lines.LineSet: straight-line observations (None without lines)
-    cameras: list = field(default_factory=list)  # solver.iop.CameraState per job camera
-    passes: list = field(default_factory=list)  # solver.orbit_pass.PassState per pass
+    lines: Any = None  # solver.observations.lines.LineSet: straight-line observations (None without lines)
+    cameras: list = field(default_factory=list)  # solver.observations.interior.CameraState per job camera
+    passes: list = field(default_factory=list)  # solver.observations.passes.PassState per pass
 
     @property
     def adjusted_mask(self) -> np.ndarray:

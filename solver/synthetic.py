@@ -17,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from solver.geodesy import LocalFrame, ecef_to_geodetic, geodetic_to_ecef
+from solver.engine.assemble import kepler_constants
+from solver.geometry.geodesy import LocalFrame, ecef_to_geodetic, geodetic_to_ecef
 from solver.kernels import N_COEF, platform_state, project, ray
-from solver.models import ANGLES, ELEMENTS, HELD, coef_index, get_model
-from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
-from solver.problem import kepler_constants
+from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index, get_model
+from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 
 PRISM_NADIR = {
     "focal_mm": 1999.8630195,
@@ -64,7 +64,7 @@ def _state_for_pass(frame: LocalFrame, t_mid: float, pitch_deg: float, altitude_
 def _orbit_relative_angles(frame: LocalFrame, r0, v0, line_time: float, angles, mount_rad: float):
     """Attitude (roll, pitch, yaw) relative to the orbital frame that gives, at the middle line,
     the same rotation as the LGS angles ``angles``: M = Ry(mount) R_att R_orbit."""
-    from solver.initialize import _rotating_frame_acceleration, angles_from_matrix
+    from solver.engine.initialize import _rotating_frame_acceleration, angles_from_matrix
     from solver.kernels import _mount, _orbital_frame, rotation_and_derivatives
 
     t = line_time * 8000.0
@@ -96,7 +96,7 @@ def true_coefficients(model_name: str, frame: LocalFrame, r0: np.ndarray, v0: np
             coef[e * 4] = r0[e]
             coef[e * 4 + 1] = v0[e]
     else:
-        from solver.initialize import _rotating_frame_acceleration
+        from solver.engine.initialize import _rotating_frame_acceleration
 
         a = frame.vector_to_lgs(_rotating_frame_acceleration(r0, v0))
         s = frame.to_lgs(r0)
@@ -284,10 +284,10 @@ PRISM_PITCH_DEG = {"backward": -23.8, "nadir": 0.0, "forward": 23.8}
 
 def _project_true(img: SyntheticImage, cam: dict, p: np.ndarray, line_guess: float, iop: dict[str, float] | None) -> tuple[float, float]:
     """Projection with the true interior orientation (chips and IOP) of ``cam``."""
-    from solver.chips import camera_chip
-    from solver.iop import iop_names
-    from solver.job import Camera
+    from solver.geometry.sensor import camera_chip
     from solver.kernels import N_IOP, project_cam
+    from solver.observations.interior import iop_names
+    from solver.schema.job import Camera
 
     if not iop and not cam.get("chips"):
         return project_point(img, cam, p, line_guess)
@@ -374,7 +374,7 @@ def block_job(
             states.append((f"T{t:02d}-{name}", name, r0, v0, local, angles_local))
 
     def global_angles(local: LocalFrame, angles_local, glob: LocalFrame):
-        from solver.initialize import angles_from_matrix
+        from solver.engine.initialize import angles_from_matrix
         from solver.kernels import rotation_and_derivatives
 
         m_local = rotation_and_derivatives(*angles_local)[0]

@@ -17,10 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from solver.geodesy import LocalFrame, ecef_to_geodetic, geodetic_to_ecef
+from solver.engine.assemble import kepler_constants
+from solver.geometry.geodesy import LocalFrame, ecef_to_geodetic, geodetic_to_ecef
 from solver.kernels import ray
-from solver.models import ANGLES, ELEMENTS, HELD, get_model
-from solver.problem import kepler_constants
+from solver.platforms import ANGLES, ELEMENTS, HELD, get_model
 from solver.synthetic import (
     PRISM_NADIR,
     SyntheticImage,

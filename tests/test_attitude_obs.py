@@ -13,10 +13,10 @@ from test_orbit_pass import _exact_projections, _pass_job, _with_noise
 
 from solver.adjust import adjust_job, prepare
 from solver.api import validate
-from solver.attitude_obs import attitude_terms
 from solver.errors import JobError
-from solver.job import load_job
 from solver.kernels import _attitude_angles, _attitude_time
+from solver.observations.attitude import attitude_terms
+from solver.schema.job import load_job
 
 DEG = 180.0 / math.pi
 

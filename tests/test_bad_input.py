@@ -10,7 +10,7 @@ from pydantic import ValidationError
 
 from solver import api
 from solver.errors import JobError, RankDeficientError
-from solver.job import load_job
+from solver.schema.job import load_job
 from solver.synthetic import block_job, single_image_job
 
 

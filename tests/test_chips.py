@@ -1,5 +1,5 @@
 """Butted CCD chips (issue 13): chips that overlap and extend beyond the delivered image, the rule
-that gives an image column its chip (solver.chips: the covering chip whose centre column is
+that gives an image column its chip (solver.geometry.sensor: the covering chip whose centre column is
 nearest), the optional ``chip`` of an observation, and the simulator and solver applying the
 same rule."""
 
@@ -13,17 +13,17 @@ import pytest
 from fastapi.testclient import TestClient
 
 from solver.api import run
-from solver.chips import camera_chip
+from solver.engine.assemble import build_problem
+from solver.engine.validate import validate_job
 from solver.errors import JobError
-from solver.iop import iop_names
-from solver.job import Camera, load_job
+from solver.geometry.sensor import camera_chip
 from solver.kernels import N_IOP, camera_model
-from solver.problem import build_problem
+from solver.observations.interior import iop_names
+from solver.schema.job import Camera, load_job
 from solver.simulate import presets
 from solver.simulate.camera import CameraSpec, ChipSpec, prism_camera
 from solver.simulate.iop import CameraIOP
 from solver.simulate.scene import Settings
-from solver.validate import validate_job
 
 # two chips of 100 columns overlapping by 32 columns (68..99), the first starting 10 columns
 # before the image and the second ending 10 columns after it (image columns 0..147)

@@ -1,5 +1,5 @@
 """Orbit ephemeris: Hermite interpolation to the first line, leave-one-out accuracy, and its use
-as the image's approximate state and as a weighted observation (solver/ephemeris.py)."""
+as the image's approximate state and as a weighted observation (solver/observations/ephemeris.py)."""
 
 from __future__ import annotations
 
@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from solver.api import run
-from solver.ephemeris import Ephemeris, ephemeris_report, hermite, image_state
-from solver.job import Image, SolverOptions, load_job
+from solver.engine.validate import validate_job
+from solver.observations.ephemeris import Ephemeris, ephemeris_report, hermite, image_state
+from solver.schema.job import Image, SolverOptions, load_job
 from solver.simulate import presets
 from solver.simulate.orbit import EarthModel, Orbit, circular_state_over, sun_synchronous_semi_major_axis
 from solver.simulate.scene import Settings
-from solver.validate import validate_job
 
 STEP_S = 60.0  # ALOS ancillary sampling (seed 001 section 5)
 ATOL_POSITION_M = 1e-4  # 0.1 mm: measured worst case 0.010 mm with 4 nodes

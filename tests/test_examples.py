@@ -19,7 +19,7 @@ import pytest
 from pyproj import CRS
 
 from solver.api import run, validate
-from solver.job import load_job
+from solver.schema.job import load_job
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 JOBS = sorted(p for p in EXAMPLES.glob("*.json") if not p.name.endswith(".truth.json"))

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from solver.geodesy import (
+from solver.geometry.geodesy import (
     A_WGS84_M,
     E2_WGS84,
     LocalFrame,

@@ -9,15 +9,15 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from solver.adjust import prepare
-from solver.job import load_job
 from solver.kernels import (
     gravity_and_gradient,
     project,
     ray,
     rotation_and_derivatives,
 )
-from solver.models import get_model, model_names
-from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
+from solver.platforms import get_model, model_names
+from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
+from solver.schema.job import load_job
 from solver.synthetic import block_job, single_image_job
 
 # the pass-propagated models need passes (several images, epochs) that the per-image synthetic
@@ -182,8 +182,8 @@ def test_ray_inverts_projection(model):
 def test_point_block_matches_single_projections_and_layout():
     """The packed point block used by Ceres gives the same numbers as the plain kernel, with the
     Jacobian of image i only on rows 2i, 2i+1 (Ceres' dense row-major layout)."""
-    from solver.backend import PointCost, SolveControl
-    from solver.tables import camera_table, image_table
+    from solver.engine.backend import PointCost, SolveControl
+    from solver.engine.tables import camera_table, image_table
 
     job, _ = block_job("K2", n_triplets=1, n_tie=5, n_gcp=6, n_check=2, seed=3)
     problem = prepare(load_job(job))

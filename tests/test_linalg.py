@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from solver.adjust import prepare
-from solver.job import load_job
-from solver.linalg import covariance, linearise, schur
+from solver.engine.linalg import covariance, linearise, schur
+from solver.schema.job import load_job
 from solver.synthetic import block_job
 
 

@@ -1,4 +1,4 @@
-"""Straight-line observations (solver/lines.py): Jacobians, recovery, combined adjustment, errors."""
+"""Straight-line observations (solver/observations/lines.py): Jacobians, recovery, combined adjustment, errors."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ import pytest
 
 from solver.adjust import prepare
 from solver.api import run, validate
+from solver.engine.terms import image_terms
 from solver.errors import JobError
-from solver.job import load_job
 from solver.kernels import project
-from solver.lines import (
+from solver.observations.lines import (
     FORM_X,
     FORM_Y,
     LineTerm,
@@ -23,10 +23,10 @@ from solver.lines import (
     pushbroom_line,
     two_point_line,
 )
-from solver.models import get_model, model_names
+from solver.platforms import get_model, model_names
+from solver.schema.job import load_job
 from solver.synthetic import single_image_job, truth_parameters
 from solver.synthetic_lines import lines_job
-from solver.terms import image_terms
 
 # the pass-propagated models need passes (several images, epochs) that the per-image synthetic
 # scenes here do not have; tests/test_orbit_pass.py covers their Jacobians and projections
@@ -38,7 +38,7 @@ PIXELS = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 1.0])
 
 def _problem(model: str, **kw):
     """Prepared problem with its line state started at the initial orientation."""
-    from solver.lines import start
+    from solver.observations.lines import start
 
     job, truth = lines_job(model, **kw)
     problem = prepare(load_job(job))
@@ -115,7 +115,7 @@ def test_equivalent_planes_jacobian_matches_finite_differences(model, pitch):
 
 def test_equivalent_planes_is_the_frame_projection_of_the_line():
     """Eqs 3-4 give the image line through the frame-camera projections of any two object points."""
-    from solver.lines import frame_xy
+    from solver.observations.lines import frame_xy
 
     problem, _job, _truth = _problem("K2", n_lines=8, line_model="equivalent_planes", seed=2)
     img = problem.images[0]

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from solver.adjust import adjust_job
-from solver.job import load_job
-from solver.models import all_models, get_model, model_names
+from solver.platforms import all_models, get_model, model_names
+from solver.schema.job import load_job
 from solver.synthetic import block_job, single_image_job, truth_parameters
 
 PAPER_MODELS = ["K1", "K2", "J2-1", "J2-2", "ON1", "ON2", "P1", "P2"]

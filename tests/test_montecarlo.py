@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from solver.adjust import adjust_job
-from solver.job import load_job
+from solver.schema.job import load_job
 from solver.synthetic import block_job, single_image_job
 
 pytestmark = pytest.mark.slow

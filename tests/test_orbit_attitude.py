@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from solver.adjust import adjust_job
-from solver.job import load_job
+from solver.schema.job import load_job
 
 _spec = importlib.util.spec_from_file_location("exp", Path(__file__).parents[1] / "scripts" / "experiments_orbit_models.py")
 exp = importlib.util.module_from_spec(_spec)

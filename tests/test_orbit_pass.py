@@ -14,11 +14,10 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from solver.adjust import adjust_job, prepare
+from solver.engine.linalg import linearise
 from solver.errors import JobError
-from solver.job import load_job
 from solver.kernels import N_KEPLER_CONST, project
-from solver.linalg import linearise
-from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
+from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.propagation import (
     NODE_STEP_S,
     PASS_NODES,
@@ -29,6 +28,7 @@ from solver.propagation import (
     pass_state,
     segment_length,
 )
+from solver.schema.job import load_job
 
 _spec = importlib.util.spec_from_file_location("exp", Path(__file__).parents[1] / "scripts" / "experiments_orbit_models.py")
 exp = importlib.util.module_from_spec(_spec)
@@ -199,8 +199,8 @@ def _exact_projections(job: dict):
     simulated truth is not model-consistent). Returns (job without noise, truth pass state,
     truth attitude per image, truth line-0 states per image)."""
     problem = prepare(load_job(job))
-    from solver.backend import SolveControl, solve
-    from solver.orbit_pass import state_at
+    from solver.engine.backend import SolveControl, solve
+    from solver.observations.passes import state_at
 
     solve(problem, problem.job.options, SolveControl(None, None, 50))
     truth_pass = problem.passes[0].params.copy()
@@ -478,7 +478,7 @@ def test_attitude_group_orders_must_agree(strip_job):
 def test_validation_counts_match_the_adjustment(strip_job, attitude):
     """The dry run's observation and unknown counts (what the web page shows before submitting)
     equal the adjustment's, with per-camera or per-image attitude and the ephemeris weighted."""
-    from solver.validate import validate_job
+    from solver.engine.validate import validate_job
 
     j = exp.with_ephemeris(copy.deepcopy(strip_job))
     for im in j["images"]:
@@ -495,7 +495,7 @@ def test_ephemeris_samples_are_observed_once_per_pass():
     """The triplet's images carry overlapping ephemerides (60-s samples): each distinct sample
     within the pass (+-30 s) is one observation of the propagated state at its own epoch, not
     once per image that carries it."""
-    from solver.orbit_pass import pass_terms
+    from solver.observations.passes import pass_terms
 
     problem = prepare(load_job(_pass_job(ephemeris=True)))
     terms = pass_terms(problem)

@@ -1,6 +1,6 @@
 """The pixel and time conventions, pinned by projections computed by hand.
 
-docs/models.md and solver/job.py (Chip): column C of a chip sits at the focal-plane position
+docs/models.md and solver/schema/job.py (Chip): column C of a chip sits at the focal-plane position
 ``x = dx_mm``, ``y = dy_mm + (C - first_column - (columns - 1)/2) pixel_mm`` (pixel centres,
 column 0 is the centre of the first pixel); a camera without chips is one chip centred on the
 principal point; image coordinates are taken from the principal point (x0, y0); line L is
@@ -17,10 +17,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from solver.job import load_job
+from solver.engine.assemble import build_problem
 from solver.kernels import project
-from solver.models import get_model
-from solver.problem import build_problem
+from solver.platforms import get_model
+from solver.schema.job import load_job
 
 F_MM = 2000.0
 PX_MM = 0.01

@@ -16,8 +16,8 @@ import pytest
 from scipy import stats
 
 from solver.adjust import assess, prepare, solve_problem
-from solver.job import load_job
-from solver.linalg import linearise
+from solver.engine.linalg import linearise
+from solver.schema.job import load_job
 from solver.simulate import presets
 from solver.simulate.scene import Settings
 
@@ -39,7 +39,7 @@ def _job(sigma_px: float | None = None, seed: int = 7) -> dict:
 
 def _adjust(job: dict):
     """(problem at the solution, report), through the same steps as solver.adjust.adjust_job."""
-    from solver.backend import SolveControl
+    from solver.engine.backend import SolveControl
 
     parsed = load_job(job)
     problem = prepare(parsed)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from solver.geodesy import ecef_to_geodetic
+from solver.geometry.geodesy import ecef_to_geodetic
 from solver.simulate.attitude import AttitudeModel, Platform, opk_from_matrix, rx, ry, rz
 from solver.simulate.camera import CameraSpec, ChipSpec, cbers_camera, prism_camera
 from solver.simulate.orbit import EarthModel, Orbit, circular_state_over, sun_synchronous_semi_major_axis

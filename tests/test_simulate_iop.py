@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from solver.cli import main
-from solver.geodesy import ecef_to_geodetic
-from solver.job import load_job
+from solver.geometry.geodesy import ecef_to_geodetic
+from solver.schema.job import load_job
 from solver.simulate import presets
 from solver.simulate.attitude import AttitudeModel, Platform
 from solver.simulate.camera import prism_camera

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from solver.compare import compare_models
-from solver.job import load_job
+from solver.schema.job import load_job
 from solver.simulate import presets
 from solver.simulate.scene import Settings
 

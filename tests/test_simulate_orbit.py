@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from solver.geodesy import ecef_to_geodetic
+from solver.geometry.geodesy import ecef_to_geodetic
 from solver.simulate.orbit import (
     EarthModel,
     Orbit,

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from solver.cli import main
-from solver.geodesy import enu_rotation, to_ecef
-from solver.job import load_job
+from solver.geometry.geodesy import enu_rotation, to_ecef
+from solver.schema.job import load_job
 from solver.simulate import presets
 from solver.simulate.scene import Settings
 

@@ -10,8 +10,8 @@ import copy
 import pytest
 
 from solver.api import run
-from solver.iop import camera_from_report
-from solver.job import load_job
+from solver.observations.interior import camera_from_report
+from solver.schema.job import load_job
 from solver.simulate.camera import prism_camera
 from solver.simulate.scene import Group, Scene, Settings
 

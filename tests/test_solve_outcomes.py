@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-import solver.backend as backend
+import solver.engine.backend as backend
+import solver.engine.linalg as linalg
 import solver.errors as errors
-import solver.linalg as linalg
 from solver.api import compare, run
 from solver.errors import JobError
 

@@ -9,7 +9,7 @@ import pytest
 
 from solver.api import run
 from solver.cli import main
-from solver.models import get_model, model_names
+from solver.platforms import get_model, model_names
 from solver.warmup import warmup_jobs
 
 

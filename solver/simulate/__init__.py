@@ -1,8 +1,8 @@
 """Scene simulator: independent physics that generates pushbroom jobs with known truth.
 
-Nothing here imports the solver's platform models (``solver.models``): the simulator is the
+Nothing here imports the solver's platform models (``solver.platforms``): the simulator is the
 evidence against which those models are judged. It shares only the job schema
-(:mod:`solver.job`) and the CRS plumbing (:mod:`solver.geodesy`).
+(:mod:`solver.schema.job`) and the CRS plumbing (:mod:`solver.geometry.geodesy`).
 
 Layers, each in its own module:
 

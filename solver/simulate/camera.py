@@ -1,13 +1,13 @@
 """Linear-array cameras: focal plane, CCD chips and line timing.
 
-Conventions shared with the solver (:mod:`solver.job`): camera axes x_c along track (flight
+Conventions shared with the solver (:mod:`solver.schema.job`): camera axes x_c along track (flight
 direction), z_c away from the scene, y_c = z_c x x_c. A point with camera coordinates
 (X, Y, Z), Z < 0, images at focal-plane coordinates x = -f X / Z, y = -f Y / Z (mm). A chip
 covers image columns ``first_column .. first_column + columns - 1``; its pixels lie at
 x = dx_mm (along-track stagger) and y = dy_mm + (C - first_column - (columns - 1)/2) * pixel_mm,
 so the column of a focal-plane y is ``C = first_column + (columns - 1)/2 + (y - dy_mm) / pixel_mm``.
 Chips may overlap and extend beyond the delivered image; a column covered by several chips
-belongs to the one the solver assigns it to (:mod:`solver.chips`: the nearest chip centre).
+belongs to the one the solver assigns it to (:mod:`solver.geometry.sensor`: the nearest chip centre).
 Lines grow with time: t(L) = first_line_time + L * line_time (L continuous). The origin of
 (line, column) is the centre of the top-left pixel.
 """
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solver.chips import chip_index_of_column, chip_seams
+from solver.geometry.sensor import chip_index_of_column, chip_seams
 from solver.simulate.iop import NO_IOP, CameraIOP
 
 # Seed 001 Table 1: calibrated focal lengths of the PRISM cameras (mm)
@@ -91,7 +91,7 @@ class CameraSpec:
         return c.centre_column + (np.asarray(y_mm) - c.dy_mm) / self.pixel_mm
 
     def chip_of_column(self, column: np.ndarray) -> np.ndarray:
-        """Chip index of image columns by the solver's rule (:mod:`solver.chips`); -1 on no chip."""
+        """Chip index of image columns by the solver's rule (:mod:`solver.geometry.sensor`); -1 on no chip."""
         return chip_index_of_column([c.first_column for c in self.chips], [c.columns for c in self.chips], column)
 
     def seams(self) -> np.ndarray:
@@ -131,7 +131,7 @@ class CameraSpec:
         return self.pixel_mm / self.focal_mm * height_m
 
     def to_job(self) -> dict:
-        """The camera as a :class:`solver.job.Camera` document."""
+        """The camera as a :class:`solver.schema.job.Camera` document."""
         return {
             "id": self.id,
             "focal_mm": self.focal_mm,

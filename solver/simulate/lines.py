@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from solver.geodesy import ecef_to_geodetic, enu_rotation, from_ecef
+from solver.geometry.geodesy import ecef_to_geodetic, enu_rotation, from_ecef
 from solver.simulate.camera import cbers_camera
 from solver.simulate.presets import CBERS_INCLINATION_DEG, CBERS_SITE
 from solver.simulate.scene import Group, Scene, Settings, SimObservation, SimPoint

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from solver.geodesy import geodetic_to_ecef
+from solver.geometry.geodesy import geodetic_to_ecef
 
 # EGM2008 normalized zonal coefficients Cbar_n0, n = 2, 3, 4
 _CBAR_N0 = {2: -4.84165143790815e-4, 3: 9.57161207093473e-7, 4: 5.39965866638991e-7}

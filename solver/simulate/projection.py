@@ -5,7 +5,7 @@ Ground to image: for each chip k, the acquisition time t of a ground point P is 
 chip's line of pixels); it is found by Newton iteration to |dt| < 1e-12 s (about 3e-9 lines
 for PRISM). Then ``L = (t - first_line_time) / line_time`` and
 ``C = first_column + (columns - 1)/2 + (y - dy_k) / pixel`` with y = -f Y / Z. The chip is the one
-to which C belongs by the solver's rule (:mod:`solver.chips`: among the chips covering C, the
+to which C belongs by the solver's rule (:mod:`solver.geometry.sensor`: among the chips covering C, the
 nearest centre; with unequal chip offsets a point near a hand-over may fall in none: a gap
 between chips, reported as outside).
 
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solver.geodesy import ecef_to_geodetic
+from solver.geometry.geodesy import ecef_to_geodetic
 from solver.simulate.attitude import Platform
 from solver.simulate.camera import CameraSpec
 from solver.simulate.terrain import Terrain
@@ -165,7 +165,7 @@ class ImageGeometry:
             cols.append(col)
             times.append(t)
         # a chip images the point if the column it sees there belongs to it by the solver's rule
-        # (solver.chips); if two chips do (misregistered chips at a hand-over), the one that sees
+        # (solver.geometry.sensor); if two chips do (misregistered chips at a hand-over), the one that sees
         # it farther from its ends
         cols_a, margins_a = np.array(cols), np.array(margins)
         own = margins_a >= 0

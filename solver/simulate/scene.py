@@ -1,5 +1,5 @@
 """A simulated pass: orbit, images in groups (triplets or single scenes), points, noise, and the
-two documents it produces: the job (:mod:`solver.job` schema) and the truth file.
+two documents it produces: the job (:mod:`solver.schema.job` schema) and the truth file.
 
 Procedure (all randomness from one ``numpy.random.Generator`` seeded by ``settings.seed``):
 
@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from solver.geodesy import LocalFrame, ecef_to_geodetic, enu_rotation, from_ecef
+from solver.geometry.geodesy import LocalFrame, ecef_to_geodetic, enu_rotation, from_ecef
 from solver.simulate.attitude import AttitudeModel, Platform, model_attitude_angles, opk_from_matrix
 from solver.simulate.camera import CameraSpec
 from solver.simulate.iop import resolve_iop

@@ -252,7 +252,7 @@ def test_an_unusable_solve_fails_the_job_with_a_problem_document(
 ) -> None:
     """The worker's run (in this process, so the residual blocks can be made to fail: Ceres
     then ends with FAILURE) records a failed job; status and results say why, as a 422."""
-    import solver.backend as backend
+    import solver.engine.backend as backend
     from service.execution import RunLimits, run_claimed_job
     from service.states import JobStatus
 

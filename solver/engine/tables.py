@@ -63,7 +63,7 @@ def records(
 def current_tables(problem: Problem):
     """(image table, camera table, image free parameters (nimg, 24), camera free parameters);
     pass segments are brought up to date with the passes' current states first."""
-    from solver.orbit_pass import refresh_segments
+    from solver.observations.passes import refresh_segments
 
     refresh_segments(problem)
     img_tab, cam_tab = image_table(problem), camera_table(problem)

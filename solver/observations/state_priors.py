@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solver.ephemeris import image_state
-from solver.models import coef_index
+from solver.observations.ephemeris import image_state
+from solver.platforms import coef_index
 from solver.state import ImageState, Problem, is_kepler
 
 

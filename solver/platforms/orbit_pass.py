@@ -6,7 +6,7 @@ propagated by numerical integration in ECEF (two-body + J2 for PASS-J2, two-body
 centrifugal and Coriolis terms; :mod:`solver.propagation`) to the epoch of each line,
 ``first_line_time_s + L * line_time``. Derivatives wrt x0 from the variational equations.
 
-Rotation object -> camera: as the orbit-attitude models (:mod:`solver.models.orbit_attitude`),
+Rotation object -> camera: as the orbit-attitude models (:mod:`solver.platforms.orbit_attitude`),
 ``M(t) = Ry(mounting) Rx(roll) Ry(pitch) Rz(yaw) R_orbit(S(t), V(t))`` with the orbital frame from
 the propagated state and roll, pitch, yaw polynomials in time, one set per camera of the pass
 (option ``attitude: camera``, the default: time since the pass reference epoch, shared by all the
@@ -21,7 +21,7 @@ observation of the propagated state at that image's first line.
 from __future__ import annotations
 
 from solver.kernels import KIND_PASS
-from solver.models.base import PlatformModel, register
+from solver.platforms.registry import PlatformModel, register
 
 _EQ = (
     "x0 = (S, V) ECEF at the pass reference epoch; S(t) = RK4 integration of "

@@ -17,10 +17,10 @@ from typing import Any
 
 import numpy as np
 
+from solver.engine.tables import current_tables
 from solver.kernels import ray_cam
+from solver.report.statistics import axis_summary, shapiro_wilk, t_test
 from solver.state import Problem
-from solver.statistics import axis_summary, shapiro_wilk, t_test
-from solver.tables import current_tables
 
 
 def _ray(problem: Problem, r: int):
@@ -33,8 +33,8 @@ def _ray(problem: Problem, r: int):
 
 def _intersect(problem: Problem, rows: np.ndarray, start: np.ndarray, tables) -> np.ndarray:
     """Gauss-Newton on the point alone (orientation held), on the weighted image residuals."""
+    from solver.engine.tables import records
     from solver.kernels import all_observation_blocks
-    from solver.tables import records
 
     img_tab, cam_tab, img_p, cam_p = tables
     rec = records(problem, rows)

@@ -24,7 +24,7 @@ ELEMENTS = ("X", "Y", "Z", "omega", "phi", "kappa")
 ANGLES = ("omega", "phi", "kappa")
 HELD = -1  # order value meaning "held at a given value, not estimated"
 POLY_TIME_SCALE_LINES = 1000.0  # tau = L / 1000 for polynomial models (conditioning)
-# the state of a pass-propagated model (solver.orbit_pass), ECEF at the pass reference epoch
+# the state of a pass-propagated model (solver.observations.passes), ECEF at the pass reference epoch
 PASS_STATE = (("X", "m"), ("Y", "m"), ("Z", "m"), ("VX", "m/s"), ("VY", "m/s"), ("VZ", "m/s"))
 
 

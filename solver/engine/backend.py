@@ -25,8 +25,8 @@ from typing import Any, Callable
 import numpy as np
 import pyceres
 
-from solver.job import SolverOptions
 from solver.kernels import fixed_obs_block, point_obs_block
+from solver.schema.job import SolverOptions
 from solver.state import Problem
 
 
@@ -130,7 +130,7 @@ class ImageBatchCost(pyceres.CostFunction):
 
     def __init__(self, problem: Problem, image_index: int, obs_rows: np.ndarray, control: SolveControl, tables):
         pyceres.CostFunction.__init__(self)
-        from solver.tables import records
+        from solver.engine.tables import records
 
         self.img_tab, self.cam_tab = tables
         self.blocks, img_slot, cam_slot, pass_slot = _slots(problem, obs_rows)
@@ -160,7 +160,7 @@ class PointCost(pyceres.CostFunction):
 
     def __init__(self, problem: Problem, point_index: int, obs_rows: np.ndarray, control: SolveControl, tables):
         pyceres.CostFunction.__init__(self)
-        from solver.tables import records
+        from solver.engine.tables import records
 
         self.img_tab, self.cam_tab = tables
         self.blocks, img_slot, cam_slot, pass_slot = _slots(problem, obs_rows)
@@ -183,7 +183,7 @@ class PointCost(pyceres.CostFunction):
 
 
 class ImageTermCost(pyceres.CostFunction):
-    """Any term on one parameter block (:mod:`solver.terms`): weighted states, line
+    """Any term on one parameter block (:mod:`solver.engine.terms`): weighted states, line
     observations, camera priors, pass ephemeris observations, ..."""
 
     def __init__(self, term, nfree: int, control: SolveControl):
@@ -259,7 +259,7 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
     t0 = time.perf_counter()
     cp = pyceres.Problem()
     keep: list[Any] = []  # cost functions must outlive the solve
-    from solver.tables import camera_table, image_table
+    from solver.engine.tables import camera_table, image_table
 
     tables = (image_table(problem), camera_table(problem))
     added: set[int] = set()
@@ -306,21 +306,21 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
             keep.append(prior)
             cp.add_residual_block(prior, None, [p.xyz])
 
-    from solver.terms import image_terms
+    from solver.engine.terms import image_terms
 
     for term in image_terms(problem):
         img = problem.images[term.image_index]
         cf = ImageTermCost(term, img.nfree, control)
         keep.append(cf)
         cp.add_residual_block(cf, None, [img.params])
-    from solver.orbit_pass import pass_terms
+    from solver.observations.passes import pass_terms
 
     for term in pass_terms(problem):
         ps = problem.passes[term.pass_index]
         cf = ImageTermCost(term, ps.nfree, control)
         keep.append(cf)
         cp.add_residual_block(cf, None, [ps.params])
-    from solver.iop import camera_priors
+    from solver.observations.interior import camera_priors
 
     for prior in camera_priors(problem.cameras):
         cam = problem.cameras[prior.camera_index]
@@ -350,7 +350,7 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
     so.callbacks = [cb]
     summary = pyceres.SolverSummary()
     pyceres.solve(so, cp, summary)
-    from solver.orbit_pass import refresh_segments
+    from solver.observations.passes import refresh_segments
 
     refresh_segments(problem)  # the images' trajectory segments for the final pass states
     term = str(summary.termination_type).split(".")[-1]

@@ -3,10 +3,10 @@
 An image may carry ``ephemeris`` (ECEF position and velocity at epochs ``time_s``, any
 sampling; ALOS: every 60 s) and ``first_line_time_s`` (the epoch of line 0, same time scale).
 This module interpolates position and velocity to that epoch and turns the result into the
-image's approximate state (:class:`solver.job.ApproxState`), which initialises every platform
+image's approximate state (:class:`solver.schema.job.ApproxState`), which initialises every platform
 model and, with ``options.ephemeris`` sigmas, enters the adjustment as a weighted observation
 of the model's line-0 state (seed 001 eqs 38-43: state = ephemeris value + correction, the
-corrections XT ... uzT under weighted constraints; the equation lives in :mod:`solver.priors`).
+corrections XT ... uzT under weighted constraints; the equation lives in :mod:`solver.observations.state_priors`).
 
 Interpolator (:func:`hermite`): one polynomial per component through the ``nodes`` samples
 nearest to the epoch (default 4: two on each side), matching both the positions and the
@@ -38,8 +38,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from solver.errors import Problem as JobProblem
-from solver.job import ApproxState, Image, SolverOptions
 from solver.kernels import platform_state
+from solver.schema.job import ApproxState, Image, SolverOptions
 from solver.state import is_kepler
 
 if TYPE_CHECKING:  # pragma: no cover

@@ -14,12 +14,12 @@ from typing import Any
 import numpy as np
 from pyproj.exceptions import ProjError
 
-from solver.chips import camera_chip, in_image_columns
-from solver.ephemeris import ephemeris_problems, image_state
 from solver.errors import JobError, Problem
-from solver.geodesy import UnknownCRSError, ecef_to_geodetic, parse_crs, to_ecef
-from solver.job import MAX_COMPARED_MODELS, Camera, ImageObservation, Job
-from solver.models import HELD, PlatformModel, get_model
+from solver.geometry.geodesy import UnknownCRSError, ecef_to_geodetic, parse_crs, to_ecef
+from solver.geometry.sensor import camera_chip, in_image_columns
+from solver.observations.ephemeris import ephemeris_problems, image_state
+from solver.platforms import HELD, PlatformModel, get_model
+from solver.schema.job import MAX_COMPARED_MODELS, Camera, ImageObservation, Job
 
 # ellipsoidal heights of ground points: the deepest ocean trench to far above any aircraft
 MIN_HEIGHT_M = -5e4
@@ -37,7 +37,7 @@ def _duplicates(items: list[Any], what: str, key: str) -> list[Problem]:
 
 def _duplicate_chips(cam: Camera, i: int) -> list[Problem]:
     """Chip ids must be unique within a camera (observations and IOP names refer to them).
-    Chips may overlap and extend beyond the image (butted CCDs, :mod:`solver.chips`)."""
+    Chips may overlap and extend beyond the image (butted CCDs, :mod:`solver.geometry.sensor`)."""
     counts = Counter(c.id for c in cam.chips)
     return [
         Problem("duplicate_id", f"camera {cam.id!r}: chip id {c!r} is used {n} times", ("cameras", i, "chips"))
@@ -334,14 +334,14 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
         if points[o.point].role != "check":
             obs_per_image[o.image] += 1
 
-    from solver.lines import collect_line_problems
+    from solver.observations.lines import collect_line_problems
 
     line_problems, line_counts = collect_line_problems(job, cameras, images)
     problems += line_problems
     for image_id, n in line_counts["per_image"].items():
         obs_per_image[image_id] += n
 
-    from solver.orbit_pass import n_pass_state_observations, n_pass_unknowns, pass_problems
+    from solver.observations.passes import n_pass_state_observations, n_pass_unknowns, pass_problems
 
     pass_issues = pass_problems(job)
     problems += pass_issues
@@ -349,14 +349,14 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     if not pass_issues:
         n_prior_obs += n_pass_state_observations(job)
 
-    from solver.attitude_obs import attitude_problems, n_attitude_observations
+    from solver.observations.attitude import attitude_problems, n_attitude_observations
 
     att_problems = attitude_problems(job)
     problems += [Problem(code, msg, loc) for code, msg, loc in att_problems]
     n_attitude_obs = 0 if att_problems else n_attitude_observations(job)
     n_prior_obs += n_attitude_obs
 
-    from solver.iop import n_iop_unknowns, validate_self_calibration
+    from solver.observations.interior import n_iop_unknowns, validate_self_calibration
 
     sc_problems = validate_self_calibration(job)
     problems += [Problem(code, msg, loc) for code, msg, loc in sc_problems]

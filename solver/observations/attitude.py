@@ -7,7 +7,7 @@ with each angle a polynomial in the attitude time t_a (docs/models.md sections 1
 
 An attitude sample (roll, pitch, yaw relative to the orbital frame at epoch t, images[].attitude)
 therefore observes a linear function of the attitude coefficients, ``r = W (A p - b)``, the same
-form as the state priors (:class:`solver.priors.StatePrior`, reused here). t_a is the time
+form as the state priors (:class:`solver.observations.state_priors.StatePrior`, reused here). t_a is the time
 since the image's first line for per-image attitude (OA-*, PASS-* with ``attitude: image``) and
 the time since the pass reference epoch for an attitude block shared by the images of one
 camera (PASS-* default).
@@ -26,13 +26,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from solver.kernels import KIND_PASS
-from solver.models import coef_index, get_model
-from solver.orbit_pass import ATTITUDE_KINDS, attitude_blocks, image_attitude_blocks, pass_line_span
-from solver.priors import StatePrior
+from solver.observations.passes import ATTITUDE_KINDS, attitude_blocks, image_attitude_blocks, pass_line_span
+from solver.observations.state_priors import StatePrior
+from solver.platforms import coef_index, get_model
 from solver.propagation import PASS_ATT_OFF
 
 if TYPE_CHECKING:
-    from solver.job import AttitudeSample, Job
+    from solver.schema.job import AttitudeSample, Job
     from solver.state import Problem
 
 ANGLES = ("omega", "phi", "kappa")  # the coefficient slots of roll, pitch, yaw

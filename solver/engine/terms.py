@@ -1,8 +1,8 @@
 """Residual terms that involve one image's platform parameters only (no ground-point block).
 
 Each term family (weighted platform states, straight-line observations, ...) provides objects
-with this interface; Ceres residual blocks (:mod:`solver.backend`) and the covariance
-(:mod:`solver.linalg`) both consume them, so a new family is one module plus one line in
+with this interface; Ceres residual blocks (:mod:`solver.engine.backend`) and the covariance
+(:mod:`solver.engine.linalg`) both consume them, so a new family is one module plus one line in
 :func:`image_terms`.
 """
 
@@ -28,9 +28,9 @@ class ImageTerm(Protocol):
 
 def image_terms(problem: Problem) -> list[ImageTerm]:
     """Every image-only term of the problem, in a fixed order."""
-    from solver.attitude_obs import attitude_terms
-    from solver.lines import line_terms
-    from solver.priors import all_state_priors
+    from solver.observations.attitude import attitude_terms
+    from solver.observations.lines import line_terms
+    from solver.observations.state_priors import all_state_priors
 
     terms: list[ImageTerm] = []
     terms += all_state_priors(problem)
@@ -45,21 +45,21 @@ def refresh_image_terms(problem: Problem) -> float:
 
     Returns the largest change this makes to any whitened residual (0: nothing to redo).
     """
-    from solver.lines import refresh_lines
+    from solver.observations.lines import refresh_lines
 
     return refresh_lines(problem)
 
 
 def solve_with_refreshes(problem: Problem, options, control, solve):
     """``solve(problem, options, control)``, repeated while :func:`refresh_image_terms` changes
-    some residual by more than ``solver.lines.REFRESH_TOL`` (at most ``MAX_REFRESHES`` times).
+    some residual by more than ``solver.observations.lines.REFRESH_TOL`` (at most ``MAX_REFRESHES`` times).
 
     The outcomes are merged: iterations, times and cost history add up, the initial cost is the
     first solve's, the rest is the last solve's.
     """
     import dataclasses
 
-    from solver.lines import MAX_REFRESHES, REFRESH_TOL
+    from solver.observations.lines import MAX_REFRESHES, REFRESH_TOL
 
     outcome = solve(problem, options, control)
     for _ in range(MAX_REFRESHES):

@@ -20,12 +20,12 @@ import math
 
 import numpy as np
 
-from solver.ephemeris import image_state
 from solver.errors import JobError
 from solver.errors import Problem as JobProblem
 from solver.kernels import gravity_and_gradient, intersect_all, platform_state
-from solver.models import ANGLES, ELEMENTS, HELD, coef_index
-from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
+from solver.observations.ephemeris import image_state
+from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
+from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.state import ImageState, Problem, is_kepler
 
 
@@ -146,7 +146,7 @@ def initialise(problem: Problem) -> None:
                     img.base[coef_index(e, 0)] = math.radians(val)
         _apply_initial(img)
         img.params[:] = img.base[img.free_idx]
-    from solver.orbit_pass import initialise_passes
+    from solver.observations.passes import initialise_passes
 
     issues += initialise_passes(problem, states)
     if issues:

@@ -1,9 +1,9 @@
 """Straight-line ground control (seed 002): the equivalent planes model and a rigorous model.
 
-A job's ``lines`` (:class:`solver.job.GroundLine`) are object-space straight lines given by two
+A job's ``lines`` (:class:`solver.schema.job.GroundLine`) are object-space straight lines given by two
 points, each seen in one or more images either as measured image points (line, column) or as
 fitted image-line parameters. Control lines enter the adjustment as image-only residual terms
-(:mod:`solver.terms`): they involve the platform parameters of one image and nothing else,
+(:mod:`solver.engine.terms`): they involve the platform parameters of one image and nothing else,
 because the object line is held fixed (its survey sigmas are propagated into the weights, see
 below). Check lines are only compared with the adjusted orientation (report ``lines``).
 
@@ -77,10 +77,10 @@ import numpy as np
 from numba import njit
 
 import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
-from solver.chips import camera_chip
 from solver.errors import JobError
 from solver.errors import Problem as JobProblem
-from solver.geodesy import UnknownCRSError, parse_crs, to_ecef
+from solver.geometry.geodesy import UnknownCRSError, parse_crs, to_ecef
+from solver.geometry.sensor import camera_chip
 from solver.kernels import N_OBS_CONST, assemble, platform_state, project, rotation_and_derivatives
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
@@ -417,7 +417,7 @@ def control_line_points_ecef(job, ecef: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def _on_a_chip(camera, column: float) -> bool:
-    """True if ``column`` is in the delivered image and on a CCD chip (:mod:`solver.chips`)."""
+    """True if ``column`` is in the delivered image and on a CCD chip (:mod:`solver.geometry.sensor`)."""
 
     try:
         camera_chip(camera, column)
@@ -428,7 +428,7 @@ def _on_a_chip(camera, column: float) -> bool:
 
 def _chip_constants(camera, column: float) -> tuple[float, float, float]:
     """(xo, yo, centre column) of the chip of ``column`` (clamped into the image) by the rule of
-    :mod:`solver.chips` (line points do not name their chip)."""
+    :mod:`solver.geometry.sensor` (line points do not name their chip)."""
 
     ncols = camera.columns or 1
     col = min(max(column, 0.0), ncols - 1.0)
@@ -977,7 +977,7 @@ def lines_report(problem, s_inv: np.ndarray | None, img_col: np.ndarray | None, 
             f"{ls.refresh_changes[-1]:.3g} sigma): the equivalent planes solution is not a fixed point"
         )
     if ls.model == "equivalent_planes" and ls.active():
-        from solver.models import ANGLES, ELEMENTS, HELD
+        from solver.platforms import ANGLES, ELEMENTS, HELD
 
         loose = sorted(
             {

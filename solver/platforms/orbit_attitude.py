@@ -1,7 +1,7 @@
 """Orbit-attitude models (Kim & Dowman 2006, cited by seeds 000 and 001), Earth-fixed frame.
 
 Position: the UCL Kepler / J2 state (S0, u) with the rotating-frame acceleration, exactly as
-the K and J2 models (solver/models/kepler.py). Rotation object -> camera::
+the K and J2 models (solver/platforms/kepler.py). Rotation object -> camera::
 
     M(t) = Ry(mounting) Rx(roll) Ry(pitch) Rz(yaw) R_orbit(S(t), V(t))
 
@@ -18,7 +18,7 @@ position-rotation models whose angles are constant in the Earth-fixed frame.
 from __future__ import annotations
 
 from solver.kernels import KIND_ORBIT_ATTITUDE
-from solver.models.base import PlatformModel, register
+from solver.platforms.registry import PlatformModel, register
 
 _EQ = "S(t)=S0+u t+1/2 a(S0,u) t^2 (ECEF); M = Ry(mount) Rx(roll) Ry(pitch) Rz(yaw) R_orbit(S(t), V(t))"
 

@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from solver.iop_names import camera_iop_names
-from solver.job import Camera, Job
 from solver.kernels import IOP_CHIP, IOP_OPTICAL, MAX_CHIPS, N_IOP
+from solver.schema.iop_names import camera_iop_names
+from solver.schema.job import Camera, Job
 
 UNITS = {"x0": "mm", "y0": "mm", "df": "mm", "k1": "mm^-2", "k2": "mm^-4", "sy": "1",
          "a0": "mm", "b0": "mm", "a1": "1", "b1": "1", "delta": "rad"}

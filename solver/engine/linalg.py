@@ -24,9 +24,9 @@ from numba import njit
 from scipy.linalg import solve_triangular
 
 import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+from solver.engine.terms import image_terms
 from solver.kernels import all_observation_blocks
 from solver.state import Problem
-from solver.terms import image_terms
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
@@ -134,8 +134,8 @@ class Linearisation:
 
 
 def linearise(problem: Problem) -> Linearisation:
-    from solver.iop import camera_priors
-    from solver.tables import current_tables, records
+    from solver.engine.tables import current_tables, records
+    from solver.observations.interior import camera_priors
 
     lay = layout(problem)
     obs = problem.obs
@@ -154,7 +154,7 @@ def linearise(problem: Problem) -> Linearisation:
     terms = list(image_terms(problem))
     term_col = [int(lay.img_col[t.image_index]) for t in terms]
     term_eval = [t.evaluate(problem.images[t.image_index].params) for t in terms]
-    from solver.orbit_pass import pass_terms
+    from solver.observations.passes import pass_terms
 
     for pt in pass_terms(problem):
         terms.append(pt)

@@ -11,15 +11,15 @@ import math
 
 import numpy as np
 
-from solver.chips import camera_chip
-from solver.geodesy import LocalFrame, to_ecef
-from solver.iop import build_cameras, chip_ids
-from solver.job import Job
+from solver.geometry.geodesy import LocalFrame, to_ecef
+from solver.geometry.sensor import camera_chip
 from solver.kernels import N_COEF, N_KEPLER_CONST, N_OBS_CONST
-from solver.lines import build_lines, control_line_points_ecef, lines_ecef
-from solver.models import PlatformModel, get_model
-from solver.models.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
-from solver.orbit_pass import build_passes
+from solver.observations.interior import build_cameras, chip_ids
+from solver.observations.lines import build_lines, control_line_points_ecef, lines_ecef
+from solver.observations.passes import build_passes
+from solver.platforms import PlatformModel, get_model
+from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
+from solver.schema.job import Job
 from solver.state import ImageState, Observations, PointState, Problem
 
 
@@ -61,9 +61,9 @@ def ground_points_ecef(job: Job) -> dict[str, np.ndarray]:
 
 
 def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
-    """Assemble arrays from a job that passed :func:`solver.validate.validate_job`.
+    """Assemble arrays from a job that passed :func:`solver.engine.validate.validate_job`.
 
-    Parameter values are zero here; :mod:`solver.initialize` fills them.
+    Parameter values are zero here; :mod:`solver.engine.initialize` fills them.
     """
     cameras = {c.id: c for c in job.cameras}
     ecef = ground_points_ecef(job)

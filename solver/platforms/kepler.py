@@ -22,7 +22,7 @@ at southern latitudes (phi close to -90 deg), which ruins conditioning.
 from __future__ import annotations
 
 from solver.kernels import KIND_KEPLER
-from solver.models.base import PlatformModel, register
+from solver.platforms.registry import PlatformModel, register
 
 GM_M3_S2 = 3.986005e14  # seed 000 (GRS80)
 OMEGA_RAD_S = 7.292115e-5

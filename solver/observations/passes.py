@@ -16,11 +16,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from solver.ephemeris import image_state, usable
 from solver.errors import Problem as JobProblem
 from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS, N_KEPLER_CONST
-from solver.models import get_model
-from solver.models.base import PASS_STATE
+from solver.observations.ephemeris import image_state, usable
+from solver.platforms import get_model
+from solver.platforms.registry import PASS_STATE
 from solver.propagation import (
     NODE_STEP_S,
     PASS_ATT_OFF,
@@ -37,8 +37,8 @@ from solver.propagation import (
 )
 
 if TYPE_CHECKING:  # pragma: no cover
-    from solver.job import Job
-    from solver.models import PlatformModel
+    from solver.platforms import PlatformModel
+    from solver.schema.job import Job
     from solver.state import ImageState, Problem
 
 DEFAULT_PASS = "1"
@@ -78,7 +78,7 @@ def _attitude_blocks(entries) -> list[list[int]]:
     options, camera id) per image: an orbit-attitude or pass image alone, except that pass
     images with ``attitude: camera`` (the default) share one block per (pass, camera). The one
     statement of that rule: :func:`build_passes` shares the arrays by it, validation counts and
-    checks by it, and measured attitude attaches to it (:mod:`solver.attitude_obs`)."""
+    checks by it, and measured attitude attaches to it (:mod:`solver.observations.attitude`)."""
     blocks: dict[tuple, list[int]] = {}
     for i, (model, options, camera) in enumerate(entries):
         if model is None or model.kind not in ATTITUDE_KINDS:

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:  # annotations only: the job schema is not needed to run these
-    from solver.job import Camera
+    from solver.schema.job import Camera
 
 
 def covers(first_column: float, columns: float, column: np.ndarray | float) -> np.ndarray:
@@ -62,7 +62,7 @@ def camera_chip(camera: Camera, column: float, chip: str | None = None) -> tuple
     """(chip id, dx_mm, dy_mm, centre column) of the chip of image column ``column``.
 
     ``chip`` names the chip (its id); without it the chip follows the rule of
-    :mod:`solver.chips` (the covering chip whose centre column is nearest). KeyError if the column
+    :mod:`solver.geometry.sensor` (the covering chip whose centre column is nearest). KeyError if the column
     is outside the delivered image, on no chip, or not on the named chip. A camera without chips
     is one chip "1" centred on the principal point.
     """

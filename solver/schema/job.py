@@ -11,7 +11,7 @@ axis order is always (x, y[, z]) = (easting, northing) or (longitude, latitude),
 ``always_xy``. Heights are ellipsoidal metres unless the CRS says otherwise.
 
 Only structure and value ranges are checked here; cross references (unknown image, point,
-camera), model names and degrees of freedom are checked by :func:`solver.validate.validate_job`
+camera), model names and degrees of freedom are checked by :func:`solver.engine.validate.validate_job`
 so that every problem in a document is reported at once.
 """
 
@@ -24,7 +24,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationInfo, field_validator, model_validator
 from typing_extensions import TypedDict
 
-from solver.iop_names import camera_iop_names
+from solver.schema.iop_names import camera_iop_names
 
 SCHEMA_VERSION = "1.0"
 
@@ -119,7 +119,7 @@ class Chip(_Strict):
     Chips may overlap (butted CCDs) and may extend beyond the delivered image: ``first_column``
     may be negative and the last column beyond the image's. A column covered by several chips
     belongs to the one whose centre column is nearest (the overlap split in the middle,
-    :mod:`solver.chips`) unless its observation names its ``chip``.
+    :mod:`solver.geometry.sensor`) unless its observation names its ``chip``.
     """
 
     id: str = Field(min_length=1, max_length=64)
@@ -384,7 +384,7 @@ class ImageObservation(_Strict):
 
     ``chip`` optionally names the CCD chip (its ``id`` in the camera's ``chips``; "1" for a camera
     without chips) that imaged the point, for columns where chips overlap; the column must lie on
-    that chip. Without it the column's chip follows the rule of :mod:`solver.chips` (the covering
+    that chip. Without it the column's chip follows the rule of :mod:`solver.geometry.sensor` (the covering
     chip whose centre column is nearest).
     """
 
@@ -469,7 +469,7 @@ class EphemerisOptions(_Strict):
     """Use each image's ``ephemeris`` (state vectors) for its line-0 state (seed 001 section 5).
 
     The state vectors are interpolated to ``first_line_time_s`` (Hermite with positions and
-    velocities over the ``nodes`` nearest samples, :mod:`solver.ephemeris`) and replace the
+    velocities over the ``nodes`` nearest samples, :mod:`solver.observations.ephemeris`) and replace the
     image's ``approx_state`` position and velocity. With ``sigma_position_m`` (and optionally
     ``sigma_velocity_m_s``) they also enter the adjustment as weighted observations of the
     model's state: state = ephemeris value + correction (seed 001 eqs 38-43). Without sigmas the

@@ -13,7 +13,7 @@ polynomials use tau = L / 1000 for conditioning; reported coefficients are per l
 from __future__ import annotations
 
 from solver.kernels import KIND_POLYNOMIAL
-from solver.models.base import HELD, PlatformModel, register
+from solver.platforms.registry import HELD, PlatformModel, register
 
 _EQ = "X(L)=X0+X1 L+X2 L^2, Y, Z likewise; kappa(L)=kappa+kappa1 L(+kappa2 L^2)"
 _HELD_ON = {"omega": 0.0, "phi": lambda pitch_deg: pitch_deg}

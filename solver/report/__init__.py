@@ -1,0 +1,1 @@
+"""The report's sections: check points and statistics."""
