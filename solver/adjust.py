@@ -19,9 +19,9 @@ from solver.errors import Cancelled, RankDeficientError, UnusableSolution
 from solver.errors import Problem as JobProblem
 from solver.geometry.geodesy import ecef_to_geodetic
 from solver.kernels import platform_state
-from solver.observations.attitude import attitude_report
 from solver.observations.ephemeris import ephemeris_report
 from solver.observations.lines import lines_report
+from solver.observations.registry import FAMILIES
 from solver.report.checkpoints import compute_checkpoints
 from solver.report.statistics import chi2_test
 from solver.schema.job import Job
@@ -281,7 +281,7 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
         "checkpoints": compute_checkpoints(problem, opts.alpha, gsd),
         "lines": lines,
         "ephemeris": ephemeris_report(problem),
-        "attitude": attitude_report(problem),
+        **{family.name: family.report(problem) for family in FAMILIES},
         "warnings": warnings,
     }
 

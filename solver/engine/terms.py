@@ -1,40 +1,28 @@
 """Residual terms that involve one image's platform parameters only (no ground-point block).
 
-Each term family (weighted platform states, straight-line observations, ...) provides objects
-with this interface; Ceres residual blocks (:mod:`solver.engine.backend`) and the covariance
-(:mod:`solver.engine.linalg`) both consume them, so a new family is one module plus one line in
-:func:`image_terms`.
+Each term family (weighted platform states, measured attitude, straight-line observations, ...)
+provides objects with the interface :class:`solver.observations.family.ImageTerm`; Ceres residual
+blocks (:mod:`solver.engine.backend`) and the covariance (:mod:`solver.engine.linalg`) both
+consume them. A family in the registry's shape is one module plus one line in
+:mod:`solver.observations.registry`; state priors and lines are still named here.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
-
-import numpy as np
-
+from solver.observations.family import ImageTerm
+from solver.observations.registry import FAMILIES
 from solver.state import Problem
-
-
-class ImageTerm(Protocol):
-    """Whitened residuals r(p) of one image's free parameters p, with dr/dp."""
-
-    image_index: int
-    n_residuals: int
-
-    def evaluate(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(residuals (m,), jacobian (m, nfree)) at ``params``."""
-        ...
 
 
 def image_terms(problem: Problem) -> list[ImageTerm]:
     """Every image-only term of the problem, in a fixed order."""
-    from solver.observations.attitude import attitude_terms
     from solver.observations.lines import line_terms
     from solver.observations.state_priors import all_state_priors
 
     terms: list[ImageTerm] = []
     terms += all_state_priors(problem)
-    terms += attitude_terms(problem)
+    for family in FAMILIES:
+        terms += family.terms(problem)
     terms += line_terms(problem)
     return terms
 
@@ -47,7 +35,7 @@ def refresh_image_terms(problem: Problem) -> float:
     """
     from solver.observations.lines import refresh_lines
 
-    return refresh_lines(problem)
+    return max([refresh_lines(problem), *(family.refresh(problem) for family in FAMILIES)])
 
 
 def solve_with_refreshes(problem: Problem, options, control, solve):

@@ -18,6 +18,7 @@ from solver.errors import JobError, Problem
 from solver.geometry.geodesy import UnknownCRSError, ecef_to_geodetic, parse_crs, to_ecef
 from solver.geometry.sensor import camera_chip, in_image_columns
 from solver.observations.ephemeris import ephemeris_problems, image_state
+from solver.observations.registry import FAMILIES
 from solver.platforms import HELD, PlatformModel, get_model
 from solver.schema.job import MAX_COMPARED_MODELS, Camera, ImageObservation, Job
 
@@ -349,12 +350,14 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     if not pass_issues:
         n_prior_obs += n_pass_state_observations(job)
 
-    from solver.observations.attitude import attitude_problems, n_attitude_observations
-
-    att_problems = attitude_problems(job)
-    problems += [Problem(code, msg, loc) for code, msg, loc in att_problems]
-    n_attitude_obs = 0 if att_problems else n_attitude_observations(job)
-    n_prior_obs += n_attitude_obs
+    n_datum_obs = 0  # observations that, with weighted platform states, define the datum
+    for family in FAMILIES:
+        issues = family.problems(job)
+        problems += issues
+        n = 0 if issues else family.n_observations(job)
+        n_prior_obs += n
+        if family.direct_datum:
+            n_datum_obs += n
 
     from solver.observations.interior import n_iop_unknowns, validate_self_calibration
 
@@ -390,7 +393,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
             )
     # direct georeferencing: weighted platform states and measured attitude define the datum
     # without ground control (whether they fix every parameter is the rank check's to say)
-    direct = weighted_states > 0 and n_attitude_obs > 0
+    direct = weighted_states > 0 and n_datum_obs > 0
     if not any(p.role == "gcp" for p in job.points) and line_counts["n_control"] == 0 and not direct:
         problems.append(
             Problem(

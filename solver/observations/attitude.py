@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from solver.errors import Problem as JobProblem
 from solver.kernels import KIND_PASS
 from solver.observations.passes import ATTITUDE_KINDS, attitude_blocks, image_attitude_blocks, pass_line_span
 from solver.observations.state_priors import StatePrior
@@ -153,3 +154,29 @@ def attitude_report(problem: "Problem") -> list[dict]:
             }
         )
     return out
+
+
+class MeasuredAttitude:
+    """Measured attitude (``options.attitude`` and the images' ``attitude`` samples) as an
+    observation family (:class:`solver.observations.family.ObservationFamily`)."""
+
+    name = "attitude"
+    direct_datum = True  # with weighted platform states: direct georeferencing
+
+    def problems(self, job: "Job") -> list[JobProblem]:
+        return [JobProblem(code, msg, loc) for code, msg, loc in attitude_problems(job)]
+
+    def n_observations(self, job: "Job") -> int:
+        return n_attitude_observations(job)
+
+    def terms(self, problem: "Problem") -> list[StatePrior]:
+        return attitude_terms(problem)
+
+    def refresh(self, problem: "Problem") -> float:
+        return 0.0  # linear in the attitude: nothing to re-linearise
+
+    def report(self, problem: "Problem") -> list[dict]:
+        return attitude_report(problem)
+
+
+FAMILY = MeasuredAttitude()
