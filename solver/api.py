@@ -77,7 +77,8 @@ def run(
     progress: ProgressFn | None = None,
     cancel: CancelFn | None = None,
 ) -> dict[str, Any]:
-    """Adjust a job and return its report (see :mod:`solver.report` for the fields).
+    """Adjust a job and return its report (docs/report-contract.md; built by
+    :func:`solver.report.document.assess`).
 
     If ``job.options.models`` is not empty this is a model comparison (same as :func:`compare`).
     """

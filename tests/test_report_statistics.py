@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from solver.adjust import assess, prepare, solve_problem
+from solver.adjust import prepare, solve_problem
 from solver.engine.linalg import linearise
+from solver.report.document import assess
 from solver.schema.job import load_job
 from solver.simulate import presets
 from solver.simulate.scene import Settings

@@ -17,6 +17,7 @@ from solver.kernels import N_COEF, N_KEPLER_CONST, N_OBS_CONST
 from solver.observations.interior import build_cameras, chip_ids
 from solver.observations.lines import build_lines, control_line_points_ecef, lines_ecef
 from solver.observations.passes import build_passes
+from solver.observations.passes import parameter_names as pass_names
 from solver.platforms import PlatformModel, get_model
 from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.schema.job import Job
@@ -141,3 +142,17 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
     problem.cameras = cams
     problem.passes = passes
     return problem
+
+
+def parameter_names(problem: Problem) -> list[str]:
+    """Names of the image and camera columns, in layout order ("image/param", "camera:id/iop")."""
+    names = []
+    seen: set[int] = set()
+    for img in problem.images:
+        if id(img.params) in seen:  # shared attitude block: named after its first image
+            continue
+        seen.add(id(img.params))
+        names += [f"{img.id}/{p.name}" for p in img.model.parameters(img.options)]
+    for cam in problem.cameras:
+        names += [f"camera:{cam.id}/{cam.names[i]}" for i in cam.free_idx]
+    return names + pass_names(problem)

@@ -1,0 +1,311 @@
+"""The adjustment report (docs/report-contract.md), built at the solution by :func:`assess`:
+the adjustment's statistics, then one section per part of the problem (images, correlations,
+cameras, passes, observations, points, check points, lines, ephemeris and the families of
+:mod:`solver.observations.registry`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from solver.engine.assemble import parameter_names
+from solver.engine.linalg import Covariance, covariance, linearise, schur
+from solver.geometry.geodesy import ecef_to_geodetic
+from solver.kernels import platform_state
+from solver.observations.ephemeris import ephemeris_report
+from solver.observations.lines import lines_report
+from solver.observations.registry import FAMILIES
+from solver.report.checkpoints import compute_checkpoints
+from solver.report.statistics import chi2_test
+from solver.state import Problem
+
+REPORT_SCHEMA_VERSION = "1.0"
+
+
+def assess(problem: Problem, outcome) -> dict[str, Any]:
+    """Statistics, covariance, check points and the report, at the current parameters."""
+    job = problem.job
+    opts = job.options
+    lin = linearise(problem)
+    n_obs = len(lin.residuals)
+    n_unk = lin.layout.n_params
+    dof = n_obs - n_unk
+    vtpv = float(lin.residuals @ lin.residuals)
+    sigma0 = math.sqrt(vtpv / dof) if dof > 0 else None
+    warnings: list[str] = []
+    if dof == 0:
+        warnings.append("zero degrees of freedom: no a-posteriori variance; sigmas use sigma0 a priori")
+    var_factor = (sigma0**2) if sigma0 is not None else opts.sigma0_apriori**2
+    cov: Covariance | None = None
+    if opts.covariance and outcome.usable:
+        parts = schur(lin, problem)
+        try:
+            cov = covariance(lin, parts, problem)
+        except np.linalg.LinAlgError:
+            warnings.append(
+                "the normal matrix is not positive definite at the solution: no covariance, "
+                "sigmas or correlation coefficients"
+            )
+    if not lin.ok.all():
+        warnings.append(f"{int((~lin.ok).sum())} projections did not converge at the solution")
+    if not outcome.converged:
+        warnings.append(f"the solver did not converge: {outcome.message}")
+        creeping = _creeping_warning(problem, cov)
+        if creeping is not None:
+            warnings.append(creeping)
+
+    adjustment = {
+        "n_observations": n_obs,
+        "n_unknowns": n_unk,
+        "dof": dof,
+        "iterations": outcome.iterations,
+        "converged": outcome.converged,
+        "termination": outcome.termination,
+        "message": outcome.message,
+        "linear_solver": outcome.linear_solver,
+        "sigma0_apriori": opts.sigma0_apriori,
+        "sigma0_aposteriori": sigma0,
+        "chi2": chi2_test(vtpv, dof, opts.alpha, opts.sigma0_apriori),
+        "solve_time_s": outcome.time_s,
+        "initial_cost": outcome.initial_cost,
+        "final_cost": outcome.final_cost,
+        "cost_history": outcome.history,
+    }
+    images, gsds = _images_report(problem, lin, cov, var_factor)
+    lines = lines_report(problem, cov.images if cov is not None else None, lin.layout.img_col, opts.sigma0_apriori)
+    warnings += lines["warnings"]
+    gsd = float(np.mean(gsds)) if gsds else None
+    return {
+        "schema_version": REPORT_SCHEMA_VERSION,
+        "kind": "adjustment",
+        "job_name": job.name,
+        "frames": {"lgs": problem.frame.to_dict(), "ecef": "EPSG:4978"},
+        "adjustment": adjustment,
+        "images": images,
+        "correlations": _correlations(problem, cov, opts.correlation_threshold),
+        "cameras": _cameras_report(problem, lin, cov, var_factor),
+        "passes": _passes_report(problem, lin, cov, var_factor),
+        "observations": _observations_report(problem, lin, cov),
+        "tie_points": _points_report(problem, cov, var_factor, role="tie"),
+        "control_points": _points_report(problem, cov, var_factor, role="gcp"),
+        "checkpoints": compute_checkpoints(problem, opts.alpha, gsd),
+        "lines": lines,
+        "ephemeris": ephemeris_report(problem),
+        **{family.name: family.report(problem) for family in FAMILIES},
+        "warnings": warnings,
+    }
+
+
+def _state_line0(problem: Problem, index: int) -> dict[str, list[float]]:
+    """The adjusted perspective-centre position and velocity at line 0 (ECEF), every model."""
+    from solver.observations.ephemeris import line0_state_ecef
+
+    r, v = line0_state_ecef(problem, index)
+    return {"position_ecef_m": [float(x) for x in r], "velocity_ecef_m_s": [float(x) for x in v]}
+
+
+def _images_report(problem: Problem, lin, cov: Covariance | None, var_factor: float):
+    out = []
+    gsds = []
+    lay = lin.layout
+    res = lin.res_obs.ravel()
+    obs = problem.obs
+    sel = lin.obs_sel
+    from solver.observations.passes import attitude_groups
+
+    groups = attitude_groups(problem)
+    for img in problem.images:
+        specs = img.model.parameters(img.options)
+        c = img.coef()
+        c0 = lay.img_col[img.index]
+        block = None
+        if cov is not None:
+            block = cov.images[c0 : c0 + img.nfree, c0 : c0 + img.nfree] * var_factor
+        scale = np.array([s.to_report for s in specs])
+        params = []
+        for k, s in enumerate(specs):
+            sigma = float(math.sqrt(max(block[k, k], 0.0)) * abs(s.to_report)) if block is not None else None
+            params.append(
+                {"name": s.name, "value": float(c[s.index] * s.to_report), "sigma": sigma, "unit": s.unit, "estimated": True}
+            )
+        held = img.model.held_values_rad(img.options, img.camera.mounting_pitch_deg)
+        for e, val in held.items():
+            params.append({"name": e, "value": math.degrees(val), "sigma": None, "unit": "deg", "estimated": False})
+        mine = np.flatnonzero(obs.img[sel] == img.index)
+        sig = obs.oc[sel][mine, 2]
+        rl = res[2 * mine] * sig
+        rc = res[2 * mine + 1] * sig
+        px = img.camera.pixel_mm
+        rms = lambda v: float(np.sqrt(np.mean(v**2))) if len(v) else None  # noqa: E731
+        # ground sample distance: range to the observed points x pixel / focal length
+        ranges = []
+        for k in np.flatnonzero(obs.img == img.index)[:200]:
+            s = platform_state(img.kind, c, img.kc, obs.oc[k, 0] * obs.oc[k, 8])[0]
+            ranges.append(np.linalg.norm(problem.points[obs.pt[k]].xyz - s))
+        gsd = float(np.mean(ranges) * px / img.camera.focal_mm) if ranges else None
+        if gsd:
+            gsds.append(gsd)
+        out.append(
+            {
+                "id": img.id,
+                "camera": img.camera.id,
+                "model": img.model.name,
+                "frame": img.model.frame,
+                "time_variable": img.model.time_variable,
+                "parameters": params,
+                "covariance": None
+                if block is None
+                else {"names": [s.name for s in specs], "matrix": (block * np.outer(scale, scale)).tolist()},
+                "residual_rmse": {
+                    "line_px": rms(rl),
+                    "column_px": rms(rc),
+                    "x_mm": None if rms(rl) is None else rms(rl) * px,
+                    "y_mm": None if rms(rc) is None else rms(rc) * px,
+                },
+                "n_observations": int(len(mine)),
+                "state_line0": _state_line0(problem, img.index),
+                "pass": problem.passes[img.pass_index].id if img.pass_index >= 0 else None,
+                "attitude_shared_with": groups.get(img.index),
+                "gsd_m": gsd,
+                "lines": img.camera.lines,
+                "columns": img.camera.columns,
+            }
+        )
+    return out, gsds
+
+
+def _passes_report(problem: Problem, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
+    from solver.observations.passes import passes_report
+
+    def block(pi: int):
+        if cov is None:
+            return None
+        c0 = lin.layout.pass_col[pi]
+        return cov.images[c0 : c0 + 6, c0 : c0 + 6]
+
+    return passes_report(problem, block, var_factor)
+
+
+def _cameras_report(problem: Problem, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
+    from solver.observations.interior import cameras_report
+
+    def block(ci: int):
+        cam = problem.cameras[ci]
+        if cov is None or not cam.nfree:
+            return None
+        c0 = lin.layout.cam_col[ci]
+        return cov.images[c0 : c0 + cam.nfree, c0 : c0 + cam.nfree]
+
+    return cameras_report(problem.cameras, block, var_factor)
+
+
+def _correlation_pairs(cov: Covariance) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """Upper-triangle indices and correlation coefficients of the platform/IOP/pass parameters."""
+    d = np.sqrt(np.clip(np.diag(cov.images), 1e-300, None))
+    # the covariance is a Gram matrix (linalg.positive_definite_inverse): |rho| <= 1 up to rounding
+    rho = np.clip(cov.images / np.outer(d, d), -1.0, 1.0)
+    iu = np.triu_indices_from(rho, k=1)
+    return iu, rho[iu]
+
+
+NEAR_SINGULAR_RHO = 0.9999
+
+
+def _creeping_warning(problem: Problem, cov: Covariance | None) -> str | None:
+    """Why a solve that ran out of iterations crept: the parameter pairs that are correlated to
+    |rho| >= NEAR_SINGULAR_RHO are nearly undetermined together, and Gauss-Newton moves along
+    that valley a little each iteration (e.g. a focal-length correction against the flying
+    height of per-image models)."""
+    if cov is None or cov.images.size == 0:
+        return None
+    iu, vals = _correlation_pairs(cov)
+    near = np.flatnonzero(np.abs(vals) >= NEAR_SINGULAR_RHO)
+    if not len(near):
+        return None
+    names = parameter_names(problem)
+    top = near[np.argsort(-np.abs(vals[near]))][:3]
+    pairs = ", ".join(f"{names[iu[0][k]]} ~ {names[iu[1][k]]} (rho {vals[k]:+.5f})" for k in top)
+    return (
+        f"{len(near)} parameter pair(s) are correlated beyond {NEAR_SINGULAR_RHO} ({pairs}): they are "
+        "nearly undetermined together and the solve creeps along that direction; hold or drop one "
+        "of them (for example a self-calibration parameter) or add control that separates them"
+    )
+
+
+def _correlations(problem: Problem, cov: Covariance | None, threshold: float, limit: int = 2000) -> dict[str, Any]:
+    out: dict[str, Any] = {"threshold": threshold, "pairs": []}
+    if cov is None or cov.images.size == 0:
+        return out
+    names = parameter_names(problem)
+    iu, vals = _correlation_pairs(cov)
+    big = np.flatnonzero(np.abs(vals) > threshold)
+    big = big[np.argsort(-np.abs(vals[big]))][:limit]
+    def kind(name: str) -> str:
+        return "IOP" if name.startswith("camera:") else "EOP"
+
+    out["pairs"] = [
+        {"a": names[iu[0][k]], "b": names[iu[1][k]], "rho": float(vals[k]), "kinds": f"{kind(names[iu[0][k]])}-{kind(names[iu[1][k]])}"}
+        for k in big
+    ]
+    out["truncated"] = bool(len(np.flatnonzero(np.abs(vals) > threshold)) > limit)
+    return out
+
+
+def _observations_report(problem: Problem, lin, cov: Covariance | None) -> list[dict[str, Any]]:
+    obs = problem.obs
+    sel = lin.obs_sel
+    res = lin.res_obs.ravel()
+    lev = cov.leverage if cov is not None else None
+    s0 = problem.job.options.sigma0_apriori
+    out = []
+    for q, k in enumerate(sel):
+        sig = obs.oc[k, 2]
+        rl, rc = res[2 * q], res[2 * q + 1]
+        item = {
+            "image": problem.images[obs.img[k]].id,
+            "point": problem.points[obs.pt[k]].id,
+            "role": problem.points[obs.pt[k]].role,
+            "line": float(obs.oc[k, 0]),
+            "column": float(obs.oc[k, 1]),
+            "sigma_px": float(sig),
+            "residual_line_px": float(rl * sig),
+            "residual_column_px": float(rc * sig),
+            "standardized_line": None,
+            "standardized_column": None,
+        }
+        if lev is not None:
+            r1 = 1.0 - lev[2 * q]
+            r2 = 1.0 - lev[2 * q + 1]
+            item["standardized_line"] = float(rl / (s0 * math.sqrt(r1))) if r1 > 1e-9 else None
+            item["standardized_column"] = float(rc / (s0 * math.sqrt(r2))) if r2 > 1e-9 else None
+        out.append(item)
+    return out
+
+
+def _points_report(problem: Problem, cov: Covariance | None, var_factor: float, role: str) -> list[dict[str, Any]]:
+    pts = [p for p in problem.points if p.estimated and p.role == role]
+    if not pts:
+        return []
+    ecef = problem.frame.to_ecef(np.array([p.xyz for p in pts]))
+    geo = ecef_to_geodetic(ecef)
+    out = []
+    for p, e, g in zip(pts, ecef, geo):
+        sigma = None
+        if cov is not None and p.index in cov.points:
+            sigma = [float(math.sqrt(max(v, 0.0) * var_factor)) for v in np.diag(cov.points[p.index])]
+        item = {
+            "id": p.id,
+            "lgs_m": [float(x) for x in p.xyz],
+            "sigma_m": sigma,
+            "ecef_m": [float(x) for x in e],
+            "lon_deg": float(g[0]),
+            "lat_deg": float(g[1]),
+            "height_m": float(g[2]),
+        }
+        if role == "gcp" and p.known_lgs is not None:
+            item["correction_m"] = [float(x) for x in (p.xyz - p.known_lgs)]
+        out.append(item)
+    return out
