@@ -2,7 +2,7 @@
 
 Everything that runs once per observation per solver evaluation lives here, compiled with numba
 (``error_model="numpy"`` so a division by zero gives inf instead of raising inside Ceres).
-The residual blocks in :mod:`solver.residuals` and the covariance/statistics code call only
+The residual blocks in :mod:`solver.engine.backend` and the covariance code (:mod:`solver.engine.linalg`) call only
 these functions, so a compiled C++ kernel could replace this module behind the same interface.
 
 Conventions (see docs/models.md):
@@ -844,33 +844,49 @@ def ideal_direction(oc, iop, chip: int, chip_len: float):
 # img_tab row (67): kind, nfree, free_idx[24], base[24], kc[17]
 # cam_tab row (2 + 2 N_IOP): nfree, has_iop, free_idx[N_IOP], base[N_IOP]
 # (the pass kind appends its propagated segment to kc: the row is then longer, see
-#  solver.propagation; kc is always it[50:])
+#  solver.propagation; kc is always it[KC_START:])
 # observation record (16): image, camera, image slot, camera slot (-1: constant), chip index,
 #                          chip length (mm), oc[9], pass slot (-1: constant or no pass)
-IMG_TAB = 67
+# named offsets of the packed rows (solver.engine.tables writes them, the kernels read them)
+IT_KIND = 0  # img_tab: model kind (KIND_*)
+IT_NFREE = 1  # img_tab: number of free coefficients
+IT_FREE = 2  # img_tab: free coefficient indices, N_COEF slots
+IT_BASE = IT_FREE + N_COEF  # img_tab: full coefficient vector (held and current), N_COEF long
+KC_START = IT_BASE + N_COEF  # img_tab: kc, N_KEPLER_CONST long (pass kind: + its segment)
+IMG_TAB = KC_START + N_KEPLER_CONST
 CAM_TAB = 2 + 2 * N_IOP
-OBS_REC = 16
-KC_START = 50
+REC_IMAGE = 0  # observation record: image index
+REC_CAMERA = 1  # camera index
+REC_IMG_SLOT = 2  # image parameter slot (-1: constant)
+REC_CAM_SLOT = 3  # camera parameter slot (-1: constant)
+REC_CHIP = 4  # chip index in the camera
+REC_CHIP_LEN = 5  # chip length (mm)
+REC_OC = 6  # oc[N_OBS_CONST]: line, column, sigma_px, ...
+REC_LINE = REC_OC  # observed line (px)
+REC_COLUMN = REC_OC + 1  # observed column (px)
+REC_SIGMA = REC_OC + 2  # sigma (px)
+REC_PASS_SLOT = REC_OC + N_OBS_CONST  # pass parameter slot (-1: constant or no pass)
+OBS_REC = REC_PASS_SLOT + 1
 
 
 @njit(**_JIT)
 def _eval_record(r, img_tab, cam_tab, p, params, want: bool):
-    im = int(r[0])
-    cm = int(r[1])
-    islot = int(r[2])
-    cslot = int(r[3])
+    im = int(r[REC_IMAGE])
+    cm = int(r[REC_CAMERA])
+    islot = int(r[REC_IMG_SLOT])
+    cslot = int(r[REC_CAM_SLOT])
     it = img_tab[im]
-    kind = int(it[0])
-    nf = int(it[1])
-    coef = it[26:50].copy()
+    kind = int(it[IT_KIND])
+    nf = int(it[IT_NFREE])
+    coef = it[IT_BASE:KC_START].copy()
     if islot >= 0:
         pi = params[islot]
         for j in range(nf):
-            coef[int(it[2 + j])] = pi[j]
+            coef[int(it[IT_FREE + j])] = pi[j]
     kc = it[KC_START:]
-    if kind == KIND_PASS and r[15] >= 0:
-        ensure_segment(kc, params[int(r[15])])
-    oc = r[6:15]
+    if kind == KIND_PASS and r[REC_PASS_SLOT] >= 0:
+        ensure_segment(kc, params[int(r[REC_PASS_SLOT])])
+    oc = r[REC_OC:REC_PASS_SLOT]
     ct = cam_tab[cm]
     if ct[1] != 0.0:
         iop = ct[2 + N_IOP : 2 + 2 * N_IOP].copy()
@@ -878,7 +894,7 @@ def _eval_record(r, img_tab, cam_tab, p, params, want: bool):
             pc = params[cslot]
             for j in range(int(ct[0])):
                 iop[int(ct[2 + j])] = pc[j]
-        return project_cam(kind, coef, kc, p, oc, iop, int(r[4]), r[5], want)
+        return project_cam(kind, coef, kc, p, oc, iop, int(r[REC_CHIP]), r[REC_CHIP_LEN], want)
     ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp = project(kind, coef, kc, p, oc, want)
     empty = np.empty(0)  # no interior orientation: _fill skips the camera (slot -1)
     return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp, empty, empty
@@ -898,16 +914,16 @@ def _put_rows(block, i, idx, dl, dc, w):
 @njit(**_JIT)
 def _fill(i, r, img_tab, cam_tab, w, jacs, dl_dc, dc_dc, dl_di, dc_di):
     """Observation i's rows in the Jacobians of its image, pass and camera blocks (slots)."""
-    islot = int(r[2])
+    islot = int(r[REC_IMG_SLOT])
     if islot >= 0:
-        it = img_tab[int(r[0])]
-        _put_rows(jacs[islot], i, it[2 : 2 + int(it[1])], dl_dc, dc_dc, w)
-    pslot = int(r[15])
+        it = img_tab[int(r[REC_IMAGE])]
+        _put_rows(jacs[islot], i, it[IT_FREE : IT_FREE + int(it[IT_NFREE])], dl_dc, dc_dc, w)
+    pslot = int(r[REC_PASS_SLOT])
     if pslot >= 0:
         _put_rows(jacs[pslot], i, PASS_COEF_INDEX, dl_dc, dc_dc, w)
-    cslot = int(r[3])
+    cslot = int(r[REC_CAM_SLOT])
     if cslot >= 0:
-        ct = cam_tab[int(r[1])]
+        ct = cam_tab[int(r[REC_CAMERA])]
         _put_rows(jacs[cslot], i, ct[2 : 2 + int(ct[0])], dl_di, dc_di, w)
 
 
@@ -924,9 +940,9 @@ def point_obs_block(rec, img_tab, cam_tab, p, params, res, jac_p, jacs, want_jac
     for i in range(k):
         r = rec[i]
         good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di = _eval_record(r, img_tab, cam_tab, p, params, want_jac)
-        w = 1.0 / r[8]
-        r0 = (r[6] - ln) * w
-        r1 = (r[7] - cl) * w
+        w = 1.0 / r[REC_SIGMA]
+        r0 = (r[REC_LINE] - ln) * w
+        r1 = (r[REC_COLUMN] - cl) * w
         if not (np.isfinite(r0) and np.isfinite(r1)):
             ok = False
         res[2 * i] = r0
@@ -951,9 +967,9 @@ def fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, jacs, want_jac: boo
     for i in range(k):
         r = rec[i]
         good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di = _eval_record(r, img_tab, cam_tab, pts[i], params, want_jac)
-        w = 1.0 / r[8]
-        r0 = (r[6] - ln) * w
-        r1 = (r[7] - cl) * w
+        w = 1.0 / r[REC_SIGMA]
+        r0 = (r[REC_LINE] - ln) * w
+        r1 = (r[REC_COLUMN] - cl) * w
         if not (np.isfinite(r0) and np.isfinite(r1)):
             ok = False
         res[2 * i] = r0
@@ -980,24 +996,24 @@ def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, est
     ok = np.empty(n, dtype=np.bool_)
     for i in range(n):
         r = rec[i]
-        im = int(r[0])
-        cm = int(r[1])
+        im = int(r[REC_IMAGE])
+        cm = int(r[REC_CAMERA])
         it = img_tab[im]
         ct = cam_tab[cm]
-        nf = int(it[1])
+        nf = int(it[IT_NFREE])
         nc = int(ct[0])
-        coef = it[26:50].copy()
+        coef = it[IT_BASE:KC_START].copy()
         for j in range(nf):
-            coef[int(it[2 + j])] = img_p[im, j]
-        oc = r[6:15]
+            coef[int(it[IT_FREE + j])] = img_p[im, j]
+        oc = r[REC_OC:REC_PASS_SLOT]
         p = pts[pt_idx[i]]
         if ct[1] != 0.0:
             iop = ct[2 + N_IOP : 2 + 2 * N_IOP].copy()
             for j in range(nc):
                 iop[int(ct[2 + j])] = cam_p[cm, j]
-            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di = project_cam(int(it[0]), coef, it[KC_START:], p, oc, iop, int(r[4]), r[5], True)
+            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di = project_cam(int(it[IT_KIND]), coef, it[KC_START:], p, oc, iop, int(r[REC_CHIP]), r[REC_CHIP_LEN], True)
         else:
-            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(int(it[0]), coef, it[KC_START:], p, oc, True)
+            good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(int(it[IT_KIND]), coef, it[KC_START:], p, oc, True)
             dl_di = np.zeros(N_IOP)
             dc_di = np.zeros(N_IOP)
         w = 1.0 / oc[2]
@@ -1005,7 +1021,7 @@ def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, est
         res[i, 1] = (oc[1] - cl) * w
         ok[i] = good and np.isfinite(res[i, 0]) and np.isfinite(res[i, 1])
         for j in range(nf):
-            fj = int(it[2 + j])
+            fj = int(it[IT_FREE + j])
             fcol[i, j] = img_col[im] + j
             jf[i, 0, j] = -dl_dc[fj] * w
             jf[i, 1, j] = -dc_dc[fj] * w
@@ -1014,7 +1030,7 @@ def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, est
             fcol[i, nf + j] = cam_col[cm] + j
             jf[i, 0, nf + j] = -dl_di[fj] * w
             jf[i, 1, nf + j] = -dc_di[fj] * w
-        if int(it[0]) == KIND_PASS:
+        if int(it[IT_KIND]) == KIND_PASS:
             pc = pass_col[int(it[KC_START + PASS_INDEX])]
             for j in range(6):
                 fj = PASS_COEF_INDEX[j]

@@ -8,7 +8,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.kernels import CAM_TAB, IMG_TAB, KC_START, N_IOP, OBS_REC
+from solver.kernels import (
+    CAM_TAB,
+    IMG_TAB,
+    IT_BASE,
+    IT_FREE,
+    IT_KIND,
+    IT_NFREE,
+    KC_START,
+    N_IOP,
+    OBS_REC,
+    REC_CAM_SLOT,
+    REC_CAMERA,
+    REC_CHIP,
+    REC_CHIP_LEN,
+    REC_IMAGE,
+    REC_IMG_SLOT,
+    REC_OC,
+    REC_PASS_SLOT,
+)
 from solver.state import Problem
 
 
@@ -19,10 +37,10 @@ def image_table(problem: Problem) -> np.ndarray:
     tab = np.zeros((len(problem.images), width))
     for im in problem.images:
         r = tab[im.index]
-        r[0] = im.kind
-        r[1] = im.nfree
-        r[2 : 2 + im.nfree] = im.free_idx
-        r[26:50] = im.base
+        r[IT_KIND] = im.kind
+        r[IT_NFREE] = im.nfree
+        r[IT_FREE : IT_FREE + im.nfree] = im.free_idx
+        r[IT_BASE:KC_START] = im.base
         r[KC_START : KC_START + len(im.kc)] = im.kc
     return tab
 
@@ -48,15 +66,15 @@ def records(
     """Observation records of ``rows``; slots default to -1 (filled by the block builders)."""
     obs = problem.obs
     rec = np.zeros((len(rows), OBS_REC))
-    rec[:, 0] = obs.img[rows]
-    rec[:, 1] = obs.cam[rows]
-    rec[:, 2] = -1 if img_slot is None else img_slot
-    rec[:, 3] = -1 if cam_slot is None else cam_slot
-    rec[:, 4] = obs.chip_idx[rows]
+    rec[:, REC_IMAGE] = obs.img[rows]
+    rec[:, REC_CAMERA] = obs.cam[rows]
+    rec[:, REC_IMG_SLOT] = -1 if img_slot is None else img_slot
+    rec[:, REC_CAM_SLOT] = -1 if cam_slot is None else cam_slot
+    rec[:, REC_CHIP] = obs.chip_idx[rows]
     lens = np.array([problem.cameras[c].chip_len_mm[k] for c, k in zip(obs.cam[rows], obs.chip_idx[rows])])
-    rec[:, 5] = lens
-    rec[:, 6:15] = obs.oc[rows]
-    rec[:, 15] = -1 if pass_slot is None else pass_slot
+    rec[:, REC_CHIP_LEN] = lens
+    rec[:, REC_OC:REC_PASS_SLOT] = obs.oc[rows]
+    rec[:, REC_PASS_SLOT] = -1 if pass_slot is None else pass_slot
     return np.ascontiguousarray(rec)
 
 
