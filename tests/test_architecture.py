@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import importlib
 import re
 import sys
 import tomllib
@@ -97,3 +98,24 @@ def _documented_layers() -> list[str]:
 
 def test_documented_layers_are_the_checked_layers() -> None:
     assert _documented_layers() == [re.sub(r"\s*\|\s*", " | ", layer) for layer in _contract_layers()]
+
+
+def test_every_path_and_module_the_page_names_exists() -> None:
+    """The job's path and the 'where new code goes' list name files and modules that exist."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    paths = set(re.findall(r"\b((?:solver|service)/[\w/]*\w(?:\.py)?)", text))
+    missing = [p for p in sorted(paths) if not (ROOT / p).exists()]
+    modules = set(re.findall(r"`((?:solver|service)(?:\.\w+)+)", text))
+    for name in sorted(modules):  # a module, or a module and an attribute path in it
+        parts = name.split(".")
+        for k in range(len(parts), 0, -1):
+            try:
+                obj = importlib.import_module(".".join(parts[:k]))
+                break
+            except ModuleNotFoundError:
+                continue
+        for attr in parts[k:]:
+            obj = getattr(obj, attr, None)
+        if obj is None:
+            missing.append(name)
+    assert paths and modules and not missing, missing

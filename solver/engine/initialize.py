@@ -22,8 +22,9 @@ import numpy as np
 
 from solver.errors import JobError
 from solver.errors import Problem as JobProblem
-from solver.kernels import gravity_and_gradient, intersect_all, platform_state
+from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS, gravity_and_gradient, intersect_all, platform_state
 from solver.observations.ephemeris import image_state
+from solver.observations.passes import initialise_passes
 from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
 from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.state import ImageState, Problem, is_kepler
@@ -146,8 +147,6 @@ def initialise(problem: Problem) -> None:
                     img.base[coef_index(e, 0)] = math.radians(val)
         _apply_initial(img)
         img.params[:] = img.base[img.free_idx]
-    from solver.observations.passes import initialise_passes
-
     issues += initialise_passes(problem, states)
     if issues:
         raise JobError(issues)
@@ -155,8 +154,6 @@ def initialise(problem: Problem) -> None:
 
 
 def _attitude_by_resection(problem: Problem, img: ImageState, v_ecef) -> tuple[float, float, float]:
-    from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS
-
     if img.kind in (KIND_ORBIT_ATTITUDE, KIND_PASS):
         return 0.0, 0.0, 0.0  # attitude relative to the orbital frame: nominally zero
     obs = problem.obs

@@ -10,15 +10,14 @@ consume them. A family in the registry's shape is one module plus one line in
 from __future__ import annotations
 
 from solver.observations.family import ImageTerm
+from solver.observations.lines import MAX_REFRESHES, REFRESH_TOL, line_terms, refresh_lines
 from solver.observations.registry import FAMILIES
+from solver.observations.state_priors import all_state_priors
 from solver.state import Problem
 
 
 def image_terms(problem: Problem) -> list[ImageTerm]:
     """Every image-only term of the problem, in a fixed order."""
-    from solver.observations.lines import line_terms
-    from solver.observations.state_priors import all_state_priors
-
     terms: list[ImageTerm] = []
     terms += all_state_priors(problem)
     for family in FAMILIES:
@@ -33,8 +32,6 @@ def refresh_image_terms(problem: Problem) -> float:
 
     Returns the largest change this makes to any whitened residual (0: nothing to redo).
     """
-    from solver.observations.lines import refresh_lines
-
     return max([refresh_lines(problem), *(family.refresh(problem) for family in FAMILIES)])
 
 
@@ -46,8 +43,6 @@ def solve_with_refreshes(problem: Problem, options, control, solve):
     first solve's, the rest is the last solve's.
     """
     import dataclasses
-
-    from solver.observations.lines import MAX_REFRESHES, REFRESH_TOL
 
     outcome = solve(problem, options, control)
     for _ in range(MAX_REFRESHES):

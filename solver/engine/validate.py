@@ -18,6 +18,9 @@ from solver.errors import JobError, Problem
 from solver.geometry.geodesy import UnknownCRSError, ecef_to_geodetic, parse_crs, to_ecef
 from solver.geometry.sensor import camera_chip, in_image_columns
 from solver.observations.ephemeris import ephemeris_problems, image_state
+from solver.observations.interior import n_iop_unknowns, validate_self_calibration
+from solver.observations.lines import collect_line_problems
+from solver.observations.passes import n_pass_state_observations, n_pass_unknowns, pass_problems
 from solver.observations.registry import FAMILIES
 from solver.platforms import HELD, PlatformModel, get_model
 from solver.schema.job import MAX_COMPARED_MODELS, Camera, ImageObservation, Job
@@ -335,14 +338,10 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
         if points[o.point].role != "check":
             obs_per_image[o.image] += 1
 
-    from solver.observations.lines import collect_line_problems
-
     line_problems, line_counts = collect_line_problems(job, cameras, images)
     problems += line_problems
     for image_id, n in line_counts["per_image"].items():
         obs_per_image[image_id] += n
-
-    from solver.observations.passes import n_pass_state_observations, n_pass_unknowns, pass_problems
 
     pass_issues = pass_problems(job)
     problems += pass_issues
@@ -358,8 +357,6 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
         n_prior_obs += n
         if family.direct_datum:
             n_datum_obs += n
-
-    from solver.observations.interior import n_iop_unknowns, validate_self_calibration
 
     sc_problems = validate_self_calibration(job)
     problems += [Problem(code, msg, loc) for code, msg, loc in sc_problems]

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from solver.engine.tables import current_tables
-from solver.kernels import ray_cam
+from solver.engine.tables import current_tables, records
+from solver.kernels import all_observation_blocks, ray_cam
 from solver.report.statistics import axis_summary, shapiro_wilk, t_test
 from solver.state import Problem
 
@@ -33,9 +33,6 @@ def _ray(problem: Problem, r: int):
 
 def _intersect(problem: Problem, rows: np.ndarray, start: np.ndarray, tables) -> np.ndarray:
     """Gauss-Newton on the point alone (orientation held), on the weighted image residuals."""
-    from solver.engine.tables import records
-    from solver.kernels import all_observation_blocks
-
     img_tab, cam_tab, img_p, cam_p = tables
     rec = records(problem, rows)
     zeros = np.zeros(len(rows), dtype=np.int64)

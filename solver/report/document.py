@@ -15,8 +15,10 @@ from solver.engine.assemble import parameter_names
 from solver.engine.linalg import Covariance, covariance, linearise, schur
 from solver.geometry.geodesy import ecef_to_geodetic
 from solver.kernels import platform_state
-from solver.observations.ephemeris import ephemeris_report
+from solver.observations.ephemeris import ephemeris_report, line0_state_ecef
+from solver.observations.interior import cameras_report
 from solver.observations.lines import lines_report
+from solver.observations.passes import attitude_groups, passes_report
 from solver.observations.registry import FAMILIES
 from solver.report.checkpoints import compute_checkpoints
 from solver.report.statistics import chi2_test
@@ -101,8 +103,6 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
 
 def _state_line0(problem: Problem, index: int) -> dict[str, list[float]]:
     """The adjusted perspective-centre position and velocity at line 0 (ECEF), every model."""
-    from solver.observations.ephemeris import line0_state_ecef
-
     r, v = line0_state_ecef(problem, index)
     return {"position_ecef_m": [float(x) for x in r], "velocity_ecef_m_s": [float(x) for x in v]}
 
@@ -114,8 +114,6 @@ def _images_report(problem: Problem, lin, cov: Covariance | None, var_factor: fl
     res = lin.res_obs.ravel()
     obs = problem.obs
     sel = lin.obs_sel
-    from solver.observations.passes import attitude_groups
-
     groups = attitude_groups(problem)
     for img in problem.images:
         specs = img.model.parameters(img.options)
@@ -178,8 +176,6 @@ def _images_report(problem: Problem, lin, cov: Covariance | None, var_factor: fl
 
 
 def _passes_report(problem: Problem, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
-    from solver.observations.passes import passes_report
-
     def block(pi: int):
         if cov is None:
             return None
@@ -190,8 +186,6 @@ def _passes_report(problem: Problem, lin, cov: Covariance | None, var_factor: fl
 
 
 def _cameras_report(problem: Problem, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
-    from solver.observations.interior import cameras_report
-
     def block(ci: int):
         cam = problem.cameras[ci]
         if cov is None or not cam.nfree:
