@@ -25,7 +25,11 @@ from typing import Any, Callable
 import numpy as np
 import pyceres
 
+from solver.engine.tables import camera_table, image_table, records
+from solver.engine.terms import image_terms
 from solver.kernels import fixed_obs_block, point_obs_block
+from solver.observations.interior import camera_priors
+from solver.observations.passes import pass_terms, refresh_segments
 from solver.schema.job import SolverOptions
 from solver.state import Problem
 
@@ -130,8 +134,6 @@ class ImageBatchCost(pyceres.CostFunction):
 
     def __init__(self, problem: Problem, image_index: int, obs_rows: np.ndarray, control: SolveControl, tables):
         pyceres.CostFunction.__init__(self)
-        from solver.engine.tables import records
-
         self.img_tab, self.cam_tab = tables
         self.blocks, img_slot, cam_slot, pass_slot = _slots(problem, obs_rows)
         self.rec = records(problem, obs_rows, img_slot, cam_slot, pass_slot)
@@ -160,8 +162,6 @@ class PointCost(pyceres.CostFunction):
 
     def __init__(self, problem: Problem, point_index: int, obs_rows: np.ndarray, control: SolveControl, tables):
         pyceres.CostFunction.__init__(self)
-        from solver.engine.tables import records
-
         self.img_tab, self.cam_tab = tables
         self.blocks, img_slot, cam_slot, pass_slot = _slots(problem, obs_rows)
         self.rec = records(problem, obs_rows, img_slot, cam_slot, pass_slot)
@@ -259,8 +259,6 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
     t0 = time.perf_counter()
     cp = pyceres.Problem()
     keep: list[Any] = []  # cost functions must outlive the solve
-    from solver.engine.tables import camera_table, image_table
-
     tables = (image_table(problem), camera_table(problem))
     added: set[int] = set()
     for img in problem.images:
@@ -306,22 +304,16 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
             keep.append(prior)
             cp.add_residual_block(prior, None, [p.xyz])
 
-    from solver.engine.terms import image_terms
-
     for term in image_terms(problem):
         img = problem.images[term.image_index]
         cf = ImageTermCost(term, img.nfree, control)
         keep.append(cf)
         cp.add_residual_block(cf, None, [img.params])
-    from solver.observations.passes import pass_terms
-
     for term in pass_terms(problem):
         ps = problem.passes[term.pass_index]
         cf = ImageTermCost(term, ps.nfree, control)
         keep.append(cf)
         cp.add_residual_block(cf, None, [ps.params])
-    from solver.observations.interior import camera_priors
-
     for prior in camera_priors(problem.cameras):
         cam = problem.cameras[prior.camera_index]
         cf = ImageTermCost(prior, cam.nfree, control)
@@ -350,8 +342,6 @@ def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> So
     so.callbacks = [cb]
     summary = pyceres.SolverSummary()
     pyceres.solve(so, cp, summary)
-    from solver.observations.passes import refresh_segments
-
     refresh_segments(problem)  # the images' trajectory segments for the final pass states
     term = str(summary.termination_type).split(".")[-1]
     usable = bool(summary.IsSolutionUsable())
