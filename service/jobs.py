@@ -120,8 +120,12 @@ class JobService:
             user.max_job_observations or self.settings.max_job_observations,
         )
 
-    def submit(self, user: UserRecord, process_id: str, inputs: ExecuteInputs) -> JobRecord:
-        """Validate, check the user's limits, store as accepted, and queue."""
+    def submit(
+        self, user: UserRecord, process_id: str, inputs: ExecuteInputs, sync: bool = False
+    ) -> JobRecord:
+        """Validate, check the user's limits, store as accepted, and queue. Jobs of at most
+        ``small_job_observations`` observations and ``sync`` requests (a client waiting for
+        the answer) take the small-job lane (service.store.fair)."""
         check_process(process_id)
         max_queued, max_obs = self.limits_of(user)
         n_obs = len(inputs.job.observations)
@@ -135,7 +139,8 @@ class JobService:
                 headers={"Retry-After": "10"},
             )
         job: Job = inputs.job
-        rec = self.store.create_job(user.id, process_id, document, n_obs, job.name)
+        small = sync or n_obs <= self.settings.small_job_observations
+        rec = self.store.create_job(user.id, process_id, document, n_obs, job.name, small)
         self.backend.submit(rec.id)
         return rec
 

@@ -90,15 +90,16 @@ async def execute(
 ) -> Response:
     """Execute a process: ``Prefer: respond-async`` answers 201 with the job's Location; otherwise
     a small job is solved before answering (200 with the report), a large one answers 201."""
-    rec = await run_in_threadpool(services.jobs.submit, user, processId, body.inputs)
     wants_async = "respond-async" in (prefer or "").lower() or body.mode == "async"
     settings = services.settings
-    if (
+    sync = not (
         wants_async
-        or rec.n_observations > settings.sync_max_observations
+        or len(body.inputs.job.observations) > settings.sync_max_observations
         or settings.sync_timeout_s <= 0
         or services.backend.worker_count() == 0
-    ):
+    )
+    rec = await run_in_threadpool(services.jobs.submit, user, processId, body.inputs, sync)
+    if not sync:
         return _accepted(rec, base, wants_async)
     deadline = time.monotonic() + settings.sync_timeout_s
     started = time.monotonic()
