@@ -3,12 +3,15 @@ and the per-user accounting of finished runs. Both databases (the store fixture)
 
 from __future__ import annotations
 
+from typing import Any, Callable
+
 import pytest
 from test_service_store import store  # noqa: F401 - the parameterised store fixture
 
 from service.states import JobStatus
 from service.store import Store
 from service.store.fair import Head, OwnerLoad, pick
+from service.store.leases import Claim, claim_for_message
 
 DOC = {"job": {"name": "x"}}
 
@@ -127,3 +130,40 @@ def test_user_weight_and_cap_round_trip(store: Store, weight: float | None) -> N
     u = store.create_user("eve", weight=weight, max_running_jobs=3)
     again = store.create_user("eve")  # None keeps the stored values
     assert (again.weight, again.max_running_jobs) == (weight, 3) == (u.weight, 3)
+
+
+
+def message(
+    store: Any, job_id: str, worker: str, dead: Callable[[str | None], bool] = lambda _: False
+) -> Claim:
+    """What a Celery run holding the message of ``job_id`` claims (lease 30 s, 2 attempts)."""
+    return claim_for_message(store, job_id, worker, 30.0, 2, 0, dead)
+
+
+def test_a_message_is_a_wake_up_token(store: Store) -> None:  # noqa: F811
+    a_jobs = add(store, "a", 2)
+    b_job = add(store, "b", 1)[0]
+    first = message(store, a_jobs[0], "h:1:x")
+    assert (first.outcome, first.job and first.job.id) == ("claimed", a_jobs[0])
+    # the message of a's second job runs b's job: a already runs one, b none
+    second = message(store, a_jobs[1], "h:2:y")
+    assert (second.outcome, second.job and second.job.id) == ("claimed", b_job)
+    # b's message then finds a's second job still waiting and runs it: no job is left behind
+    third = message(store, b_job, "h:3:z")
+    assert (third.outcome, third.job and third.job.id) == ("claimed", a_jobs[1])
+    # a duplicate with nothing accepted is dropped, saying what became of its job
+    dup = message(store, b_job, "h:4:w")
+    assert (dup.outcome, dup.holder) == ("held", "h:2:y")
+    assert message(store, "nope", "h:5:v").outcome == "missing"
+
+
+def test_a_dead_holders_job_is_taken_over_before_new_work(store: Store) -> None:  # noqa: F811
+    running = add(store, "a", 1)[0]
+    waiting = add(store, "b", 1)[0]
+    first = message(store, running, "h:1:dead")
+    assert first.job is not None and first.job.id == running
+    # a message of another job, delivered after the holder died: the orphan is run first
+    took = message(store, waiting, "h:2:new", lambda w: w == "h:1:dead")
+    assert (took.outcome, took.job and took.job.id) == ("taken_over", running)
+    rec = store.get_job(waiting)
+    assert rec is not None and rec.status == JobStatus.accepted
