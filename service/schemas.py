@@ -270,3 +270,42 @@ class Health(BaseModel):
 
     status: Literal["ok", "unavailable"]
     checks: dict[str, str] = Field(default_factory=dict)
+
+
+class UserAccount(BaseModel):
+    """One user in the admin's accounting table: settings, current load and usage so far."""
+
+    user: str = Field(description="user name")
+    is_admin: bool
+    weight: float = Field(description="fair-share weight (default 1)")
+    max_running_jobs: int | None = Field(
+        description="running cap while other users wait (null: PBA_MAX_RUNNING_PER_USER)"
+    )
+    max_queued_jobs: int | None = Field(description="null: the server's default")
+    max_job_observations: int | None = Field(description="null: the server's default")
+    waiting: int = Field(description="accepted jobs now")
+    running: int = Field(description="running jobs now")
+    jobs_successful: int = Field(description="finished runs, successful")
+    jobs_failed: int = Field(description="finished runs, failed (the worker measured the run)")
+    jobs_dismissed: int = Field(description="runs stopped by a cancellation")
+    cpu_seconds: float = Field(description="CPU seconds of the solving processes, all runs")
+    solve_seconds: float = Field(description="wall seconds of the solves, all runs")
+
+
+class Accounting(BaseModel):
+    """``GET /admin/users``: every user."""
+
+    users: list[UserAccount]
+
+
+class UserSettingsUpdate(BaseModel):
+    """``PATCH /admin/users/{name}``: the fields given are changed, the others kept."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    weight: float | None = Field(default=None, gt=0, le=1000, description="fair-share weight")
+    max_running_jobs: int | None = Field(
+        default=None, ge=0, le=100000, description="running cap while others wait (0: none)"
+    )
+    max_queued_jobs: int | None = Field(default=None, gt=0, le=10_000_000)
+    max_job_observations: int | None = Field(default=None, gt=0, le=1_000_000_000)

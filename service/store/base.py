@@ -289,6 +289,9 @@ class Store(Protocol):
     def usage(self) -> list[UsageRecord]:
         """Per-user accounting of finished runs."""
 
+    def active_by_owner(self) -> dict[str, tuple[int, int]]:
+        """(accepted, running) jobs per owner that has any."""
+
     def get_user(self, user_id: str) -> UserRecord | None:
         """By id."""
 

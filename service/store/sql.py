@@ -902,6 +902,25 @@ class SqlStore:
             counts[JobStatus(status)] = int(n)
         return counts
 
+    def active_by_owner(self) -> dict[str, tuple[int, int]]:
+        """(accepted, running) jobs per owner that has any."""
+        active = [JobStatus.accepted.value, JobStatus.running.value]
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                select(JobRow.owner, JobRow.status, func.count())
+                .where(JobRow.status.in_(active))
+                .group_by(JobRow.owner, JobRow.status)
+            ).all()
+        out: dict[str, tuple[int, int]] = {}
+        for owner, status, n in rows:
+            waiting, running = out.get(owner, (0, 0))
+            if status == JobStatus.accepted.value:
+                waiting += int(n)
+            else:
+                running += int(n)
+            out[owner] = (waiting, running)
+        return out
+
     def finished_since(self, after: datetime) -> list[FinishedRun]:
         """Solves that finished after ``after`` (with a start time), oldest first."""
         with self.engine.connect() as conn:
