@@ -153,6 +153,17 @@ class StatusInfo(BaseModel):
     updated: datetime
     progress: int = Field(ge=0, le=100)
     problems: list[dict[str, Any]] | None = None
+    queuePosition: int | None = Field(
+        default=None,
+        ge=1,
+        description="an accepted job's place among the waiting jobs in the fair-share order "
+        "(1: the next free worker takes it); on a job's own status document only",
+    )
+    estimatedStart: datetime | None = Field(
+        default=None,
+        description="an accepted job's estimated start (UTC), from the mean duration of recent "
+        "solves and the workers alive; absent without history or workers",
+    )
     links: list[Link]
 
 

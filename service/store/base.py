@@ -292,6 +292,11 @@ class Store(Protocol):
     def active_by_owner(self) -> dict[str, tuple[int, int]]:
         """(accepted, running) jobs per owner that has any."""
 
+    def queue_snapshot(
+        self, max_running_per_user: int = 0
+    ) -> tuple[list[Any], dict[str, Any], list[JobRecord]]:
+        """Accepted jobs (service.store.fair.Waiting), their users' loads, running jobs."""
+
     def get_user(self, user_id: str) -> UserRecord | None:
         """By id."""
 

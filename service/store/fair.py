@@ -20,7 +20,7 @@ inputs in the claiming transaction.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 
 NEVER = datetime.min.replace(tzinfo=timezone.utc)
@@ -60,3 +60,35 @@ def pick(heads: list[Head], loads: dict[str, OwnerLoad]) -> Head | None:
         return None
     contended = len({h.owner for h in heads}) > 1
     return min(heads, key=lambda h: order_key(h, loads.get(h.owner, OwnerLoad()), contended))
+
+
+@dataclass(frozen=True)
+class Waiting:
+    """An accepted job as the policy sees it."""
+
+    id: str
+    owner: str
+    small: bool
+    created: datetime
+
+
+def queue_order(waiting: list[Waiting], loads: dict[str, OwnerLoad]) -> list[str]:
+    """The ids of ``waiting`` in the order free workers would claim them if no running job
+    ended meanwhile (each claim counts as one more running job of its user, started now)."""
+    loads = dict(loads)
+    queues: dict[tuple[str, bool], list[Waiting]] = {}
+    for w in sorted(waiting, key=lambda w: (w.created, w.id)):
+        queues.setdefault((w.owner, w.small), []).append(w)
+    now = datetime.now(timezone.utc)
+    order: list[str] = []
+    while queues:
+        heads = [Head(o, sm, q[0].created) for (o, sm), q in queues.items()]
+        head = pick(heads, loads)
+        assert head is not None
+        q = queues[(head.owner, head.small)]
+        order.append(q.pop(0).id)
+        if not q:
+            del queues[(head.owner, head.small)]
+        load = loads.get(head.owner, OwnerLoad())
+        loads[head.owner] = replace(load, running=load.running + 1, last_started=now)
+    return order

@@ -51,7 +51,7 @@ from service.store.base import (
     UsageRecord,
     UserRecord,
 )
-from service.store.fair import Head, OwnerLoad, pick
+from service.store.fair import Head, OwnerLoad, Waiting, pick
 from service.store.payloads import pack, unpack
 
 
@@ -901,6 +901,33 @@ class SqlStore:
         for status, n in rows:
             counts[JobStatus(status)] = int(n)
         return counts
+
+    def queue_snapshot(
+        self, max_running_per_user: int = 0
+    ) -> tuple[list[Waiting], dict[str, OwnerLoad], list[JobRecord]]:
+        """What the fair-share policy sees now: the accepted jobs, their users' loads, and the
+        running jobs (for positions and start estimates; service.queue_view)."""
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                select(JobRow.id, JobRow.owner, JobRow.small, JobRow.created).where(
+                    JobRow.status == JobStatus.accepted.value
+                )
+            ).all()
+            waiting = [
+                Waiting(
+                    r.id,
+                    r.owner,
+                    bool(r.small),
+                    r.created if r.created.tzinfo else r.created.replace(tzinfo=timezone.utc),
+                )
+                for r in rows
+            ]
+            owners = sorted({w.owner for w in waiting})
+            loads = self._loads(conn, owners, max_running_per_user) if owners else {}
+            running = conn.execute(
+                select(JobRow).where(JobRow.status == JobStatus.running.value)
+            ).all()
+        return waiting, loads, [self._record(r) for r in running]
 
     def active_by_owner(self) -> dict[str, tuple[int, int]]:
         """(accepted, running) jobs per owner that has any."""

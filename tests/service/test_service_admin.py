@@ -114,3 +114,17 @@ def test_pba_admin_set_user_and_usage(tmp_path: Path) -> None:
     assert (row["weight"], row["max_running_jobs"], row["solve_seconds"]) == (2.0, 1, 4.0)
     table = pba("usage")
     assert "carol" in table.stdout and "4.0" in table.stdout
+
+
+def test_an_accepted_jobs_status_says_where_it_stands(deployment: Any) -> None:
+    c, keys, store = deployment
+    bob = next(u for u in store.list_users() if u.name == "bob")
+    first = store.create_job(bob.id, "bundle-adjustment", {"inputs": {}}, 1, "1").id
+    second = store.create_job(bob.id, "bundle-adjustment", {"inputs": {}}, 1, "2").id
+    headers = {"X-API-Key": keys["bob"]}
+    st = c.get(f"/jobs/{second}", headers=headers).json()
+    assert st["status"] == "accepted" and st["queuePosition"] == 2, st
+    assert "estimatedStart" not in st  # no worker in this deployment: no estimate
+    store.claim(first, "w")
+    assert "queuePosition" not in c.get(f"/jobs/{first}", headers=headers).json()
+    assert c.get(f"/jobs/{second}", headers=headers).json()["queuePosition"] == 1

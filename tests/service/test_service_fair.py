@@ -167,3 +167,37 @@ def test_a_dead_holders_job_is_taken_over_before_new_work(store: Store) -> None:
     assert (took.outcome, took.job and took.job.id) == ("taken_over", running)
     rec = store.get_job(waiting)
     assert rec is not None and rec.status == JobStatus.accepted
+
+
+def test_position_and_estimated_start_follow_the_policy(store: Store) -> None:  # noqa: F811
+    from datetime import timedelta
+
+    from sqlalchemy import update
+
+    from service.queue_view import placement
+    from service.store.sql import JobRow, utcnow
+
+    done = add(store, "c", 1)[0]
+    store.claim(done, "w")
+    store.complete(done, "w", "{}", "ok")
+    now = utcnow()
+    with store.engine.begin() as conn:  # type: ignore[attr-defined]
+        conn.execute(
+            update(JobRow)
+            .where(JobRow.id == done)
+            .values(started=now - timedelta(seconds=10), finished=now)
+        )
+    a_running, a1, a2 = add(store, "a", 3)
+    (b1,) = add(store, "b", 1)
+    store.claim(a_running, "w1")
+    # a runs one already: b's job is next although it is the newest
+    places = {j: placement(store, j, workers=1) for j in (a1, a2, b1)}
+    assert {j: p.position for j, p in places.items() if p} == {b1: 1, a1: 2, a2: 3}
+    starts = [places[j].estimated_start for j in (b1, a1, a2)]  # type: ignore[union-attr]
+    assert all(s is not None for s in starts)
+    # one worker, a mean solve of 10 s: each later job starts one mean solve after the one
+    # before it (datetime arithmetic on one heap: exact)
+    gaps = [later - earlier for earlier, later in zip(starts, starts[1:])]  # type: ignore
+    assert gaps == [timedelta(seconds=10)] * 2
+    assert placement(store, a_running, workers=1) is None  # running: not waiting
+    assert placement(store, b1, workers=0).estimated_start is None  # type: ignore[union-attr]
