@@ -320,3 +320,33 @@ class UserSettingsUpdate(BaseModel):
     )
     max_queued_jobs: int | None = Field(default=None, gt=0, le=10_000_000)
     max_job_observations: int | None = Field(default=None, gt=0, le=1_000_000_000)
+
+
+class RunningJob(BaseModel):
+    """A running job on the admin page."""
+
+    jobID: str
+    user: str
+    worker: str | None
+    progress: int
+    message: str
+    started: datetime | None
+
+
+class FailedJob(BaseModel):
+    """A recent failure on the admin page."""
+
+    jobID: str
+    user: str
+    finished: datetime | None
+    message: str
+
+
+class AdminOverview(BaseModel):
+    """``GET /admin/overview``: what the admin page shows."""
+
+    workers: int = Field(description="workers able to take jobs (this server's queue backend)")
+    queue: str = Field(description="queue backend and its readiness")
+    running: list[RunningJob]
+    failures: list[FailedJob] = Field(description="the most recent failed jobs, newest first")
+    users: list[UserAccount] = Field(description="per user: settings, load and accounting")

@@ -11,8 +11,18 @@ from service.accounting import accounting
 from service.deps import JSON_BODY, CurrentUser, ServicesDep
 from service.errors import Forbidden, NotFound, problem_responses
 from service.routes import StrictJSONRoute
-from service.schemas import Accounting, UserAccount, UserSettingsUpdate
+from service.schemas import (
+    Accounting,
+    AdminOverview,
+    FailedJob,
+    RunningJob,
+    UserAccount,
+    UserSettingsUpdate,
+)
+from service.states import JobStatus
 from service.store import UserRecord
+
+RECENT_FAILURES = 20
 
 router = APIRouter(prefix="/admin", tags=["admin"], route_class=StrictJSONRoute)
 
@@ -52,3 +62,35 @@ def update_user(
         raise NotFound(f"there is no user {name!r}")
     store.create_user(name, **body.model_dump(exclude_none=True))
     return next(a for a in accounting(store) if a.user == name)
+
+
+@router.get("/overview", response_model=AdminOverview, responses={**problem_responses(401, 403)})
+def overview(_: AdminUser, services: ServicesDep) -> AdminOverview:
+    """The admin page's data: workers alive, running jobs with their workers and progress,
+    recent failures, and every user's queue and accounting."""
+    store = services.store
+    names = {u.id: u.name for u in store.list_users()}
+    failed, _total = store.list_jobs(None, [JobStatus.failed], limit=RECENT_FAILURES)
+    ready, why = services.backend.ready()
+    return AdminOverview(
+        workers=services.backend.worker_count(),
+        queue=f"{services.settings.queue}: {why}" + ("" if ready else " (not ready)"),
+        running=[
+            RunningJob(
+                jobID=j.id,
+                user=names.get(j.owner, j.owner),
+                worker=j.worker,
+                progress=j.progress,
+                message=j.message,
+                started=j.started,
+            )
+            for j in sorted(store.running_jobs(), key=lambda j: (j.started is None, j.started))
+        ],
+        failures=[
+            FailedJob(
+                jobID=j.id, user=names.get(j.owner, j.owner), finished=j.finished, message=j.message
+            )
+            for j in failed
+        ],
+        users=accounting(store),
+    )

@@ -128,3 +128,22 @@ def test_an_accepted_jobs_status_says_where_it_stands(deployment: Any) -> None:
     store.claim(first, "w")
     assert "queuePosition" not in c.get(f"/jobs/{first}", headers=headers).json()
     assert c.get(f"/jobs/{second}", headers=headers).json()["queuePosition"] == 1
+
+
+def test_overview_lists_running_jobs_and_failures(deployment: Any) -> None:
+    c, keys, store = deployment
+    bob = next(u for u in store.list_users() if u.name == "bob")
+    running = store.create_job(bob.id, "bundle-adjustment", {"inputs": {}}, 1, "r").id
+    store.claim(running, "host:42")
+    broken = store.create_job(bob.id, "bundle-adjustment", {"inputs": {}}, 1, "f").id
+    store.claim(broken, "host:43")
+    store.fail(broken, "the solver gave up", {"status": 422}, worker="host:43")
+    assert c.get("/admin/overview", headers={"X-API-Key": keys["bob"]}).status_code == 403
+    r = c.get("/admin/overview", headers={"X-API-Key": keys["root"]})
+    assert r.status_code == 200, r.text
+    o = r.json()
+    assert [(j["jobID"], j["user"], j["worker"]) for j in o["running"]] == [
+        (running, "bob", "host:42")
+    ]
+    assert [(j["jobID"], j["message"]) for j in o["failures"]] == [(broken, "the solver gave up")]
+    assert o["workers"] == 0 and {u["user"] for u in o["users"]} == {"root", "bob"}
