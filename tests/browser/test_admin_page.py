@@ -4,7 +4,6 @@ is told it is for admins only."""
 
 from __future__ import annotations
 
-import copy
 import json
 from pathlib import Path
 from typing import Any
@@ -25,6 +24,20 @@ def use_key(page: Any, server: Server, key: str) -> None:
     page.goto(f"{server.url}/ui/admin")
 
 
+def record_failure(server: Server, user: str) -> str:
+    """A job of ``user`` failed by a worker, written into the store as a worker records it
+    (an invalid job is refused at submission, so it never reaches a worker)."""
+    store = server.store()
+    try:
+        owner = next(u.id for u in store.list_users() if u.name == user)
+        rec = store.create_job(owner, "bundle-adjustment", {"job": {}}, 1, "broken")
+        assert store.claim(rec.id, "elsewhere:1") is not None
+        assert store.fail(rec.id, "no-such-image", {"status": 422}, "elsewhere:1", (0.5, 1.0))
+    finally:
+        store.close()
+    return rec.id
+
+
 def test_admin_page_shows_queue_workers_failures_and_accounting(
     page: Any, keyed_server: Server, big_job_file: Path, artifacts: Path
 ) -> None:
@@ -33,10 +46,7 @@ def test_admin_page_shows_queue_workers_failures_and_accounting(
     with httpx.Client(base_url=keyed_server.url, headers={"X-API-Key": dave}, timeout=120) as c:
         done = submit_async(c, load_example("prism-triplet.json"))
         wait_status(c, done, {"successful"}, timeout=240)
-        bad = copy.deepcopy(load_example("prism-nadir.json"))
-        bad["observations"][0]["image"] = "no-such-image"
-        failed = submit_async(c, bad)
-        wait_status(c, failed, {"failed"}, timeout=240)
+        failed = record_failure(keyed_server, "dave")
         long = submit_async(c, json.loads(big_job_file.read_text()))
         wait_status(c, long, {"running"}, timeout=240)
         try:
