@@ -2,7 +2,7 @@
 (service.store.fair.queue_order) and an estimated start time.
 
 The estimate assumes every solve takes the mean duration of the last
-:data:`RECENT_RUNS` finished solves (started to finished): each running job is expected to
+:data:`RECENT_RUNS` finished solves (started to finished, cancelled ones included): each running job is expected to
 end at its start plus that mean (now at the earliest), each free worker takes the next job in
 the order. Without any finished solve, or without a worker, there is no estimate.
 """
@@ -17,7 +17,6 @@ from service.store import Store
 from service.store.fair import queue_order
 
 RECENT_RUNS = 50
-HISTORY = timedelta(days=7)
 
 
 @dataclass(frozen=True)
@@ -29,9 +28,8 @@ class Placement:
 
 
 def mean_solve_s(store: Store) -> float | None:
-    """Mean start-to-finish seconds of the last :data:`RECENT_RUNS` solves (past week)."""
-    now = datetime.now(timezone.utc)
-    runs = store.finished_since(now - HISTORY)[-RECENT_RUNS:]
+    """Mean start-to-finish seconds of the last :data:`RECENT_RUNS` solves."""
+    runs = store.recent_runs(RECENT_RUNS)
     if not runs:
         return None
     return sum(max(0.0, (r.finished - r.started).total_seconds()) for r in runs) / len(runs)

@@ -292,6 +292,9 @@ class Store(Protocol):
     def active_by_owner(self) -> dict[str, tuple[int, int]]:
         """(accepted, running) jobs per owner that has any."""
 
+    def recent_runs(self, limit: int) -> list[FinishedRun]:
+        """The ``limit`` solves that finished last, newest first."""
+
     def queue_snapshot(
         self, max_running_per_user: int = 0
     ) -> tuple[list[Any], dict[str, Any], list[JobRecord]]:

@@ -929,6 +929,17 @@ class SqlStore:
             ).all()
         return waiting, loads, [self._record(r) for r in running]
 
+    def recent_runs(self, limit: int) -> list[FinishedRun]:
+        """The ``limit`` solves that finished last (with a start time), newest first."""
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                select(JobRow.id, JobRow.status, JobRow.started, JobRow.finished)
+                .where(JobRow.finished.is_not(None), JobRow.started.is_not(None))
+                .order_by(JobRow.finished.desc())
+                .limit(limit)
+            ).all()
+        return [FinishedRun(r.id, JobStatus(r.status), r.started, r.finished) for r in rows]
+
     def active_by_owner(self) -> dict[str, tuple[int, int]]:
         """(accepted, running) jobs per owner that has any."""
         active = [JobStatus.accepted.value, JobStatus.running.value]
