@@ -36,7 +36,16 @@ from service.store import open_store
 log = logging.getLogger("pba.service")
 
 # every router module, in the order their routes are matched; optional ones may be absent
-ROUTER_MODULES: tuple[str, ...] = ("landing", "processes", "jobs", "cameras", "ops", "ui", "plots")
+ROUTER_MODULES: tuple[str, ...] = (
+    "landing",
+    "processes",
+    "jobs",
+    "cameras",
+    "ops",
+    "admin",
+    "ui",
+    "plots",
+)
 OPTIONAL_ROUTERS = frozenset({"ui", "plots"})
 
 API_VERSION = "1.0.0"

@@ -3,6 +3,9 @@
 
 Messages carry only a job id; the store holds everything else (inputs, status, progress,
 cancel flag, report), so any worker that reaches the broker and the database can run any job.
+A message is a wake-up token: the run that receives it takes over an orphaned job if there is
+one, else claims the job the fair-share policy picks (:func:`service.store.leases.
+claim_for_message`; README "Fair sharing"), which need not be the job the message names.
 
 * **Delivery**: ``acks_late`` + ``reject_on_worker_lost``: a message is acknowledged when its
   run ends; if the pool process dies (``kill -9``, SIGSEGV, glog FATAL in a solve) Celery puts
@@ -173,7 +176,7 @@ def execute_job(job_id: str) -> str:
     shutdown."""
     from service.execution import SHUTDOWN, RunLimits, run_claimed_job
     from service.states import JobStatus
-    from service.store.leases import claim_run, run_token
+    from service.store.leases import claim_for_message, run_token
 
     settings = RT.settings
     assert settings is not None, "execute_job runs in a pba worker"
@@ -181,14 +184,25 @@ def execute_job(job_id: str) -> str:
     token = run_token()
     extra = {"job_id": job_id, "worker": token}
     try:
-        claim = claim_run(store, job_id, token, settings.lease_s, settings.max_attempts)
+        claim = claim_for_message(
+            store,
+            job_id,
+            token,
+            settings.lease_s,
+            settings.max_attempts,
+            settings.max_running_per_user,
+        )
     except Exception as exc:
         log.warning("could not claim the job: %s", exc, extra=extra)
         raise StoreUnavailable(str(exc)) from exc
+    if claim.outcome == "contended":
+        raise StoreUnavailable("every claim lost a race with other workers")
     if not claim.runnable:
         log.info("message dropped: job %s", claim.outcome, extra={**extra, "status": claim.outcome})
         return claim.outcome
     assert claim.job is not None
+    job_id = claim.job.id  # the message is a wake-up token: the policy chose the job
+    extra = {"job_id": job_id, "worker": token}
     log.info(
         "claimed job (%s, run %d)",
         claim.outcome,

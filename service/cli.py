@@ -61,7 +61,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     prune.set_defaults(func=cmd_db_prune)
     db.set_defaults(func=lambda args: db.print_help() or 2)
 
-    admin = subparsers.add_parser("admin", help="administration: API keys")
+    admin = subparsers.add_parser("admin", help="administration: API keys, users, accounting")
     admin_sub = admin.add_subparsers(dest="admin_command", metavar="ACTION")
     ck = admin_sub.add_parser("create-key", help="create a user's API key (printed once)")
     ck.add_argument("--user", required=True, help="user name (created if new)")
@@ -74,6 +74,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ck.add_argument("--max-queued-jobs", type=int, default=None, help="per-user limit")
     ck.add_argument("--max-job-observations", type=int, default=None, help="per-user limit")
     ck.set_defaults(func=cmd_create_key)
+    su = admin_sub.add_parser("set-user", help="set a user's fair-share weight and limits")
+    su.add_argument("--user", required=True, help="user name (must exist)")
+    su.add_argument("--weight", type=float, default=None, help="fair-share weight (default 1)")
+    su.add_argument(
+        "--max-running-jobs", type=int, default=None, help="running cap while others wait"
+    )
+    su.add_argument("--max-queued-jobs", type=int, default=None, help="per-user limit")
+    su.add_argument("--max-job-observations", type=int, default=None, help="per-user limit")
+    su.set_defaults(func=cmd_set_user)
+    us = admin_sub.add_parser("usage", help="per-user accounting: jobs, CPU and solve seconds")
+    us.add_argument("--json", action="store_true", help="JSON instead of a table")
+    us.set_defaults(func=cmd_usage)
     rk = admin_sub.add_parser("revoke-key", help="revoke a key by its prefix (pba_<prefix>_...)")
     rk.add_argument("prefix")
     rk.set_defaults(func=cmd_revoke_key)
@@ -137,6 +149,57 @@ def cmd_create_key(args: argparse.Namespace) -> int:
         "keep this key, it is not shown again",
         file=sys.stderr,
     )
+    return 0
+
+
+def cmd_set_user(args: argparse.Namespace) -> int:
+    """Change a user's weight and limits (the ones given)."""
+    from service.schemas import UserSettingsUpdate
+    from service.store import open_store
+
+    fields = {
+        k: getattr(args, k)
+        for k in ("weight", "max_running_jobs", "max_queued_jobs", "max_job_observations")
+    }
+    try:
+        update = UserSettingsUpdate(**fields)
+    except ValueError as exc:
+        print(f"invalid setting: {exc}", file=sys.stderr)
+        return 2
+    store = open_store(_settings(args).resolved_database_url)
+    try:
+        if not any(u.name == args.user for u in store.list_users()):
+            print(f"no user {args.user!r}", file=sys.stderr)
+            return 1
+        store.create_user(args.user, **update.model_dump(exclude_none=True))
+    finally:
+        store.close()
+    return 0
+
+
+def cmd_usage(args: argparse.Namespace) -> int:
+    """Print the accounting table."""
+    import json
+
+    from service.accounting import accounting
+    from service.store import open_store
+
+    store = open_store(_settings(args).resolved_database_url)
+    try:
+        rows = accounting(store)
+    finally:
+        store.close()
+    if args.json:
+        print(json.dumps([r.model_dump() for r in rows], indent=1))
+        return 0
+    header = ("user", "weight", "wait", "run", "ok", "failed", "dism.", "cpu_s", "solve_s")
+    print("{:<20} {:>6} {:>5} {:>4} {:>6} {:>6} {:>6} {:>10} {:>10}".format(*header))
+    for r in rows:
+        print(
+            f"{r.user[:20]:<20} {r.weight:>6g} {r.waiting:>5} {r.running:>4} "
+            f"{r.jobs_successful:>6} {r.jobs_failed:>6} {r.jobs_dismissed:>6} "
+            f"{r.cpu_seconds:>10.1f} {r.solve_seconds:>10.1f}"
+        )
     return 0
 
 

@@ -154,7 +154,12 @@ def run_claimed_job(
     if document is None:
         ok = store.fail(job.id, "the job's inputs are missing from the store", worker=worker)
         return JobStatus.failed if ok else None
-    t0 = time.monotonic()
+    t0, cpu0 = time.monotonic(), time.process_time()
+
+    def usage() -> tuple[float, float]:
+        """(CPU seconds of this process, all threads; wall seconds) since the solve began."""
+        return time.process_time() - cpu0, time.monotonic() - t0
+
     log.info("solve started (attempt %d)", job.attempts, extra=extra)
     try:
         report = solve(document, job.process_id, hooks)
@@ -167,12 +172,13 @@ def run_claimed_job(
                 f"time limit of {limits.job_time_limit_s:g} s exceeded; the solve was stopped",
                 {"status": 500, "code": "time_limit"},
                 worker=worker,
+                usage=usage(),
             )
             return JobStatus.failed if ok else None
         if reason == SHUTDOWN:
             store.requeue(job.id, worker, "re-queued: the server stopped during the solve", False)
             return None
-        ok = store.finish_cancelled(job.id, worker, "cancelled by the user")
+        ok = store.finish_cancelled(job.id, worker, "cancelled by the user", usage())
         return JobStatus.dismissed if ok else None
     except JobError as exc:
         problems = exc.to_dict()["problems"]
@@ -181,6 +187,7 @@ def run_claimed_job(
             str(exc) if isinstance(exc, UnusableSolution) else f"invalid job: {exc}",
             {"status": 422, "code": exc.code, "errors": problem_entries(problems)},
             worker=worker,
+            usage=usage(),
         )
         log.info("solve failed: %s", exc, extra=extra)
         return JobStatus.failed if ok else None
@@ -194,6 +201,7 @@ def run_claimed_job(
                 "errors": pydantic_errors(exc.errors(), ("inputs", "job")),
             },
             worker=worker,
+            usage=usage(),
         )
         return JobStatus.failed if ok else None
     except Exception as exc:  # a bug in the solver: fail the job, keep the worker
@@ -203,9 +211,11 @@ def run_claimed_job(
             f"internal solver error: {type(exc).__name__}: {exc}",
             {"status": 500, "code": "internal"},
             worker=worker,
+            usage=usage(),
         )
         return JobStatus.failed if ok else None
-    elapsed = time.monotonic() - t0
+    spent = usage()
+    elapsed = spent[1]
     try:
         text = report_to_json(report)
     except Exception as exc:
@@ -214,8 +224,9 @@ def run_claimed_job(
             f"the report could not be serialized: {exc}",
             {"status": 500, "code": "internal"},
             worker=worker,
+            usage=spent,
         )
         return JobStatus.failed if ok else None
-    ok = store.complete(job.id, worker, text, f"finished in {elapsed:.2f} s")
+    ok = store.complete(job.id, worker, text, f"finished in {elapsed:.2f} s", spent)
     log.info("solve finished in %.3f s", elapsed, extra=extra)
     return JobStatus.successful if ok else None

@@ -23,6 +23,7 @@ from service.errors import (
 from service.problems import job_error_entries, problem_entries, pydantic_errors
 from service.processes import MODEL_COMPARISON, PROCESSES
 from service.queue import QueueBackend
+from service.queue_view import Placement, placement
 from service.retention import check_quota
 from service.schemas import ExecuteInputs, Link, StatusInfo
 from service.settings import Settings
@@ -120,8 +121,12 @@ class JobService:
             user.max_job_observations or self.settings.max_job_observations,
         )
 
-    def submit(self, user: UserRecord, process_id: str, inputs: ExecuteInputs) -> JobRecord:
-        """Validate, check the user's limits, store as accepted, and queue."""
+    def submit(
+        self, user: UserRecord, process_id: str, inputs: ExecuteInputs, sync: bool = False
+    ) -> JobRecord:
+        """Validate, check the user's limits, store as accepted, and queue. Jobs of at most
+        ``small_job_observations`` observations and ``sync`` requests (a client waiting for
+        the answer) take the small-job lane (service.store.fair)."""
         check_process(process_id)
         max_queued, max_obs = self.limits_of(user)
         n_obs = len(inputs.job.observations)
@@ -135,9 +140,18 @@ class JobService:
                 headers={"Retry-After": "10"},
             )
         job: Job = inputs.job
-        rec = self.store.create_job(user.id, process_id, document, n_obs, job.name)
+        small = sync or n_obs <= self.settings.small_job_observations
+        rec = self.store.create_job(user.id, process_id, document, n_obs, job.name, small)
         self.backend.submit(rec.id)
         return rec
+
+    def placement_of(self, rec: JobRecord) -> Placement | None:
+        """Position and estimated start of an accepted job (service.queue_view), else None."""
+        if rec.status != JobStatus.accepted:
+            return None
+        return placement(
+            self.store, rec.id, self.backend.worker_count(), self.settings.max_running_per_user
+        )
 
     def get_visible(self, job_id: str, user: UserRecord) -> JobRecord:
         """The job if ``user`` may see it (owner or admin), else NoSuchJob (404, not 403)."""
@@ -172,8 +186,10 @@ def results_text(rec: JobRecord) -> str:
     raise ResultNotReady(f"the job is {rec.status.value}; results are not ready yet")
 
 
-def status_info(rec: JobRecord, base_url: str) -> StatusInfo:
-    """The OGC status document of a job."""
+def status_info(
+    rec: JobRecord, base_url: str, placement: Placement | None = None
+) -> StatusInfo:
+    """The OGC status document of a job (with an accepted job's ``placement`` when given)."""
     href = f"{base_url}jobs/{rec.id}"
     links = [
         Link(href=href, rel="self", type="application/json", title="job status"),
@@ -213,5 +229,7 @@ def status_info(rec: JobRecord, base_url: str) -> StatusInfo:
         updated=rec.updated,
         progress=rec.progress,
         problems=problems,
+        queuePosition=placement.position if placement else None,
+        estimatedStart=placement.estimated_start if placement else None,
         links=links,
     )

@@ -6,7 +6,11 @@ backend and agree between API processes and across restarts.
 * ``pba_workers``: workers able to take jobs (this server's backend);
 * ``pba_solve_duration_seconds{status}``: start-to-finish time (seconds) of every finished
   solve the store holds (histogram built from the store's finished jobs at each scrape; it
-  shrinks when jobs are deleted from the store, which Prometheus reads as a counter reset).
+  shrinks when jobs are deleted from the store, which Prometheus reads as a counter reset);
+* ``pba_user_jobs_total{user,status}``, ``pba_user_cpu_seconds_total{user}``,
+  ``pba_user_solve_seconds_total{user}``: the per-user accounting of finished runs
+  (``user_usage``, kept when jobs are pruned; README "Fair sharing");
+* ``pba_user_active_jobs{user,status}``: each user's accepted and running jobs now.
 """
 
 from __future__ import annotations
@@ -16,7 +20,12 @@ from datetime import datetime, timezone
 from typing import Iterator
 
 from prometheus_client import CollectorRegistry, generate_latest
-from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily, Metric
+from prometheus_client.core import (
+    CounterMetricFamily,
+    GaugeMetricFamily,
+    HistogramMetricFamily,
+    Metric,
+)
 
 from service.queue import QueueBackend
 from service.states import JobStatus
@@ -68,6 +77,35 @@ class StoreCollector:
             "pba_workers", "Workers able to take jobs", value=self.backend.worker_count()
         )
         yield duration_histogram(self.store.finished_since(EPOCH))
+        yield from user_metrics(self.store)
+
+
+def user_metrics(store: Store) -> Iterator[Metric]:
+    """The per-user accounting and load (see module docstring)."""
+    names = {u.id: u.name for u in store.list_users()}
+    jobs = CounterMetricFamily(
+        "pba_user_jobs", "Finished runs per user and outcome", labels=["user", "status"]
+    )
+    cpu = CounterMetricFamily(
+        "pba_user_cpu_seconds", "CPU seconds of the solving processes per user", labels=["user"]
+    )
+    solve = CounterMetricFamily(
+        "pba_user_solve_seconds", "Wall seconds of solves per user", labels=["user"]
+    )
+    for u in store.usage():
+        jobs.add_metric([u.name, JobStatus.successful.value], u.jobs_successful)
+        jobs.add_metric([u.name, JobStatus.failed.value], u.jobs_failed)
+        jobs.add_metric([u.name, JobStatus.dismissed.value], u.jobs_dismissed)
+        cpu.add_metric([u.name], u.cpu_s)
+        solve.add_metric([u.name], u.solve_s)
+    active = GaugeMetricFamily(
+        "pba_user_active_jobs", "Accepted and running jobs per user now", labels=["user", "status"]
+    )
+    for owner, (waiting, running) in sorted(store.active_by_owner().items()):
+        name = names.get(owner, owner)
+        active.add_metric([name, JobStatus.accepted.value], waiting)
+        active.add_metric([name, JobStatus.running.value], running)
+    yield from (jobs, cpu, solve, active)
 
 
 class Metrics:

@@ -153,6 +153,17 @@ class StatusInfo(BaseModel):
     updated: datetime
     progress: int = Field(ge=0, le=100)
     problems: list[dict[str, Any]] | None = None
+    queuePosition: int | None = Field(
+        default=None,
+        ge=1,
+        description="an accepted job's place among the waiting jobs in the fair-share order "
+        "(1: the next free worker takes it); on a job's own status document only",
+    )
+    estimatedStart: datetime | None = Field(
+        default=None,
+        description="an accepted job's estimated start (UTC), from the mean duration of recent "
+        "solves and the workers alive; absent without history or workers",
+    )
     links: list[Link]
 
 
@@ -270,3 +281,72 @@ class Health(BaseModel):
 
     status: Literal["ok", "unavailable"]
     checks: dict[str, str] = Field(default_factory=dict)
+
+
+class UserAccount(BaseModel):
+    """One user in the admin's accounting table: settings, current load and usage so far."""
+
+    user: str = Field(description="user name")
+    is_admin: bool
+    weight: float = Field(description="fair-share weight (default 1)")
+    max_running_jobs: int | None = Field(
+        description="running cap while other users wait (null: PBA_MAX_RUNNING_PER_USER)"
+    )
+    max_queued_jobs: int | None = Field(description="null: the server's default")
+    max_job_observations: int | None = Field(description="null: the server's default")
+    waiting: int = Field(description="accepted jobs now")
+    running: int = Field(description="running jobs now")
+    jobs_successful: int = Field(description="finished runs, successful")
+    jobs_failed: int = Field(description="finished runs, failed (the worker measured the run)")
+    jobs_dismissed: int = Field(description="runs stopped by a cancellation")
+    cpu_seconds: float = Field(description="CPU seconds of the solving processes, all runs")
+    solve_seconds: float = Field(description="wall seconds of the solves, all runs")
+
+
+class Accounting(BaseModel):
+    """``GET /admin/users``: every user."""
+
+    users: list[UserAccount]
+
+
+class UserSettingsUpdate(BaseModel):
+    """``PATCH /admin/users/{name}``: the fields given are changed, the others kept."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    weight: float | None = Field(default=None, gt=0, le=1000, description="fair-share weight")
+    max_running_jobs: int | None = Field(
+        default=None, ge=0, le=100000, description="running cap while others wait (0: none)"
+    )
+    max_queued_jobs: int | None = Field(default=None, gt=0, le=10_000_000)
+    max_job_observations: int | None = Field(default=None, gt=0, le=1_000_000_000)
+
+
+class RunningJob(BaseModel):
+    """A running job on the admin page."""
+
+    jobID: str
+    user: str
+    worker: str | None
+    progress: int
+    message: str
+    started: datetime | None
+
+
+class FailedJob(BaseModel):
+    """A recent failure on the admin page."""
+
+    jobID: str
+    user: str
+    finished: datetime | None
+    message: str
+
+
+class AdminOverview(BaseModel):
+    """``GET /admin/overview``: what the admin page shows."""
+
+    workers: int = Field(description="workers able to take jobs (this server's queue backend)")
+    queue: str = Field(description="queue backend and its readiness")
+    running: list[RunningJob]
+    failures: list[FailedJob] = Field(description="the most recent failed jobs, newest first")
+    users: list[UserAccount] = Field(description="per user: settings, load and accounting")

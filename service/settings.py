@@ -79,6 +79,17 @@ class Settings(BaseSettings):
     cancel_poll_interval_s: float = Field(0.2, gt=0, description="cancel flag reads, at most every")
     sse_interval_s: float = Field(0.5, gt=0, description="SSE stream's status poll interval")
     shutdown_grace_s: float = Field(10.0, ge=0, description="stop: wait for workers this long")
+    # -- fair sharing (README "Fair sharing") -------------------------------------------
+    max_running_per_user: int = Field(
+        0,
+        ge=0,
+        description="while other users wait, a user's running jobs are capped at this (0: no cap)",
+    )
+    small_job_observations: int = Field(
+        5000,
+        ge=0,
+        description="jobs with at most this many observations take the small-job lane",
+    )
     # -- distributed queue (PBA_QUEUE=celery; docs: README "Scaling out") -----------------
     broker_url: str = Field(
         "redis://127.0.0.1:6379/0", description="Celery broker URL (PBA_QUEUE=celery)"

@@ -86,6 +86,7 @@ class LocalPoolBackend:
             ),
             log_level=settings.log_level,
             log_format=settings.log_format,
+            max_running_per_user=settings.max_running_per_user,
         )
 
     # -- QueueBackend ----------------------------------------------------------------------

@@ -29,6 +29,7 @@ class WorkerConfig:
     limits: RunLimits
     log_level: str = "INFO"
     log_format: str = "json"
+    max_running_per_user: int = 0  # PBA_MAX_RUNNING_PER_USER (service.store.fair)
 
 
 def worker_id(pid: int | None = None) -> str:
@@ -66,7 +67,7 @@ def worker_main(cfg: WorkerConfig, stop: Any, wake: Any) -> None:
     try:
         while stop_reason() is None:
             try:
-                job = store.claim_next(me)
+                job = store.claim_next(me, cfg.max_running_per_user)
             except Exception:
                 log.exception("could not claim a job", extra={"worker": me})
                 stop.wait(1.0)

@@ -102,9 +102,10 @@ def validate_job(
 @router.get(
     "/{jobId}", response_model=StatusInfo, response_model_exclude_none=True, responses=NOT_FOUND
 )
-def get_status(job: VisibleJob, base: BaseUrl) -> StatusInfo:
-    """Status of a job: state, progress 0-100 (never decreasing), message, times, links."""
-    return status_info(job, base)
+def get_status(job: VisibleJob, services: ServicesDep, base: BaseUrl) -> StatusInfo:
+    """Status of a job: state, progress 0-100 (never decreasing), message, times, links; an
+    accepted job's position among the waiting jobs and estimated start."""
+    return status_info(job, base, services.jobs.placement_of(job))
 
 
 @router.delete(

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Header, Path
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
-from service.deps import JSON_BODY, BaseUrl, CurrentUser, ServicesDep
+from service.deps import JSON_BODY, BaseUrl, CurrentUser, Services, ServicesDep
 from service.errors import NoSuchProcess, ServiceError, problem_responses
 from service.jobs import results_text, status_info
 from service.processes import PROCESSES, describe
@@ -58,11 +58,13 @@ def get_process(processId: ProcessId, base: BaseUrl) -> ProcessDescription:
     return describe(processId, base)
 
 
-def _accepted(rec: JobRecord, base: str, preference: bool) -> JSONResponse:
+async def _accepted(
+    rec: JobRecord, base: str, preference: bool, services: Services
+) -> JSONResponse:
     headers = {"Location": f"{base}jobs/{rec.id}"}
     if preference:
         headers["Preference-Applied"] = "respond-async"
-    info = status_info(rec, base)
+    info = status_info(rec, base, await run_in_threadpool(services.jobs.placement_of, rec))
     return JSONResponse(info.model_dump(mode="json", exclude_none=True), 201, headers=headers)
 
 
@@ -90,22 +92,23 @@ async def execute(
 ) -> Response:
     """Execute a process: ``Prefer: respond-async`` answers 201 with the job's Location; otherwise
     a small job is solved before answering (200 with the report), a large one answers 201."""
-    rec = await run_in_threadpool(services.jobs.submit, user, processId, body.inputs)
     wants_async = "respond-async" in (prefer or "").lower() or body.mode == "async"
     settings = services.settings
-    if (
+    sync = not (
         wants_async
-        or rec.n_observations > settings.sync_max_observations
+        or len(body.inputs.job.observations) > settings.sync_max_observations
         or settings.sync_timeout_s <= 0
         or services.backend.worker_count() == 0
-    ):
-        return _accepted(rec, base, wants_async)
+    )
+    rec = await run_in_threadpool(services.jobs.submit, user, processId, body.inputs, sync)
+    if not sync:
+        return await _accepted(rec, base, wants_async, services)
     deadline = time.monotonic() + settings.sync_timeout_s
     started = time.monotonic()
     delay = 0.01  # poll the store every 10 ms for the first second (small jobs), then back off
     while rec.status not in FINISHED:
         if time.monotonic() > deadline:
-            return _accepted(rec, base, False)
+            return await _accepted(rec, base, False, services)
         await asyncio.sleep(delay)
         if time.monotonic() - started > 1.0:
             delay = min(delay * 1.5, 0.25)

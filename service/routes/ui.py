@@ -41,12 +41,23 @@ PAGE_HEADERS = {
 }
 
 
-@router.get("/ui", response_class=HTMLResponse)
-def page(base: BaseUrl) -> HTMLResponse:
-    """The web page (its links resolve against the server's base URL)."""
-    html = (STATIC_DIR / "index.html").read_text(encoding="utf-8")
+def _html(name: str, base: str) -> HTMLResponse:
+    """A page of service/static/ui/ with its links resolving against the server's base URL."""
+    html = (STATIC_DIR / name).read_text(encoding="utf-8")
     base_attr = base.replace("&", "&amp;").replace('"', "&quot;").replace("<", "&lt;")
     return HTMLResponse(html.replace("{{BASE}}", base_attr), headers=PAGE_HEADERS)
+
+
+@router.get("/ui", response_class=HTMLResponse)
+def page(base: BaseUrl) -> HTMLResponse:
+    """The web page."""
+    return _html("index.html", base)
+
+
+@router.get("/ui/admin", response_class=HTMLResponse)
+def admin_page(base: BaseUrl) -> HTMLResponse:
+    """The admin page (its data, ``GET /admin/overview``, answers admins only)."""
+    return _html("admin.html", base)
 
 
 @router.get("/ui/assets/{name}")

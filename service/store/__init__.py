@@ -7,6 +7,7 @@ from service.store.base import (
     JobRecord,
     PrunedJob,
     Store,
+    UsageRecord,
     UserRecord,
 )
 
@@ -25,6 +26,7 @@ __all__ = [
     "JobRecord",
     "PrunedJob",
     "Store",
+    "UsageRecord",
     "UserRecord",
     "open_store",
 ]

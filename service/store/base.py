@@ -46,6 +46,9 @@ class JobRecord:
     cancel_requested: str | None = None
     n_observations: int = 0
     error: dict[str, Any] | None = None
+    small: bool = False  # the small-job lane (service.store.fair)
+    cpu_s: float | None = None  # CPU seconds of the solving process in the finishing run
+    solve_s: float | None = None  # wall seconds of that run's solve
     _load_results: Callable[[str], str | None] | None = field(
         default=None, repr=False, compare=False
     )
@@ -88,6 +91,21 @@ class UserRecord:
     created: datetime
     max_queued_jobs: int | None = None
     max_job_observations: int | None = None
+    weight: float | None = None  # fair-share weight (None: 1)
+    max_running_jobs: int | None = None  # running cap while others wait (None: the default)
+
+
+@dataclass(frozen=True)
+class UsageRecord:
+    """Per-user accounting of finished runs: counts by outcome, CPU and solve seconds."""
+
+    user_id: str
+    name: str
+    jobs_successful: int
+    jobs_failed: int
+    jobs_dismissed: int
+    cpu_s: float
+    solve_s: float
 
 
 @dataclass(frozen=True)
@@ -148,9 +166,15 @@ class Store(Protocol):
 
     # -- jobs: API side --------------------------------------------------------------------
     def create_job(
-        self, owner: str, process_id: str, document: dict[str, Any], n_observations: int, name: str
+        self,
+        owner: str,
+        process_id: str,
+        document: dict[str, Any],
+        n_observations: int,
+        name: str,
+        small: bool = False,
     ) -> JobRecord:
-        """Insert an ``accepted`` job."""
+        """Insert an ``accepted`` job (``small``: the small-job lane)."""
 
     def get_job(self, job_id: str) -> JobRecord | None:
         """One job or None."""
@@ -172,8 +196,10 @@ class Store(Protocol):
         """Dismiss an accepted or finished job, or flag a running one; the record after."""
 
     # -- jobs: worker side -----------------------------------------------------------------
-    def claim_next(self, worker: str) -> JobRecord | None:
-        """Oldest accepted job -> running."""
+    def claim_next(
+        self, worker: str, max_running_per_user: int = 0, **extra: Any
+    ) -> JobRecord | None:
+        """The accepted job the fair-share policy picks (service.store.fair) -> running."""
 
     def claim(self, job_id: str, worker: str) -> JobRecord | None:
         """This job -> running."""
@@ -184,8 +210,15 @@ class Store(Protocol):
     def set_progress(self, job_id: str, worker: str, progress: int, message: str) -> bool:
         """Raise progress (never lowers it) of a job this worker runs."""
 
-    def complete(self, job_id: str, worker: str, results_text: str, message: str) -> bool:
-        """running -> successful with the report."""
+    def complete(
+        self,
+        job_id: str,
+        worker: str,
+        results_text: str,
+        message: str,
+        usage: tuple[float, float] | None = None,
+    ) -> bool:
+        """running -> successful with the report; ``usage`` (CPU s, solve s) is accounted."""
 
     def fail(
         self,
@@ -193,10 +226,13 @@ class Store(Protocol):
         message: str,
         error: dict[str, Any] | None = None,
         worker: str | None = None,
+        usage: tuple[float, float] | None = None,
     ) -> bool:
         """accepted/running -> failed (only this worker's run when ``worker`` is given)."""
 
-    def finish_cancelled(self, job_id: str, worker: str, message: str) -> bool:
+    def finish_cancelled(
+        self, job_id: str, worker: str, message: str, usage: tuple[float, float] | None = None
+    ) -> bool:
         """running -> dismissed after a cancel request."""
 
     def requeue(self, job_id: str, worker: str, message: str, count_attempt: bool = True) -> bool:
@@ -242,8 +278,27 @@ class Store(Protocol):
         is_admin: bool | None = None,
         max_queued_jobs: int | None = None,
         max_job_observations: int | None = None,
+        weight: float | None = None,
+        max_running_jobs: int | None = None,
     ) -> UserRecord:
         """Create a user, or update the given fields of the existing one of that name."""
+
+    def list_users(self) -> list[UserRecord]:
+        """Every user, by name."""
+
+    def usage(self) -> list[UsageRecord]:
+        """Per-user accounting of finished runs."""
+
+    def active_by_owner(self) -> dict[str, tuple[int, int]]:
+        """(accepted, running) jobs per owner that has any."""
+
+    def recent_runs(self, limit: int) -> list[FinishedRun]:
+        """The ``limit`` solves that finished last, newest first."""
+
+    def queue_snapshot(
+        self, max_running_per_user: int = 0
+    ) -> tuple[list[Any], dict[str, Any], list[JobRecord]]:
+        """Accepted jobs (service.store.fair.Waiting), their users' loads, running jobs."""
 
     def get_user(self, user_id: str) -> UserRecord | None:
         """By id."""

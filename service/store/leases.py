@@ -39,7 +39,9 @@ from service.states import FINISHED, JobStatus
 from service.store.base import JobRecord
 from service.store.sql import JobRow, SqlStore, _status_change, utcnow
 
-ClaimOutcome = Literal["claimed", "taken_over", "held", "finished", "failed", "missing"]
+ClaimOutcome = Literal[
+    "claimed", "taken_over", "held", "finished", "failed", "missing", "contended"
+]
 
 
 @dataclass(frozen=True)
@@ -210,6 +212,52 @@ def claim_run(
                 return Claim("taken_over", store._fetch(conn, job_id))
     job = store.get_job(job_id)
     return Claim("held", job, job.worker if job else None)
+
+
+def claim_for_message(
+    store: SqlStore,
+    job_id: str,
+    worker: str,
+    lease_s: float,
+    max_attempts: int,
+    max_running_per_user: int = 0,
+    holder_dead: Callable[[str | None], bool] = holder_is_dead_here,
+) -> Claim:
+    """What the run ``worker`` holding the message of ``job_id`` does: the message is a
+    wake-up token, not an assignment (README "Fair sharing").
+
+    1. the named job, or any running job whose holder is known dead, is taken over at once
+       (:func:`claim_run`: the delivery guarantees of a redelivered message are unchanged);
+    2. otherwise the run claims the accepted job the fair-share policy picks
+       (:meth:`SqlStore.claim_next`), which may be another job than the named one;
+    3. with nothing accepted the message is dropped, saying what became of the named job.
+
+    Every accepted job has at least one message outstanding (one is sent whenever a job
+    becomes accepted; a message claims at most one job and is only dropped when none is
+    accepted), so a job whose message was used for another job is run by a later message.
+    ``contended``: accepted jobs remain but every claim lost a race; keep the message.
+    """
+    named = store.get_job(job_id)
+    orphans = [
+        j.id
+        for j in store.running_jobs()
+        if j.id == job_id or (j.worker != worker and holder_dead(j.worker))
+    ]
+    for orphan in orphans:
+        claim = claim_run(store, orphan, worker, lease_s, max_attempts, holder_dead)
+        if claim.runnable:
+            return claim
+    job = store.claim_next(worker, max_running_per_user, heartbeat=utcnow())
+    if job is not None:
+        return Claim("claimed", job)
+    if accepted_job_ids(store, limit=1):
+        return Claim("contended", named)
+    named = store.get_job(job_id)
+    if named is None:
+        return Claim("missing", None)
+    if named.status in FINISHED:
+        return Claim("finished", named)
+    return Claim("held", named, named.worker)
 
 
 def lost_message(attempts: int, max_attempts: int) -> str:

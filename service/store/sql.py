@@ -17,6 +17,7 @@ from typing import Any, Iterable
 from sqlalchemy import (
     Boolean,
     DateTime,
+    Float,
     ForeignKey,
     Index,
     Integer,
@@ -41,7 +42,16 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 from sqlalchemy.pool import NullPool
 
 from service.states import JobStatus, check_transition
-from service.store.base import SHARED, CameraRecord, FinishedRun, JobRecord, PrunedJob, UserRecord
+from service.store.base import (
+    SHARED,
+    CameraRecord,
+    FinishedRun,
+    JobRecord,
+    PrunedJob,
+    UsageRecord,
+    UserRecord,
+)
+from service.store.fair import Head, OwnerLoad, Waiting, pick
 from service.store.payloads import pack, unpack
 
 
@@ -97,6 +107,11 @@ class JobRow(Base):
     error: Mapped[str | None] = mapped_column(Text, nullable=True)
     # bytes of this job's payloads as stored (the per-user storage quota sums these)
     stored_bytes: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    # the small-job lane (service.store.fair), decided at submission
+    small: Mapped[bool] = mapped_column(Boolean, default=False, server_default="0")
+    # accounting of the run that finished it: CPU seconds of the solving process, wall seconds
+    cpu_s: Mapped[float | None] = mapped_column(Float, nullable=True)
+    solve_s: Mapped[float | None] = mapped_column(Float, nullable=True)
 
     __table_args__ = (
         Index("ix_jobs_status_created", "status", "created"),
@@ -129,6 +144,20 @@ class UserRow(Base):
     created: Mapped[datetime] = mapped_column(UTCDateTime)
     max_queued_jobs: Mapped[int | None] = mapped_column(Integer, nullable=True)
     max_job_observations: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    weight: Mapped[float | None] = mapped_column(Float, nullable=True)
+    max_running_jobs: Mapped[int | None] = mapped_column(Integer, nullable=True)
+
+
+class UsageRow(Base):
+    """``user_usage``: per-user accounting of finished runs (kept when jobs are pruned)."""
+
+    __tablename__ = "user_usage"
+    user_id: Mapped[str] = mapped_column(String(36), primary_key=True)
+    jobs_successful: Mapped[int] = mapped_column(Integer, default=0)
+    jobs_failed: Mapped[int] = mapped_column(Integer, default=0)
+    jobs_dismissed: Mapped[int] = mapped_column(Integer, default=0)
+    cpu_s: Mapped[float] = mapped_column(Float, default=0.0)
+    solve_s: Mapped[float] = mapped_column(Float, default=0.0)
 
 
 class ApiKeyRow(Base):
@@ -255,6 +284,9 @@ class SqlStore:
             cancel_requested=row.cancel_requested,
             n_observations=row.n_observations,
             error=json.loads(row.error) if row.error else None,
+            small=bool(row.small),
+            cpu_s=row.cpu_s,
+            solve_s=row.solve_s,
             _load_results=self.get_results_text,
             _load_document=self.get_document,
         )
@@ -286,9 +318,15 @@ class SqlStore:
 
     # -- jobs: API side --------------------------------------------------------------------
     def create_job(
-        self, owner: str, process_id: str, document: dict[str, Any], n_observations: int, name: str
+        self,
+        owner: str,
+        process_id: str,
+        document: dict[str, Any],
+        n_observations: int,
+        name: str,
+        small: bool = False,
     ) -> JobRecord:
-        """Insert an ``accepted`` job with its execute inputs."""
+        """Insert an ``accepted`` job with its execute inputs (``small``: the small-job lane)."""
         now = utcnow()
         job_id = str(uuid.uuid4())
         packed = pack(json.dumps(document))
@@ -307,6 +345,7 @@ class SqlStore:
                     attempts=0,
                     n_observations=n_observations,
                     stored_bytes=len(packed),
+                    small=small,
                 )
             )
             conn.execute(insert(JobPayloadRow).values(job_id=job_id, document_z=packed))
@@ -422,14 +461,82 @@ class SqlStore:
             cancel_requested=None,
         )
 
-    def claim_next(self, worker: str) -> JobRecord | None:
-        """Move the oldest accepted job to running for ``worker`` (atomic), or None."""
+    def _loads(self, conn: Connection, owners: list[str], default_cap: int) -> dict[str, OwnerLoad]:
+        """The fair-share inputs of ``owners`` (service.store.fair), read in ``conn``."""
+        running = dict(
+            conn.execute(
+                select(JobRow.owner, func.count())
+                .where(JobRow.status == JobStatus.running.value, JobRow.owner.in_(owners))
+                .group_by(JobRow.owner)
+            ).all()
+        )
+        last = dict(
+            conn.execute(
+                select(JobRow.owner, func.max(JobRow.started))
+                .where(JobRow.owner.in_(owners))
+                .group_by(JobRow.owner)
+            ).all()
+        )
+        users = {
+            r.id: r
+            for r in conn.execute(
+                select(UserRow.id, UserRow.weight, UserRow.max_running_jobs).where(
+                    UserRow.id.in_(owners)
+                )
+            ).all()
+        }
+        loads = {}
+        for o in owners:
+            u = users.get(o)
+            started = last.get(o)
+            if started is not None and started.tzinfo is None:
+                started = started.replace(tzinfo=timezone.utc)
+            loads[o] = OwnerLoad(
+                running=int(running.get(o, 0)),
+                weight=(u.weight if u is not None and u.weight else 1.0),
+                max_running=(
+                    u.max_running_jobs
+                    if u is not None and u.max_running_jobs is not None
+                    else default_cap
+                ),
+                last_started=started,
+            )
+        return loads
+
+    def _heads(self, conn: Connection) -> list[Head]:
+        rows = conn.execute(
+            select(JobRow.owner, JobRow.small, func.min(JobRow.created))
+            .where(JobRow.status == JobStatus.accepted.value)
+            .group_by(JobRow.owner, JobRow.small)
+        ).all()
+        return [
+            Head(o, bool(sm), c if c.tzinfo else c.replace(tzinfo=timezone.utc))
+            for o, sm, c in rows
+        ]
+
+    def claim_next(
+        self, worker: str, max_running_per_user: int = 0, **extra: Any
+    ) -> JobRecord | None:
+        """Move the accepted job the fair-share policy picks (service.store.fair) to running
+        for ``worker`` (atomic), or None when no job is accepted. ``max_running_per_user``:
+        the cap of users without one of their own (0: none); ``extra``: more columns to set
+        (a distributed run's ``heartbeat``)."""
         _status_change(JobStatus.running, [JobStatus.accepted])
         for _ in range(20):
             with self.engine.begin() as conn:
+                heads = self._heads(conn)
+                if not heads:
+                    return None
+                loads = self._loads(conn, sorted({h.owner for h in heads}), max_running_per_user)
+                head = pick(heads, loads)
+                assert head is not None
                 candidate = (
                     select(JobRow.id)
-                    .where(JobRow.status == JobStatus.accepted.value)
+                    .where(
+                        JobRow.status == JobStatus.accepted.value,
+                        JobRow.owner == head.owner,
+                        JobRow.small == head.small,
+                    )
                     .order_by(JobRow.created, JobRow.id)
                     .limit(1)
                 )
@@ -441,16 +548,11 @@ class SqlStore:
                         JobRow.id == candidate.scalar_subquery(),
                         JobRow.status == JobStatus.accepted.value,
                     )
-                    .values(**self._claim_values(worker))
+                    .values(**self._claim_values(worker), **extra)
                     .returning(JobRow.id)
                 ).scalar_one_or_none()
                 if job_id is not None:
                     return self._fetch(conn, job_id)
-                exists = conn.execute(
-                    select(JobRow.id).where(JobRow.status == JobStatus.accepted.value).limit(1)
-                ).first()
-                if exists is None:
-                    return None
         return None
 
     def claim(self, job_id: str, worker: str) -> JobRecord | None:
@@ -490,8 +592,75 @@ class SqlStore:
             )
             return res.rowcount == 1
 
-    def complete(self, job_id: str, worker: str, results_text: str, message: str) -> bool:
-        """running -> successful, storing the report; only for the worker that runs it."""
+    @staticmethod
+    def _account(
+        conn: Connection, job_id: str, status: JobStatus, usage: tuple[float, float] | None
+    ) -> None:
+        """Record a finished run's (CPU s, solve s) on the job and add it to its owner's
+        totals (``user_usage``), in the transaction that finished the job."""
+        cpu_s, solve_s = usage if usage is not None else (0.0, 0.0)
+        conn.execute(update(JobRow).where(JobRow.id == job_id).values(cpu_s=cpu_s, solve_s=solve_s))
+        owner = conn.execute(select(JobRow.owner).where(JobRow.id == job_id)).scalar_one()
+        column = {
+            JobStatus.successful: UsageRow.jobs_successful,
+            JobStatus.failed: UsageRow.jobs_failed,
+            JobStatus.dismissed: UsageRow.jobs_dismissed,
+        }[status]
+        add = {
+            column.key: column + 1,
+            "cpu_s": UsageRow.cpu_s + cpu_s,
+            "solve_s": UsageRow.solve_s + solve_s,
+        }
+        for _ in range(3):
+            stmt = update(UsageRow).where(UsageRow.user_id == owner).values(**add)
+            if conn.execute(stmt).rowcount:
+                return
+            try:
+                with conn.begin_nested():
+                    conn.execute(
+                        insert(UsageRow).values(
+                            user_id=owner,
+                            jobs_successful=0,
+                            jobs_failed=0,
+                            jobs_dismissed=0,
+                            cpu_s=0.0,
+                            solve_s=0.0,
+                        )
+                    )
+            except IntegrityError:
+                pass  # another transaction created it: update again
+
+    def usage(self) -> list[UsageRecord]:
+        """Per-user accounting, users by name (every user, zero when they ran nothing)."""
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                select(UserRow.id, UserRow.name, UsageRow)
+                .join(UsageRow, UsageRow.user_id == UserRow.id, isouter=True)
+                .order_by(UserRow.name)
+            ).all()
+        return [
+            UsageRecord(
+                user_id=r.id,
+                name=r.name,
+                jobs_successful=r.jobs_successful or 0,
+                jobs_failed=r.jobs_failed or 0,
+                jobs_dismissed=r.jobs_dismissed or 0,
+                cpu_s=r.cpu_s or 0.0,
+                solve_s=r.solve_s or 0.0,
+            )
+            for r in rows
+        ]
+
+    def complete(
+        self,
+        job_id: str,
+        worker: str,
+        results_text: str,
+        message: str,
+        usage: tuple[float, float] | None = None,
+    ) -> bool:
+        """running -> successful, storing the report; only for the worker that runs it.
+        ``usage``: (CPU seconds, solve seconds) of the run, for the accounting."""
         packed = pack(results_text)  # before the transaction: seconds for a big report
         with self.engine.begin() as conn:
             ok = self._cas(
@@ -514,6 +683,7 @@ class SqlStore:
                     .where(JobRow.id == job_id)
                     .values(stored_bytes=JobRow.stored_bytes + len(packed))
                 )
+                self._account(conn, job_id, JobStatus.successful, usage)
             return ok
 
     def fail(
@@ -522,11 +692,13 @@ class SqlStore:
         message: str,
         error: dict[str, Any] | None = None,
         worker: str | None = None,
+        usage: tuple[float, float] | None = None,
     ) -> bool:
-        """accepted/running -> failed (only this worker's run when ``worker`` is given)."""
+        """accepted/running -> failed (only this worker's run when ``worker`` is given);
+        ``usage`` as in :meth:`complete` (a run the worker measured)."""
         sources = [JobStatus.running] if worker else [JobStatus.accepted, JobStatus.running]
         with self.engine.begin() as conn:
-            return self._cas(
+            ok = self._cas(
                 conn,
                 job_id,
                 JobStatus.failed,
@@ -535,11 +707,16 @@ class SqlStore:
                 message=message[:4000],
                 error=json.dumps(error) if error else None,
             )
+            if ok and usage is not None:
+                self._account(conn, job_id, JobStatus.failed, usage)
+            return ok
 
-    def finish_cancelled(self, job_id: str, worker: str, message: str) -> bool:
+    def finish_cancelled(
+        self, job_id: str, worker: str, message: str, usage: tuple[float, float] | None = None
+    ) -> bool:
         """running -> dismissed after a cancel request, for the worker that ran it."""
         with self.engine.begin() as conn:
-            return self._cas(
+            ok = self._cas(
                 conn,
                 job_id,
                 JobStatus.dismissed,
@@ -547,6 +724,9 @@ class SqlStore:
                 worker=worker,
                 message=message,
             )
+            if ok and usage is not None:
+                self._account(conn, job_id, JobStatus.dismissed, usage)
+            return ok
 
     def requeue(self, job_id: str, worker: str, message: str, count_attempt: bool = True) -> bool:
         """running -> accepted for this worker's run (``count_attempt=False`` forgives the run)."""
@@ -722,6 +902,63 @@ class SqlStore:
             counts[JobStatus(status)] = int(n)
         return counts
 
+    def queue_snapshot(
+        self, max_running_per_user: int = 0
+    ) -> tuple[list[Waiting], dict[str, OwnerLoad], list[JobRecord]]:
+        """What the fair-share policy sees now: the accepted jobs, their users' loads, and the
+        running jobs (for positions and start estimates; service.queue_view)."""
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                select(JobRow.id, JobRow.owner, JobRow.small, JobRow.created).where(
+                    JobRow.status == JobStatus.accepted.value
+                )
+            ).all()
+            waiting = [
+                Waiting(
+                    r.id,
+                    r.owner,
+                    bool(r.small),
+                    r.created if r.created.tzinfo else r.created.replace(tzinfo=timezone.utc),
+                )
+                for r in rows
+            ]
+            owners = sorted({w.owner for w in waiting})
+            loads = self._loads(conn, owners, max_running_per_user) if owners else {}
+            running = conn.execute(
+                select(JobRow).where(JobRow.status == JobStatus.running.value)
+            ).all()
+        return waiting, loads, [self._record(r) for r in running]
+
+    def recent_runs(self, limit: int) -> list[FinishedRun]:
+        """The ``limit`` solves that finished last (with a start time), newest first."""
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                select(JobRow.id, JobRow.status, JobRow.started, JobRow.finished)
+                .where(JobRow.finished.is_not(None), JobRow.started.is_not(None))
+                .order_by(JobRow.finished.desc())
+                .limit(limit)
+            ).all()
+        return [FinishedRun(r.id, JobStatus(r.status), r.started, r.finished) for r in rows]
+
+    def active_by_owner(self) -> dict[str, tuple[int, int]]:
+        """(accepted, running) jobs per owner that has any."""
+        active = [JobStatus.accepted.value, JobStatus.running.value]
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                select(JobRow.owner, JobRow.status, func.count())
+                .where(JobRow.status.in_(active))
+                .group_by(JobRow.owner, JobRow.status)
+            ).all()
+        out: dict[str, tuple[int, int]] = {}
+        for owner, status, n in rows:
+            waiting, running = out.get(owner, (0, 0))
+            if status == JobStatus.accepted.value:
+                waiting += int(n)
+            else:
+                running += int(n)
+            out[owner] = (waiting, running)
+        return out
+
     def finished_since(self, after: datetime) -> list[FinishedRun]:
         """Solves that finished after ``after`` (with a start time), oldest first."""
         with self.engine.connect() as conn:
@@ -742,6 +979,8 @@ class SqlStore:
             created=row.created,
             max_queued_jobs=row.max_queued_jobs,
             max_job_observations=row.max_job_observations,
+            weight=row.weight,
+            max_running_jobs=row.max_running_jobs,
         )
 
     def create_user(
@@ -750,6 +989,8 @@ class SqlStore:
         is_admin: bool | None = None,
         max_queued_jobs: int | None = None,
         max_job_observations: int | None = None,
+        weight: float | None = None,
+        max_running_jobs: int | None = None,
     ) -> UserRecord:
         """Create a user, or update the existing one of that name; arguments left at None keep
         the existing values (a new user: not admin, the server's default limits)."""
@@ -766,6 +1007,8 @@ class SqlStore:
                                 created=utcnow(),
                                 max_queued_jobs=max_queued_jobs,
                                 max_job_observations=max_job_observations,
+                                weight=weight,
+                                max_running_jobs=max_running_jobs,
                             )
                         )
                 except IntegrityError:
@@ -777,6 +1020,8 @@ class SqlStore:
                         ("is_admin", is_admin),
                         ("max_queued_jobs", max_queued_jobs),
                         ("max_job_observations", max_job_observations),
+                        ("weight", weight),
+                        ("max_running_jobs", max_running_jobs),
                     )
                     if v is not None
                 }
@@ -784,6 +1029,12 @@ class SqlStore:
                     conn.execute(update(UserRow).where(UserRow.name == name).values(**given))
             row = conn.execute(select(UserRow).where(UserRow.name == name)).one()
             return self._user(row)
+
+    def list_users(self) -> list[UserRecord]:
+        """Every user, by name."""
+        with self.engine.connect() as conn:
+            rows = conn.execute(select(UserRow).order_by(UserRow.name)).all()
+        return [self._user(r) for r in rows]
 
     def get_user(self, user_id: str) -> UserRecord | None:
         """A user by id."""

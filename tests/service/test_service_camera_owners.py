@@ -183,7 +183,7 @@ def test_camera_from_another_users_job(
     job_id, cam_id = r.json()["jobID"], triplet_doc["cameras"][0]["id"]
     store = c.app.state.services.store  # type: ignore[attr-defined]
     assert store.claim(job_id, "w") is not None
-    report = {"cameras": [{"id": cam_id, "iop": {"dx_mm": 0.001}}]}
+    report = {"cameras": [{"id": cam_id, "iop": {"df": 0.001}}]}
     assert store.complete(job_id, "w", json.dumps(report), "done")
     request = {"job_id": job_id, "camera": cam_id, "name": "calib"}
     assert_problem(c.post("/cameras/from-job", json=request, headers=h["alice"]), 404)

@@ -1,0 +1,78 @@
+"""The admin page (/ui/admin) in headless Chromium against a real server: an admin sees the
+workers, the queue and accounting by user, running jobs and recent failures; another user
+is told it is for admins only."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from pba_service_harness import Server, load_example, submit_async, wait_status
+from playwright.sync_api import expect
+
+pytestmark = pytest.mark.browser
+
+
+def use_key(page: Any, server: Server, key: str) -> None:
+    """Keep ``key`` in this tab (the main page's key form), then open the admin page."""
+    page.goto(f"{server.url}/ui")
+    page.fill("#api-key", key)
+    page.click("#key-form button[type=submit]")
+    page.goto(f"{server.url}/ui/admin")
+
+
+def record_failure(server: Server, user: str) -> str:
+    """A job of ``user`` failed by a worker, written into the store as a worker records it
+    (an invalid job is refused at submission, so it never reaches a worker)."""
+    store = server.store()
+    try:
+        owner = next(u.id for u in store.list_users() if u.name == user)
+        rec = store.create_job(owner, "bundle-adjustment", {"job": {}}, 1, "broken")
+        assert store.claim(rec.id, "elsewhere:1") is not None
+        assert store.fail(rec.id, "no-such-image", {"status": 422}, "elsewhere:1", (0.5, 1.0))
+    finally:
+        store.close()
+    return rec.id
+
+
+def test_admin_page_shows_queue_workers_failures_and_accounting(
+    page: Any, keyed_server: Server, big_job_file: Path, artifacts: Path
+) -> None:
+    root = keyed_server.create_key("root", admin=True)
+    dave = keyed_server.create_key("dave")
+    with httpx.Client(base_url=keyed_server.url, headers={"X-API-Key": dave}, timeout=120) as c:
+        done = submit_async(c, load_example("prism-triplet.json"))
+        wait_status(c, done, {"successful"}, timeout=240)
+        failed = record_failure(keyed_server, "dave")
+        long = submit_async(c, json.loads(big_job_file.read_text()))
+        wait_status(c, long, {"running"}, timeout=240)
+        try:
+            check_page(page, keyed_server, root, dave, failed, long, artifacts)
+        finally:
+            c.delete(f"/jobs/{long}")
+
+
+def check_page(
+    page: Any, server: Server, root: str, dave: str, failed: str, long: str, artifacts: Path
+) -> None:
+    use_key(page, server, dave)
+    expect(page.locator("#admin-status")).to_contain_text("admins only")
+
+    use_key(page, server, root)
+    expect(page.locator("#admin-status")).to_contain_text("updated")
+    expect(page.locator("#workers-alive")).to_have_text("2")
+    row = page.locator("#users-table tbody tr", has_text="dave")
+    expect(row).to_have_count(1)
+    cells = row.locator("td")
+    expect(cells.nth(5)).to_have_text("1")  # successful
+    expect(cells.nth(6)).to_have_text("1")  # failed
+    expect(page.locator("#failures-table tbody")).to_contain_text(failed)
+    expect(page.locator("#failures-table tbody")).to_contain_text("no-such-image")
+    running = page.locator("#running-table tbody tr", has_text=long)
+    expect(running).to_have_count(1)
+    expect(running.locator("td").nth(1)).to_have_text("dave")
+    expect(running.locator("td").nth(2)).to_contain_text(":")  # the worker, host:pid
+    page.screenshot(path=str(artifacts / "admin-page.png"), full_page=True)
