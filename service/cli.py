@@ -218,7 +218,7 @@ def cmd_revoke_key(args: argparse.Namespace) -> int:
 
 def cmd_worker(args: argparse.Namespace) -> int:
     """Run a Celery worker: solves jobs from PBA_BROKER_URL, store at PBA_DATABASE_URL."""
-    from service.celery_app import ping_local_workers, worker_main
+    from service.queue.celery_app import ping_local_workers, worker_main
 
     if args.ping:
         nodes = ping_local_workers(_settings(args))

@@ -1,7 +1,7 @@
 """The distributed queue backend (``PBA_QUEUE=celery``): the API server's side.
 
 The server only publishes job ids to the broker (Redis); ``pba worker`` processes on any
-machine that reaches the broker and the database run them (:mod:`service.celery_app`, where
+machine that reaches the broker and the database run them (:mod:`service.queue.celery_app`, where
 delivery, leases and crash handling are described). This side:
 
 * ``submit`` sends the job's message; a message that cannot be sent (broker down) is kept and
@@ -37,7 +37,7 @@ class CeleryBackend:
     name = "celery"
 
     def __init__(self, settings: Settings, store: Store) -> None:
-        from service.celery_app import create_celery
+        from service.queue.celery_app import create_celery
 
         self.settings = settings
         self.store = store
@@ -79,7 +79,7 @@ class CeleryBackend:
 
     def submit(self, job_id: str) -> None:
         """Publish the job's message (kept for a later try when the broker is unreachable)."""
-        from service.celery_app import publish
+        from service.queue.celery_app import publish
 
         try:
             publish(self.app, self.settings, job_id)
@@ -126,7 +126,7 @@ class CeleryBackend:
         )
 
     def _monitor(self) -> None:
-        from service.celery_app import sweep
+        from service.queue.celery_app import sweep
 
         while not self._stopping.is_set():
             self._check()

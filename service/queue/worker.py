@@ -37,7 +37,7 @@ def worker_id(pid: int | None = None) -> str:
     return f"{socket.gethostname()}:{pid if pid is not None else os.getpid()}"
 
 
-def _warm_up() -> None:
+def warm_up() -> None:
     """Import the solver (and pyceres) before the first job, so its latency is not paid then."""
     import solver.api  # noqa: F401
 
@@ -56,7 +56,7 @@ def worker_main(cfg: WorkerConfig, stop: Any, wake: Any) -> None:
     configure_logging(cfg.log_level, cfg.log_format)
     me = worker_id()
     store = open_store(cfg.database_url, create=False)
-    _warm_up()
+    warm_up()
     log.info("worker ready", extra={"worker": me})
 
     def stop_reason() -> str | None:

@@ -1,6 +1,6 @@
 """Leases of distributed runs: the store's guarantee that a job is run to completion once.
 
-A distributed worker (Celery, :mod:`service.celery_app`) runs a job under a *fencing token*:
+A distributed worker (Celery, :mod:`service.queue.celery_app`) runs a job under a *fencing token*:
 the ``worker`` string it writes when it claims the job, ``host:pid:token`` with a fresh random
 token per run. Every write of a run (progress, report, failure) is a compare-and-set on that
 token (:mod:`service.store.sql`), so once a job has been taken away from a run - re-queued

@@ -241,7 +241,7 @@ def test_sweeper_keeps_jobs_it_could_not_send(
 
     from sqlalchemy import update
 
-    from service.celery_app import create_celery, sweep
+    from service.queue.celery_app import create_celery, sweep
     from service.store.leases import claim_run
     from service.store.sql import JobRow, utcnow
 

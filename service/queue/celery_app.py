@@ -253,13 +253,13 @@ def execute_job(job_id: str) -> str:
 def _on_process_init(**_: Any) -> None:
     """In each pool process: logging, a store of its own, and the solver imported."""
     from service.logs import configure_logging
-    from service.queue.worker import _warm_up
+    from service.queue.worker import warm_up
 
     assert RT.settings is not None
     configure_logging(RT.settings.log_level, RT.settings.log_format)
     RT.store = None  # never use a connection pool inherited from the main process
     _store()
-    _warm_up()
+    warm_up()
     log.info(READY_MESSAGE, extra={"worker": f"{socket.gethostname()}:{os.getpid()}"})
 
 
