@@ -36,6 +36,7 @@ from service.schemas import (
     CameraShare,
     Link,
 )
+from service.states import JobStatus
 from service.store import SHARED, CameraRecord, Store, UserRecord
 
 router = APIRouter(prefix="/cameras", tags=["cameras"], route_class=StrictJSONRoute)
@@ -131,6 +132,9 @@ def camera_from_job(
     """Save the camera a self-calibration job of yours estimated (IOP values and covariance)
     as the next version of ``name`` in your namespace."""
     job = services.jobs.get_visible(body.job_id, user)
+    if job.status != JobStatus.successful:
+        # the job's own failure (a worker crash is a 500) is not this request's error
+        raise Conflict(f"job {job.id} is {job.status.value}: it has no report to take a camera from")
     report = json.loads(results_text(job))
     if report.get("kind") == "comparison":
         raise Conflict("a model comparison does not yield one camera; use an adjustment job")

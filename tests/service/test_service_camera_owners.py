@@ -202,3 +202,18 @@ def test_single_user_mode_owns_and_shares(tmp_path: Path, triplet_doc: dict[str,
         cam = resolved_camera(c, {}, triplet_doc, {"name": "cam"})
         assert cam["ref"] == {"name": "cam", "version": 1}
         assert c.post("/cameras/cam/share").json()["shared"] is True
+
+
+def test_camera_from_a_failed_job_is_a_conflict_not_the_jobs_error(
+    lab: tuple[TestClient, dict[str, dict[str, str]]], triplet_doc: dict[str, Any]
+) -> None:
+    """A job failed by a worker crash carries a 500 problem; from-job on it is the caller's
+    conflict (409), not a server error (schemathesis found the 500 relayed)."""
+    c, h = lab
+    r = c.post(EXECUTE, json=body(triplet_doc), headers=h["bob"])
+    job_id, cam_id = r.json()["jobID"], triplet_doc["cameras"][0]["id"]
+    store = c.app.state.services.store  # type: ignore[attr-defined]
+    assert store.claim(job_id, "w") is not None
+    assert store.fail(job_id, "the worker process running this job was killed by SIGKILL", {"status": 500})
+    request = {"job_id": job_id, "camera": cam_id, "name": "calib"}
+    assert_problem(c.post("/cameras/from-job", json=request, headers=h["bob"]), 409)

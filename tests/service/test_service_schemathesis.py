@@ -7,7 +7,7 @@ from __future__ import annotations
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import pytest
 from pba_service_harness import ROOT, Server, execute_body
@@ -25,9 +25,23 @@ CHECKS = ",".join(
 )
 
 
+@pytest.fixture()
+def own_server(tmp_path: Path) -> Iterator[Server]:
+    """A server of its own: the fuzzer is an admin (it reaches /metrics and /admin) and so sees
+    every job; on the shared session server that includes jobs whose worker other tests kill
+    on purpose, whose documented results are the job's own 500."""
+    srv = Server(tmp_path / "srv", workers=2, require_api_keys="true", max_body_bytes=16_000_000)
+    srv.start()
+    try:
+        yield srv
+    finally:
+        srv.stop()
+
+
 def test_schemathesis_finds_no_server_error(
-    server: Server, small_doc: dict[str, Any], tmp_path: Path
+    own_server: Server, small_doc: dict[str, Any], tmp_path: Path
 ) -> None:
+    server = own_server
     key = server.create_key("fuzzer", admin=True)  # an admin: /metrics answers admins only
     with server.client(key) as c:
         r = c.post("/processes/bundle-adjustment/execution", json=execute_body(small_doc))
