@@ -16,8 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
-import signal
 import statistics
 import subprocess
 import sys
@@ -28,7 +26,7 @@ from pathlib import Path
 import httpx
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_service import EXAMPLE, start_server  # noqa: E402
+from bench_service import EXAMPLE, start_server, stop_server  # noqa: E402
 
 
 def strip_doc(directory: Path) -> dict:
@@ -90,12 +88,7 @@ def main() -> int:
                         )
                     )
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        shutil.rmtree(data_dir, ignore_errors=True)
+        stop_server(proc, data_dir)
     result = {
         "workers": args.workers,
         "batch": args.batch,

@@ -70,6 +70,16 @@ def start_server(data_dir: Path, workers: int) -> tuple[subprocess.Popen[bytes],
     raise SystemExit("server did not become ready")
 
 
+def stop_server(proc: subprocess.Popen[bytes], data_dir: Path) -> None:
+    """SIGTERM (kill after 30 s) the server of :func:`start_server`; remove its data."""
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+    shutil.rmtree(data_dir, ignore_errors=True)
+
+
 def percentile(values: list[float], q: float) -> float:
     ordered = sorted(values)
     k = max(0, min(len(ordered) - 1, round(q * (len(ordered) - 1))))
@@ -142,12 +152,7 @@ def main() -> int:
             asyn = [run_async(c, body) for _ in range(args.runs)]
         burst_s = burst(url, body, args.burst)
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        shutil.rmtree(data_dir, ignore_errors=True)
+        stop_server(proc, data_dir)
     result = {
         "job": EXAMPLE.name,
         "workers": args.workers,

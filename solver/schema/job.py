@@ -21,7 +21,7 @@ import math
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationInfo, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationInfo, field_validator, model_validator
 from typing_extensions import TypedDict
 
 from solver.schema.iop_names import camera_iop_names
@@ -74,24 +74,29 @@ Bool = Annotated[bool, Strict()]
 Xyz = tuple[Num, Num, Num]
 
 
-def _state_vector(v: tuple[float, float, float], what: str) -> tuple[float, float, float]:
+def _platform_position(v: tuple[float, float, float]) -> tuple[float, float, float]:
     """A platform position (ECEF m) outside the Earth and within MAX_STATE_RADIUS_M."""
     r = math.sqrt(sum(x * x for x in v))
     if r < MIN_STATE_RADIUS_M:
         raise ValueError(
-            f"{what} is {r:.6g} m from the geocentre: inside the Earth (ECEF metres expected, "
+            f"the position is {r:.6g} m from the geocentre: inside the Earth (ECEF metres expected, "
             f"at least {MIN_STATE_RADIUS_M:g} m)"
         )
     if r > MAX_STATE_RADIUS_M:
-        raise ValueError(f"{what} is {r:.6g} m from the geocentre: beyond {MAX_STATE_RADIUS_M:g} m")
+        raise ValueError(f"the position is {r:.6g} m from the geocentre: beyond {MAX_STATE_RADIUS_M:g} m")
     return v
 
 
-def _velocity(v: tuple[float, float, float]) -> tuple[float, float, float]:
+def _platform_velocity(v: tuple[float, float, float]) -> tuple[float, float, float]:
+    """A platform velocity (ECEF m/s) below MAX_SPEED_M_S."""
     speed = math.sqrt(sum(x * x for x in v))
     if speed > MAX_SPEED_M_S:
         raise ValueError(f"speed {speed:.6g} m/s is beyond {MAX_SPEED_M_S:g} m/s (m/s expected)")
     return v
+
+
+PositionEcefM = Annotated[Xyz, AfterValidator(_platform_position)]
+VelocityEcefMS = Annotated[Xyz, AfterValidator(_platform_velocity)]
 
 
 def _unique(values: list[str], what: str) -> list[str]:
@@ -283,18 +288,8 @@ class StateVector(_Strict):
     """Platform state in the Earth-fixed frame (WGS 84 / ITRF ECEF)."""
 
     time_s: TimeS = Field(description="seconds, on the same time scale as first_line_time_s")
-    position_ecef_m: Xyz
-    velocity_ecef_m_s: Xyz
-
-    @field_validator("position_ecef_m")
-    @classmethod
-    def _outside_earth(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
-        return _state_vector(v, "the position")
-
-    @field_validator("velocity_ecef_m_s")
-    @classmethod
-    def _speed(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
-        return _velocity(v)
+    position_ecef_m: PositionEcefM
+    velocity_ecef_m_s: VelocityEcefMS
 
 
 class AttitudeSample(_Strict):
@@ -321,21 +316,11 @@ class ApproxState(_Strict):
     (seed 001 eqs 38-43: state = ephemeris value + correction with weighted constraints).
     """
 
-    position_ecef_m: Xyz
-    velocity_ecef_m_s: Xyz
+    position_ecef_m: PositionEcefM
+    velocity_ecef_m_s: VelocityEcefMS
     attitude_deg: tuple[AngleDeg, AngleDeg, AngleDeg] | None = None
     sigma_position_m: SigmaM | None = None
     sigma_velocity_m_s: _num(ge=1e-9, le=1e5) | None = None
-
-    @field_validator("position_ecef_m")
-    @classmethod
-    def _outside_earth(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
-        return _state_vector(v, "the position")
-
-    @field_validator("velocity_ecef_m_s")
-    @classmethod
-    def _speed(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
-        return _velocity(v)
 
 
 class Image(_Strict):
