@@ -34,10 +34,11 @@ from datetime import datetime, timedelta, timezone
 from typing import Callable, Literal
 
 from sqlalchemy import func, select, update
+from sqlalchemy.engine import Connection
 
 from service.states import FINISHED, JobStatus
 from service.store.base import JobRecord
-from service.store.sql import JobRow, SqlStore, _status_change, utcnow
+from service.store.sql import LOST_RACE, JobRow, SqlStore, _status_change, utcnow
 
 ClaimOutcome = Literal[
     "claimed", "taken_over", "held", "finished", "failed", "missing", "contended"
@@ -214,6 +215,38 @@ def claim_run(
     return Claim("held", job, job.worker if job else None)
 
 
+def _orphans(
+    conn: Connection,
+    job_id: str,
+    worker: str,
+    lease_s: float,
+    holder_dead: Callable[[str | None], bool],
+) -> list[str]:
+    """Running jobs a message's run should try to take over (:func:`claim_run` decides,
+    atomically): the named job when its lease has expired or its holder is known dead, and
+    any other job whose holder is known dead. One narrow query (ids, holders, lease times):
+    this runs for every message, so it reads no whole records."""
+    cutoff = utcnow() - timedelta(seconds=lease_s)
+    rows = conn.execute(
+        select(JobRow.id, JobRow.worker, JobRow.heartbeat, JobRow.started, JobRow.updated).where(
+            JobRow.status == JobStatus.running.value
+        )
+    ).all()
+    found = []
+    for row in rows:
+        lease = row.heartbeat or row.started or row.updated
+        if row.id == job_id:
+            if (lease is not None and _aware(lease) < cutoff) or holder_dead(row.worker):
+                found.append(row.id)
+        elif row.worker != worker and holder_dead(row.worker):
+            found.append(row.id)
+    return found
+
+
+def _aware(t: datetime) -> datetime:
+    return t if t.tzinfo else t.replace(tzinfo=timezone.utc)
+
+
 def claim_for_message(
     store: SqlStore,
     job_id: str,
@@ -237,22 +270,30 @@ def claim_for_message(
     accepted), so a job whose message was used for another job is run by a later message.
     ``contended``: accepted jobs remain but every claim lost a race; keep the message.
     """
-    named = store.get_job(job_id)
-    orphans = [
-        j.id
-        for j in store.running_jobs()
-        if j.id == job_id or (j.worker != worker and holder_dead(j.worker))
-    ]
+    # The common case in one transaction: no orphan, so claim what the policy picks.
+    with store.engine.begin() as conn:
+        orphans = _orphans(conn, job_id, worker, lease_s, holder_dead)
+        first = (
+            None
+            if orphans
+            else store.claim_next_in(conn, worker, max_running_per_user, heartbeat=utcnow())
+        )
+    if isinstance(first, JobRecord):
+        return Claim("claimed", first)
     for orphan in orphans:
         claim = claim_run(store, orphan, worker, lease_s, max_attempts, holder_dead)
         if claim.runnable:
             return claim
-    job = store.claim_next(worker, max_running_per_user, heartbeat=utcnow())
+    job = (
+        store.claim_next(worker, max_running_per_user, heartbeat=utcnow())
+        if orphans or first is LOST_RACE
+        else None
+    )
     if job is not None:
         return Claim("claimed", job)
+    named = store.get_job(job_id)
     if accepted_job_ids(store, limit=1):
         return Claim("contended", named)
-    named = store.get_job(job_id)
     if named is None:
         return Claim("missing", None)
     if named.status in FINISHED:

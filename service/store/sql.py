@@ -8,6 +8,7 @@ with a busy timeout so the server and its worker processes can share the file.
 
 from __future__ import annotations
 
+import enum
 import json
 import os
 import uuid
@@ -230,6 +231,15 @@ def make_engine(url: str) -> Engine:
         event.listen(engine, "connect", _sqlite_pragmas)
         return engine
     return create_engine(url, pool_pre_ping=True, pool_size=5, max_overflow=10)
+
+
+class LostRace(enum.Enum):
+    """The type of :data:`LOST_RACE`."""
+
+    LOST_RACE = "lost_race"
+
+
+LOST_RACE = LostRace.LOST_RACE  # a claim attempt found every candidate taken: try again
 
 
 def _status_change(target: JobStatus, allowed_from: Iterable[JobStatus]) -> list[str]:
@@ -462,21 +472,17 @@ class SqlStore:
         )
 
     def _loads(self, conn: Connection, owners: list[str], default_cap: int) -> dict[str, OwnerLoad]:
-        """The fair-share inputs of ``owners`` (service.store.fair), read in ``conn``."""
-        running = dict(
-            conn.execute(
-                select(JobRow.owner, func.count())
-                .where(JobRow.status == JobStatus.running.value, JobRow.owner.in_(owners))
-                .group_by(JobRow.owner)
-            ).all()
-        )
-        last = dict(
-            conn.execute(
-                select(JobRow.owner, func.max(JobRow.started))
+        """The fair-share inputs of ``owners`` (service.store.fair), read in ``conn``: running
+        counts and last starts in one grouped query, weights and caps in another."""
+        is_running = case((JobRow.status == JobStatus.running.value, 1), else_=0)
+        per_owner = {
+            o: (int(n or 0), started)
+            for o, n, started in conn.execute(
+                select(JobRow.owner, func.sum(is_running), func.max(JobRow.started))
                 .where(JobRow.owner.in_(owners))
                 .group_by(JobRow.owner)
             ).all()
-        )
+        }
         users = {
             r.id: r
             for r in conn.execute(
@@ -488,11 +494,11 @@ class SqlStore:
         loads = {}
         for o in owners:
             u = users.get(o)
-            started = last.get(o)
+            running, started = per_owner.get(o, (0, None))
             if started is not None and started.tzinfo is None:
                 started = started.replace(tzinfo=timezone.utc)
             loads[o] = OwnerLoad(
-                running=int(running.get(o, 0)),
+                running=running,
                 weight=(u.weight if u is not None and u.weight else 1.0),
                 max_running=(
                     u.max_running_jobs
@@ -521,39 +527,50 @@ class SqlStore:
         for ``worker`` (atomic), or None when no job is accepted. ``max_running_per_user``:
         the cap of users without one of their own (0: none); ``extra``: more columns to set
         (a distributed run's ``heartbeat``)."""
-        _status_change(JobStatus.running, [JobStatus.accepted])
         for _ in range(20):
             with self.engine.begin() as conn:
-                heads = self._heads(conn)
-                if not heads:
-                    return None
-                loads = self._loads(conn, sorted({h.owner for h in heads}), max_running_per_user)
-                head = pick(heads, loads)
-                assert head is not None
-                candidate = (
-                    select(JobRow.id)
-                    .where(
-                        JobRow.status == JobStatus.accepted.value,
-                        JobRow.owner == head.owner,
-                        JobRow.small == head.small,
-                    )
-                    .order_by(JobRow.created, JobRow.id)
-                    .limit(1)
-                )
-                if conn.dialect.name == "postgresql":
-                    candidate = candidate.with_for_update(skip_locked=True)
-                job_id = conn.execute(
-                    update(JobRow)
-                    .where(
-                        JobRow.id == candidate.scalar_subquery(),
-                        JobRow.status == JobStatus.accepted.value,
-                    )
-                    .values(**self._claim_values(worker), **extra)
-                    .returning(JobRow.id)
-                ).scalar_one_or_none()
-                if job_id is not None:
-                    return self._fetch(conn, job_id)
+                got = self.claim_next_in(conn, worker, max_running_per_user, **extra)
+            if got is not LOST_RACE:
+                return got
         return None
+
+    def claim_next_in(
+        self, conn: Connection, worker: str, max_running_per_user: int = 0, **extra: Any
+    ) -> JobRecord | None | LostRace:
+        """One attempt of :meth:`claim_next` in the caller's transaction ``conn``: the claimed
+        job, None when no job is accepted, or :data:`LOST_RACE` when every job of the picked
+        head was being claimed by another transaction (try again in a new one)."""
+        _status_change(JobStatus.running, [JobStatus.accepted])
+        heads = self._heads(conn)
+        if not heads:
+            return None
+        owners = sorted({h.owner for h in heads})
+        # One user waiting: the loads cannot change the order (fair.pick), so skip them.
+        loads = self._loads(conn, owners, max_running_per_user) if len(owners) > 1 else {}
+        head = pick(heads, loads)
+        assert head is not None
+        candidate = (
+            select(JobRow.id)
+            .where(
+                JobRow.status == JobStatus.accepted.value,
+                JobRow.owner == head.owner,
+                JobRow.small == head.small,
+            )
+            .order_by(JobRow.created, JobRow.id)
+            .limit(1)
+        )
+        if conn.dialect.name == "postgresql":
+            candidate = candidate.with_for_update(skip_locked=True)
+        row = conn.execute(
+            update(JobRow)
+            .where(
+                JobRow.id == candidate.scalar_subquery(),
+                JobRow.status == JobStatus.accepted.value,
+            )
+            .values(**self._claim_values(worker), **extra)
+            .returning(*JobRow.__table__.c)
+        ).first()
+        return self._record(row) if row is not None else LOST_RACE
 
     def claim(self, job_id: str, worker: str) -> JobRecord | None:
         """Move this accepted job to running for ``worker``; None if it is not accepted."""
@@ -592,15 +609,43 @@ class SqlStore:
             )
             return res.rowcount == 1
 
+    def _finish_run(
+        self,
+        conn: Connection,
+        job_id: str,
+        target: JobStatus,
+        allowed_from: Iterable[JobStatus],
+        worker: str | None,
+        usage: tuple[float, float] | None,
+        **values: Any,
+    ) -> bool:
+        """Compare-and-set a job to a finished status; with ``usage`` (CPU s, solve s of the
+        run) also record it on the job and add it to its owner's totals (``user_usage``), in
+        the same transaction. One UPDATE ... RETURNING does the status, the job's usage
+        columns and yields the owner: a worker's finishing write is two or three statements."""
+        sources = _status_change(target, allowed_from)
+        stmt = update(JobRow).where(JobRow.id == job_id, JobRow.status.in_(sources))
+        if worker is not None:
+            stmt = stmt.where(JobRow.worker == worker)
+        now = utcnow()
+        values.setdefault("updated", now)
+        values.setdefault("finished", now)
+        if usage is not None:
+            values.update(cpu_s=usage[0], solve_s=usage[1])
+        owner = conn.execute(
+            stmt.values(status=target.value, **values).returning(JobRow.owner)
+        ).scalar_one_or_none()
+        if owner is None:
+            return False
+        if usage is not None:
+            self._add_usage(conn, owner, target, *usage)
+        return True
+
     @staticmethod
-    def _account(
-        conn: Connection, job_id: str, status: JobStatus, usage: tuple[float, float] | None
+    def _add_usage(
+        conn: Connection, owner: str, status: JobStatus, cpu_s: float, solve_s: float
     ) -> None:
-        """Record a finished run's (CPU s, solve s) on the job and add it to its owner's
-        totals (``user_usage``), in the transaction that finished the job."""
-        cpu_s, solve_s = usage if usage is not None else (0.0, 0.0)
-        conn.execute(update(JobRow).where(JobRow.id == job_id).values(cpu_s=cpu_s, solve_s=solve_s))
-        owner = conn.execute(select(JobRow.owner).where(JobRow.id == job_id)).scalar_one()
+        """Add one finished run to ``owner``'s totals (``user_usage``), creating the row."""
         column = {
             JobStatus.successful: UsageRow.jobs_successful,
             JobStatus.failed: UsageRow.jobs_failed,
@@ -663,14 +708,16 @@ class SqlStore:
         ``usage``: (CPU seconds, solve seconds) of the run, for the accounting."""
         packed = pack(results_text)  # before the transaction: seconds for a big report
         with self.engine.begin() as conn:
-            ok = self._cas(
+            ok = self._finish_run(
                 conn,
                 job_id,
                 JobStatus.successful,
                 [JobStatus.running],
-                worker=worker,
+                worker,
+                usage if usage is not None else (0.0, 0.0),
                 progress=100,
                 message=message,
+                stored_bytes=JobRow.stored_bytes + len(packed),
             )
             if ok:
                 conn.execute(
@@ -678,12 +725,6 @@ class SqlStore:
                     .where(JobPayloadRow.job_id == job_id)
                     .values(results_z=packed)
                 )
-                conn.execute(
-                    update(JobRow)
-                    .where(JobRow.id == job_id)
-                    .values(stored_bytes=JobRow.stored_bytes + len(packed))
-                )
-                self._account(conn, job_id, JobStatus.successful, usage)
             return ok
 
     def fail(
@@ -698,35 +739,25 @@ class SqlStore:
         ``usage`` as in :meth:`complete` (a run the worker measured)."""
         sources = [JobStatus.running] if worker else [JobStatus.accepted, JobStatus.running]
         with self.engine.begin() as conn:
-            ok = self._cas(
+            return self._finish_run(
                 conn,
                 job_id,
                 JobStatus.failed,
                 sources,
-                worker=worker,
+                worker,
+                usage,
                 message=message[:4000],
                 error=json.dumps(error) if error else None,
             )
-            if ok and usage is not None:
-                self._account(conn, job_id, JobStatus.failed, usage)
-            return ok
 
     def finish_cancelled(
         self, job_id: str, worker: str, message: str, usage: tuple[float, float] | None = None
     ) -> bool:
         """running -> dismissed after a cancel request, for the worker that ran it."""
         with self.engine.begin() as conn:
-            ok = self._cas(
-                conn,
-                job_id,
-                JobStatus.dismissed,
-                [JobStatus.running],
-                worker=worker,
-                message=message,
+            return self._finish_run(
+                conn, job_id, JobStatus.dismissed, [JobStatus.running], worker, usage, message=message
             )
-            if ok and usage is not None:
-                self._account(conn, job_id, JobStatus.dismissed, usage)
-            return ok
 
     def requeue(self, job_id: str, worker: str, message: str, count_attempt: bool = True) -> bool:
         """running -> accepted for this worker's run (``count_attempt=False`` forgives the run)."""
