@@ -35,10 +35,13 @@ def read_attitude(
     data: bytes | str, file: str, time_scale: str | None = None, columns: Mapping[str, str] | None = None
 ) -> tuple[list[dict[str, Any]], str]:
     """(attitude samples as :class:`solver.schema.job.AttitudeSample` dicts, time scale)."""
-    table = read_table(data, file, ALIASES, COLUMNS, columns)
+    table = read_table(data, file, ALIASES, ["time_s"], columns)
     for i, name in enumerate(table.header):
         if name.endswith("_rad"):
             raise fail(file, table.header_line, table.column_name(i), "angles in radians: give degrees (roll_deg, pitch_deg, yaw_deg)")
+    missing = [c for c in COLUMNS if c not in table.header]
+    if missing:
+        raise fail(file, table.header_line, "", f"the header has no column for {', '.join(missing)}", "unrecognised_header")
     scale = time_scale_of(table, time_scale)
     problems: list[SourceProblem] = []
     out: list[dict[str, Any]] = []

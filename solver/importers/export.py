@@ -63,7 +63,8 @@ def write_sources(
             if tie_obs:
                 (out_dir / f"{iid}-ties.csv").write_text(write_measurements(tie_obs, with_image=False))
                 args += ["--image", f"{iid}={iid}-ties.csv"]
-        args += ["--camera", f"{iid}={im['camera']}"]
+        if im["camera"] != iid:
+            args += ["--camera", f"{iid}={im['camera']}"]
         if im.get("approx_state") and im.get("first_line_time_s") is not None:
             state = {k: im["approx_state"][k] for k in ("position_ecef_m", "velocity_ecef_m_s")}
             (out_dir / f"{iid}.state.csv").write_text(write_state(im["first_line_time_s"], state, time_scale))
