@@ -92,8 +92,11 @@ def read_qgis_points(
     candidates = [p for p in points if p.get("coordinates") is not None]
     if not candidates:
         raise fail(file, 0, "", "a .points file has no point ids: give the survey (control and check points) to match its rows to")
-    ecef = np.vstack([to_ecef(np.array([p["coordinates"]]), p.get("crs") or points_crs) for p in candidates])
-    in_map = from_ecef(ecef, file_crs)
+    try:
+        ecef = np.vstack([to_ecef(np.array([p["coordinates"]]), p.get("crs") or points_crs) for p in candidates])
+        in_map = from_ecef(ecef, file_crs)
+    except UnknownCRSError as exc:
+        raise fail(file, 0, "", f"the survey points cannot be brought into the file's CRS: {exc}") from None
     geographic = parse_crs(file_crs).is_geographic
     notes: list[str] = []
     problems: list[SourceProblem] = []
