@@ -14,6 +14,7 @@ page shows them beside the inputs.
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -87,8 +88,17 @@ class ComposeResult(BaseModel):
 
 def parse_spec(text: str) -> ComposeSpec:
     """The form's ``spec`` field (JSON) or InvalidInput pointing into ``/spec``."""
+    def no_constant(name: str) -> Any:
+        raise ValueError(f"{name} is not a JSON number")
+
     try:
-        return ComposeSpec.model_validate_json(text)
+        obj = json.loads(text, parse_constant=no_constant)
+    except ValueError as exc:
+        raise InvalidInput(
+            "the spec is not JSON", [{"pointer": "/spec", "code": "invalid_json", "message": str(exc)}]
+        ) from None
+    try:
+        return ComposeSpec.model_validate(obj)
     except ValidationError as exc:
         raise InvalidInput("the spec does not match the schema", pydantic_errors(exc.errors(), ("spec",))) from None
 
@@ -138,11 +148,13 @@ def _request(spec: ComposeSpec, uploads: dict[str, bytes]) -> ComposeRequest:
     return req
 
 
-def source_error_entries(exc: SourceError) -> list[dict[str, Any]]:
-    """A SourceError's problems as problem-document entries naming file, line and column."""
+def source_error_entries(exc: SourceError, uploads: dict[str, bytes]) -> list[dict[str, Any]]:
+    """A SourceError's problems as problem-document entries naming file, line and column
+    (pointer ``/files/<name>``; a problem of the spec's choices, e.g. an unknown camera or
+    CRS, points into ``/spec``)."""
     return [
         {
-            "pointer": json_pointer(("files", p.file)),
+            "pointer": json_pointer(("files", p.file) if p.file in uploads else ("spec", p.file)),
             "code": p.code,
             "message": str(p),
             "file": p.file,
@@ -164,7 +176,7 @@ def compose_uploads(spec: ComposeSpec, uploads: dict[str, bytes], store: Store, 
     try:
         composed = compose_job(_request(spec, uploads), lookup)
     except SourceError as exc:
-        raise InvalidInput(str(exc), source_error_entries(exc)) from None
+        raise InvalidInput(str(exc), source_error_entries(exc, uploads)) from None
     try:
         job = load_job(composed.job)
     except ValidationError as exc:

@@ -121,9 +121,9 @@ def compose_job(req: ComposeRequest, camera_lookup: CameraLookup = preset_lookup
     try:
         parse_crs(crs)
     except UnknownCRSError as exc:
-        raise fail("--crs", 0, "", str(exc), "unknown_crs") from None
+        raise fail("crs", 0, "", str(exc), "unknown_crs") from None
     if not req.images:
-        raise fail("--image", 0, "", "no image: give at least one (--image ID=measurements file)", "no_image")
+        raise fail("images", 0, "", "no image: give at least one (--image ID=measurements file)", "no_image")
 
     points: dict[str, dict[str, Any]] = {}
     origin: dict[str, str] = {}
@@ -158,7 +158,7 @@ def compose_job(req: ComposeRequest, camera_lookup: CameraLookup = preset_lookup
     for o in observations:
         if o["image"] not in image_ids:
             problems.append(
-                SourceProblem("--asp-gcp", 0, "image", f"image {o['image']!r} is not one of the images given ({', '.join(image_ids)})")
+                SourceProblem("asp_gcp", 0, "image", f"image {o['image']!r} is not one of the images given ({', '.join(image_ids)})")
             )
             break
     cameras = _cameras(req, camera_lookup, problems)
@@ -260,12 +260,16 @@ def _image(im: ImageSources, req: ComposeRequest) -> dict[str, Any]:
     return image
 
 
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a JSON number")
+
+
 def _cameras(req: ComposeRequest, lookup: CameraLookup, problems: list[SourceProblem]) -> list[dict[str, Any]]:
     """The job cameras the images name, from camera files, presets or ``lookup``."""
     from_files: dict[str, dict[str, Any]] = {}
     for f in req.camera_files:
         try:
-            doc = json.loads(f.data)
+            doc = json.loads(f.data, parse_constant=_no_constant)
         except (ValueError, UnicodeDecodeError) as exc:
             problems.append(SourceProblem(f.name, getattr(exc, "lineno", 0), str(getattr(exc, "colno", "")), f"not JSON: {exc}"))
             continue
@@ -289,7 +293,7 @@ def _cameras(req: ComposeRequest, lookup: CameraLookup, problems: list[SourcePro
         if found is None:
             problems.append(
                 SourceProblem(
-                    "--camera", 0, "", f"unknown camera {name!r} for image {im.id!r}: not in the camera files given "
+                    "camera", 0, "", f"unknown camera {name!r} for image {im.id!r}: not in the camera files given "
                     f"and not a preset ({', '.join(preset_names())}) or library camera", "unknown_camera",
                 )
             )

@@ -134,3 +134,23 @@ def test_presets_are_shared_library_cameras_once(tmp_path: Path, triplet_doc: di
         job["images"][2]["camera"] = {"ref": {"name": "prism-forward"}}
         r = c.post("/jobs/validate", json=body(job))
         assert r.status_code == 200, r.text[:1000]
+
+
+def test_hostile_uploads_are_4xx_never_500(local: TestClient) -> None:
+    """NaN in the spec or a camera file, untransformable coordinates, duplicate columns."""
+    obs = {"a.csv": b"point,line,column\nA,1,2\n"}
+    image = [{"id": "N", "measurements": ["a.csv"], "camera": "prism-nadir"}]
+    r = local.post("/jobs/compose", data={"spec": '{"images": [{"id": "N"}], "options": {"x": NaN}}'}, files=[("files", ("a.csv", b"x"))])
+    assert_problem(r, 422, "/spec")
+    cams = {**obs, "c.json": b'[{"id": "prism-nadir", "focal_mm": NaN}]'}
+    assert_problem(upload(local, {"images": image, "camera_files": ["c.json"]}, cams), 422, "/files/c.json")
+    bad = {"a.points": b"#CRS: EPSG:4326\nmapX,mapY,sourceX,sourceY\n1e300,1e300,1,-1\n", "s.csv": b"id,x,y,z\nA,1e300,1e300,1e300\n"}
+    spec = {"images": [{"id": "N", "measurements": ["a.points"], "camera": "prism-nadir"}], "gcps": ["s.csv"]}
+    assert_problem(upload(local, spec, bad), 422, "/files/a.points")
+    r = upload(local, {"images": image, "camera": "hrsc"}, obs)
+    assert r.status_code == 200 and r.json()["validation"]["valid"] is False  # the image's own camera wins
+    r = upload(local, {"images": [{"id": "N", "measurements": ["a.csv"], "camera": "hrsc"}]}, obs)
+    assert_problem(r, 422, "/spec/camera")
+    r = upload(local, {"images": image}, {"a.csv": b"point,line,column,row\nA,1,2,3\n"})
+    doc = assert_problem(r, 422, "/files/a.csv")
+    assert (doc["errors"][0]["line"], doc["errors"][0]["column"]) == (1, "row")
