@@ -23,6 +23,8 @@ commas, ``#`` comments (recent versions write ``# WKT: ...`` and column notes th
   **centres**: ASP's (Vision Workbench's) pixel (0, 0) is the centre of the top-left pixel,
   the same origin as ours, so no shift), and their two standard deviations in pixels. Our
   ``sigma_px`` is one value: the larger of the two is taken (noted when they differ).
+- the id: ASP documents an integer; ours are kept as written (any token without blanks or
+  commas), and the writer notes ids that are not integers.
 - the image file name becomes the job's image id by ``images`` (file name -> id), else its
   name without directory and extension (``/data/prism-nadir.tif`` -> ``prism-nadir``).
 """
@@ -169,6 +171,8 @@ def write_asp_gcp(
         if p.get("coordinates") is None or p["id"] not in by_point:
             notes.append(f"point {p['id']!r}: no coordinates or no observation, not written")
             continue
+        if not p["id"].isdigit():
+            notes.append(f"point {p['id']!r}: ASP documents integer GCP ids; renumber if bundle_adjust refuses it")
         xyz = np.array([p["coordinates"]], dtype=float)
         crs = p.get("crs") or points_crs
         lon, lat, h = (float(v) for v in (xyz[0] if crs == "EPSG:4326" else from_ecef(to_ecef(xyz, crs), "EPSG:4979")[0]))
