@@ -174,3 +174,22 @@ def test_an_image_may_name_a_library_camera_in_place() -> None:
     doc["cameras"] = [{"id": "prism-nadir@v2", "focal_mm": 1.0, "pixel_mm": 0.01, "line_time_s": 0.001, "lines": 10, "columns": 10}]
     with pytest.raises(ValueError, match="defines otherwise"):
         load_job(doc)
+
+
+def test_column_map_model_comparison_and_options(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--columns renames a survey's header, several --model names make a comparison, --options
+    is merged into the job's options."""
+    monkeypatch.chdir(tmp_path)
+    Path("levantamento.csv").write_text("Ponto;Leste;Norte;Altura\nA;-51.1;-22.0;400\n")
+    Path("n.csv").write_text("point,line,column\nA,10,20\n")
+    args = ["job", "--camera", "prism-nadir", "--image", "N=n.csv", "--gcps", "levantamento.csv",
+            "--columns", "levantamento.csv:Ponto=id,Leste=x,Norte=y,Altura=z", "--model", "K1,K2",
+            "--options", '{"covariance": false}', "-o", "job.json"]
+    assert main(args) == 1  # composed and written; one control point cannot orient an image
+    job = json.loads(Path("job.json").read_text())
+    assert job["points"] == [{"id": "A", "role": "gcp", "coordinates": [-51.1, -22.0, 400.0]}]
+    assert job["options"] == {"covariance": False, "models": ["K1", "K2"]}
+    assert job["images"][0]["model"] == {"name": "K1"}
+    assert "problem: " in capsys.readouterr().err
