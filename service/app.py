@@ -18,6 +18,7 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.routing import APIRoute
 
 from service.auth import local_user
+from service.cameras import ensure_presets
 from service.deps import Services
 from service.errors import install_error_handlers, problem_responses
 from service.jobs import JobService
@@ -39,6 +40,7 @@ log = logging.getLogger("pba.service")
 ROUTER_MODULES: tuple[str, ...] = (
     "landing",
     "processes",
+    "compose",
     "jobs",
     "cameras",
     "ops",
@@ -60,6 +62,7 @@ def _operation_id(route: APIRoute) -> str:
 def _start_services(settings: Settings) -> Services:
     settings.data_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     store = open_store(settings.resolved_database_url)
+    ensure_presets(store)  # the sensor presets in the shared camera library
     backend = make_backend(settings, store)
     services = Services(
         settings=settings,

@@ -15,6 +15,7 @@ the namespace-qualified name and the version actually used) for provenance.
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from pydantic import ValidationError
@@ -22,10 +23,37 @@ from pydantic import ValidationError
 from service.errors import Forbidden, InvalidInput, NotFound
 from service.problems import json_pointer, pydantic_errors
 from service.store import SHARED, CameraRecord, Store, UserRecord
+from solver.importers.presets import PRESETS
 from solver.schema.job import Camera, Job
+
+log = logging.getLogger("pba.service")
 
 JOB_CAMERA_FIELDS = frozenset(Camera.model_fields) - {"id", "ref"}
 SHARED_PREFIX = SHARED + "/"
+PRESETS_CREATOR = "presets"  # created_by of the sensor presets' versions
+
+
+def ensure_presets(store: Store) -> list[str]:
+    """Publish the sensor presets (:mod:`solver.importers.presets`) in the shared namespace:
+    every preset version the store does not have yet is added, in order, so ``prism-nadir``
+    version N of the library is preset version N on every server. A shared name already
+    published by someone else is left alone (logged). Returns the names added to."""
+    added: list[str] = []
+    for name, versions in PRESETS.items():
+        stored, _ = store.list_cameras(name, 1000, 0, owners=[SHARED])
+        if any(r.created_by != PRESETS_CREATOR for r in stored):
+            log.warning("shared camera %r was published by a user: the preset of that name is not added", name)
+            continue
+        for preset in versions[len(stored) :]:
+            store.add_camera(
+                name,
+                f"{preset.description}. Source: {preset.source}",
+                preset.definition,
+                PRESETS_CREATOR,
+                owner=SHARED,
+            )
+            added.append(name)
+    return added
 
 
 def namespace_of(store: Store, user_id: str, name: str) -> tuple[str, str]:

@@ -220,7 +220,8 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
                 Problem(
                     "camera_ref_unresolved",
                     f"camera {cam.id!r} refers to library camera {cam.ref.name!r} "  # type: ignore[union-attr]
-                    "which must be resolved by the server before solving",
+                    "which must be resolved by the server before solving (pba job --camera NAME "
+                    "writes a sensor preset's values into the job)",
                     ("cameras", i, "ref"),
                 )
             )

@@ -327,7 +327,12 @@ class Image(_Strict):
     """One pushbroom image."""
 
     id: str = Field(min_length=1, max_length=64)
-    camera: str = Field(min_length=1, max_length=64)
+    camera: str = Field(
+        min_length=1,
+        max_length=64,
+        description='id of a camera of cameras[]; or, in place, {"ref": {"name": "prism-nadir"}} '
+        "(a library camera or sensor preset, added to cameras[])",
+    )
     model: ModelChoice
     approx_state: ApproxState | None = None
     first_line_time_s: TimeS | None = None
@@ -562,6 +567,38 @@ class Job(_Strict):
         default_factory=list, description="straight lines (control or check) and their image observations"
     )
     options: SolverOptions = Field(default_factory=SolverOptions)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _image_camera_refs(cls, data: Any) -> Any:
+        """An image may name a library camera (or sensor preset) in place:
+        ``"camera": {"ref": {"name": "prism-nadir"[, "version": 1]}}``. It becomes the
+        ``cameras`` entry ``{"id": "prism-nadir"[@v1], "ref": {...}}`` (added once, however
+        many images name it) and the image names that id; the server resolves the ref."""
+        if not isinstance(data, dict) or not isinstance(data.get("images"), list):
+            return data
+        if not any(isinstance(im, dict) and isinstance(im.get("camera"), dict) for im in data["images"]):
+            return data
+        cameras = list(data.get("cameras") or [])
+        by_id = {c.get("id"): c for c in cameras if isinstance(c, dict)}
+        images = []
+        for k, im in enumerate(data["images"]):
+            if isinstance(im, dict) and isinstance(im.get("camera"), dict):
+                ref = im["camera"].get("ref")
+                if set(im["camera"]) != {"ref"} or not isinstance(ref, dict) or not isinstance(ref.get("name"), str):
+                    raise ValueError(
+                        f"images[{k}].camera is a camera id or {{\"ref\": {{\"name\": ..., \"version\": ...}}}}"
+                    )
+                cid = ref["name"] + (f"@v{ref['version']}" if ref.get("version") is not None else "")
+                entry = {"id": cid, "ref": dict(ref)}
+                if cid not in by_id:
+                    cameras.append(entry)
+                    by_id[cid] = entry
+                elif by_id[cid] != entry:
+                    raise ValueError(f"images[{k}].camera refers to {cid!r}, which cameras[] defines otherwise")
+                im = {**im, "camera": cid}
+            images.append(im)
+        return {**data, "images": images, "cameras": cameras}
 
 
 def load_job(data: dict[str, Any] | str | bytes) -> Job:

@@ -19,6 +19,7 @@ from service.app import create_app
 from service.auth import create_key
 from service.settings import Settings
 from service.store import open_store
+from solver.importers.presets import PRESETS
 
 PROBLEM = "application/problem+json"
 
@@ -271,7 +272,8 @@ def test_camera_library_and_refs(local: TestClient, triplet_doc: dict[str, Any])
     assert local.get("/cameras/prism-backward").json()["version"] == 2
     assert local.get("/cameras/prism-backward/versions/1").json()["description"] == "v1"
     assert local.get("/cameras/prism-backward/versions").json()["numberMatched"] == 2
-    assert local.get("/cameras").json()["numberMatched"] == 1
+    # one own camera and the sensor presets of the shared namespace
+    assert local.get("/cameras").json()["numberMatched"] == 1 + len(PRESETS)
     assert_problem(local.get("/cameras/none"), 404)
     assert_problem(local.get("/cameras/prism-backward/versions/9"), 404)
     bad = dict(definition, focal_mm="long")

@@ -1,0 +1,205 @@
+"""``pba job``: compose a job document from survey, measurement, ephemeris and attitude files,
+validate it and say what it holds; ``pba job-sources``: the inverse (a job's source files).
+
+Example::
+
+    pba job --camera prism-nadir --image N=N_points.csv --gcps survey.csv --crs EPSG:31982 \\
+        --model K2 -o job.json
+
+Flags taking ``ID=VALUE`` are per image (``--camera N=prism-nadir``); ``--camera NAME`` alone
+is the default of every image. A measurement file's type follows its extension: ``.csv``
+(our pixel convention), ``.points`` (QGIS Georeferencer), ``.gcp`` (ASP). Problems in files
+are printed as ``file, line L, column C: message``; the exit status is 0 for a valid job, 1
+for a job the solver's checks refuse (the document is still written), 2 when no job could be
+composed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+
+from solver.importers.compose import (
+    ComposeRequest,
+    ImageSources,
+    SourceFile,
+    compose_job,
+    format_summary,
+    summarize,
+)
+from solver.importers.errors import SourceError, fail
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("job", help="compose a job document from survey, measurement and ephemeris files")
+    p.add_argument("--image", action="append", default=[], metavar="ID=FILE",
+                   help="measurements of image ID (.csv, .points, .gcp); repeat for more files or images")
+    p.add_argument("--camera", action="append", default=[], metavar="[ID=]NAME",
+                   help="camera by name: a preset (prism-backward, prism-nadir, prism-forward, cbers-ccd) "
+                   "or a camera of --camera-file; ID= for one image")
+    p.add_argument("--camera-file", action="append", default=[], type=Path, metavar="FILE",
+                   help="JSON camera definitions (a camera, a list, or {\"cameras\": [...]})")
+    p.add_argument("--gcps", action="append", default=[], type=Path, metavar="FILE", help="control points table")
+    p.add_argument("--checks", action="append", default=[], type=Path, metavar="FILE", help="check points table")
+    p.add_argument("--points", action="append", default=[], type=Path, metavar="FILE",
+                   help="points table with a role column (gcp, check, tie)")
+    p.add_argument("--crs", help="CRS of the point tables (EPSG code or PROJ string; default EPSG:4326)")
+    p.add_argument("--asp-gcp", action="append", default=[], type=Path, metavar="FILE",
+                   help="ASP GCP file naming its images (image ids: the file names without extension)")
+    p.add_argument("--ephemeris", action="append", default=[], metavar="ID=FILE", help="state vectors of image ID")
+    p.add_argument("--attitude", action="append", default=[], metavar="ID=FILE", help="attitude samples of image ID")
+    p.add_argument("--state", action="append", default=[], metavar="ID=FILE",
+                   help="header state of image ID: one row, the state at the first line and its time")
+    p.add_argument("--time-scale", help="time scale of time files that do not state one (GPS, UTC, ...)")
+    p.add_argument("--columns", action="append", default=[], metavar="FILE:NAME=COLUMN[,...]",
+                   help="map a file's column names onto the format's (e.g. survey.csv:E=x,N=y,H=z)")
+    p.add_argument("--model", default="K2", help="platform model; several comma-separated: a model comparison")
+    p.add_argument("--options", help="solver options as JSON (object) or a JSON file")
+    p.add_argument("--name", default="job", help="job name")
+    p.add_argument("--sigma-px", type=float, default=0.5, help="measurement sigma where a file gives none (px)")
+    p.add_argument("--match-tolerance", type=float, default=1.0,
+                   help=".points rows are matched to survey points within this distance (m)")
+    p.add_argument("--map-crs", help="CRS of .points files without a #CRS: line")
+    p.add_argument("-o", "--output", type=Path, help="job document (JSON); default stdout")
+    p.set_defaults(func=cmd_job)
+
+    p = sub.add_parser("job-sources", help="write a job's measurements, survey and tables back as source files")
+    p.add_argument("job", type=Path, help="job document (JSON)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="directory")
+    p.add_argument("--format", action="append", default=[], metavar="ID=FORMAT",
+                   help="measurement format of image ID: csv (default), qgis, asp")
+    p.set_defaults(func=cmd_job_sources)
+
+
+def _pairs(values: list[str], flag: str) -> list[tuple[str, str]]:
+    out = []
+    for v in values:
+        if "=" not in v:
+            raise fail(flag, 0, "", f"{v!r}: expected ID=VALUE", "bad_argument")
+        k, val = v.split("=", 1)
+        out.append((k, val))
+    return out
+
+
+def _file(path: Path | str, columns: dict[str, dict[str, str]]) -> SourceFile:
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise fail(str(path), 0, "", f"cannot read: {exc.strerror}", "unreadable_file") from None
+    return SourceFile(str(path), data, columns.get(str(path), {}))
+
+
+def _column_maps(values: list[str]) -> dict[str, dict[str, str]]:
+    out: dict[str, dict[str, str]] = {}
+    for v in values:
+        path, _, spec = v.rpartition(":")
+        if not path or not spec:
+            raise fail("--columns", 0, "", f"{v!r}: expected FILE:NAME=COLUMN[,...]", "bad_argument")
+        out[path] = dict(pair.split("=", 1) for pair in spec.split(",") if "=" in pair)
+    return out
+
+
+def request_from_args(args: argparse.Namespace) -> ComposeRequest:
+    """The composition the flags describe (files read here)."""
+    columns = _column_maps(args.columns)
+    images: dict[str, ImageSources] = {}
+
+    def image(iid: str) -> ImageSources:
+        return images.setdefault(iid, ImageSources(iid))
+
+    for iid, path in _pairs(args.image, "--image"):
+        image(iid).measurements.append(_file(path, columns))
+    default_camera = None
+    for v in args.camera:
+        if "=" in v:
+            iid, name = v.split("=", 1)
+            image(iid).camera = name
+        else:
+            default_camera = v
+    for flag, attr in (("--ephemeris", "ephemeris"), ("--attitude", "attitude"), ("--state", "state")):
+        for iid, path in _pairs(getattr(args, attr), flag):
+            setattr(image(iid), attr, _file(path, columns))
+    options: dict[str, Any] = {}
+    if args.options:
+        text = Path(args.options).read_text() if Path(args.options).is_file() else args.options
+        try:
+            options = json.loads(text)
+        except ValueError as exc:
+            raise fail("--options", 0, "", f"not JSON: {exc}", "bad_argument") from None
+        if not isinstance(options, dict):
+            raise fail("--options", 0, "", "a JSON object is expected", "bad_argument")
+    return ComposeRequest(
+        images=list(images.values()),
+        gcps=[_file(p, columns) for p in args.gcps],
+        checks=[_file(p, columns) for p in args.checks],
+        points=[_file(p, columns) for p in args.points],
+        asp_gcp=[_file(p, columns) for p in args.asp_gcp],
+        camera_files=[_file(p, columns) for p in args.camera_file],
+        camera=default_camera,
+        crs=args.crs,
+        models=[m.strip() for m in args.model.split(",") if m.strip()],
+        options=options,
+        name=args.name,
+        time_scale=args.time_scale,
+        sigma_px=args.sigma_px,
+        match_tolerance_m=args.match_tolerance,
+        map_crs=args.map_crs,
+    )
+
+
+def cmd_job(args: argparse.Namespace) -> int:
+    from solver.api import validate
+    from solver.schema.job import load_job
+
+    try:
+        composed = compose_job(request_from_args(args))
+    except SourceError as exc:
+        for p in exc.source_problems:
+            print(p, file=sys.stderr)
+        return 2
+    for note in composed.notes:
+        print(f"note: {note}", file=sys.stderr)
+    text = json.dumps(composed.job, indent=1) + "\n"
+    if args.output:
+        args.output.write_text(text)
+    else:
+        sys.stdout.write(text)
+    try:
+        job = load_job(composed.job)
+    except ValidationError as exc:
+        for err in exc.errors():
+            print("invalid: /" + "/".join(str(x) for x in err["loc"]) + f": {err['msg']}", file=sys.stderr)
+        return 1
+    for line in format_summary(summarize(composed.job)):
+        print(line, file=sys.stderr)
+    result = validate(job)
+    for p in result.get("problems", []):
+        print("problem: /" + "/".join(str(x) for x in p.get("location", [])) + f": {p['message']}", file=sys.stderr)
+    if result.get("valid"):
+        print(f"valid: {result.get('n_observations')} observations, {result.get('n_unknowns')} unknowns, "
+              f"{result.get('dof')} degrees of freedom", file=sys.stderr)
+        return 0
+    return 1
+
+
+def cmd_job_sources(args: argparse.Namespace) -> int:
+    from solver.importers.export import FORMATS, write_sources
+
+    job = json.loads(args.job.read_text())
+    formats = {}
+    for v in args.format:
+        iid, _, fmt = v.partition("=")
+        if fmt not in FORMATS:
+            print(f"--format {v}: one of {', '.join(FORMATS)}", file=sys.stderr)
+            return 2
+        formats[iid] = fmt
+    call = write_sources(job, args.output, formats)
+    print("pba job " + shlex.join(call) + " -o job.json", file=sys.stderr)
+    return 0

@@ -1,0 +1,81 @@
+"""The job builder of the web page: the example triplet built from its source files (CSV,
+QGIS .points, ASP .gcp, survey, state, ephemeris, attitude and camera files), submitted through
+the page, reaches the same report as the JSON example (sigma0 and check-point RMSE to 1e-6);
+a survey whose header is not recognised gets a column map."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+from pba_service_harness import ROOT, Server, submit_async, wait_status
+from playwright.sync_api import expect
+
+pytestmark = pytest.mark.browser
+
+SOURCES = ROOT / "examples" / "prism-triplet-sources"
+EXAMPLE = ROOT / "examples" / "prism-triplet.json"
+SOLVE_MS = 240_000
+SAME = 1e-6  # sigma0 (dimensionless) and RMSE (m): the same adjustment, points in another order
+
+
+def test_build_the_example_triplet_from_its_files(page: Any, local_server: Server, tmp_path: Path) -> None:
+    page.goto(f"{local_server.url}/ui")
+    page.set_input_files("#builder-input", [str(p) for p in sorted(SOURCES.iterdir())])
+    expect(page.locator("#builder-status")).to_contain_text("219 degrees of freedom", timeout=60_000)
+    # what the page recognised
+    kinds = {
+        "survey.csv": "points",
+        "cameras.json": "cameras",
+        "prism-nadir.points": "measurements",
+        "prism-forward.gcp": "measurements",
+        "prism-nadir-ties.csv": "measurements",
+        "prism-backward.state.csv": "state",
+        "prism-forward.attitude.csv": "attitude",
+    }
+    for name, kind in kinds.items():
+        expect(page.locator(f'select.b-kind[data-file="{name}"]')).to_have_value(kind)
+    expect(page.locator('input.b-image[data-file="prism-nadir-ties.csv"]')).to_have_value("prism-nadir")
+    expect(page.locator('select.b-camera[data-image="prism-forward"]')).to_have_value("prism-forward")
+    expect(page.locator("#builder-messages")).to_contain_text("prism-nadir: 22 gcp, 20 check, 40 tie measured")
+    page.fill("#b-name", "triplet from files")
+    expect(page.locator("#builder-json")).to_have_value(re.compile('"name": "triplet from files"'), timeout=60_000)
+    expect(page.locator("#builder-status")).to_contain_text("219 degrees of freedom", timeout=60_000)
+    built = json.loads(page.locator("#builder-json").input_value())
+    assert built["name"] == "triplet from files" and len(built["observations"]) == 246
+    page.click("#builder-submit")
+    expect(page.locator("#cur-status")).to_have_text("successful", timeout=SOLVE_MS)
+    job_id = page.locator("#cur-id").inner_text()
+
+    with local_server.client() as c:
+        example_id = submit_async(c, json.loads(EXAMPLE.read_text()))
+        assert wait_status(c, example_id, timeout=SOLVE_MS / 1000)["status"] == "successful"
+        from_files = c.get(f"/jobs/{job_id}/results").json()["report"]
+        from_json = c.get(f"/jobs/{example_id}/results").json()["report"]
+    a, b = from_files["adjustment"], from_json["adjustment"]
+    assert abs(a["sigma0_aposteriori"] - b["sigma0_aposteriori"]) < SAME
+    assert a["dof"] == b["dof"] == 219
+    for k in ("e", "n", "u", "planimetric"):
+        assert abs(from_files["checkpoints"]["rmse_m"][k] - from_json["checkpoints"]["rmse_m"][k]) < SAME
+    assert from_files["checkpoints"]["n"] == from_json["checkpoints"]["n"] == 20
+
+
+def test_an_unrecognised_header_gets_a_column_map(page: Any, local_server: Server, tmp_path: Path) -> None:
+    files = [p for p in sorted(SOURCES.iterdir()) if p.name != "survey.csv"]
+    lines = (SOURCES / "survey.csv").read_text().splitlines()
+    head = lines.index("id,x,y,z,sx,sy,sz,role")
+    lines[head] = "Ponto,Leste,Norte,Altura,sx,sy,sz,role"
+    survey = tmp_path / "levantamento.csv"
+    survey.write_text("\n".join(lines) + "\n")
+    page.goto(f"{local_server.url}/ui")
+    page.set_input_files("#builder-input", [str(p) for p in files] + [str(survey)])
+    row = page.locator('tr[data-file="levantamento.csv"]')
+    expect(row.locator(".problem")).to_contain_text(f"levantamento.csv, line {head + 1}", timeout=60_000)
+    expect(row.locator(".problem")).to_contain_text("no column for id, x, y, z")
+    for column, name in (("Ponto", "id"), ("Leste", "x"), ("Norte", "y"), ("Altura", "z")):
+        page.select_option(f'select.b-map[data-column="{column}"]', name)
+    expect(page.locator("#builder-status")).to_contain_text("219 degrees of freedom", timeout=60_000)
+    expect(row.locator(".problem")).to_have_count(0)

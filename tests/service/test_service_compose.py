@@ -1,0 +1,156 @@
+"""``POST /jobs/compose`` and the sensor presets of the camera library, in process.
+
+The example triplet's source files (examples/prism-triplet-sources: CSV, QGIS .points, ASP
+.gcp, survey, state, ephemeris and attitude tables) uploaded as multipart give the example
+job's content; a file problem is a 422 problem document naming file, line and column."""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+from typing import Any, Iterator
+
+import pytest
+from fastapi.testclient import TestClient
+from test_service_api import assert_problem, body, make_client
+
+from solver.importers.presets import PRESETS, preset_camera
+
+ROOT = Path(__file__).parent.parent.parent
+SOURCES = ROOT / "examples" / "prism-triplet-sources"
+EXAMPLE = ROOT / "examples" / "prism-triplet.json"
+IMAGES = ("prism-backward", "prism-nadir", "prism-forward")
+PX_TOL = 1e-9  # px: QGIS's +-0.5 px shifts
+
+
+@pytest.fixture
+def local(tmp_path: Path) -> Iterator[TestClient]:
+    with make_client(tmp_path) as c:
+        yield c
+
+
+def example_spec() -> dict[str, Any]:
+    measurements = {
+        "prism-backward": ["prism-backward.csv"],
+        "prism-nadir": ["prism-nadir.points", "prism-nadir-ties.csv"],
+        "prism-forward": ["prism-forward.gcp", "prism-forward-ties.csv"],
+    }
+    return {
+        "name": "PRISM triplet, Presidente Prudente (simulated)",
+        "crs": "EPSG:4326",
+        "points": ["survey.csv"],
+        "camera_files": ["cameras.json"],
+        "models": ["K2"],
+        "images": [
+            {
+                "id": i,
+                "measurements": measurements[i],
+                "state": f"{i}.state.csv",
+                "ephemeris": f"{i}.ephemeris.csv",
+                "attitude": f"{i}.attitude.csv",
+            }
+            for i in IMAGES
+        ],
+    }
+
+
+def upload(c: TestClient, spec: dict[str, Any], files: dict[str, bytes]) -> Any:
+    return c.post(
+        "/jobs/compose",
+        data={"spec": json.dumps(spec)},
+        files=[("files", (name, data, "application/octet-stream")) for name, data in files.items()],
+    )
+
+
+def example_files() -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(SOURCES.iterdir())}
+
+
+def test_compose_the_example_triplet_from_its_files(local: TestClient) -> None:
+    r = upload(local, example_spec(), example_files())
+    assert r.status_code == 200, r.text[:2000]
+    doc = r.json()
+    job, want = doc["job"], json.loads(EXAMPLE.read_text())
+    assert {k: job[k] for k in ("name", "crs", "cameras", "images")} == {k: want[k] for k in ("name", "crs", "cameras", "images")}
+    assert sorted(job["points"], key=lambda p: p["id"]) == sorted(want["points"], key=lambda p: p["id"])
+    got = {(o["image"], o["point"]): o for o in job["observations"]}
+    assert got.keys() == {(o["image"], o["point"]) for o in want["observations"]}
+    for o in want["observations"]:
+        g = got[(o["image"], o["point"])]
+        assert abs(g["line"] - o["line"]) < PX_TOL and abs(g["column"] - o["column"]) < PX_TOL
+    assert doc["validation"]["valid"] is True and doc["validation"]["dof"] == 219
+    assert doc["summary"]["images"]["prism-nadir"] == {"gcp": 22, "check": 20, "tie": 40}
+    assert any("tie points" in n for n in doc["notes"])
+    # and the composed document is a job the server accepts
+    assert local.post("/jobs/validate", json=body(job)).status_code == 200
+
+
+def test_a_bad_file_is_a_problem_naming_file_line_column(local: TestClient) -> None:
+    files = example_files()
+    lines = files["prism-nadir.points"].decode().splitlines()
+    lines[4] = lines[4].replace(",1,0,0,0", ",yes,0,0,0")  # the enable field of the third row
+    files["prism-nadir.points"] = ("\n".join(lines) + "\n").encode()
+    doc = assert_problem(upload(local, example_spec(), files), 422, "/files/prism-nadir.points")
+    entry = doc["errors"][0]
+    assert (entry["file"], entry["line"], entry["column"]) == ("prism-nadir.points", 5, "enable")
+
+
+def test_spec_problems_point_into_the_spec(local: TestClient) -> None:
+    spec = example_spec()
+    spec["images"][1]["measurements"].append("missing.csv")
+    assert_problem(upload(local, spec, example_files()), 422, "/spec/images/1/measurements/2")
+    assert_problem(upload(local, {"images": []}, example_files()), 422, "/spec/images")
+    r = local.post("/jobs/compose", data={"spec": "{not json"}, files=[("files", ("a.csv", b"x"))])
+    assert_problem(r, 422)
+
+
+def test_library_cameras_by_name_are_refs_resolved_for_the_checks(local: TestClient) -> None:
+    """Without cameras.json the images name the presets: the job keeps refs to the shared
+    versions, the checks see the resolved cameras."""
+    spec = example_spec()
+    spec["camera_files"] = []
+    for im in spec["images"]:
+        im["camera"] = im["id"]
+    r = upload(local, spec, {k: v for k, v in example_files().items() if k != "cameras.json"})
+    assert r.status_code == 200, r.text[:2000]
+    cams = r.json()["job"]["cameras"]
+    assert cams[1] == {"id": "prism-nadir", "ref": {"name": "shared/prism-nadir", "version": 1}}
+    assert r.json()["validation"]["valid"] is True
+
+
+def test_presets_are_shared_library_cameras_once(tmp_path: Path, triplet_doc: dict[str, Any]) -> None:
+    for _ in range(2):  # a restart publishes nothing twice
+        with make_client(tmp_path) as c:
+            for name in PRESETS:
+                got = c.get(f"/cameras/shared/{name}").json()
+                assert got["version"] == 1 and got["shared"] is True
+                want = {k: v for k, v in preset_camera(name).items() if k != "id"}
+                assert {k: got["definition"][k] for k in want} == want
+                assert c.get(f"/cameras/shared/{name}/versions").json()["numberMatched"] == 1
+    with make_client(tmp_path) as c:
+        job = copy.deepcopy(triplet_doc)
+        job["cameras"] = job["cameras"][:2]
+        job["images"][2]["camera"] = {"ref": {"name": "prism-forward"}}
+        r = c.post("/jobs/validate", json=body(job))
+        assert r.status_code == 200, r.text[:1000]
+
+
+def test_hostile_uploads_are_4xx_never_500(local: TestClient) -> None:
+    """NaN in the spec or a camera file, untransformable coordinates, duplicate columns."""
+    obs = {"a.csv": b"point,line,column\nA,1,2\n"}
+    image = [{"id": "N", "measurements": ["a.csv"], "camera": "prism-nadir"}]
+    r = local.post("/jobs/compose", data={"spec": '{"images": [{"id": "N"}], "options": {"x": NaN}}'}, files=[("files", ("a.csv", b"x"))])
+    assert_problem(r, 422, "/spec")
+    cams = {**obs, "c.json": b'[{"id": "prism-nadir", "focal_mm": NaN}]'}
+    assert_problem(upload(local, {"images": image, "camera_files": ["c.json"]}, cams), 422, "/files/c.json")
+    bad = {"a.points": b"#CRS: EPSG:4326\nmapX,mapY,sourceX,sourceY\n1e300,1e300,1,-1\n", "s.csv": b"id,x,y,z\nA,1e300,1e300,1e300\n"}
+    spec = {"images": [{"id": "N", "measurements": ["a.points"], "camera": "prism-nadir"}], "gcps": ["s.csv"]}
+    assert_problem(upload(local, spec, bad), 422, "/files/a.points")
+    r = upload(local, {"images": image, "camera": "hrsc"}, obs)
+    assert r.status_code == 200 and r.json()["validation"]["valid"] is False  # the image's own camera wins
+    r = upload(local, {"images": [{"id": "N", "measurements": ["a.csv"], "camera": "hrsc"}]}, obs)
+    assert_problem(r, 422, "/spec/camera")
+    r = upload(local, {"images": image}, {"a.csv": b"point,line,column,row\nA,1,2,3\n"})
+    doc = assert_problem(r, 422, "/files/a.csv")
+    assert (doc["errors"][0]["line"], doc["errors"][0]["column"]) == (1, "row")
