@@ -21,7 +21,7 @@ from solver.report.document import assess
 from solver.schema.job import Job
 from solver.state import Problem
 
-__all__ = ["adjust_job", "assert_full_rank", "assess", "parameter_names", "prepare", "solve_problem"]
+__all__ = ["adjust_job", "adjust_once", "assert_full_rank", "assess", "parameter_names", "prepare", "solve_problem"]
 
 
 def _progress(progress, fraction: float, message: str, info: dict | None = None) -> None:
@@ -150,10 +150,10 @@ def adjust_job(
         return _significance_analysis(job, progress, cancel, models)
     if job.options.blunder_detection is not None:
         return _snooping_adjustment(job, progress, cancel, models, fraction_range)
-    return _adjust_once(job, progress, cancel, models, fraction_range)[1]
+    return adjust_once(job, progress, cancel, models, fraction_range)[1]
 
 
-def _adjust_once(
+def adjust_once(
     job: Job,
     progress: Callable[..., None] | None = None,
     cancel: Callable[[], bool] | None = None,
@@ -237,7 +237,7 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
     current = job
     if bd.robust_start != "none" and bd.action == "remove" and bd.max_rejections > 0:
         robust = job.model_copy(update={"options": job.options.model_copy(update={"loss": bd.robust_start})})
-        problem, report = _adjust_once(robust, progress, cancel, models, window())
+        problem, report = adjust_once(robust, progress, cancel, models, window())
         clusters = [c for c in failing_clusters(snoop(problem, bd, robust=True), bd.separability) if c[0].group.removal]
         take = []
         for c in clusters:
@@ -251,7 +251,7 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
                 record(c, report, [])
             record([], report, collateral)
             current = nxt
-    problem, report = _adjust_once(current, progress, cancel, models, window())
+    problem, report = adjust_once(current, progress, cancel, models, window())
     while True:
         sn = snoop(problem, bd)
         if bd.action == "report":
@@ -265,7 +265,7 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
             break
         nxt, collateral = remove(current, [m.group.removal for m in cluster if m.group.removal])
         try:
-            nxt_problem, nxt_report = _adjust_once(nxt, progress, cancel, models, window())
+            nxt_problem, nxt_report = adjust_once(nxt, progress, cancel, models, window())
         except (RankDeficientError, UnusableSolution) as exc:
             warnings.append(f"data snooping stopped: without the next rejected observation the adjustment fails ({exc})")
             break

@@ -138,12 +138,22 @@ def snoop(problem: Problem, options, robust: bool = False) -> Snoop:
     return out
 
 
+def cross_cofactor(st: Structure, g: Group, h: Group) -> np.ndarray:
+    """Q_gh between two groups: the block's own entries, or across blocks (rows sharing only
+    image, camera or pass parameters) -U_g S^-1 U_h^T."""
+    if g.block == h.block:
+        return st.blocks[g.block].q[np.ix_(g.local, h.local)]
+    bg, bh = st.blocks[g.block], st.blocks[h.block]
+    if not len(bg.cols) or not len(bh.cols):
+        return np.zeros((g.dim, h.dim))
+    return -(bg.u[g.local] @ st.s_inv[np.ix_(bg.cols, bh.cols)] @ bh.u[h.local].T)
+
+
 def _correlation(st: Structure, g: Group, h: Group, direction: np.ndarray) -> float:
     """The correlation of the 1-D test of g along ``direction`` (whitened) with h's test."""
-    q = st.blocks[g.block].q
-    q_gh = q[np.ix_(g.local, h.local)]
-    q_hh_inv, d = _pinv(q[np.ix_(h.local, h.local)])
-    den = float(direction @ q[np.ix_(g.local, g.local)] @ direction)
+    q_gh = cross_cofactor(st, g, h)
+    q_hh_inv, d = _pinv(group_cofactor(st, h))
+    den = float(direction @ group_cofactor(st, g) @ direction)
     if d == 0 or den <= 0:
         return 0.0
     x = q_gh.T @ direction
@@ -151,14 +161,16 @@ def _correlation(st: Structure, g: Group, h: Group, direction: np.ndarray) -> fl
 
 
 def inseparable(sn: Snoop, t: Test, threshold: float) -> list[Test]:
-    """The tests of t's block that cannot be told apart from t for its estimated error (t first)."""
+    """The tests that cannot be told apart from t for its estimated error (t first): all the
+    tests of t's block, and the failed tests of other blocks (a test correlated with t to
+    ``threshold`` >= 0.5 fails along with it when t's error is large enough to be rejected)."""
     members = [t]
     nrm = float(np.linalg.norm(t.error_whitened))
     if nrm == 0:
         return members
     direction = t.error_whitened / nrm
     for u in sn.tests:
-        if u is t or u.group.block != t.group.block or u.w is None:
+        if u is t or u.w is None or (u.group.block != t.group.block and not u.failed):
             continue
         if _correlation(sn.structure, t.group, u.group, direction) >= threshold:
             members.append(u)
@@ -175,7 +187,7 @@ def worst(sn: Snoop, removable_only: bool = True) -> Test | None:
 
 def entry(t: Test, removed: bool) -> dict[str, Any]:
     """A test as a ``quality.rejected`` entry (also the shape of ``not_identifiable`` members)."""
-    out = {"kind": t.group.kind, **{k: v for k, v in t.group.label.items() if k != "role"}}
+    out = {"kind": t.group.kind, "image": None, **{k: v for k, v in t.group.label.items() if k != "role"}}
     out.update(
         {
             "w": t.w,
@@ -228,6 +240,7 @@ def reliability_section(sn: Snoop) -> dict[str, Any]:
             effect_point = None if dx_pt is None else [float(x) for x in dx_pt]
         item = {
             "kind": g.kind,
+            "image": None,
             **{k: v for k, v in g.label.items() if k != "role"},
             "redundancy": [float(x) for x in r],
             "mdb": mdb,
