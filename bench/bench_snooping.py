@@ -28,7 +28,7 @@ from solver.api import run
 
 def _rmse(report) -> float:
     r = report["checkpoints"]["rmse_m"]
-    return float(np.sqrt(r["planimetric"] ** 2 + r["u"] ** 2))
+    return float(np.sqrt(r["planimetric"] ** 2 + (r["u"] or 0.0) ** 2))  # mono check points: no u
 
 
 def _inject(job: dict, rng, n_image: int, n_control: int) -> list[tuple[str, str | None, str]]:
@@ -71,7 +71,11 @@ def blunders(args) -> None:
     }
     for seed in args.seeds:
         job = makers[args.preset](seed).job()
-        clean = run(copy.deepcopy(job))
+        probe = copy.deepcopy(job)
+        probe.setdefault("options", {})["blunder_detection"] = {"action": "report"}
+        clean = run(probe)  # the blunder-free adjustment, with its tests (nothing removed)
+        clean_failed = {(r["kind"], r.get("image"), r["point"]) for r in clean["quality"]["rejected"]}
+        clean_failed |= {(m["kind"], m.get("image"), m["point"]) for g in clean["quality"]["not_identifiable"] for m in g["members"]}
         rng = np.random.default_rng(1000 + seed)
         bad = copy.deepcopy(job)
         injected = _inject(bad, rng, args.image_blunders, args.control_blunders)
@@ -99,6 +103,8 @@ def blunders(args) -> None:
                     "missed": missed,
                     "false_rejections": sorted(map(str, false)),
                     "false_groups": len(false_groups),
+                    "false_also_failed_clean": sum(r in clean_failed for r in false),
+                    "clean_failed_tests": len(clean_failed),
                     "sigma0": rep["adjustment"]["sigma0_aposteriori"],
                     "chi2_passed": rep["adjustment"]["chi2"]["passed"],
                     "sigma0_clean": clean["adjustment"]["sigma0_aposteriori"],
