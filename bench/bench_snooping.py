@@ -53,9 +53,13 @@ def _inject(job: dict, rng, n_image: int, n_control: int) -> list[tuple[str, str
     for p in list(rng.permutation(len(gcps)))[:n_control]:
         p = gcps[p]
         mag, ang = rng.uniform(10, 30), rng.uniform(0, 2 * np.pi)
-        lat = np.radians(p["coordinates"][1])
-        p["coordinates"][0] += mag * np.cos(ang) / (111320.0 * np.cos(lat))
-        p["coordinates"][1] += mag * np.sin(ang) / 110540.0
+        if (p.get("crs") or job.get("crs", "EPSG:4326")) == "EPSG:4326":  # lon, lat degrees
+            lat = np.radians(p["coordinates"][1])
+            p["coordinates"][0] += mag * np.cos(ang) / (111320.0 * np.cos(lat))
+            p["coordinates"][1] += mag * np.sin(ang) / 110540.0
+        else:  # a projected CRS in metres (cbers-scene: UTM)
+            p["coordinates"][0] += mag * np.cos(ang)
+            p["coordinates"][1] += mag * np.sin(ang)
         out.append(("control_point", None, p["id"]))
     return out
 

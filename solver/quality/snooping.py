@@ -30,6 +30,7 @@ from scipy import stats
 
 from solver.engine.linalg import linearise, positive_definite_inverse, schur
 from solver.quality.reliability import (
+    REDUNDANCY_NEAR_ZERO,
     Group,
     Structure,
     bias_effect,
@@ -42,7 +43,7 @@ from solver.quality.reliability import (
 )
 from solver.state import Problem
 
-EIGEN_TOL = 1e-6  # eigenvalues of Q_gg below this (redundancy ~0) carry no test
+EIGEN_TOL = REDUNDANCY_NEAR_ZERO  # eigenvalues of Q_gg below this (redundancy ~0) carry no test
 SIGN = {"image_point": 1.0, "line_point": 1.0, "control_point": -1.0, "ephemeris_sample": -1.0, "attitude_sample": -1.0}
 
 
@@ -250,8 +251,8 @@ def reliability_section(sn: Snoop) -> dict[str, Any]:
             "effect_on_point_m": effect_point,
         }
         items.append(item)
-        if g.kind == "control_point" and (r <= 1e-3).any():
-            unchecked.append({"point": g.label["point"], "unchecked": [c for c, x in zip(g.components, r) if x <= 1e-3]})
+        if g.kind == "control_point" and (r <= REDUNDANCY_NEAR_ZERO).any():
+            unchecked.append({"point": g.label["point"], "unchecked": [c for c, x in zip(g.components, r) if x <= REDUNDANCY_NEAR_ZERO]})
     return {
         "alpha0": sn.alpha0,
         "beta": sn.beta,
