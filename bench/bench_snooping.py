@@ -93,6 +93,8 @@ def blunders(args) -> None:
         found = [b for b in injected if b in rej]
         grouped = [b for b in injected if b not in rej and any(b in g for g in groups)]
         missed = [b for b in injected if b not in rej and b not in grouped]
+        mdbs = {(g["kind"], g.get("image"), g["point"]): g["mdb"] for g in clean["quality"]["reliability"]["groups"]}
+        missed = [[*b, "mdb", mdbs.get(b)] for b in missed]  # the clean adjustment's MDB of each
         false = [r for r in rej if r not in injected]
         false_groups = [g for g in groups if not any(b in g for b in injected)]
         print(

@@ -65,8 +65,13 @@ def test_redundancy_blocks_equal_the_dense_hat_matrix(weighted_block) -> None:
 
 def test_w_statistics_on_clean_data_follow_chi_square() -> None:
     """Monte Carlo over the noise (model exact): each group's T = w^2 sigma0^2 follows chi2(d)
-    (Kolmogorov-Smirnov on the pooled probability integral transforms)."""
+    (Kolmogorov-Smirnov on the pooled probability integral transforms); with sigma0 estimated
+    (Pope), T / v^T v follows Beta(d/2, (r - d)/2) and tau stays below its critical value as
+    often as alpha0 says."""
     pit = []
+    pit_pope = []
+    pope = BlunderDetection(variance="estimated", alpha0=0.05)
+    n_pope = n_pope_failed = 0
     for k in range(12):
         job, _ = single_image_job(model="K2", n_gcp=14, n_check=0, seed=5, gcp_sigma_m=0.5, noise_seed=500 + k)
         problem, _report = _adjusted(job)
@@ -74,6 +79,14 @@ def test_w_statistics_on_clean_data_follow_chi_square() -> None:
         for t in sn.tests:
             if t.dof:
                 pit.append(stats.chi2.cdf(t.statistic, t.dof))
+                pit_pope.append(stats.beta.cdf(t.statistic / sn.vtpv, t.dof / 2, (sn.dof - t.dof) / 2))
+        for t in snoop(problem, pope).tests:
+            if t.w is not None:
+                n_pope += 1
+                n_pope_failed += t.failed
+    assert stats.kstest(np.array(pit_pope), "uniform").pvalue > 1e-3
+    # binomial: 5 % of ~400 tests fail, 4 sigma either side (the tests of one run are correlated)
+    assert abs(n_pope_failed - 0.05 * n_pope) < 4 * np.sqrt(0.05 * 0.95 * n_pope) + 5
     pit = np.array(pit)
     assert len(pit) > 200
     # uniform if the tests are calibrated; a test using the leverage wrongly (e.g. without
