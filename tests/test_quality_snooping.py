@@ -255,3 +255,24 @@ def test_empty_object_means_the_defaults() -> None:
     bd = load_job(job).options.blunder_detection
     assert (bd.alpha0, bd.beta, bd.action, bd.variance) == (0.001, 0.8, "remove", "apriori")
     assert validate(job)["valid"]
+
+
+def test_every_observation_kind_is_tested() -> None:
+    """Lines (rigorous: one test per measured point), measured attitude (3-D per sample) and
+    weighted platform states get their groups, and all redundancies still add up to the degrees
+    of freedom (no row left out, none counted twice)."""
+    import json
+    from pathlib import Path
+
+    from solver.synthetic_lines import lines_job
+
+    direct = json.loads((Path(__file__).resolve().parents[1] / "examples" / "prism-triplet-direct.json").read_text())
+    lines, _ = lines_job(seed=2)
+    for job, kinds in ((direct, {"image_point", "attitude_sample", "ephemeris_sample"}), (lines, {"line_point"})):
+        job.setdefault("options", {})["blunder_detection"] = {"action": "report"}
+        rel = run(job)["quality"]["reliability"]
+        assert {g["kind"] for g in rel["groups"]} == kinds
+        assert rel["total_redundancy"] == pytest.approx(rel["dof"], abs=1e-3)
+        att = [g for g in rel["groups"] if g["kind"] == "attitude_sample"]
+        # attitude samples: MDB of the order of a few sigmas (0.002 deg) in degrees
+        assert all(0.002 < m < 0.05 for g in att for m in g["mdb"])

@@ -108,22 +108,25 @@ def _obs_rows(lin: Linearisation, idx: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 def _term_kinds(problem: Problem, lin: Linearisation) -> list[tuple[str, int, dict, list]]:
     """(kind, rows per group, label, per-group labels) of each image-only term, in order."""
-    from solver.observations.attitude import _block_terms
+    from solver.observations.attitude import _block_terms, block_samples
     from solver.observations.lines import LineTerm
     from solver.observations.passes import PassStateTerm
-    from solver.observations.state_priors import StatePrior
+    from solver.observations.state_priors import StatePrior, all_state_priors
     from solver.propagation import PASS_T_OFF
 
-    att = {id(term): block for block, term in _block_terms(problem)}
+    # solver.engine.terms.image_terms order: state priors, then the families (attitude), then
+    # lines, passes; the attitude terms are StatePriors too, so they are told apart by position
+    n_state = len(all_state_priors(problem))
+    att_blocks = [block for block, _term in _block_terms(problem)]
     out = []
-    for term in lin.terms:
+    for k, term in enumerate(lin.terms):
         if isinstance(term, LineTerm):
             line = term.gl.id
             img = problem.images[term.image_index].id
             if term.n_residuals == 2 and (term.model == "equivalent_planes" or not term.li.n_points):
                 out.append(("line_point", 2, {"image": img, "line": line, "point": None}, None))
             else:
-                out.append(("line_point", 1, {"image": img, "line": line}, [{"point": k} for k in range(term.n_residuals)]))
+                out.append(("line_point", 1, {"image": img, "line": line}, [{"point": j} for j in range(term.n_residuals)]))
         elif isinstance(term, PassStateTerm):
             ps = problem.passes[term.pass_index]
             if term.image_index >= 0:
@@ -131,10 +134,8 @@ def _term_kinds(problem: Problem, lin: Linearisation) -> list[tuple[str, int, di
             else:
                 label = {"pass": ps.id, "time_s": float(term.kc[PASS_T_OFF] + ps.t_ref_s)}
             out.append(("ephemeris_sample", term.n_residuals, label, None))
-        elif isinstance(term, StatePrior) and id(term) in att:
-            block = att[id(term)]
-            from solver.observations.attitude import block_samples
-
+        elif isinstance(term, StatePrior) and n_state <= k < n_state + len(att_blocks):
+            block = att_blocks[k - n_state]
             samples = block_samples(problem.job, block)
             out.append(
                 ("attitude_sample", 3, {"image": problem.images[block[0]].id}, [{"time_s": float(s.time_s)} for s in samples])
@@ -231,7 +232,7 @@ def structure(problem: Problem, lin: Linearisation, parts: SchurParts, s_inv: np
             sigma = 1.0 / w[loc] if w.ndim == 1 and len(w) == m else np.ones(per)
             units, comps = {
                 "attitude_sample": ("deg", ["roll", "pitch", "yaw"]),
-                "line_point": ("px", ["distance"] if per == 1 else ["a", "b"]),
+                "line_point": ("px", ["distance"]) if per == 1 else ("whitened", ["a", "b"]),
                 "ephemeris_sample": ("m, m/s", ["x", "y", "z", "vx", "vy", "vz"][:per]),
             }[kind]
             if kind == "attitude_sample":
