@@ -83,7 +83,7 @@ def blunders(args) -> None:
         rng = np.random.default_rng(1000 + seed)
         bad = copy.deepcopy(job)
         injected = _inject(bad, rng, args.image_blunders, args.control_blunders)
-        bad.setdefault("options", {})["blunder_detection"] = {}
+        bad.setdefault("options", {})["blunder_detection"] = {"robust_start": args.robust_start, "max_rejections": 50}
         t0 = time.perf_counter()
         rep = run(bad)
         dt = time.perf_counter() - t0
@@ -118,6 +118,8 @@ def blunders(args) -> None:
                     "check_rmse_3d_clean_m": _rmse(clean),
                     "ratio": _rmse(rep) / _rmse(clean),
                     "time_s": dt,
+                    "robust_start": args.robust_start,
+                    "adjustments": q["blunder_detection"]["adjustments"],
                 }
             ),
             flush=True,
@@ -152,6 +154,7 @@ def main() -> None:
     b.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     b.add_argument("--image-blunders", type=int, default=4)
     b.add_argument("--control-blunders", type=int, default=1)
+    b.add_argument("--robust-start", default="none", choices=["none", "huber", "cauchy"])
     c = sub.add_parser("clean")
     c.add_argument("--runs", type=int, default=200)
     c.add_argument("--alpha0", type=float, default=0.001)

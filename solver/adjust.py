@@ -15,7 +15,7 @@ from solver.engine.assemble import build_problem, parameter_names
 from solver.engine.initialize import initialise
 from solver.engine.linalg import check_rank, linearise, schur
 from solver.engine.validate import require_valid
-from solver.errors import Cancelled, RankDeficientError, UnusableSolution
+from solver.errors import Cancelled, JobError, RankDeficientError, UnusableSolution
 from solver.errors import Problem as JobProblem
 from solver.report.document import assess
 from solver.schema.job import Job
@@ -251,7 +251,18 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
                 record(c, report, [])
             record([], report, collateral)
             current = nxt
-    problem, report = adjust_once(current, progress, cancel, models, window())
+    try:
+        problem, report = adjust_once(current, progress, cancel, models, window())
+    except JobError as exc:
+        if current is job:
+            raise
+        # the robust step removed too much: snoop one at a time from the whole job instead
+        warnings.append(f"the robust start's removals left no valid adjustment ({exc}); snooping from the whole job")
+        current, n_removed = job, 0
+        rejected.clear()
+        not_identifiable.clear()
+        flagged.clear()
+        problem, report = adjust_once(current, progress, cancel, models, window())
     while True:
         sn = snoop(problem, bd)
         if bd.action == "report":
@@ -266,7 +277,7 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
         nxt, collateral = remove(current, [m.group.removal for m in cluster if m.group.removal])
         try:
             nxt_problem, nxt_report = adjust_once(nxt, progress, cancel, models, window())
-        except (RankDeficientError, UnusableSolution) as exc:
+        except JobError as exc:  # rank, unusable solution, or the job no longer valid
             warnings.append(f"data snooping stopped: without the next rejected observation the adjustment fails ({exc})")
             break
         record(cluster, report, collateral)

@@ -276,3 +276,26 @@ def test_every_observation_kind_is_tested() -> None:
         att = [g for g in rel["groups"] if g["kind"] == "attitude_sample"]
         # attitude samples: MDB of the order of a few sigmas (0.002 deg) in degrees
         assert all(0.002 < m < 0.05 for g in att for m in g["mdb"])
+
+
+def test_max_rejections_stops_and_reports_the_rest(weighted_block) -> None:
+    """Two column blunders, at most one removal: the larger is removed, the other stays in the
+    adjustment and is reported as failed but kept (first of the kept: the failed tests of the
+    final adjustment come worst first, the tests it smears into after it), with a warning."""
+    job, _truth = weighted_block
+    bad = copy.deepcopy(job)
+    ties = [i for i, o in enumerate(bad["observations"]) if "-T" in o["point"]]
+    bad["observations"][ties[5]]["column"] += 25.0
+    bad["observations"][ties[12]]["column"] -= 12.0
+    bad["options"] = {"blunder_detection": {"max_rejections": 1}}
+    rep = run(bad)
+    q = rep["quality"]
+    removed = [r for r in q["rejected"] if r["removed"]]
+    kept = [r for r in q["rejected"] if not r["removed"]]
+    assert [r["point"] for r in removed] == [bad["observations"][ties[5]]["point"]]
+    culprit = bad["observations"][ties[12]]
+    assert (kept[0]["image"], kept[0]["point"]) == (culprit["image"], culprit["point"])
+    ratios = [r["w"] / r["critical"] for r in kept]
+    assert ratios == sorted(ratios, reverse=True) and ratios[-1] > 1.0
+    assert kept[0]["estimated_error"][1] == pytest.approx(-12.0, abs=1.5)  # px, 3 sigma of the estimate
+    assert any("max_rejections" in w for w in rep["warnings"])
