@@ -56,7 +56,13 @@ MAX_CONTEXT_POINTS = 2000  # tie points drawn as context on scene plots
 # colours: components and point roles, the same on every plot
 C_E, C_N, C_U, C_PLAN = "#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd"
 C_CHECK, C_GCP, C_TIE = "#d62728", "#1f77b4", "#8c8c8c"
-ROLE_COLOURS = {"gcp": C_GCP, "check": C_CHECK, "tie": C_TIE}
+ROLE_COLOURS = {"gcp": C_GCP, "check": C_CHECK, "tie": C_TIE, "rejected": "#c20078"}
+
+
+def _role(o: dict[str, Any]) -> str:
+    """The observation's point role, or ``rejected`` for an image point removed by data
+    snooping (``observations[].rejected``, docs/quality.md)."""
+    return "rejected" if o.get("rejected") else str(o.get("role"))
 
 _STYLE = {
     "font.size": 9,
@@ -443,7 +449,8 @@ def image_residuals(report: Report, image: str | None = None) -> Figure:
     if not images:
         raise PlotNotApplicable("the report has no image residuals")
     shown = images[:MAX_IMAGE_PANELS]
-    all_obs = [o for im in shown for o in obs_by_image[str(im["id"])]]
+    all_obs = [o for im in shown for o in obs_by_image[str(im["id"])] if not o.get("rejected")]
+    all_obs = all_obs or [o for im in shown for o in obs_by_image[str(im["id"])]]
     lengths = np.hypot(
         [o["residual_line_px"] for o in all_obs], [o["residual_column_px"] for o in all_obs]
     )
@@ -473,16 +480,19 @@ def image_residuals(report: Report, image: str | None = None) -> Figure:
         from matplotlib.patches import Rectangle
 
         ax.add_patch(Rectangle((0, 0), cols, lines, fill=False, ec="0.3", lw=1))
-        roles = sorted({str(o.get("role")) for o in obs}, key=lambda r: (r != "tie", r))
+        roles = sorted({_role(o) for o in obs}, key=lambda r: (r != "tie", r == "rejected", r))
         q = None
         for role in roles:
-            sel = [o for o in obs if str(o.get("role")) == role]
+            sel = [o for o in obs if _role(o) == role]
             c = np.array([o["column"] for o in sel], float)
             ln = np.array([o["line"] for o in sel], float)
             rc = np.array([o["residual_column_px"] for o in sel], float)
             rl = np.array([o["residual_line_px"] for o in sel], float)
             colour = ROLE_COLOURS.get(role, "k")
-            ax.scatter(c, ln, s=4, color=colour, lw=0)
+            if role == "rejected":  # removed by data snooping: residual when it was rejected
+                ax.scatter(c, ln, s=30, color=colour, marker="x", lw=1.2, zorder=3)
+            else:
+                ax.scatter(c, ln, s=4, color=colour, lw=0)
             q = ax.quiver(
                 c,
                 ln,
@@ -556,7 +566,7 @@ def residual_histograms(report: Report, image: str | None = None) -> Figure:
     curve N(0, 1) (expected) and the normal curve of the sample's mean and deviation."""
     if image is not None:
         _select_images(report, image)
-    obs = _observations(report, image)
+    obs = [o for o in _observations(report, image) if not o.get("rejected")]  # the final adjustment's
     series = {
         axis: np.array([v for o in obs if (v := _standardized(o, axis)) is not None], float)
         for axis in ("line", "column")

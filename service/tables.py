@@ -1,4 +1,4 @@
-"""CSV tables of a report: observations, check points, parameters (no computation, only
+"""CSV tables of a report: observations, check points, parameters, rejected observations (no computation, only
 flattening of the report's own numbers; docs/report-contract.md names the fields).
 
 A model comparison gives the same tables with a leading ``model`` column. Text cells are
@@ -12,7 +12,7 @@ import io
 import re
 from typing import Any, Iterable
 
-TABLES = ("observations", "checkpoints", "parameters")
+TABLES = ("observations", "checkpoints", "parameters", "rejected")
 ENU = ("e", "n", "u")
 # OWASP "CSV injection": a spreadsheet runs a cell beginning with one of these as a formula
 FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
@@ -77,6 +77,12 @@ def _rows_of(report: dict[str, Any], table: str) -> list[dict[str, Any]]:
         for ps in report.get("passes") or []:  # pass-propagated models: the shared orbit state
             for p in ps.get("parameters") or []:
                 rows.append(_flatten({"image": None, "camera": None, "model": ps.get("model"), "pass": ps.get("id"), **p}))
+        return rows
+    if table == "rejected":  # data snooping (docs/quality.md): rejected tests, then the groups
+        quality = report.get("quality") or {}
+        rows = [_flatten({"group": None, **r}) for r in quality.get("rejected") or []]
+        for k, g in enumerate(quality.get("not_identifiable") or [], start=1):
+            rows += [_flatten({"group": k, **m}) for m in g.get("members") or []]
         return rows
     raise KeyError(table)
 

@@ -15,13 +15,13 @@ from solver.engine.assemble import build_problem, parameter_names
 from solver.engine.initialize import initialise
 from solver.engine.linalg import check_rank, linearise, schur
 from solver.engine.validate import require_valid
-from solver.errors import Cancelled, RankDeficientError, UnusableSolution
+from solver.errors import Cancelled, JobError, RankDeficientError, UnusableSolution
 from solver.errors import Problem as JobProblem
 from solver.report.document import assess
 from solver.schema.job import Job
 from solver.state import Problem
 
-__all__ = ["adjust_job", "assert_full_rank", "assess", "parameter_names", "prepare", "solve_problem"]
+__all__ = ["adjust_job", "adjust_once", "assert_full_rank", "assess", "parameter_names", "prepare", "solve_problem"]
 
 
 def _progress(progress, fraction: float, message: str, info: dict | None = None) -> None:
@@ -142,12 +142,27 @@ def adjust_job(
     """Run the whole adjustment of ``job`` and return the report (docs/report-contract.md).
 
     ``models`` optionally overrides the platform model per image id (model comparison).
+    With ``options.blunder_detection`` the report is that of the adjustment after data snooping
+    (:func:`_snooping_adjustment`).
     """
-    from solver.engine.backend import SolveControl  # imports pyceres: workers only
-
     sc = job.options.self_calibration
     if sc is not None and sc.significance_analysis:
         return _significance_analysis(job, progress, cancel, models)
+    if job.options.blunder_detection is not None:
+        return _snooping_adjustment(job, progress, cancel, models, fraction_range)
+    return adjust_once(job, progress, cancel, models, fraction_range)[1]
+
+
+def adjust_once(
+    job: Job,
+    progress: Callable[..., None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+    models: dict[str, str] | None = None,
+    fraction_range: tuple[float, float] = (0.0, 1.0),
+) -> tuple[Problem, dict[str, Any]]:
+    """One adjustment of ``job``: the problem at its solution and the report."""
+    from solver.engine.backend import SolveControl  # imports pyceres: workers only
+
     f0, f1 = fraction_range
 
     def frac(x: float) -> float:
@@ -171,6 +186,135 @@ def adjust_job(
     report = assess(problem, outcome)
     report["adjustment"]["total_time_s"] = time.perf_counter() - t_start
     _progress(progress, frac(1.0), "done", {"sigma0": report["adjustment"]["sigma0_aposteriori"]})
+    return problem, report
+
+
+def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tuple[float, float]) -> dict[str, Any]:
+    """Data snooping (docs/quality.md): adjust, test every observation group, remove the worst
+    rejected one (with the tests it cannot be separated from) and re-adjust, until no test fails
+    or ``max_rejections`` is reached; ``robust_start`` first removes, in one step, every group
+    whose test fails on the residuals of a robust adjustment. The report is that of the last
+    adjustment, with the ``quality`` section and the removed image points flagged in
+    ``observations``."""
+    from solver.quality.removal import remove
+    from solver.quality.snooping import entry, failing_clusters, reliability_section, snoop
+
+    bd = job.options.blunder_detection
+    f0, f1 = fraction_range
+    step = [0]
+
+    def window() -> tuple[float, float]:
+        k = step[0]
+        step[0] += 1
+        return f0 + (f1 - f0) * (1.0 - 0.5**k), f0 + (f1 - f0) * (1.0 - 0.5 ** (k + 1))
+
+    rejected: list[dict[str, Any]] = []
+    not_identifiable: list[dict[str, Any]] = []
+    flagged: list[dict[str, Any]] = []
+    warnings: list[str] = []
+    n_removed = 0
+
+    def record(cluster, report, collateral) -> None:
+        removed_obs = {m.group.removal for m in cluster if m.group.removal}
+        entries = [entry(m, removed=m.group.removal is not None) for m in cluster]
+        if len(entries) == 1:
+            rejected.append(entries[0])
+        else:
+            not_identifiable.append({"members": entries, "removed": all(e["removed"] for e in entries)})
+        for m in cluster:
+            if m.group.kind != "image_point" or m.group.removal not in removed_obs:
+                continue
+            lab = m.group.label
+            o = current.observations[m.group.removal[1]]
+            for item in report["observations"]:
+                if item["image"] == lab["image"] and item["point"] == lab["point"] and item["line"] == o.line and item["column"] == o.column:
+                    flagged.append({**item, "rejected": True})
+                    break
+        for c in collateral:
+            rejected.append({"kind": "image_point", **c, "w": None, "critical": None, "dof": 0, "estimated_error": None,
+                             "units": "px", "components": ["line", "column"], "removed": True, "collateral": True})
+
+    current = job
+    if bd.robust_start != "none" and bd.action == "remove" and bd.max_rejections > 0:
+        robust = job.model_copy(update={"options": job.options.model_copy(update={"loss": bd.robust_start})})
+        problem, report = adjust_once(robust, progress, cancel, models, window())
+        clusters = [c for c in failing_clusters(snoop(problem, bd, robust=True), bd.separability) if c[0].group.removal]
+        take = []
+        for c in clusters:
+            if n_removed + len(c) > bd.max_rejections:
+                break
+            take.append(c)
+            n_removed += len(c)
+        if take:
+            nxt, collateral = remove(current, [m.group.removal for c in take for m in c if m.group.removal])
+            for c in take:
+                record(c, report, [])
+            record([], report, collateral)
+            current = nxt
+    try:
+        problem, report = adjust_once(current, progress, cancel, models, window())
+    except JobError as exc:
+        if current is job:
+            raise
+        # the robust step removed too much: snoop one at a time from the whole job instead
+        warnings.append(f"the robust start's removals left no valid adjustment ({exc}); snooping from the whole job")
+        current, n_removed = job, 0
+        rejected.clear()
+        not_identifiable.clear()
+        flagged.clear()
+        problem, report = adjust_once(current, progress, cancel, models, window())
+    while True:
+        sn = snoop(problem, bd)
+        if bd.action == "report":
+            break
+        clusters = [c for c in failing_clusters(sn, bd.separability) if c[0].group.removal]
+        if not clusters:
+            break
+        cluster = clusters[0]
+        if n_removed + len(cluster) > bd.max_rejections:
+            warnings.append(f"data snooping stopped at max_rejections = {bd.max_rejections}: some tests still fail")
+            break
+        nxt, collateral = remove(current, [m.group.removal for m in cluster if m.group.removal])
+        try:
+            nxt_problem, nxt_report = adjust_once(nxt, progress, cancel, models, window())
+        except JobError as exc:  # rank, unusable solution, or the job no longer valid
+            warnings.append(f"data snooping stopped: without the next rejected observation the adjustment fails ({exc})")
+            break
+        record(cluster, report, collateral)
+        n_removed += len(cluster)
+        current, problem, report = nxt, nxt_problem, nxt_report
+    # tests still failing in the final adjustment (report only, max_rejections, not removable)
+    for cluster in failing_clusters(sn, bd.separability):
+        entries = [entry(m, removed=False) for m in cluster]
+        if len(entries) == 1:
+            rejected.append(entries[0])
+        else:
+            not_identifiable.append({"members": entries, "removed": False})
+    for item in report["observations"]:
+        item["rejected"] = False
+    report["observations"] += flagged
+    if n_removed:
+        warnings.append(f"data snooping removed {n_removed} observation(s) (quality.rejected, quality.not_identifiable)")
+    report["warnings"] += warnings
+    report.setdefault("quality", {})
+    report["quality"].update(
+        {
+            "blunder_detection": {
+                "test": "baarda" if bd.variance == "apriori" else "pope",
+                "alpha0": bd.alpha0,
+                "beta": bd.beta,
+                "action": bd.action,
+                "max_rejections": bd.max_rejections,
+                "robust_start": bd.robust_start,
+                "separability": bd.separability,
+                "n_removed": n_removed,
+                "adjustments": step[0],
+            },
+            "rejected": rejected,
+            "not_identifiable": not_identifiable,
+            "reliability": reliability_section(sn),
+        }
+    )
     return report
 
 

@@ -138,9 +138,10 @@ def get_results(job: VisibleJob) -> Response:
     responses={200: {"content": {"text/csv": {}}}, **problem_responses(401, 404, 422, 500)},
 )
 def get_results_table(
-    job: VisibleJob, table: Literal["observations", "checkpoints", "parameters"]
+    job: VisibleJob, table: Literal["observations", "checkpoints", "parameters", "rejected"]
 ) -> Response:
-    """One table of the report as CSV: observations (residuals), checkpoints, parameters."""
+    """One table of the report as CSV: observations (residuals), checkpoints, parameters,
+    rejected (data snooping: rejected observations and non-identifiable groups)."""
     import json
 
     report = json.loads(results_text(job))

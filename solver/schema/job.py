@@ -507,6 +507,35 @@ class SelfCalibration(_Strict):
         return v if v is None else _unique(v, "name")
 
 
+class BlunderDetection(_Strict):
+    """Data snooping (Baarda's w-test with sigma0 a priori known, Pope's tau test with sigma0
+    estimated), reliability and the removal of rejected observations (docs/quality.md)."""
+
+    alpha0: _num(gt=0, lt=0.5) = Field(default=0.001, description="significance level of each test")
+    beta: _num(gt=0.05, lt=1) = Field(default=0.8, description="power for the minimal detectable biases")
+    action: Literal["remove", "report"] = Field(
+        default="remove",
+        description="remove the worst rejected observation (group) and re-adjust until no test "
+        "fails (remove), or only test and report (report)",
+    )
+    max_rejections: _int(ge=0, le=1000) = Field(default=20, description="at most this many removals")
+    variance: Literal["apriori", "estimated"] = Field(
+        default="apriori",
+        description="apriori: Baarda's data snooping with sigma0_apriori taken as known; "
+        "estimated: Pope's tau test with the a-posteriori sigma0",
+    )
+    robust_start: Literal["none", "huber", "cauchy"] = Field(
+        default="none",
+        description="first adjust with this loss (scale: loss_scale) and remove every observation "
+        "whose test fails on the robust residuals, then snoop by least squares",
+    )
+    separability: _num(gt=0.5, le=1) = Field(
+        default=0.99,
+        description="tests correlated at least this much with the rejected one (for its estimated "
+        "error) cannot be told apart from it: they are reported as one non-identifiable group",
+    )
+
+
 class SolverOptions(_Strict):
     """How to solve and what to report."""
 
@@ -548,6 +577,11 @@ class SolverOptions(_Strict):
         default=None,
         description="the images' attitude samples as weighted observations of roll, pitch and yaw "
         "(orbit-attitude and pass models)",
+    )
+    blunder_detection: BlunderDetection | None = Field(
+        default=None,
+        description="quality control: data snooping, reliability and removal of blunders "
+        "({} for the defaults; docs/quality.md)",
     )
 
 

@@ -280,3 +280,32 @@ def test_direct_georeferencing_example_shows_the_measured_attitude(
         assert sigma == 0.002 and 0.0005 < rms < 0.005, (rms, sigma)
     expect(page.locator("#result")).to_contain_text("Check points")
     page.locator("#result").screenshot(path=str(artifacts / "direct-georeferencing-result.png"))
+
+
+def test_blunder_detection_table(page: Any, local_server: Server, artifacts: Path) -> None:
+    """A job with two image blunders and options.blunder_detection: the result lists the rejected
+    column error and the non-identifiable group of the along-track error (three rays of one tie
+    point) with w above the critical value, and offers rejected.csv."""
+    from solver.synthetic import block_job
+
+    job, _truth = block_job(model="P1", n_tie=30, n_gcp=14, n_check=6, seed=3, gcp_sigma_m=0.5)
+    ties = [i for i, o in enumerate(job["observations"]) if "-T" in o["point"]]
+    job["observations"][ties[0]]["line"] += 20.0
+    job["observations"][ties[5]]["column"] += 12.0
+    job["options"] = {"blunder_detection": {}}
+    open_ui(page, local_server)
+    set_document(page, json.dumps(job))
+    expect(page.locator("#validation")).to_have_class(OK, timeout=30_000)
+    page.click("#submit")
+    expect(page.locator("#cur-percent")).to_have_text("100%", timeout=SOLVE_MS)
+    rows = page.locator("#snooping-table tbody tr")
+    expect(rows).to_have_count(4)
+    expect(rows.first).to_contain_text(job["observations"][ties[5]]["point"])
+    expect(page.locator("#snooping-table")).to_contain_text("not identifiable #1")
+    for k in range(4):
+        cells = rows.nth(k).locator("td")
+        assert float(cells.nth(3).inner_text()) > float(cells.nth(4).inner_text())
+    button = page.locator("button.download", has_text="rejected CSV")
+    expect(button).to_have_count(1)
+    assert button.get_attribute("data-href").endswith("/results/rejected.csv")
+    page.locator("#result").screenshot(path=str(artifacts / "blunder-detection-result.png"))

@@ -585,7 +585,8 @@
         download(`jobs/${id}/results`, `${stem}-report.json`, "report JSON"),
         download(`jobs/${id}/results/parameters.csv`, `${stem}-parameters.csv`, "parameters CSV"),
         download(`jobs/${id}/results/checkpoints.csv`, `${stem}-checkpoints.csv`, "check points CSV"),
-        download(`jobs/${id}/results/observations.csv`, `${stem}-observations.csv`, "observations CSV"))));
+        download(`jobs/${id}/results/observations.csv`, `${stem}-observations.csv`, "observations CSV"),
+        report.quality && report.quality.rejected ? download(`jobs/${id}/results/rejected.csv`, `${stem}-rejected.csv`, "rejected CSV") : null)));
     if (report.kind === "comparison") renderComparison(box, jobId, report);
     else {
       const detail = el("div", { id: "adjustment" });
@@ -664,6 +665,33 @@
     renderParameterAnalysis(box, report);
     renderAttitude(box, report);
     renderCheckpoints(box, report);
+    renderSnooping(box, report);
+  }
+
+  // Data snooping (options.blunder_detection, docs/quality.md): the rejected observations and
+  // the groups whose members the data cannot tell apart, with the test value, its critical
+  // value and the estimated error; and the control points nothing checks.
+  function renderSnooping(box, report) {
+    const q = report.quality;
+    if (!q || !q.blunder_detection) return;
+    const bd = q.blunder_detection;
+    const rejected = q.rejected || [];
+    const groups = q.not_identifiable || [];
+    box.append(el("h3", { text: "Blunder detection" }));
+    box.append(el("p", { class: "muted", text: `${bd.test === "pope" ? "Pope's tau test (σ0 estimated)" : "Baarda's data snooping (σ0 a priori)"}, α0 ${bd.alpha0}, β ${bd.beta}; ${bd.n_removed} observation(s) removed in ${bd.adjustments} adjustment(s)` }));
+    const where = (r) => [r.image, r.point ?? r.line ?? r.pass ?? "", r.time_s != null ? `t ${fmtNum(r.time_s, 3)} s` : ""].filter((x) => x !== null && x !== "").join(" / ");
+    const row = (r, group) => el("tr", { class: r.removed ? "rejected" : null },
+      el("td", { text: group }), el("td", { text: r.kind }), el("td", {}, el("code", { text: where(r) })),
+      el("td", { class: "num", text: fmtNum(r.w, 2) }), el("td", { class: "num", text: fmtNum(r.critical, 2) }),
+      el("td", { class: "num", text: (r.estimated_error || []).map((x) => fmtNum(x, 2)).join(", ") + (r.units ? ` ${r.units}` : "") }),
+      el("td", { text: r.removed ? "removed" : "kept" }));
+    const rows = rejected.map((r) => row(r, "–")).concat(groups.flatMap((g, k) => (g.members || []).map((m) => row(m, `not identifiable #${k + 1}`))));
+    if (!rows.length) box.append(el("p", { text: "No test failed." }));
+    else box.append(el("div", { class: "table-wrap" }, el("table", { class: "data compact", id: "snooping-table" },
+      el("thead", {}, el("tr", {}, ["group", "kind", "observation", "w", "critical", "estimated error", ""].map((h, i) => el("th", { class: i >= 3 && i <= 5 ? "num" : null, text: h })))),
+      el("tbody", {}, rows))));
+    const unchecked = (q.reliability || {}).unchecked_control_points || [];
+    if (unchecked.length) box.append(el("p", { class: "muted", id: "unchecked-control", text: `Control points nothing checks (redundancy ≈ 0): ${unchecked.map((u) => `${u.point} (${u.unchecked.join(", ")})`).join("; ")}` }));
   }
 
   // Measured attitude weighted in the adjustment: per attitude block, the residual RMS and

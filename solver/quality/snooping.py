@@ -1,0 +1,264 @@
+"""Data snooping: one test per observation group, the separability of the tests, the
+estimated errors, and the ``quality`` report section (docs/quality.md).
+
+For a group g (d rows) with whitened residuals v_g and residual cofactor Q_gg
+(:mod:`solver.quality.reliability`), the test statistic of the alternative "g has an error"
+is ``T = v_g^T Q_gg^+ v_g`` (rank d' of Q_gg; d' = 1: T = w^2 with Baarda's w).
+
+* sigma0 a priori known (``variance: apriori``, Baarda): ``T / sigma0^2 ~ chi2(d')``; the report's
+  ``w`` is ``sqrt(T) / sigma0`` and its ``critical`` value ``sqrt(chi2_{1-alpha0}(d'))``
+  (3.29 for d' = 1, alpha0 = 0.001).
+* sigma0 estimated (``variance: estimated``, Pope): with Omega = v^T v over all r degrees of
+  freedom, ``T / Omega ~ Beta(d'/2, (r - d')/2)``; ``w`` is tau = sqrt(T / s^2) with
+  s^2 = Omega / r and ``critical`` = sqrt(r Beta_{1-alpha0}(d'/2, (r - d')/2)).
+
+The estimated error of g (whitened) is ``Q_gg^+ v_g`` times the sign relating the residual
+to the observation (image points and lines: observed - model; priors: model - observed).
+Another group h of the same block cannot be told apart from g when its test sees the same
+residual pattern: the correlation of the 1-D test along g's estimated error direction e with
+h's test, ``rho^2 = e^T Q_gh Q_hh^+ Q_hg e / e^T Q_gg e``, reaches ``separability``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from solver.engine.linalg import linearise, positive_definite_inverse, schur
+from solver.quality.reliability import (
+    REDUNDANCY_NEAR_ZERO,
+    Group,
+    Structure,
+    bias_effect,
+    bias_to_noise,
+    group_cofactor,
+    minimal_detectable_bias,
+    noncentrality,
+    redundancy,
+    structure,
+)
+from solver.state import Problem
+
+EIGEN_TOL = REDUNDANCY_NEAR_ZERO  # eigenvalues of Q_gg below this (redundancy ~0) carry no test
+SIGN = {"image_point": 1.0, "line_point": 1.0, "control_point": -1.0, "ephemeris_sample": -1.0, "attitude_sample": -1.0}
+
+
+@dataclass
+class Test:
+    group: Group
+    statistic: float  # T (whitened, sigma0 = 1)
+    dof: int  # rank of Q_gg
+    w: float | None  # sqrt(T)/sigma0 (Baarda) or tau (Pope)
+    critical: float | None
+    error_whitened: np.ndarray  # estimated error, whitened
+    error: list[float]  # estimated error, observation units
+
+    @property
+    def failed(self) -> bool:
+        return self.w is not None and self.critical is not None and self.w > self.critical
+
+
+@dataclass
+class Snoop:
+    """The tests of one adjustment."""
+
+    structure: Structure
+    tests: list[Test]
+    residuals: np.ndarray
+    dof: int
+    vtpv: float
+    variance: str
+    alpha0: float
+    beta: float
+    lambda0: dict[int, float] = field(default_factory=dict)
+
+    def lam0(self, dim: int) -> float:
+        if dim not in self.lambda0:
+            self.lambda0[dim] = noncentrality(self.alpha0, self.beta, dim)
+        return self.lambda0[dim]
+
+
+def _pinv(q: np.ndarray) -> tuple[np.ndarray, int]:
+    e, v = np.linalg.eigh(q)
+    keep = e > EIGEN_TOL
+    return (v[:, keep] / e[keep]) @ v[:, keep].T, int(keep.sum())
+
+
+def _critical(variance: str, alpha0: float, dim: int, dof: int) -> float | None:
+    if variance == "apriori":
+        return float(math.sqrt(stats.chi2.ppf(1.0 - alpha0, dim)))
+    if dof - dim <= 0:
+        return None
+    return float(math.sqrt(dof * stats.beta.ppf(1.0 - alpha0, dim / 2.0, (dof - dim) / 2.0)))
+
+
+def snoop(problem: Problem, options, robust: bool = False) -> Snoop:
+    """Every group's test at the current parameters of ``problem`` (``options``: the job's
+    ``options.blunder_detection``). ``robust``: the parameters come from a robust adjustment;
+    sigma0 is then the a-priori one, or with ``variance: estimated`` the robust estimate
+    1.4826 median |v_i / sqrt(r_i)| over the rows with redundancy (Baarda's test either way)."""
+    lin = linearise(problem)
+    parts = schur(lin, problem)
+    s_inv = positive_definite_inverse(parts.s)  # LinAlgError: no tests without a covariance
+    st = structure(problem, lin, parts, s_inv)
+    res = lin.residuals
+    dof = len(res) - lin.layout.n_params
+    vtpv = float(res @ res)
+    s0_apriori = problem.job.options.sigma0_apriori
+    out = Snoop(st, [], res, dof, vtpv, options.variance, options.alpha0, options.beta)
+    robust_scale = None
+    if robust:
+        robust_scale = s0_apriori
+        if options.variance == "estimated":
+            std = [
+                res[st.blocks[g.block].rows[g.local]] / np.sqrt(np.maximum(np.diag(group_cofactor(st, g)), 1e-12))
+                for g in st.groups
+            ]
+            std = np.concatenate(std) if std else np.zeros(0)
+            if len(std):
+                robust_scale = float(1.4826 * np.median(np.abs(std)))
+    for g in st.groups:
+        blk = st.blocks[g.block]
+        v = res[blk.rows[g.local]]
+        q_inv, d = _pinv(group_cofactor(st, g))
+        err_w = SIGN[g.kind] * (q_inv @ v)
+        t_stat = float(v @ q_inv @ v)
+        w = crit = None
+        if d > 0:
+            if robust_scale is not None:
+                w, crit = math.sqrt(t_stat) / robust_scale, _critical("apriori", options.alpha0, d, dof)
+            elif options.variance == "apriori":
+                w, crit = math.sqrt(t_stat) / s0_apriori, _critical("apriori", options.alpha0, d, dof)
+            elif dof > 0 and vtpv > 0:
+                w, crit = math.sqrt(t_stat / (vtpv / dof)), _critical("estimated", options.alpha0, d, dof)
+        out.tests.append(Test(g, t_stat, d, w, crit, err_w, [float(x) for x in err_w * g.sigma]))
+    return out
+
+
+def cross_cofactor(st: Structure, g: Group, h: Group) -> np.ndarray:
+    """Q_gh between two groups: the block's own entries, or across blocks (rows sharing only
+    image, camera or pass parameters) -U_g S^-1 U_h^T."""
+    if g.block == h.block:
+        return st.blocks[g.block].q[np.ix_(g.local, h.local)]
+    bg, bh = st.blocks[g.block], st.blocks[h.block]
+    if not len(bg.cols) or not len(bh.cols):
+        return np.zeros((g.dim, h.dim))
+    return -(bg.u[g.local] @ st.s_inv[np.ix_(bg.cols, bh.cols)] @ bh.u[h.local].T)
+
+
+def _correlation(st: Structure, g: Group, h: Group, direction: np.ndarray) -> float:
+    """The correlation of the 1-D test of g along ``direction`` (whitened) with h's test."""
+    q_gh = cross_cofactor(st, g, h)
+    q_hh_inv, d = _pinv(group_cofactor(st, h))
+    den = float(direction @ group_cofactor(st, g) @ direction)
+    if d == 0 or den <= 0:
+        return 0.0
+    x = q_gh.T @ direction
+    return float(math.sqrt(max(x @ q_hh_inv @ x, 0.0) / den))
+
+
+def inseparable(sn: Snoop, t: Test, threshold: float) -> list[Test]:
+    """The tests that cannot be told apart from t for its estimated error (t first): all the
+    tests of t's block, and the failed tests of other blocks (a test correlated with t to
+    ``threshold`` >= 0.5 fails along with it when t's error is large enough to be rejected)."""
+    members = [t]
+    nrm = float(np.linalg.norm(t.error_whitened))
+    if nrm == 0:
+        return members
+    direction = t.error_whitened / nrm
+    for u in sn.tests:
+        if u is t or u.w is None or (u.group.block != t.group.block and not u.failed):
+            continue
+        if _correlation(sn.structure, t.group, u.group, direction) >= threshold:
+            members.append(u)
+    return members
+
+
+def worst(sn: Snoop, removable_only: bool = True) -> Test | None:
+    """The failed test with the largest w / critical (removable ones when asked)."""
+    failed = [t for t in sn.tests if t.failed and (t.group.removal is not None or not removable_only)]
+    if not failed:
+        return None
+    return max(failed, key=lambda t: t.w / t.critical)
+
+
+def entry(t: Test, removed: bool) -> dict[str, Any]:
+    """A test as a ``quality.rejected`` entry (also the shape of ``not_identifiable`` members)."""
+    out = {"kind": t.group.kind, "image": None, **{k: v for k, v in t.group.label.items() if k != "role"}}
+    out.update(
+        {
+            "w": t.w,
+            "critical": t.critical,
+            "dof": t.dof,
+            "estimated_error": t.error,
+            "units": t.group.units,
+            "components": t.group.components,
+            "removed": removed,
+        }
+    )
+    return out
+
+
+def failing_clusters(sn: Snoop, threshold: float) -> list[list[Test]]:
+    """All failed tests, worst first, each with the tests it cannot be separated from; a test
+    already in an earlier cluster is not repeated."""
+    seen: set[int] = set()
+    out = []
+    for t in sorted((t for t in sn.tests if t.failed), key=lambda t: -t.w / t.critical):
+        if id(t) in seen:
+            continue
+        members = [m for m in inseparable(sn, t, threshold) if id(m) not in seen]
+        seen.update(id(m) for m in members)
+        out.append(members)
+    return out
+
+
+def reliability_section(sn: Snoop) -> dict[str, Any]:
+    """``quality.reliability``: redundancy numbers, minimal detectable biases and their effects."""
+    st = sn.structure
+    items = []
+    unchecked = []
+    total = 0.0
+    d_img = np.sqrt(np.clip(np.diag(st.s_inv), 1e-300, None))
+    for t in sn.tests:
+        g = t.group
+        r = redundancy(st, g)
+        total += float(r.sum())
+        lam0 = sn.lam0(max(t.dof, 1))
+        mdb = minimal_detectable_bias(st, g, lam0)
+        finite = [k for k, m in enumerate(mdb) if m is not None]
+        effect_sigma = effect_point = None
+        if finite:
+            k = max(finite, key=lambda k: mdb[k])  # the least-checked component
+            b = np.zeros(g.dim)
+            b[k] = mdb[k] / g.sigma[k]
+            dx_img, dx_pt = bias_effect(st, g, b)
+            effect_sigma = float(np.max(np.abs(dx_img) / d_img)) if len(dx_img) else 0.0
+            effect_point = None if dx_pt is None else [float(x) for x in dx_pt]
+        item = {
+            "kind": g.kind,
+            "image": None,
+            **{k: v for k, v in g.label.items() if k != "role"},
+            "redundancy": [float(x) for x in r],
+            "mdb": mdb,
+            "units": g.units,
+            "bias_to_noise": bias_to_noise(st, g, lam0),
+            "effect_on_parameters_sigma": effect_sigma,
+            "effect_on_point_m": effect_point,
+        }
+        items.append(item)
+        if g.kind == "control_point" and (r <= REDUNDANCY_NEAR_ZERO).any():
+            unchecked.append({"point": g.label["point"], "unchecked": [c for c, x in zip(g.components, r) if x <= REDUNDANCY_NEAR_ZERO]})
+    return {
+        "alpha0": sn.alpha0,
+        "beta": sn.beta,
+        "lambda0": {str(k): v for k, v in sorted(sn.lambda0.items())},
+        "total_redundancy": total,
+        "dof": sn.dof,
+        "groups": items,
+        "unchecked_control_points": unchecked,
+    }
