@@ -40,8 +40,7 @@ def main() -> int:
     import psycopg
     from sqlalchemy import event
 
-    from service.store import open_store
-    from service.store import leases
+    from service.store import leases, open_store
     from service.store.leases import run_token
 
     def claim_message(store, job_id, token):  # noqa: ANN001, ANN202
