@@ -1,0 +1,1 @@
+"""Quality control: statistics computed from an adjusted problem (tests, reliability, precision)."""
