@@ -527,6 +527,12 @@ class Parsimony(_Strict):
     max_steps: _int(ge=1, le=100) = Field(default=20, description="at most this many terms dropped")
 
 
+class PreanalysisOptions(_Strict):
+    """Pre-analysis (``pba preanalysis``): how the planned points will be measured."""
+
+    sigma_px: SigmaPx = Field(default=0.5, description="image measurement sigma of every planned observation, pixels")
+
+
 class SolverOptions(_Strict):
     """How to solve and what to report."""
 
@@ -577,6 +583,9 @@ class SolverOptions(_Strict):
     quality_warnings: QualityWarnings = Field(
         default_factory=QualityWarnings,
         description="limits of the warnings on implausible sigmas and high correlations (quality.warnings)",
+    )
+    preanalysis: PreanalysisOptions | None = Field(
+        default=None, description="pre-analysis only: the planned measurement precision (default 0.5 px)"
     )
     parsimony: Parsimony | None = Field(
         default=None,
