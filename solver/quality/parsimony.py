@@ -25,7 +25,6 @@ from scipy import stats
 
 from solver.state import Problem
 
-
 # models whose angles are the platform's attitude relative to the orbital frame (orbit-attitude,
 # pass): there an angle is physical and a sigma of degrees is implausible. The angles of the
 # position-rotation models (polynomial, Kepler) absorb the position's errors (pitch against

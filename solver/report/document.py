@@ -93,6 +93,7 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
         warnings.append(f"{len(quality_warnings) - 10} more parameter warnings in quality.warnings")
     quality = {
         "leave_one_out": leave_one_out(problem, lin.layout, q_ff, var_factor, opts.alpha) if opts.leave_one_out else None,
+        "parsimony": None,
         "warnings": quality_warnings,
     }
     return {
