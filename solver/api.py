@@ -113,3 +113,11 @@ def preanalyse(job: Job | dict[str, Any] | str | bytes) -> dict[str, Any]:
 
     with _input_faults_as_job_errors():
         return _preanalyse(_as_job(job))
+
+
+def preanalysis_problems(job: Job | dict[str, Any] | str | bytes) -> list[Problem]:
+    """What makes a job unusable as a pre-analysis before any computation (planned points
+    without coordinates); the rest is found when it runs."""
+    from solver.quality.preanalysis import planning_problems
+
+    return planning_problems(_as_job(job))

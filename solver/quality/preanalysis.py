@@ -21,13 +21,16 @@ from typing import Any
 import numpy as np
 
 from solver.engine.assemble import build_problem, parameter_names
-from solver.engine.initialize import initialise
+from solver.engine.initialize import angles_from_matrix, initialise
 from solver.engine.linalg import check_rank, covariance, linearise, schur
 from solver.engine.tables import current_tables, records
 from solver.engine.validate import require_valid
 from solver.errors import JobError
 from solver.errors import Problem as JobProblem
+from solver.geometry.geodesy import ecef_to_geodetic, enu_rotation
 from solver.kernels import all_observation_blocks
+from solver.observations.ephemeris import image_state
+from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
 from solver.quality.parsimony import high_correlations
 from solver.quality.precision import (
     block_width,
@@ -39,6 +42,7 @@ from solver.quality.precision import (
     survey_covariance,
 )
 from solver.schema.job import Job
+from solver.state import Problem
 
 PROJECTION_PASSES = 3  # re-project from the last projection (the line search starts at the observed line)
 
@@ -54,17 +58,70 @@ def _all_pairs(job: Job, placement: dict[tuple[str, str], tuple[float, float]]) 
     return out
 
 
-def plan_observations(job: Job) -> list[dict[str, Any]]:
-    """The image observations of the planned points: their projections with the initial
-    orientation that fall inside the images (JSON-ready, ``sigma_px`` of ``options.preanalysis``)."""
-    missing = [
-        JobProblem("planned_point_without_coordinates", f"point {p.id!r}: a pre-analysis needs the planned coordinates of every point", ("points", i, "coordinates"))
+def _rotation(omega: float, phi: float, kappa: float) -> np.ndarray:
+    """M = Rx(omega) Ry(phi) Rz(kappa) (the inverse of :func:`angles_from_matrix`)."""
+    co, so, cp, sp, ck, sk = math.cos(omega), math.sin(omega), math.cos(phi), math.sin(phi), math.cos(kappa), math.sin(kappa)
+    rx = np.array([[1, 0, 0], [0, co, -so], [0, so, co]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[ck, -sk, 0], [sk, ck, 0], [0, 0, 1]])
+    return rx @ ry @ rz
+
+
+def level_nominal_attitude(problem: Problem, images: list[int]) -> None:
+    """Tilt the nominal attitude of position-rotation models (LGS axes) to the platform's own
+    vertical (in place). Without control on an image the initial attitude points the camera
+    along the LGS vertical of the scene centre; the platform, hundreds of kilometres away, has
+    its vertical tilted by ~2.7 deg per 300 km, which puts the planned points thousands of lines
+    off. With T the rotation taking the LGS up to the platform's geodetic up (both in LGS),
+    ``M = M_nominal T^T``. Orbit-attitude and pass models are relative to the orbital frame
+    already; images with ``initial`` or ``approx_state.attitude_deg`` angles are left alone."""
+    for i in images:
+        img = problem.images[i]
+        im_doc = problem.job.images[i]
+        if img.model.orbital and img.model.angle_names != ("omega", "phi", "kappa"):
+            continue
+        state = image_state(im_doc, problem.job.options)
+        if state is None or state.attitude_deg is not None or set(im_doc.initial) & {"omega", "phi", "kappa"}:
+            continue
+        orders = img.model.effective_orders(img.options)
+        if any(orders[ELEMENTS.index(e)] == HELD for e in ANGLES):
+            continue
+        r = np.array(state.position_ecef_m, dtype=float)
+        lon, lat, _h = ecef_to_geodetic(r[None, :])[0]
+        up = problem.frame.vector_to_lgs(enu_rotation(math.radians(lon), math.radians(lat))[2])
+        ez = np.array([0.0, 0.0, 1.0])
+        axis = np.cross(ez, up)
+        s, c = float(np.linalg.norm(axis)), float(ez @ up)
+        if s < 1e-12:
+            continue
+        k = axis / s
+        kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        t = np.eye(3) + s * kx + (1 - c) * (kx @ kx)  # Rodrigues: t @ ez = up
+        m = _rotation(*(img.base[coef_index(e, 0)] for e in ANGLES)) @ t.T
+        for e, v in zip(ANGLES, angles_from_matrix(m)):
+            img.base[coef_index(e, 0)] = v
+        img.params[:] = img.base[img.free_idx]
+
+
+def planning_problems(job: Job) -> list[JobProblem]:
+    """Planned points without coordinates (a pre-analysis projects every point)."""
+    out = [
+        JobProblem(
+            "planned_point_without_coordinates",
+            f"point {p.id!r}: a pre-analysis needs the planned coordinates of every point",
+            ("points", i, "coordinates"),
+        )
         for i, p in enumerate(job.points)
         if p.coordinates is None
     ]
-    if missing:
-        raise JobError(missing)
-    sigma = job.options.preanalysis.sigma_px if job.options.preanalysis is not None else 0.5
+    if not job.points:
+        out.append(JobProblem("no_planned_points", "a pre-analysis needs planned points", ("points",)))
+    return out
+
+
+def _projections(job: Job, level: bool) -> tuple[dict[tuple[str, str], tuple[float, float]], dict[tuple[str, str], bool]]:
+    """Projections of every planned point into every image with the initial orientation (LGS
+    nominal attitude, or levelled to the platform's vertical), and whether each is inside."""
     # orientation from the approximate states alone: every point as a check point (no control
     # resection, nothing estimated)
     points = [p.model_copy(update={"role": "check"}) for p in job.points]
@@ -75,6 +132,8 @@ def plan_observations(job: Job) -> list[dict[str, Any]]:
         doc = Job.model_validate({**doc.model_dump(), "observations": _all_pairs(job, placement)})
         problem = build_problem(doc)
         initialise(problem)
+        if level:
+            level_nominal_attitude(problem, list(range(len(problem.images))))
         obs = problem.obs
         rows = np.arange(len(obs.pt))
         img_tab, cam_tab, img_p, cam_p = current_tables(problem)
@@ -99,20 +158,51 @@ def plan_observations(job: Job) -> list[dict[str, Any]]:
                 and 0.0 <= col <= (cam.columns - 1 if cam.columns else math.inf)
                 and (0.0 <= line <= cam.lines - 1 if cam.lines else True)
             )
-    return [
-        {"image": im_id, "point": pid, "line": placement[(im_id, pid)][0], "column": placement[(im_id, pid)][1], "sigma_px": sigma}
-        for (im_id, pid), good in inside.items()
-        if good
-    ]
+    return placement, inside
+
+
+def plan_observations(job: Job) -> tuple[list[dict[str, Any]], set[str]]:
+    """The image observations of the planned points: their projections with the initial
+    orientation that fall inside the images (JSON-ready, ``sigma_px`` of ``options.preanalysis``),
+    and the images whose nominal attitude was levelled (:func:`level_nominal_attitude`: per
+    image, the variant that sees more planned points)."""
+    missing = planning_problems(job)
+    if missing:
+        raise JobError(missing)
+    sigma = job.options.preanalysis.sigma_px if job.options.preanalysis is not None else 0.5
+    flat = _projections(job, level=False)
+    tilted = _projections(job, level=True)
+    levelled: set[str] = set()
+    out = []
+    for im in job.images:
+        n_flat = sum(v for (i, _p), v in flat[1].items() if i == im.id)
+        n_tilted = sum(v for (i, _p), v in tilted[1].items() if i == im.id)
+        placement, inside = tilted if n_tilted >= n_flat else flat
+        if n_tilted >= n_flat:
+            levelled.add(im.id)
+        for p in job.points:
+            if inside[(im.id, p.id)]:
+                line, col = placement[(im.id, p.id)]
+                out.append({"image": im.id, "point": p.id, "line": line, "column": col, "sigma_px": sigma})
+    return out, levelled
 
 
 def preanalyse(job: Job) -> dict[str, Any]:
     """The pre-analysis report (docs/report-contract.md, ``kind: "preanalysis"``)."""
-    planned = plan_observations(job)
+    planned, levelled = plan_observations(job)
     doc = Job.model_validate({**job.model_dump(), "observations": planned})
     require_valid(doc)
     problem = build_problem(doc)
     initialise(problem)
+    gcp = np.array([problem.points[k].role == "gcp" for k in problem.obs.pt], dtype=bool)
+    uncontrolled = [
+        im.index for im in problem.images if im.id in levelled and not np.any(gcp & (problem.obs.img == im.index))
+    ]
+    level_nominal_attitude(problem, uncontrolled)
+    if uncontrolled:
+        from solver.engine.initialize import intersect_estimated_points
+
+        intersect_estimated_points(problem)
     for p in problem.points:  # at the planned positions (the intersection of consistent rays)
         if p.estimated and p.known_lgs is not None and p.sigma_m is None:
             p.xyz = p.known_lgs.copy()
