@@ -94,7 +94,13 @@ def validate_inputs(
             raise InvalidInput(
                 "; ".join(str(p["message"]) for p in problems[:5]), problem_entries(problems, PREFIX)
             )
-        return {"job": job.model_dump(mode="json", exclude_unset=False)}, {"valid": True, "problems": []}
+        summary = {
+            "valid": True,
+            "problems": [],
+            "planned_points": len(job.points),
+            "images": [{"id": im.id, "model": im.model.name} for im in job.images],
+        }
+        return {"job": job.model_dump(mode="json", exclude_unset=False)}, summary
     try:
         summary = solver.api.validate(job)
     except JobError as exc:
