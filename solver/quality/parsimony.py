@@ -103,7 +103,7 @@ def high_correlations(cov_images: np.ndarray | None, names: list[str], limit: fl
             "limit": limit,
             "message": (
                 f"{names[iu[0][k]]} and {names[iu[1][k]]} are correlated {vals[k]:+.4f} (beyond {limit:g}): "
-                "nearly undetermined together; drop or weight one of them"
+                "the data hardly separate them; hold, drop or weight one of them"
             ),
         }
         for k in big
