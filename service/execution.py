@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from service.problems import problem_entries, pydantic_errors
-from service.processes import MODEL_COMPARISON
+from service.processes import MODEL_COMPARISON, PREANALYSIS
 from service.states import JobStatus
 from service.store import JobRecord, Store
 
@@ -129,6 +129,8 @@ def solve(document: dict[str, Any], process_id: str, hooks: JobHooks) -> dict[st
         return solver.api.compare(
             document["job"], models, progress=hooks.progress, cancel=hooks.cancel
         )
+    if process_id == PREANALYSIS:
+        return solver.api.preanalyse(document["job"])
     return solver.api.run(document["job"], progress=hooks.progress, cancel=hooks.cancel)
 
 

@@ -21,7 +21,7 @@ from service.errors import (
     TooManyJobs,
 )
 from service.problems import job_error_entries, problem_entries, pydantic_errors
-from service.processes import MODEL_COMPARISON, PROCESSES
+from service.processes import MODEL_COMPARISON, PREANALYSIS, PROCESSES
 from service.queue import QueueBackend
 from service.queue_view import Placement, placement
 from service.retention import check_quota
@@ -86,6 +86,21 @@ def validate_inputs(
                 }
             ],
         )
+    if process_id == PREANALYSIS:
+        # planned points carry coordinates and no observations: the adjustment's own checks
+        # (observations per point, degrees of freedom) do not apply before the planning
+        problems = [p.to_dict() for p in solver.api.preanalysis_problems(job)]
+        if problems:
+            raise InvalidInput(
+                "; ".join(str(p["message"]) for p in problems[:5]), problem_entries(problems, PREFIX)
+            )
+        summary = {
+            "valid": True,
+            "problems": [],
+            "planned_points": len(job.points),
+            "images": [{"id": im.id, "model": im.model.name} for im in job.images],
+        }
+        return {"job": job.model_dump(mode="json", exclude_unset=False)}, summary
     try:
         summary = solver.api.validate(job)
     except JobError as exc:
@@ -130,6 +145,8 @@ class JobService:
         check_process(process_id)
         max_queued, max_obs = self.limits_of(user)
         n_obs = len(inputs.job.observations)
+        if process_id == PREANALYSIS:  # every planned point may be observed in every image
+            n_obs = len(inputs.job.points) * len(inputs.job.images)
         if n_obs > max_obs:
             raise JobTooLarge(f"the job has {n_obs} observations; your limit is {max_obs}")
         document, _ = validate_inputs(process_id, inputs, self.store, user)

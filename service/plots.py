@@ -9,8 +9,9 @@ residuals in pixels (line, column; line 0 at the top of the image).
 
 Plot kinds (:data:`PLOT_KINDS`; adding one is a function plus an entry there):
 
-* ``planimetric-discrepancies`` - check-point discrepancy vectors over the scene and the
-  east/north discrepancies against a 1-GSD circle (seed 001 Figures 15, 18);
+* ``planimetric-discrepancies`` - check-point discrepancy vectors over the scene, with their
+  predicted error ellipses at the same exaggeration, and the east/north discrepancies against
+  a 1-GSD circle (seed 001 Figures 15, 18);
 * ``height-discrepancies`` - up discrepancies over the scene and per point (seed 001 Figure 16);
   not for mono check points, which are projected at their known height;
 * ``image-residuals`` - residual vectors over the image frame, per image;
@@ -18,6 +19,8 @@ Plot kinds (:data:`PLOT_KINDS`; adding one is a function plus an entry there):
 * ``correlations`` - the correlation matrices of each image's parameters and of each camera's
   interior orientation (from the covariances in the report) as heat maps;
 * ``cost`` - the cost per iteration (``adjustment.cost_history``);
+* ``error-ellipses`` - predicted horizontal error ellipses of check, tie and control points over
+  the scene (issue 15); also the map of a pre-analysis report (``kind == "preanalysis"``);
 * ``model-rmse`` - per-model check-point RMSE bars of a model comparison (seed 000 Figures 3, 4).
 
 A plot that does not apply raises :class:`PlotNotApplicable`; an image or model that is not in
@@ -304,6 +307,9 @@ def planimetric_discrepancies(report: Report, image: str | None = None) -> Figur
         zorder=4,
     )
     ax1.scatter(pos[:, 0], pos[:, 1], s=14, color=C_CHECK, zorder=5, label="check point")
+    n_ell = _draw_ellipses(ax1, [p.get("error_ellipse") for p in points], pos, scale, C_CHECK)
+    if n_ell:
+        ax1.plot([], [], color=C_CHECK, lw=0.8, ls="-", label="predicted 1-sigma ellipse")
     key_m = gsd if gsd else _nice(ref_m)
     key_label = f"1 GSD = {gsd:.2f} m" if gsd else f"{key_m:g} m"
     ax1.quiverkey(q, 0.80, 1.03, key_m * scale, key_label, labelpos="E", coordinates="axes")
@@ -349,6 +355,96 @@ def planimetric_discrepancies(report: Report, image: str | None = None) -> Figur
         fig,
         f"Planimetric discrepancies at {len(points)} check points ({method}){_job_name(report)}",
     )
+    return fig
+
+
+def _ellipse_ok(e: Any) -> bool:
+    return (
+        isinstance(e, dict)
+        and _num(e.get("semi_major_m")) is not None
+        and _num(e.get("semi_minor_m")) is not None
+        and _num(e.get("azimuth_deg")) is not None
+    )
+
+
+def _draw_ellipses(ax: Axes, ellipses: list[Any], centres_km: np.ndarray, scale: float, colour: str) -> int:
+    """Standard error ellipses (``error_ellipse`` of the report: semi-axes in m, azimuth of the
+    major axis clockwise from north) at ``centres_km``, exaggerated by ``scale`` (km per m)."""
+    from matplotlib.patches import Ellipse
+
+    n = 0
+    for e, (x, y) in zip(ellipses, centres_km):
+        if not _ellipse_ok(e):
+            continue
+        ax.add_patch(
+            Ellipse(
+                (x, y),
+                2 * e["semi_major_m"] * scale,
+                2 * e["semi_minor_m"] * scale,
+                angle=90.0 - e["azimuth_deg"],  # matplotlib: counter-clockwise from east
+                fill=False,
+                lw=0.8,
+                color=colour,
+                zorder=3,
+            )
+        )
+        n += 1
+    return n
+
+
+def _ellipse_points(report: Report) -> list[tuple[str, str, list[float], dict[str, Any]]]:
+    """(id, role, LGS position, ellipse) of every point with a predicted error ellipse: check
+    points, tie and control points of an adjustment, or the planned points of a pre-analysis."""
+    out = []
+    for p in (report.get("checkpoints") or {}).get("points") or []:
+        xy = p.get("known_lgs_m") or p.get("planned_lgs_m")
+        if _has_xy(xy) and _ellipse_ok(p.get("error_ellipse")):
+            out.append((str(p.get("id", "")), "check", xy, p["error_ellipse"]))
+    sections = [("tie", report.get("tie_points")), ("gcp", report.get("control_points"))]
+    for role, items in sections:
+        for p in items or []:
+            if _has_xy(p.get("lgs_m")) and _ellipse_ok(p.get("error_ellipse")):
+                out.append((str(p.get("id", "")), role, p["lgs_m"], p["error_ellipse"]))
+    for p in report.get("points") or []:  # pre-analysis
+        if _has_xy(p.get("planned_lgs_m")) and _ellipse_ok(p.get("error_ellipse")):
+            out.append((str(p.get("id", "")), str(p.get("role")), p["planned_lgs_m"], p["error_ellipse"]))
+    if not out:
+        raise PlotNotApplicable("no predicted error ellipses (no covariance)")
+    return out
+
+
+def error_ellipses(report: Report, image: str | None = None) -> Figure:
+    """Predicted horizontal standard error ellipses over the scene (check points red, tie grey,
+    control blue), all exaggerated by one factor with a scale key: of an adjustment, or of a
+    pre-analysis (the map of a planned control layout before anything is measured)."""
+    pts = _ellipse_points(report)
+    pos = np.array([p[2][:2] for p in pts], dtype=float) / 1000.0
+    major = max(float(p[3]["semi_major_m"]) for p in pts)
+    span = max(float(np.ptp(pos, axis=0).max()) if len(pos) > 1 else 1.0, 1.0)
+    scale = 0.04 * span / max(major, 1e-9)
+    fig = _figure(8.5, 7.0)
+    ax = fig.subplots(1, 1)
+    for role, label in (("tie", "tie point"), ("gcp", "control point"), ("check", "check point")):
+        sel = [k for k, p in enumerate(pts) if p[1] == role]
+        if not sel:
+            continue
+        colour = ROLE_COLOURS.get(role, C_TIE)
+        _draw_ellipses(ax, [pts[k][3] for k in sel], pos[sel], scale, colour)
+        marker = "^" if role == "gcp" else "o"
+        ax.scatter(pos[sel, 0], pos[sel, 1], s=10 if role != "tie" else 4, marker=marker, color=colour, label=label, zorder=4)
+    key = _nice(major)
+    x0, y0 = pos[:, 0].min(), pos[:, 1].min() - 0.08 * span
+    ax.plot([x0, x0 + key * scale], [y0, y0], color="k", lw=2)
+    ax.annotate(f"{key:g} m (semi-axis x{scale * 1000:.0f})", (x0, y0), xytext=(0, 4), textcoords="offset points", fontsize=8)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("east (km, LGS)")
+    ax.set_ylabel("north (km, LGS)")
+    ax.legend(loc="upper right", framealpha=0.9)
+    pr = (report.get("checkpoints") or {}).get("predicted_rmse_m") or {}
+    if pr:
+        _text_box(ax, f"predicted check RMSE E {_fmt(pr.get('e'))} m, N {_fmt(pr.get('n'))} m, U {_fmt(pr.get('u'))} m")
+    what = "Pre-analysis" if report.get("kind") == "preanalysis" else "Predicted precision"
+    _suptitle(fig, f"{what}: horizontal error ellipses (1 sigma){_job_name(report)}")
     return fig
 
 
@@ -875,6 +971,13 @@ PLOT_KINDS: dict[str, PlotKind] = {
         ),
         PlotKind("cost", "Cost per iteration", "the solver's cost per iteration", cost),
         PlotKind(
+            "error-ellipses",
+            "Predicted error ellipses",
+            "horizontal 1-sigma error ellipses of check, tie and control points over the scene "
+            "(an adjustment's predicted precision, or a pre-analysis of a planned layout)",
+            error_ellipses,
+        ),
+        PlotKind(
             "model-rmse",
             "Check-point RMSE per model",
             "per-model check-point RMSE bars of a model comparison",
@@ -951,3 +1054,5 @@ def _check(report: Report, spec: PlotKind, model: str | None) -> None:
     elif name == "cost":
         if not (sub.get("adjustment") or {}).get("cost_history"):
             raise PlotNotApplicable("no cost history")
+    elif name == "error-ellipses":
+        _ellipse_points(sub)

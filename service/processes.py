@@ -1,8 +1,10 @@
-"""The two OGC processes the server offers and their descriptions.
+"""The three OGC processes the server offers and their descriptions.
 
 ``bundle-adjustment`` adjusts one job (``solver.api.run``); ``model-comparison`` adjusts the
-same observations with several platform models (``solver.api.compare``). Both take the job
-document as input ``job`` and return one output ``report`` (docs/report-contract.md).
+same observations with several platform models (``solver.api.compare``); ``preanalysis``
+predicts the precision of a planned block before anything is measured
+(``solver.api.preanalyse``). All take the job document as input ``job`` and return one output
+``report`` (docs/report-contract.md).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from solver.schema.job import Job
 
 BUNDLE_ADJUSTMENT = "bundle-adjustment"
 MODEL_COMPARISON = "model-comparison"
+PREANALYSIS = "preanalysis"
 VERSION = "1.0.0"
 
 
@@ -42,6 +45,13 @@ PROCESSES: dict[str, ProcessInfo] = {
         "Adjusts the same observations with each of several platform models and reports one "
         "adjustment per model plus a side-by-side table of sigma0, chi-square verdicts and "
         "check-point RMSE.",
+    ),
+    PREANALYSIS: ProcessInfo(
+        PREANALYSIS,
+        "Pre-analysis of a planned block",
+        "Predicts the precision (sigmas and error ellipses) of the check, tie and control points "
+        "of a planned block from the planned point coordinates and the images' approximate "
+        "orientation, before anything is measured; image observations are not needed.",
     ),
 }
 
@@ -85,7 +95,9 @@ def describe(process_id: str, base_url: str) -> ProcessDescription:
         )
     outputs = {
         "report": OutputDescription(
-            title="Adjustment report" if process_id == BUNDLE_ADJUSTMENT else "Comparison report",
+            title={BUNDLE_ADJUSTMENT: "Adjustment report", PREANALYSIS: "Pre-analysis report"}.get(
+                process_id, "Comparison report"
+            ),
             description="see docs/report-contract.md",
             schema={"type": "object", "contentMediaType": "application/json"},
         )

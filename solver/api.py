@@ -3,6 +3,7 @@
     validate(job)                      -> dict   dry run: schema, references, degrees of freedom
     run(job, progress=..., cancel=...) -> dict   the adjustment report (JSON-ready)
     compare(job, models, ...)          -> dict   one report per model plus a side-by-side table
+    preanalyse(job)                    -> dict   predicted precision of a planned block (no measurements)
 
 ``progress(fraction, message, info)`` is called with ``fraction`` in [0, 1] that never
 decreases, a short human message and a dict (``iteration``, ``cost`` when solving).
@@ -102,3 +103,21 @@ def compare(
 
     with _input_faults_as_job_errors():
         return compare_models(_as_job(job), models, progress=progress, cancel=cancel)
+
+
+def preanalyse(job: Job | dict[str, Any] | str | bytes) -> dict[str, Any]:
+    """Pre-analysis of a planned block: the predicted precision of its check and ground points
+    from planned coordinates and the approximate orientation, before anything is measured
+    (:mod:`solver.quality.preanalysis`; ``kind: "preanalysis"`` in docs/report-contract.md)."""
+    from solver.quality.preanalysis import preanalyse as _preanalyse
+
+    with _input_faults_as_job_errors():
+        return _preanalyse(_as_job(job))
+
+
+def preanalysis_problems(job: Job | dict[str, Any] | str | bytes) -> list[Problem]:
+    """What makes a job unusable as a pre-analysis before any computation (planned points
+    without coordinates); the rest is found when it runs."""
+    from solver.quality.preanalysis import planning_problems
+
+    return planning_problems(_as_job(job))

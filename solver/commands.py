@@ -41,6 +41,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.set_defaults(func=cmd_warmup)
 
+    p = sub.add_parser(
+        "preanalysis", help="predicted precision of a planned block (planned points, approximate orientation)"
+    )
+    p.add_argument("job", type=Path, help="job document with planned point coordinates (observations ignored)")
+    p.add_argument("-o", "--output", type=Path, help="pre-analysis report (JSON)")
+    p.set_defaults(func=cmd_preanalysis)
+
     p = sub.add_parser("compare", help="adjust one job with several platform models side by side")
     p.add_argument("job", type=Path)
     p.add_argument("--models", required=True, help="comma-separated, e.g. K1,K2,J2-1,J2-2,ON1,ON2,P1,P2")
@@ -142,6 +149,14 @@ def summary_text(report: dict[str, Any]) -> str:
             f"U {_fmt(rm['u'], '.3f')} m  planimetric {_fmt(rm['planimetric'], '.3f')} m"
             + (f"  ({rm['planimetric'] / cp['gsd_m']:.2f} GSD)" if cp.get("gsd_m") and rm.get("planimetric") else "")
         )
+        pr = cp.get("predicted_rmse_m")
+        if pr:
+            ratio = cp.get("rmse_ratio") or {}
+            lines.append(
+                f"  predicted RMSE E {_fmt(pr['e'], '.3f')} m  N {_fmt(pr['n'], '.3f')} m  U {_fmt(pr['u'], '.3f')} m  "
+                f"(empirical / predicted: E {_fmt(ratio.get('e'), '.2f')}  N {_fmt(ratio.get('n'), '.2f')}  "
+                f"U {_fmt(ratio.get('u'), '.2f')}); {cp.get('n_discrepancy_test_failed', 0)} point(s) fail the discrepancy test"
+            )
         for axis in ("e", "n", "u"):
             t = cp["t_test"].get(axis)
             if t:
@@ -149,6 +164,15 @@ def summary_text(report: dict[str, Any]) -> str:
                     f"  t-test {axis}: t={t['statistic']:.3f} critical {t['critical']:.3f} "
                     f"({'no bias' if t['passed'] else 'BIASED'})"
                 )
+    loo = (report.get("quality") or {}).get("leave_one_out")
+    if loo and loo.get("n_determined"):
+        rm, pr = loo["rmse_m"], loo["predicted_rmse_m"]
+        lines.append(
+            f"\nleave-one-out ({loo['n_determined']} of {loo['n']} control points): cross-validation RMSE "
+            f"E {_fmt(rm['e'], '.3f')} m  N {_fmt(rm['n'], '.3f')} m  U {_fmt(rm['u'], '.3f')} m "
+            f"(predicted E {_fmt(pr['e'], '.3f')}  N {_fmt(pr['n'], '.3f')}  U {_fmt(pr['u'], '.3f')}); "
+            f"{loo['n_discrepancy_test_failed']} fail the discrepancy test"
+        )
     ln = report.get("lines") or {}
     if ln.get("items"):
         roles = [it["role"] for it in ln["items"]]
@@ -184,6 +208,46 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(comparison_table_text(report))
     else:
         print(summary_text(report))
+    return 0
+
+
+def preanalysis_text(report: dict[str, Any]) -> str:
+    """Human summary of a pre-analysis report (``pba preanalysis``)."""
+    a = report["adjustment"]
+    lines = [
+        f"pre-analysis of {report.get('job_name')}: {a['n_planned_image_points']} planned image points, "
+        f"{a['n_unknowns']} unknowns, dof {a['dof']} (sigma0 a priori {a['sigma0_apriori']:g})"
+    ]
+    cp = report["checkpoints"]
+    pr = cp.get("predicted_rmse_m")
+    if pr:
+        lines.append(
+            f"check points ({cp['n']}): predicted RMSE E {_fmt(pr['e'], '.3f')} m  N {_fmt(pr['n'], '.3f')} m  "
+            f"U {_fmt(pr['u'], '.3f')} m  3D {_fmt(pr['3d'], '.3f')} m"
+        )
+        lines.append(f"  {'point':<12} {'sigma E':>9} {'sigma N':>9} {'sigma U':>9}  images")
+        for p in cp["points"]:
+            s = p["sigma_m"] or {}
+            lines.append(
+                f"  {p['id']:<12} {_fmt(s.get('e'), '9.3f')} {_fmt(s.get('n'), '9.3f')} {_fmt(s.get('u'), '9.3f')}  {len(p['images'])}"
+            )
+    for w in report["quality"]["warnings"][:10]:
+        lines.append(f"warning: {w['message']}")
+    return "\n".join(lines)
+
+
+def cmd_preanalysis(args: argparse.Namespace) -> int:
+    from solver import api
+
+    job = _load(args.job)
+    try:
+        report = api.preanalyse(job)
+    except JobError as exc:
+        _print_problems(exc)
+        return 2
+    if args.output:
+        args.output.write_text(json.dumps(report, indent=1))
+    print(preanalysis_text(report))
     return 0
 
 

@@ -1,4 +1,4 @@
-"""The pba command line: run with a report and summary, models, validate, compare."""
+"""The pba command line: run with a report and summary, models, validate, compare, preanalysis."""
 
 from __future__ import annotations
 
@@ -52,3 +52,24 @@ def test_compare_prints_side_by_side_table(tmp_path: Path):
     assert len(lines) == 3
     rep = json.loads((tmp_path / "c.json").read_text())
     assert [row["model"] for row in rep["table"]] == ["K1", "P2", "ON1"]
+
+
+def test_preanalysis_writes_report_and_prints_predicted_precision(tmp_path: Path):
+    """pba preanalysis: a single K2 image planned with its 14 control and 9 check points (the
+    simulated job without its observations); a planned point without coordinates is exit 2."""
+    job, _ = single_image_job("K2", seed=1)
+    job["observations"] = []
+    jp = tmp_path / "plan.json"
+    jp.write_text(json.dumps(job))
+    out = tmp_path / "plan.report.json"
+    r = subprocess.run(PBA + ["preanalysis", str(jp), "-o", str(out)], capture_output=True, text=True, check=True)
+    rep = json.loads(out.read_text())
+    assert rep["kind"] == "preanalysis"
+    assert rep["adjustment"]["n_planned_image_points"] == 23
+    assert "check points (9): predicted RMSE" in r.stdout
+    pr = rep["checkpoints"]["predicted_rmse_m"]
+    assert f"{pr['e']:.3f}" in r.stdout
+    job["points"].append({"id": "planned-tie", "role": "tie"})
+    jp.write_text(json.dumps(job))
+    r = subprocess.run(PBA + ["preanalysis", str(jp)], capture_output=True, text=True)
+    assert r.returncode == 2 and "planned_point_without_coordinates" in r.stderr

@@ -14,7 +14,7 @@ from fastapi.sse import EventSourceResponse, ServerSentEvent
 from service.deps import JSON_BODY, BaseUrl, CurrentUser, ServicesDep, VisibleJob
 from service.errors import problem_responses
 from service.jobs import results_text, status_info, validate_inputs
-from service.processes import BUNDLE_ADJUSTMENT, MODEL_COMPARISON
+from service.processes import BUNDLE_ADJUSTMENT
 from service.routes import StrictJSONRoute
 from service.schemas import Execute, JobList, Link, StatusInfo, ValidationReport
 from service.states import FINISHED, JobStatus
@@ -39,7 +39,7 @@ def list_jobs(
         list[JobStatus] | None, Query(description="only jobs in these states")
     ] = None,
     processID: Annotated[
-        Literal["bundle-adjustment", "model-comparison"] | None,
+        Literal["bundle-adjustment", "model-comparison", "preanalysis"] | None,
         Query(description="only this process"),
     ] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 10,
@@ -88,14 +88,13 @@ def validate_job(
     user: CurrentUser,
     services: ServicesDep,
     process: Annotated[
-        Literal["bundle-adjustment", "model-comparison"],
+        Literal["bundle-adjustment", "model-comparison", "preanalysis"],
         Query(description="process to validate for"),
     ] = BUNDLE_ADJUSTMENT,
 ) -> ValidationReport:
     """Dry run: schema, camera references, model names, degrees of freedom; nothing is queued.
     Answers 200 with the counts, or 422 with every problem pointing at its field."""
-    process_id = MODEL_COMPARISON if process == MODEL_COMPARISON else BUNDLE_ADJUSTMENT
-    _, summary = validate_inputs(process_id, body.inputs, services.store, user)
+    _, summary = validate_inputs(process, body.inputs, services.store, user)
     return ValidationReport.model_validate(summary)
 
 

@@ -44,6 +44,7 @@ PlotKindName = Literal[
     "residual-histograms",
     "correlations",
     "cost",
+    "error-ellipses",
     "model-rmse",
 ]
 

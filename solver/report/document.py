@@ -20,6 +20,9 @@ from solver.observations.interior import cameras_report
 from solver.observations.lines import lines_report
 from solver.observations.passes import attitude_groups, passes_report
 from solver.observations.registry import FAMILIES
+from solver.quality.leave_one_out import leave_one_out
+from solver.quality.parsimony import high_correlations, implausible_sigmas
+from solver.quality.precision import checkpoint_precision, error_ellipse
 from solver.report.checkpoints import compute_checkpoints
 from solver.report.statistics import chi2_test
 from solver.state import Problem
@@ -80,6 +83,19 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
     lines = lines_report(problem, cov.images if cov is not None else None, lin.layout.img_col, opts.sigma0_apriori)
     warnings += lines["warnings"]
     gsd = float(np.mean(gsds)) if gsds else None
+    q_ff = cov.images if cov is not None else None
+    checkpoints = compute_checkpoints(problem, opts.alpha, gsd)
+    checkpoint_precision(checkpoints, problem, lin.layout, q_ff, var_factor, opts.alpha)
+    quality_warnings = implausible_sigmas(problem, images, opts.quality_warnings.attitude_sigma_deg)
+    quality_warnings += high_correlations(q_ff, parameter_names(problem), opts.quality_warnings.correlation)
+    warnings += [w["message"] for w in quality_warnings[:10]]
+    if len(quality_warnings) > 10:
+        warnings.append(f"{len(quality_warnings) - 10} more parameter warnings in quality.warnings")
+    quality = {
+        "leave_one_out": leave_one_out(problem, lin.layout, q_ff, var_factor, opts.alpha) if opts.leave_one_out else None,
+        "parsimony": None,
+        "warnings": quality_warnings,
+    }
     return {
         "schema_version": REPORT_SCHEMA_VERSION,
         "kind": "adjustment",
@@ -93,10 +109,11 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
         "observations": _observations_report(problem, lin, cov),
         "tie_points": _points_report(problem, cov, var_factor, role="tie"),
         "control_points": _points_report(problem, cov, var_factor, role="gcp"),
-        "checkpoints": compute_checkpoints(problem, opts.alpha, gsd),
+        "checkpoints": checkpoints,
         "lines": lines,
         "ephemeris": ephemeris_report(problem),
         **{family.name: family.report(problem) for family in FAMILIES},
+        "quality": quality,
         "warnings": warnings,
     }
 
@@ -288,8 +305,10 @@ def _points_report(problem: Problem, cov: Covariance | None, var_factor: float, 
     out = []
     for p, e, g in zip(pts, ecef, geo):
         sigma = None
+        ellipse = None
         if cov is not None and p.index in cov.points:
             sigma = [float(math.sqrt(max(v, 0.0) * var_factor)) for v in np.diag(cov.points[p.index])]
+            ellipse = error_ellipse(cov.points[p.index][:2, :2] * var_factor)
         item = {
             "id": p.id,
             "lgs_m": [float(x) for x in p.xyz],
@@ -298,6 +317,7 @@ def _points_report(problem: Problem, cov: Covariance | None, var_factor: float, 
             "lon_deg": float(g[0]),
             "lat_deg": float(g[1]),
             "height_m": float(g[2]),
+            "error_ellipse": ellipse,
         }
         if role == "gcp" and p.known_lgs is not None:
             item["correction_m"] = [float(x) for x in (p.xyz - p.known_lgs)]

@@ -536,6 +536,37 @@ class BlunderDetection(_Strict):
     )
 
 
+class QualityWarnings(_Strict):
+    """Limits beyond which a parameter of the solution is named in ``quality.warnings``
+    (docs/models.md, quality control)."""
+
+    attitude_sigma_deg: _num(gt=0, le=360) = Field(
+        default=0.1,
+        description="an attitude term whose sigma, as an angle over half the image, exceeds this (deg)",
+    )
+    correlation: _num(gt=0, le=1) = Field(
+        default=0.99, description="two orientation parameters correlated beyond this in magnitude"
+    )
+
+
+class Parsimony(_Strict):
+    """Significance analysis of the platform terms (docs/models.md, quality control): adjust,
+    take the platform term (attitude rate, polynomial term of order >= 1) with the smallest
+    |estimate| / sigma while it is below ``threshold``, hold it at zero and re-adjust if the
+    test of that constraint passes at ``alpha``; repeat. Every step is reported in
+    ``quality.parsimony``."""
+
+    threshold: _num(gt=0, le=1e3) = Field(default=2.0, description="candidate while |estimate| < threshold * sigma")
+    alpha: _num(gt=0, lt=0.5) = Field(default=0.05, description="level of the F test of the constraint")
+    max_steps: _int(ge=1, le=100) = Field(default=20, description="at most this many terms dropped")
+
+
+class PreanalysisOptions(_Strict):
+    """Pre-analysis (``pba preanalysis``): how the planned points will be measured."""
+
+    sigma_px: SigmaPx = Field(default=0.5, description="image measurement sigma of every planned observation, pixels")
+
+
 class SolverOptions(_Strict):
     """How to solve and what to report."""
 
@@ -582,6 +613,23 @@ class SolverOptions(_Strict):
         default=None,
         description="quality control: data snooping, reliability and removal of blunders "
         "({} for the defaults; docs/quality.md)",
+    )
+    leave_one_out: Bool = Field(
+        default=True,
+        description="withhold each control point in turn (from the solution, no re-adjustment) and "
+        "report its discrepancy and predicted sigma (quality.leave_one_out)",
+    )
+    quality_warnings: QualityWarnings = Field(
+        default_factory=QualityWarnings,
+        description="limits of the warnings on implausible sigmas and high correlations (quality.warnings)",
+    )
+    preanalysis: PreanalysisOptions | None = Field(
+        default=None, description="pre-analysis only: the planned measurement precision (default 0.5 px)"
+    )
+    parsimony: Parsimony | None = Field(
+        default=None,
+        description="drop the platform terms that are not significant, one at a time with a test of "
+        "the constraint (quality.parsimony); null: off",
     )
 
 

@@ -31,6 +31,7 @@ ADJUSTMENT_PLOTS = {
     "residual-histograms",
     "correlations",
     "cost",
+    "error-ellipses",
 }
 
 # every plot image on the page has loaded and has pixels (naturalWidth > 0)
@@ -309,3 +310,28 @@ def test_blunder_detection_table(page: Any, local_server: Server, artifacts: Pat
     expect(button).to_have_count(1)
     assert button.get_attribute("data-href").endswith("/results/rejected.csv")
     page.locator("#result").screenshot(path=str(artifacts / "blunder-detection-result.png"))
+
+
+def test_preanalysis_of_a_planned_layout(page: Any, local_server: Server, artifacts: Path) -> None:
+    """The example triplet as planned (no observations, tie points at their simulated places),
+    run as the preanalysis process: the page shows the predicted precision of every planned
+    point and the map of error ellipses."""
+    job = load_example("prism-triplet.json")
+    truth = json.loads((Path(__file__).resolve().parents[2] / "examples" / "prism-triplet.truth.json").read_text())
+    where = {p["id"]: p for p in truth["points"]}
+    job["observations"] = []
+    for p in job["points"]:
+        if p["role"] == "tie":
+            q = where[p["id"]]
+            p["coordinates"] = [q["lon_deg"], q["lat_deg"], q["height_m"]]
+    open_ui(page, local_server)
+    page.select_option("#process", "preanalysis")
+    set_document(page, json.dumps(job))
+    expect(page.locator("#validation")).to_contain_text("planned points", timeout=30_000)
+    page.click("#submit")
+    expect(page.locator("#cur-percent")).to_have_text("100%", timeout=SOLVE_MS)
+    expect(page.locator("#preanalysis-points tbody tr")).to_have_count(len(job["points"]))
+    expect(page.locator("#preanalysis-rmse")).to_contain_text("predicted check RMSE")
+    kinds = wait_plots(page, 1)
+    assert kinds == ["error-ellipses"], kinds
+    page.locator("#result").screenshot(path=str(artifacts / "preanalysis-result.png"))

@@ -344,7 +344,9 @@
       const notes = (rep.problems || []).map((p) => el("li", { text: p.message || JSON.stringify(p) }));
       showValidation("ok",
         el("h4", { text: "Valid job" }),
-        el("p", {}, `${rep.n_observations} observations, ${rep.n_unknowns} unknowns, ${rep.dof} degrees of freedom`),
+        el("p", {}, rep.planned_points !== undefined
+          ? `pre-analysis: ${rep.planned_points} planned points, projected into ${all.length} images when it runs`
+          : `${rep.n_observations} observations, ${rep.n_unknowns} unknowns, ${rep.dof} degrees of freedom`),
         images.length ? el("ul", {}, images) : null,
         notes.length ? el("div", {}, el("h4", { text: "Notes" }), el("ul", {}, notes)) : null);
       return true;
@@ -580,7 +582,7 @@
     const stem = (report.job_name || "job").replace(/[^A-Za-z0-9._-]+/g, "_").slice(0, 60);
     box.append(el("div", { class: "result-head" },
       el("h2", {}, "Result: ", report.job_name || jobId,
-        el("span", { class: "badge", text: report.kind === "comparison" ? "model comparison" : "adjustment" })),
+        el("span", { class: "badge", text: { comparison: "model comparison", preanalysis: "pre-analysis" }[report.kind] || "adjustment" })),
       el("div", { class: "downloads" }, el("span", { class: "muted", text: "Download:" }),
         download(`jobs/${id}/results`, `${stem}-report.json`, "report JSON"),
         download(`jobs/${id}/results/parameters.csv`, `${stem}-parameters.csv`, "parameters CSV"),
@@ -588,7 +590,14 @@
         download(`jobs/${id}/results/observations.csv`, `${stem}-observations.csv`, "observations CSV"),
         report.quality && report.quality.rejected ? download(`jobs/${id}/results/rejected.csv`, `${stem}-rejected.csv`, "rejected CSV") : null)));
     if (report.kind === "comparison") renderComparison(box, jobId, report);
-    else {
+    else if (report.kind === "preanalysis") {
+      const detail = el("div", { id: "preanalysis" });
+      box.append(detail);
+      renderPreanalysis(detail, report);
+      const plots = el("div", { id: "plots-section" });
+      box.append(plots);
+      renderPlots(plots, jobId, null);
+    } else {
       const detail = el("div", { id: "adjustment" });
       box.append(detail);
       renderAdjustment(detail, report);
@@ -666,6 +675,8 @@
     renderAttitude(box, report);
     renderCheckpoints(box, report);
     renderSnooping(box, report);
+    renderLeaveOneOut(box, report);
+    renderParsimony(box, report);
   }
 
   // Data snooping (options.blunder_detection, docs/quality.md): the rejected observations and
@@ -692,6 +703,69 @@
       el("tbody", {}, rows))));
     const unchecked = (q.reliability || {}).unchecked_control_points || [];
     if (unchecked.length) box.append(el("p", { class: "muted", id: "unchecked-control", text: `Control points nothing checks (redundancy ≈ 0): ${unchecked.map((u) => `${u.point} (${u.unchecked.join(", ")})`).join("; ")}` }));
+  }
+
+  // Pre-analysis (issue 15): the predicted precision of a planned layout, before measuring.
+  function renderPreanalysis(box, report) {
+    clear(box);
+    const adj = report.adjustment || {};
+    const cp = report.checkpoints || {};
+    const pr = cp.predicted_rmse_m || {};
+    box.append(el("h3", { text: "Pre-analysis" }));
+    box.append(el("p", { class: "muted", text: `${adj.n_planned_image_points ?? "–"} planned image points, ${adj.n_unknowns ?? "–"} unknowns, ${adj.dof ?? "–"} degrees of freedom; σ0 a priori ${fmtNum(adj.sigma0_apriori, 3)}. Predicted standard deviations in the local geodetic system (m).` }));
+    box.append(el("div", { class: "table-wrap" }, el("table", { class: "data compact", id: "preanalysis-rmse" },
+      el("thead", {}, el("tr", {}, el("th", { text: "" }), ["E", "N", "U", "planimetric", "3D"].map((h) => el("th", { class: "num", text: h })))),
+      el("tbody", {}, el("tr", {}, el("th", { text: "predicted check RMSE (m)" }),
+        ["e", "n", "u", "planimetric", "3d"].map((c) => el("td", { class: "num", text: fmtNum(pr[c], 3) })))))));
+    const rows = [...(cp.points || []).map((p) => ({ ...p, role: "check" })), ...(report.points || [])];
+    box.append(el("details", { open: true }, el("summary", { text: `Predicted precision of the ${rows.length} planned points` }),
+      el("div", { class: "table-wrap" }, el("table", { class: "data", id: "preanalysis-points" },
+        el("thead", {}, el("tr", {}, el("th", { text: "point" }), el("th", { text: "role" }),
+          ["σE (m)", "σN (m)", "σU (m)", "ellipse a (m)", "ellipse b (m)", "azimuth (°)"].map((h) => el("th", { class: "num", text: h })), el("th", { text: "images" }))),
+        el("tbody", {}, rows.map((p) => el("tr", {}, el("td", {}, el("code", { text: p.id })), el("td", { text: p.role }),
+          ["e", "n", "u"].map((c) => el("td", { class: "num", text: fmtNum((p.sigma_m || {})[c], 3) })),
+          el("td", { class: "num", text: fmtNum((p.error_ellipse || {}).semi_major_m, 3) }),
+          el("td", { class: "num", text: fmtNum((p.error_ellipse || {}).semi_minor_m, 3) }),
+          el("td", { class: "num", text: fmtNum((p.error_ellipse || {}).azimuth_deg, 1) }),
+          el("td", { class: "muted", text: (p.images || []).length }))))))));
+    const warn = (report.quality || {}).warnings || [];
+    if (warn.length) box.append(el("div", { class: "warnings" }, el("strong", { text: "Warnings" }), el("ul", {}, warn.map((w) => el("li", { text: w.message })))));
+  }
+
+  // Leave-one-out (issue 15): each control point withheld in turn, from the solution.
+  function renderLeaveOneOut(box, report) {
+    const loo = (report.quality || {}).leave_one_out;
+    if (!loo || !(loo.points || []).length) return;
+    const comps = ["e", "n", "u"];
+    const rm = loo.rmse_m || {}, pr = loo.predicted_rmse_m || {};
+    box.append(el("h3", { text: "Leave-one-out of the control points" }));
+    box.append(el("p", { class: "muted", text: `Each control point withheld in turn and computed from the orientation adjusted without it (${loo.method}). Cross-validation RMSE E ${fmtNum(rm.e, 3)} m, N ${fmtNum(rm.n, 3)} m, U ${fmtNum(rm.u, 3)} m; predicted E ${fmtNum(pr.e, 3)}, N ${fmtNum(pr.n, 3)}, U ${fmtNum(pr.u, 3)}; ${loo.n_discrepancy_test_failed} of ${loo.n_determined} fail the discrepancy test.` }));
+    box.append(el("details", {}, el("summary", { text: `Leave-one-out table (${loo.points.length} control points)` }),
+      el("div", { class: "table-wrap" }, el("table", { class: "data", id: "leave-one-out" },
+        el("thead", {}, el("tr", {}, el("th", { text: "point" }),
+          ["dE (m)", "dN (m)", "dU (m)", "σE (m)", "σN (m)", "σU (m)", "χ² / critical"].map((h) => el("th", { class: "num", text: h })), el("th", { text: "test" }))),
+        el("tbody", {}, loo.points.map((p) => el("tr", {}, el("td", {}, el("code", { text: p.id })),
+          comps.map((c) => el("td", { class: "num", text: fmtNum((p.discrepancy_m || {})[c], 3) })),
+          comps.map((c) => el("td", { class: "num", text: fmtNum((p.sigma_m || {})[c], 3) })),
+          el("td", { class: "num", text: p.discrepancy_test ? `${fmtNum(p.discrepancy_test.statistic, 2)} / ${fmtNum(p.discrepancy_test.critical, 2)}` : "–" }),
+          el("td", {}, p.discrepancy_test ? verdict(p.discrepancy_test.passed, "passed", "rejected") : el("span", { class: "muted", text: p.determined ? "–" : "not determined" })))))))));
+  }
+
+  function renderParsimony(box, report) {
+    const par = (report.quality || {}).parsimony;
+    if (!par || !(par.steps || []).length) return;
+    box.append(el("details", {}, el("summary", { text: `Parsimony: ${(par.dropped || []).length} platform terms dropped` }),
+      el("p", { class: "muted", text: par.rule || "" }),
+      el("div", { class: "table-wrap" }, el("table", { class: "data compact" },
+        el("thead", {}, el("tr", {}, ["step", "term", "|value| / σ", "F / critical", "decision", "σ0", "check 3D (m)"].map((h, i) => el("th", { class: i === 1 || i === 4 ? null : "num", text: h })))),
+        el("tbody", {}, par.steps.map((st) => el("tr", {},
+          el("td", { class: "num", text: st.step }),
+          el("td", {}, el("code", { text: st.term.name })),
+          el("td", { class: "num", text: fmtNum(st.term.ratio, 3) }),
+          el("td", { class: "num", text: st.test ? `${fmtNum(st.test.statistic, 2)} / ${fmtNum(st.test.critical, 2)}` : "–" }),
+          el("td", { text: st.decision }),
+          el("td", { class: "num", text: fmtNum(st.sigma0, 4) }),
+          el("td", { class: "num", text: fmtNum(st.check_rmse_3d_m, 3) }))))))));
   }
 
   // Measured attitude weighted in the adjustment: per attitude block, the residual RMS and
@@ -813,15 +887,19 @@
       el("tbody", {},
         numRow("mean (m)", cp.mean_m), numRow("std (m)", cp.std_m), numRow("RMSE (m)", cp.rmse_m),
         numRow("RMSE (GSD)", cp.rmse_gsd, 2),
+        numRow("predicted RMSE (m)", cp.predicted_rmse_m),
+        numRow("RMSE / predicted", cp.rmse_ratio, 2),
         testRow("t-test (bias)", cp.t_test, (t) => el("span", {}, `t ${fmtNum(t.statistic, 2)} / ${fmtNum(t.critical, 2)} `, verdict(t.passed, "no bias", "biased"))),
         testRow("Shapiro-Wilk", cp.shapiro_wilk, (t) => el("span", {}, `W ${fmtNum(t.statistic, 3)}, p ${fmtNum(t.p_value, 3)} `, verdict(t.passed, "normal", "not normal")))))));
     const pts = cp.points || [];
     if (pts.length) {
       box.append(el("details", {}, el("summary", { text: `Discrepancies of the ${pts.length} check points` }),
         el("div", { class: "table-wrap" }, el("table", { class: "data" },
-          el("thead", {}, el("tr", {}, el("th", { text: "point" }), ["E (m)", "N (m)", "U (m)", "planimetric (m)"].map((h) => el("th", { class: "num", text: h })), el("th", { text: "images" }))),
+          el("thead", {}, el("tr", {}, el("th", { text: "point" }), ["E (m)", "N (m)", "U (m)", "planimetric (m)", "σE (m)", "σN (m)", "σU (m)"].map((h) => el("th", { class: "num", text: h })), el("th", { text: "test" }), el("th", { text: "images" }))),
           el("tbody", {}, pts.map((p) => el("tr", {}, el("td", {}, el("code", { text: p.id })),
             comps.map((c) => el("td", { class: "num", text: fmtNum((p.discrepancy_m || {})[c], 3) })),
+            ["e", "n", "u"].map((c) => el("td", { class: "num", text: fmtNum((p.sigma_m || {})[c], 3) })),
+            el("td", {}, p.discrepancy_test ? verdict(p.discrepancy_test.passed, "passed", "rejected") : el("span", { class: "muted", text: "–" })),
             el("td", { class: "muted", text: (p.images || []).join(", ") }))))))));
     }
   }
@@ -842,7 +920,7 @@
     const grid = el("div", { class: "plots", id: "plots" });
     box.append(el("div", { class: "plots-bar" }, el("label", {}, "Per-image plots:", imageSelect),
       el("span", { class: "muted", text: "Click a PNG or SVG link to download the image." })), grid);
-    const order = ["model-rmse", "planimetric-discrepancies", "height-discrepancies", "image-residuals",
+    const order = ["model-rmse", "planimetric-discrepancies", "error-ellipses", "height-discrepancies", "image-residuals",
       "residual-histograms", "cost", "correlations"];
     const rank = (k) => (order.includes(k) ? order.indexOf(k) : order.length);
     const plots = [...index.plots].sort((a, b) => rank(a.kind) - rank(b.kind));

@@ -1,0 +1,120 @@
+"""Model parsimony: warnings on implausible platform parameters and the significance analysis
+of the platform terms.
+
+Warnings (always, from the covariance of the solution):
+
+* an attitude angle (orbit-attitude and pass models) whose standard deviation over the image exceeds the plausible limit
+  (``options.quality_warnings.attitude_sigma_deg``, default 0.1 deg): a constant term by its
+  own sigma, a rate term ``k`` by its sigma times (half the image duration)^k (the change of
+  the angle it can cause between the centre and an end of the image);
+* a pair of platform, pass or interior-orientation parameters correlated beyond
+  ``correlation`` (default 0.99) in magnitude: nearly undetermined together.
+
+Significance analysis (``options.parsimony``): :func:`solver.adjust.parsimony_analysis`
+(it re-adjusts, so it lives with the driver) uses :func:`candidate_terms` and
+:func:`constraint_test` from here.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from solver.state import Problem
+
+# models whose angles are the platform's attitude relative to the orbital frame (orbit-attitude,
+# pass): there an angle is physical and a sigma of degrees is implausible. The angles of the
+# position-rotation models (polynomial, Kepler) absorb the position's errors (pitch against
+# along-track position) and carry large sigmas legitimately when the state is free.
+ORBITAL_FRAME_ANGLES = ("roll", "pitch", "yaw")
+
+
+def _angle_reach(unit: str, duration_s: float, lines: int) -> float | None:
+    """Factor turning the sigma of a parameter of ``unit`` into the sigma of the angle change
+    it can cause over half the image (deg); None for a parameter that is not an attitude angle."""
+    if unit == "deg":
+        return 1.0
+    if unit.startswith("deg/s"):
+        k = int(unit.split("^")[1]) if "^" in unit else 1
+        return (duration_s / 2.0) ** k
+    if unit.startswith("deg/line"):
+        k = int(unit.split("^")[1]) if "^" in unit else 1
+        return (lines / 2.0) ** k
+    return None
+
+
+def implausible_sigmas(problem: Problem, images_report: list[dict[str, Any]], limit_deg: float) -> list[dict[str, Any]]:
+    """Attitude parameters whose sigma, as an angle over the image, exceeds ``limit_deg``."""
+    out = []
+    for img, rep in zip(problem.images, images_report):
+        if img.model.angle_names != ORBITAL_FRAME_ANGLES:
+            continue
+        cam = img.camera
+        lines = cam.lines or 0
+        duration = lines * (cam.line_time_s or 0.0)
+        for p in rep["parameters"]:
+            if not p["estimated"] or p["sigma"] is None:
+                continue
+            reach = _angle_reach(p["unit"], duration, lines)
+            if reach is None:
+                continue
+            angle_sigma = p["sigma"] * reach
+            if angle_sigma > limit_deg:
+                out.append(
+                    {
+                        "kind": "implausible_sigma",
+                        "image": img.id,
+                        "parameter": p["name"],
+                        "value": p["value"],
+                        "sigma": p["sigma"],
+                        "unit": p["unit"],
+                        "angle_sigma_deg": angle_sigma,
+                        "limit_deg": limit_deg,
+                        "message": (
+                            f"image {img.id!r}: {p['name']} = {p['value']:.4g} {p['unit']} with sigma "
+                            f"{p['sigma']:.3g} {p['unit']} ({angle_sigma:.3g} deg over the image, beyond "
+                            f"the plausible {limit_deg:g} deg): the control does not determine it; use a "
+                            "lower attitude order, weight the attitude or add control"
+                        ),
+                    }
+                )
+    return out
+
+
+def high_correlations(cov_images: np.ndarray | None, names: list[str], limit: float, max_pairs: int = 50) -> list[dict[str, Any]]:
+    """Pairs of orientation parameters with |rho| > ``limit`` (strongest first, at most ``max_pairs``)."""
+    if cov_images is None or cov_images.size == 0:
+        return []
+    d = np.sqrt(np.clip(np.diag(cov_images), 1e-300, None))
+    rho = np.clip(cov_images / np.outer(d, d), -1.0, 1.0)
+    iu = np.triu_indices_from(rho, k=1)
+    vals = rho[iu]
+    big = np.flatnonzero(np.abs(vals) > limit)
+    big = big[np.argsort(-np.abs(vals[big]))][:max_pairs]
+    return [
+        {
+            "kind": "high_correlation",
+            "a": names[iu[0][k]],
+            "b": names[iu[1][k]],
+            "rho": float(vals[k]),
+            "limit": limit,
+            "message": (
+                f"{names[iu[0][k]]} and {names[iu[1][k]]} are correlated {vals[k]:+.4f} (beyond {limit:g}): "
+                "the data hardly separate them; hold, drop or weight one of them"
+            ),
+        }
+        for k in big
+    ]
+
+
+def constraint_test(delta_vtpv: float, q: int, vtpv: float, dof: int, alpha: float) -> dict[str, Any]:
+    """Test of the hypothesis that ``q`` parameters are zero, from the increase of the weighted
+    sum of squares when they are held: ``F = (dvtpv / q) / (vtpv / dof)``, accepted (the
+    constraint is compatible with the data, the terms can go) below the ``1 - alpha`` quantile
+    of F(q, dof)."""
+    f = (max(delta_vtpv, 0.0) / q) / (vtpv / dof) if dof > 0 and vtpv > 0 else math.inf
+    crit = float(stats.f.ppf(1.0 - alpha, q, dof)) if dof > 0 else math.inf
+    return {"statistic": float(f), "dof": [q, dof], "critical": crit, "alpha": alpha, "passed": bool(f <= crit)}

@@ -1,0 +1,290 @@
+"""Pre-analysis (network design): predicted precision of a planned block before anything is
+measured.
+
+Input: a job whose points carry planned coordinates (control ``gcp``, ``check`` and ``tie``
+points alike) and whose images carry their approximate orientation (``approx_state`` or an
+``ephemeris``, ``first_line_time_s``, the model and its options). Image observations are not
+needed (any given are ignored): every planned point is projected into every image with the
+initial orientation, and the projections that fall inside the image (lines 0..lines-1 when the
+camera gives ``lines``, columns 0..columns-1) become the planned observations, each with
+``options.preanalysis.sigma_px``. The adjustment's normal matrix is then formed at those
+(consistent, zero-residual) values and inverted: the a-priori precision of the orientation,
+the tie and weighted control points and, by :mod:`solver.quality.precision`, the check points
+(variance factor ``sigma0_apriori^2``: nothing is measured, nothing estimates it).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from solver.engine.assemble import build_problem, parameter_names
+from solver.engine.initialize import angles_from_matrix, initialise
+from solver.engine.linalg import check_rank, covariance, linearise, schur
+from solver.engine.tables import current_tables, records
+from solver.engine.validate import require_valid
+from solver.errors import JobError
+from solver.errors import Problem as JobProblem
+from solver.geometry.geodesy import ecef_to_geodetic, enu_rotation
+from solver.kernels import all_observation_blocks
+from solver.observations.ephemeris import image_state
+from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
+from solver.quality.parsimony import high_correlations
+from solver.quality.precision import (
+    block_width,
+    error_ellipse,
+    intersection_cofactor,
+    ray_blocks,
+    rmse_summary,
+    sigmas_enu,
+    survey_covariance,
+)
+from solver.schema.job import Job
+from solver.state import Problem
+
+PROJECTION_PASSES = 3  # re-project from the last projection (the line search starts at the observed line)
+
+
+def _all_pairs(job: Job, placement: dict[tuple[str, str], tuple[float, float]]) -> list[dict[str, Any]]:
+    cams = {c.id: c for c in job.cameras}
+    out = []
+    for im in job.images:
+        cam = cams[im.camera]
+        for p in job.points:
+            line, col = placement.get((im.id, p.id), ((cam.lines or 1) / 2.0, (cam.columns or 1) / 2.0))
+            out.append({"image": im.id, "point": p.id, "line": line, "column": col, "sigma_px": 1.0})
+    return out
+
+
+def _rotation(omega: float, phi: float, kappa: float) -> np.ndarray:
+    """M = Rx(omega) Ry(phi) Rz(kappa) (the inverse of :func:`angles_from_matrix`)."""
+    co, so, cp, sp, ck, sk = math.cos(omega), math.sin(omega), math.cos(phi), math.sin(phi), math.cos(kappa), math.sin(kappa)
+    rx = np.array([[1, 0, 0], [0, co, -so], [0, so, co]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[ck, -sk, 0], [sk, ck, 0], [0, 0, 1]])
+    return rx @ ry @ rz
+
+
+def level_nominal_attitude(problem: Problem, images: list[int]) -> None:
+    """Tilt the nominal attitude of position-rotation models (LGS axes) to the platform's own
+    vertical (in place). Without control on an image the initial attitude points the camera
+    along the LGS vertical of the scene centre; the platform, hundreds of kilometres away, has
+    its vertical tilted by ~2.7 deg per 300 km, which puts the planned points thousands of lines
+    off. With T the rotation taking the LGS up to the platform's geodetic up (both in LGS),
+    ``M = M_nominal T^T``. Orbit-attitude and pass models are relative to the orbital frame
+    already; images with ``initial`` or ``approx_state.attitude_deg`` angles are left alone."""
+    for i in images:
+        img = problem.images[i]
+        im_doc = problem.job.images[i]
+        if img.model.orbital and img.model.angle_names != ("omega", "phi", "kappa"):
+            continue
+        state = image_state(im_doc, problem.job.options)
+        if state is None or state.attitude_deg is not None or set(im_doc.initial) & {"omega", "phi", "kappa"}:
+            continue
+        orders = img.model.effective_orders(img.options)
+        if any(orders[ELEMENTS.index(e)] == HELD for e in ANGLES):
+            continue
+        r = np.array(state.position_ecef_m, dtype=float)
+        lon, lat, _h = ecef_to_geodetic(r[None, :])[0]
+        up = problem.frame.vector_to_lgs(enu_rotation(math.radians(lon), math.radians(lat))[2])
+        ez = np.array([0.0, 0.0, 1.0])
+        axis = np.cross(ez, up)
+        s, c = float(np.linalg.norm(axis)), float(ez @ up)
+        if s < 1e-12:
+            continue
+        k = axis / s
+        kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        t = np.eye(3) + s * kx + (1 - c) * (kx @ kx)  # Rodrigues: t @ ez = up
+        m = _rotation(*(img.base[coef_index(e, 0)] for e in ANGLES)) @ t.T
+        for e, v in zip(ANGLES, angles_from_matrix(m)):
+            img.base[coef_index(e, 0)] = v
+        img.params[:] = img.base[img.free_idx]
+
+
+def planning_problems(job: Job) -> list[JobProblem]:
+    """Planned points without coordinates (a pre-analysis projects every point)."""
+    out = [
+        JobProblem(
+            "planned_point_without_coordinates",
+            f"point {p.id!r}: a pre-analysis needs the planned coordinates of every point",
+            ("points", i, "coordinates"),
+        )
+        for i, p in enumerate(job.points)
+        if p.coordinates is None
+    ]
+    if not job.points:
+        out.append(JobProblem("no_planned_points", "a pre-analysis needs planned points", ("points",)))
+    return out
+
+
+def _projections(job: Job, level: bool) -> tuple[dict[tuple[str, str], tuple[float, float]], dict[tuple[str, str], bool]]:
+    """Projections of every planned point into every image with the initial orientation (LGS
+    nominal attitude, or levelled to the platform's vertical), and whether each is inside."""
+    # orientation from the approximate states alone: every point as a check point (no control
+    # resection, nothing estimated)
+    points = [p.model_copy(update={"role": "check"}) for p in job.points]
+    placement: dict[tuple[str, str], tuple[float, float]] = {}
+    inside: dict[tuple[str, str], bool] = {}
+    for _ in range(PROJECTION_PASSES):
+        doc = job.model_copy(update={"points": points, "observations": [], "lines": []})
+        doc = Job.model_validate({**doc.model_dump(), "observations": _all_pairs(job, placement)})
+        problem = build_problem(doc)
+        initialise(problem)
+        if level:
+            level_nominal_attitude(problem, list(range(len(problem.images))))
+        obs = problem.obs
+        rows = np.arange(len(obs.pt))
+        img_tab, cam_tab, img_p, cam_p = current_tables(problem)
+        pts = np.ascontiguousarray(np.array([p.known_lgs for p in problem.points], dtype=float))
+        zeros_col = np.zeros(len(problem.images), dtype=np.int64)
+        res, _jf, _fc, _jp, ok = all_observation_blocks(
+            records(problem, rows), img_tab, cam_tab, img_p, cam_p, pts, obs.pt, np.zeros(len(pts), dtype=np.bool_),
+            zeros_col, np.zeros(max(len(problem.cameras), 1), dtype=np.int64),
+            np.zeros(max(len(problem.passes), 1), dtype=np.int64), block_width(problem),
+        )
+        for k in rows:
+            im = problem.images[obs.img[k]]
+            cam = im.camera
+            line = float(obs.oc[k, 0] - res[k, 0] * obs.oc[k, 2])
+            col = float(obs.oc[k, 1] - res[k, 1] * obs.oc[k, 2])
+            key = (im.id, problem.points[obs.pt[k]].id)
+            placement[key] = (line, col)
+            inside[key] = bool(
+                ok[k]
+                and math.isfinite(line)
+                and math.isfinite(col)
+                and 0.0 <= col <= (cam.columns - 1 if cam.columns else math.inf)
+                and (0.0 <= line <= cam.lines - 1 if cam.lines else True)
+            )
+    return placement, inside
+
+
+def plan_observations(job: Job) -> tuple[list[dict[str, Any]], set[str]]:
+    """The image observations of the planned points: their projections with the initial
+    orientation that fall inside the images (JSON-ready, ``sigma_px`` of ``options.preanalysis``),
+    and the images whose nominal attitude was levelled (:func:`level_nominal_attitude`: per
+    image, the variant that sees more planned points)."""
+    missing = planning_problems(job)
+    if missing:
+        raise JobError(missing)
+    sigma = job.options.preanalysis.sigma_px if job.options.preanalysis is not None else 0.5
+    flat = _projections(job, level=False)
+    tilted = _projections(job, level=True)
+    levelled: set[str] = set()
+    out = []
+    for im in job.images:
+        n_flat = sum(v for (i, _p), v in flat[1].items() if i == im.id)
+        n_tilted = sum(v for (i, _p), v in tilted[1].items() if i == im.id)
+        placement, inside = tilted if n_tilted >= n_flat else flat
+        if n_tilted >= n_flat:
+            levelled.add(im.id)
+        for p in job.points:
+            if inside[(im.id, p.id)]:
+                line, col = placement[(im.id, p.id)]
+                out.append({"image": im.id, "point": p.id, "line": line, "column": col, "sigma_px": sigma})
+    return out, levelled
+
+
+def preanalyse(job: Job) -> dict[str, Any]:
+    """The pre-analysis report (docs/report-contract.md, ``kind: "preanalysis"``)."""
+    planned, levelled = plan_observations(job)
+    doc = Job.model_validate({**job.model_dump(), "observations": planned})
+    require_valid(doc)
+    problem = build_problem(doc)
+    initialise(problem)
+    gcp = np.array([problem.points[k].role == "gcp" for k in problem.obs.pt], dtype=bool)
+    uncontrolled = [
+        im.index for im in problem.images if im.id in levelled and not np.any(gcp & (problem.obs.img == im.index))
+    ]
+    level_nominal_attitude(problem, uncontrolled)
+    if uncontrolled:
+        from solver.engine.initialize import intersect_estimated_points
+
+        intersect_estimated_points(problem)
+    for p in problem.points:  # at the planned positions (the intersection of consistent rays)
+        if p.estimated and p.known_lgs is not None and p.sigma_m is None:
+            p.xyz = p.known_lgs.copy()
+    lin = linearise(problem)
+    parts = schur(lin, problem)
+    names = parameter_names(problem)
+    rank = check_rank(parts, names)
+    if rank.deficient or parts.point_singular.any():
+        raise JobError(
+            JobProblem(
+                "rank_deficient",
+                "the planned control layout leaves these parameters undetermined: "
+                + (", ".join(n for n, _ in rank.null_parameters) or "(points seen in one image only)"),
+                ("points",),
+                {"parameters": [n for n, _ in rank.null_parameters]},
+            )
+        )
+    cov = covariance(lin, parts, problem)
+    var = job.options.sigma0_apriori**2
+    n_obs = len(lin.residuals)
+    lay = lin.layout
+    tables = current_tables(problem)
+    obs = problem.obs
+    checks, covs, axes_of, discs = [], [], [], []
+    ground = []
+    for p in problem.points:
+        rows = np.flatnonzero(obs.pt == p.index)
+        images = [problem.images[i].id for i in obs.img[rows]]
+        if p.role == "check" and p.known_lgs is not None:
+            axes = (0, 1, 2) if len(rows) > 1 else (0, 1)
+            if len(rows) == 0:
+                checks.append({"id": p.id, "images": [], "planned_lgs_m": [float(x) for x in p.known_lgs], "sigma_m": None, "error_ellipse": None})
+                continue
+            blocks = ray_blocks(problem, lay, rows, p.known_lgs, tables)
+            q = intersection_cofactor(blocks, cov.images, axes)
+            c = None if q is None else var * q + survey_covariance(p.sigma_m, blocks, axes)
+            checks.append(
+                {
+                    "id": p.id,
+                    "images": images,
+                    "method": "intersection" if len(axes) == 3 else "mono",
+                    "planned_lgs_m": [float(x) for x in p.known_lgs],
+                    "sigma_m": None if c is None else {**sigmas_enu(c), **({"u": None} if 2 not in axes else {})},
+                    "error_ellipse": None if c is None else error_ellipse(c[:2, :2]),
+                }
+            )
+            if c is not None:
+                covs.append(c)
+                axes_of.append(axes)
+                discs.append(np.zeros(3))
+        elif p.estimated:
+            c = var * cov.points[p.index]
+            ground.append(
+                {
+                    "id": p.id,
+                    "role": p.role,
+                    "images": images,
+                    "planned_lgs_m": [float(x) for x in p.xyz],
+                    "sigma_m": sigmas_enu(c),
+                    "error_ellipse": error_ellipse(c[:2, :2]),
+                }
+            )
+        else:
+            ground.append({"id": p.id, "role": p.role, "images": images, "planned_lgs_m": [float(x) for x in p.known_lgs], "sigma_m": None, "error_ellipse": None})
+    predicted = rmse_summary(discs, covs, axes_of)["predicted_rmse_m"] if covs else None
+    s_img = np.sqrt(np.clip(np.diag(cov.images), 0.0, None) * var)
+    return {
+        "kind": "preanalysis",
+        "job_name": job.name,
+        "frames": {"lgs": problem.frame.to_dict(), "ecef": "EPSG:4978"},
+        "adjustment": {
+            "n_observations": n_obs,
+            "n_unknowns": lay.n_params,
+            "dof": n_obs - lay.n_params,
+            "sigma0_apriori": job.options.sigma0_apriori,
+            "n_planned_image_points": len(planned),
+            "condition": rank.condition if np.isfinite(rank.condition) else None,
+        },
+        "images": [{"id": im.id, "model": im.model.name, "n_observations": int(np.sum(obs.img == im.index))} for im in problem.images],
+        "parameters": [{"name": n, "sigma": float(s)} for n, s in zip(names, s_img)],
+        "checkpoints": {"n": len(checks), "points": checks, "predicted_rmse_m": predicted},
+        "points": ground,
+        "quality": {"warnings": high_correlations(cov.images, names, job.options.quality_warnings.correlation)},
+        "observations": planned,
+    }
