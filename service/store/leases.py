@@ -34,11 +34,10 @@ from datetime import datetime, timedelta, timezone
 from typing import Callable, Literal
 
 from sqlalchemy import func, select, update
-from sqlalchemy.engine import Connection
 
 from service.states import FINISHED, JobStatus
 from service.store.base import JobRecord
-from service.store.sql import LOST_RACE, JobRow, SqlStore, _status_change, utcnow
+from service.store.sql import LOST_RACE, JobRow, RunningJob, SqlStore, _status_change, utcnow
 
 ClaimOutcome = Literal[
     "claimed", "taken_over", "held", "finished", "failed", "missing", "contended"
@@ -216,7 +215,7 @@ def claim_run(
 
 
 def _orphans(
-    conn: Connection,
+    running: list[RunningJob],
     job_id: str,
     worker: str,
     lease_s: float,
@@ -224,27 +223,16 @@ def _orphans(
 ) -> list[str]:
     """Running jobs a message's run should try to take over (:func:`claim_run` decides,
     atomically): the named job when its lease has expired or its holder is known dead, and
-    any other job whose holder is known dead. One narrow query (ids, holders, lease times):
-    this runs for every message, so it reads no whole records."""
+    any other job whose holder is known dead."""
     cutoff = utcnow() - timedelta(seconds=lease_s)
-    rows = conn.execute(
-        select(JobRow.id, JobRow.worker, JobRow.heartbeat, JobRow.started, JobRow.updated).where(
-            JobRow.status == JobStatus.running.value
-        )
-    ).all()
     found = []
-    for row in rows:
-        lease = row.heartbeat or row.started or row.updated
-        if row.id == job_id:
-            if (lease is not None and _aware(lease) < cutoff) or holder_dead(row.worker):
-                found.append(row.id)
-        elif row.worker != worker and holder_dead(row.worker):
-            found.append(row.id)
+    for job in running:
+        if job.id == job_id:
+            if job.lease < cutoff or holder_dead(job.worker):
+                found.append(job.id)
+        elif job.worker != worker and holder_dead(job.worker):
+            found.append(job.id)
     return found
-
-
-def _aware(t: datetime) -> datetime:
-    return t if t.tzinfo else t.replace(tzinfo=timezone.utc)
 
 
 def claim_for_message(
@@ -272,11 +260,14 @@ def claim_for_message(
     """
     # The common case in one transaction: no orphan, so claim what the policy picks.
     with store.engine.begin() as conn:
-        orphans = _orphans(conn, job_id, worker, lease_s, holder_dead)
+        heads, running = store.heads_and_running(conn)
+        orphans = _orphans(running, job_id, worker, lease_s, holder_dead)
         first = (
             None
             if orphans
-            else store.claim_next_in(conn, worker, max_running_per_user, heartbeat=utcnow())
+            else store.claim_next_in(
+                conn, worker, max_running_per_user, heads=heads, heartbeat=utcnow()
+            )
         )
     if isinstance(first, JobRecord):
         return Claim("claimed", first)

@@ -12,6 +12,7 @@ import enum
 import json
 import os
 import uuid
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any, Iterable
 
@@ -33,8 +34,11 @@ from sqlalchemy import (
     event,
     func,
     insert,
+    literal,
+    null,
     select,
     text,
+    union_all,
     update,
 )
 from sqlalchemy.engine import Connection, Engine, make_url
@@ -233,6 +237,23 @@ def make_engine(url: str) -> Engine:
     return create_engine(url, pool_pre_ping=True, pool_size=5, max_overflow=10)
 
 
+@dataclass(frozen=True)
+class RunningJob:
+    """A running job as a claim sees it: id, holder (run token) and lease time (UTC: the
+    last heartbeat, else the start, else the last update)."""
+
+    id: str
+    worker: str | None
+    lease: datetime
+
+
+def _as_utc(t: datetime) -> datetime:
+    """SQLite returns aggregates and COALESCE of timestamps without their zone: UTC."""
+    if isinstance(t, str):  # SQLite: an expression over timestamps comes back as text
+        t = datetime.fromisoformat(t)
+    return t if t.tzinfo else t.replace(tzinfo=timezone.utc)
+
+
 class LostRace(enum.Enum):
     """The type of :data:`LOST_RACE`."""
 
@@ -240,6 +261,34 @@ class LostRace(enum.Enum):
 
 
 LOST_RACE = LostRace.LOST_RACE  # a claim attempt found every candidate taken: try again
+
+
+def _heads_and_running_statement() -> Any:
+    """Built once: composing a SELECT costs more client CPU than running this one."""
+    heads = (
+        select(
+            literal("a").label("kind"),
+            JobRow.owner.label("owner"),
+            JobRow.small.label("small"),
+            func.min(JobRow.created).label("t"),
+            null().label("id"),
+            null().label("worker"),
+        )
+        .where(JobRow.status == JobStatus.accepted.value)
+        .group_by(JobRow.owner, JobRow.small)
+    )
+    running = select(
+        literal("r"),
+        null(),
+        null(),
+        func.coalesce(JobRow.heartbeat, JobRow.started, JobRow.updated),
+        JobRow.id,
+        JobRow.worker,
+    ).where(JobRow.status == JobStatus.running.value)
+    return union_all(heads, running)
+
+
+_HEADS_AND_RUNNING = _heads_and_running_statement()
 
 
 def _status_change(target: JobStatus, allowed_from: Iterable[JobStatus]) -> list[str]:
@@ -510,15 +559,20 @@ class SqlStore:
         return loads
 
     def _heads(self, conn: Connection) -> list[Head]:
-        rows = conn.execute(
-            select(JobRow.owner, JobRow.small, func.min(JobRow.created))
-            .where(JobRow.status == JobStatus.accepted.value)
-            .group_by(JobRow.owner, JobRow.small)
-        ).all()
-        return [
-            Head(o, bool(sm), c if c.tzinfo else c.replace(tzinfo=timezone.utc))
-            for o, sm, c in rows
-        ]
+        return self.heads_and_running(conn)[0]
+
+    def heads_and_running(self, conn: Connection) -> tuple[list[Head], list[RunningJob]]:
+        """The waiting heads (oldest accepted job per owner and lane) and every running job's
+        id, holder and lease time, in one round trip (a claim reads both for every message)."""
+        found_heads: list[Head] = []
+        found_running: list[RunningJob] = []
+        for kind, owner, small, t, job_id, worker in conn.execute(_HEADS_AND_RUNNING):
+            t = _as_utc(t)
+            if kind == "a":
+                found_heads.append(Head(owner, bool(small), t))
+            else:
+                found_running.append(RunningJob(job_id, worker, t))
+        return found_heads, found_running
 
     def claim_next(
         self, worker: str, max_running_per_user: int = 0, **extra: Any
@@ -535,13 +589,20 @@ class SqlStore:
         return None
 
     def claim_next_in(
-        self, conn: Connection, worker: str, max_running_per_user: int = 0, **extra: Any
+        self,
+        conn: Connection,
+        worker: str,
+        max_running_per_user: int = 0,
+        heads: list[Head] | None = None,
+        **extra: Any,
     ) -> JobRecord | None | LostRace:
         """One attempt of :meth:`claim_next` in the caller's transaction ``conn``: the claimed
         job, None when no job is accepted, or :data:`LOST_RACE` when every job of the picked
-        head was being claimed by another transaction (try again in a new one)."""
+        head was being claimed by another transaction (try again in a new one). ``heads``: the
+        waiting heads when the caller has just read them in ``conn``."""
         _status_change(JobStatus.running, [JobStatus.accepted])
-        heads = self._heads(conn)
+        if heads is None:
+            heads = self._heads(conn)
         if not heads:
             return None
         owners = sorted({h.owner for h in heads})
