@@ -14,6 +14,7 @@ import importlib
 import sys
 
 from solver import commands
+from solver.gis import cli as gis_cli
 from solver.simulate import cli as simulate_cli
 
 SERVICE_COMMANDS = "service.cli"  # serve, worker, admin, db
@@ -26,6 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     commands.register(sub)  # run, models, compare, validate, export-camera, warmup
     simulate_cli.register(sub)  # simulate
+    gis_cli.register(sub)  # ground-to-image, image-to-ground, export-rpc, export-geojson
     try:
         service = importlib.import_module(SERVICE_COMMANDS)
     except ModuleNotFoundError as exc:
