@@ -32,8 +32,10 @@ class Dem:
 
     def height(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
         x, y = self._to_dem.transform(np.asarray(lon, float), np.asarray(lat, float))
-        col, row = self.inverse * (np.asarray(x), np.asarray(y))
-        c, r = np.asarray(col) - 0.5, np.asarray(row) - 0.5  # pixel-centre grid
+        a = self.inverse
+        x, y = np.asarray(x), np.asarray(y)
+        c = a.a * x + a.b * y + a.c - 0.5  # pixel-centre grid
+        r = a.d * x + a.e * y + a.f - 0.5
         h, w = self.values.shape
         c0 = np.clip(np.floor(c).astype(int), 0, max(w - 2, 0))
         r0 = np.clip(np.floor(r).astype(int), 0, max(h - 2, 0))
