@@ -47,6 +47,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fit-report", type=Path, help="JSON with the fit and check-grid residuals")
     p.set_defaults(func=cmd_export_rpc)
 
+    p = sub.add_parser("ortho", help="orthorectify an image's raster with the adjusted orientation (GeoTIFF)")
+    p.add_argument("raster", type=Path, help="the image's raster (raw geometry, as delivered)")
+    p.add_argument("job", type=Path, help="job document (JSON)")
+    p.add_argument("report", type=Path, help="its report (pba run -o)")
+    p.add_argument("--image", required=True, help="image id")
+    hg = p.add_mutually_exclusive_group(required=True)
+    hg.add_argument("--dem", type=Path, help="DEM raster (ellipsoidal heights, m)")
+    hg.add_argument("--height", type=float, help="constant ellipsoidal height (m)")
+    p.add_argument("--crs", required=True, help="CRS of the orthoimage, e.g. EPSG:32722")
+    p.add_argument("--gsd", type=float, required=True, help="pixel size in CRS units")
+    p.add_argument("--method", choices=("rigorous", "rpc"), default="rigorous", help="rigorous model on a grid (default) or the fitted RPC through GDAL's warper")
+    p.add_argument("-o", "--output", type=Path, required=True, help="orthoimage (GeoTIFF)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_ortho)
+
     p = sub.add_parser("export-geojson", help="points with discrepancy vectors and image footprints (GeoJSON, CRS84)")
     p.add_argument("job", type=Path, help="job document (JSON)")
     p.add_argument("report", type=Path, help="its report (pba run -o)")
@@ -171,4 +186,49 @@ def cmd_export_geojson(args: argparse.Namespace) -> int:
         args.output.write_text(text)
     else:
         print(text)
+    return 0
+
+
+def _bar(enabled: bool):
+    import time
+
+    t0 = time.perf_counter()
+
+    def show(fraction: float, message: str) -> None:
+        if not enabled:
+            return
+        n = int(round(fraction * 30))
+        sys.stderr.write(f"\r[{'#' * n}{'-' * (30 - n)}] {fraction * 100:5.1f}% {time.perf_counter() - t0:6.1f}s {message[:40]:<40}")
+        if fraction >= 1.0:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    return show
+
+
+def cmd_ortho(args: argparse.Namespace) -> int:
+    from solver.geometry.geodesy import UnknownCRSError
+    from solver.gis.ortho import orthorectify
+
+    model = _load_model(args)
+    image = _image(model, args.image)
+    if not args.gsd > 0:
+        return _fail("--gsd must be positive")
+    rpc = None
+    if args.method == "rpc":
+        from solver.gis.rpc_export import image_rpcs
+
+        dem_range = None
+        if args.dem:
+            from solver.gis.dem import Dem
+
+            dem_range = Dem(args.dem).range_m
+        rpc = image_rpcs(model, image, dem_range)[0]
+        for w in rpc.fit["warnings"]:
+            print(f"warning: {w}", file=sys.stderr)
+    try:
+        info = orthorectify(image, args.raster, args.output, args.crs, args.gsd, args.height, args.dem, args.method, _bar(not args.quiet), rpc)
+    except (ValueError, UnknownCRSError, OSError) as exc:
+        return _fail(str(exc))
+    print(f"{args.output}: {info['width']} x {info['height']} pixels of {args.gsd:g} ({args.crs}, {args.method})")
     return 0
