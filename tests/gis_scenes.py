@@ -39,3 +39,18 @@ def prism_butted(view: str = "nadir", seed: int = 5) -> tuple[Scene, dict, dict,
     job = scene.job()
     report = api.run(job)
     return scene, job, report, load_model(job, report)
+
+
+@lru_cache(maxsize=None)
+def two_chip(seed: int = 5) -> tuple[Scene, dict, dict, AdjustedModel]:
+    """A small PRISM-like camera (2.5 m GSD, 3000 x 2400 pixels) with two chips side by side,
+    0.021 mm (3 px) apart along track: (scene, job, report, adjusted model)."""
+    from solver.simulate.camera import CameraSpec, chips_partition
+
+    chips = chips_partition((1200, 1200), 0.007, (-0.0107, 0.0107), (0.0009, -0.0008))
+    cam = CameraSpec("mc", 1939.0, 0.007, 0.00037, 3000, 2400, chips, 0.0)
+    settings = Settings(preset="gis-test", seed=seed, name="gis two chips", model="OA-J2", noise_px=0.05)
+    scene = Scene(settings, [Group([cam], 16, 8, 0)]).simulate()
+    job = scene.job()
+    report = api.run(job)
+    return scene, job, report, load_model(job, report)
