@@ -196,3 +196,27 @@ def test_cli_names_the_bad_row(tmp_path, capsys):
         main(["ground-to-image", str(tmp_path / "job.json"), str(tmp_path / "report.json"), "--image", "nope", str(tmp_path / "pts.csv")])
     assert exc.value.code == 2
     assert "no image 'nope'" in capsys.readouterr().err
+
+
+def test_cli_export_geojson(tmp_path, capsys):
+    """Footprint polygons contain the image's points; checks carry the report's discrepancies."""
+    _scene, job, report, _model = single_chip("J2-2")
+    (tmp_path / "job.json").write_text(json.dumps(job))
+    (tmp_path / "report.json").write_text(json.dumps(report))
+    assert main(["export-geojson", str(tmp_path / "job.json"), str(tmp_path / "report.json")]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    feats = doc["features"]
+    foot = [f for f in feats if f["properties"]["kind"] == "footprint"]
+    assert len(foot) == 1
+    from matplotlib.path import Path as Polygon
+
+    ring = Polygon(foot[0]["geometry"]["coordinates"][0])
+    points = [f for f in feats if f["geometry"]["type"] == "Point"]
+    assert len(points) == len(job["points"])
+    assert all(ring.contains_point(f["geometry"]["coordinates"]) for f in points)
+    checks = {c["id"]: c["discrepancy_m"] for c in report["checkpoints"]["points"]}
+    for f in points:
+        if f["properties"]["kind"] == "check":
+            assert f["properties"]["discrepancy_m"] == checks[f["properties"]["id"]]
+        if f["properties"]["kind"] == "control":
+            assert len(f["properties"]["residuals_px"]) == 1 and f["properties"]["rms_residual_px"] is not None

@@ -57,7 +57,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     hg.add_argument("--height", type=float, help="constant ellipsoidal height (m)")
     p.add_argument("--crs", required=True, help="CRS of the orthoimage, e.g. EPSG:32722")
     p.add_argument("--gsd", type=float, required=True, help="pixel size in CRS units")
-    p.add_argument("--method", choices=("rigorous", "rpc"), default="rigorous", help="rigorous model on a grid (default) or the fitted RPC through GDAL's warper")
+    p.add_argument(
+        "--method",
+        choices=("auto", "rigorous", "rpc"),
+        default="auto",
+        help="auto (default): the fitted RPC through GDAL's warper when it matches the rigorous model to 0.01 px "
+        "(single-chip and ideal images; ~5x faster), else the rigorous model on a grid (raw multi-chip images)",
+    )
     p.add_argument("-o", "--output", type=Path, required=True, help="orthoimage (GeoTIFF)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_ortho)
@@ -216,6 +222,9 @@ def _bar(enabled: bool):
     return show
 
 
+AUTO_RPC_MAX_PX = 0.01  # pba ortho --method auto: the RPC's largest check-grid error it accepts
+
+
 def cmd_ortho(args: argparse.Namespace) -> int:
     from solver.geometry.geodesy import UnknownCRSError
     from solver.gis.ortho import orthorectify
@@ -225,7 +234,8 @@ def cmd_ortho(args: argparse.Namespace) -> int:
     if not args.gsd > 0:
         return _fail("--gsd must be positive")
     rpc = None
-    if args.method == "rpc":
+    method = args.method
+    if method in ("rpc", "auto"):
         from solver.gis.rpc_export import image_rpcs
 
         dem_range = None
@@ -234,13 +244,16 @@ def cmd_ortho(args: argparse.Namespace) -> int:
 
             dem_range = Dem(args.dem).range_m
         rpc = image_rpcs(model, image, dem_range)[0]
-        for w in rpc.fit["warnings"]:
-            print(f"warning: {w}", file=sys.stderr)
+        if method == "auto":
+            method = "rpc" if rpc.fit["check_residuals"]["max_px"] <= AUTO_RPC_MAX_PX else "rigorous"
+        if method == "rpc":
+            for w in rpc.fit["warnings"]:
+                print(f"warning: {w}", file=sys.stderr)
     try:
-        info = orthorectify(image, args.raster, args.output, args.crs, args.gsd, args.height, args.dem, args.method, _bar(not args.quiet), rpc)
+        info = orthorectify(image, args.raster, args.output, args.crs, args.gsd, args.height, args.dem, method, _bar(not args.quiet), rpc)
     except (ValueError, UnknownCRSError, OSError) as exc:
         return _fail(str(exc))
-    print(f"{args.output}: {info['width']} x {info['height']} pixels of {args.gsd:g} ({args.crs}, {args.method})")
+    print(f"{args.output}: {info['width']} x {info['height']} pixels of {args.gsd:g} ({args.crs}, {method})")
     return 0
 
 

@@ -15,6 +15,9 @@ Two methods, measured against each other (bench/bench_ortho.py):
 - ``rpc``: the RPC fitted to the adjusted model (:mod:`solver.gis.rpc_fit`) and GDAL's warper
   (rasterio's ``reproject`` with ``rpcs``, ``RPC_HEIGHT`` or ``RPC_DEM``), the same as
   ``gdalwarp -rpc -to RPC_DEM=dem.tif -t_srs EPSG:.... -tr G G -r bilinear``.
+
+``pba ortho --method auto`` (default) takes ``rpc`` when the RPC matches the rigorous model to
+0.01 px on its check grid (5-6x faster on a PRISM-size image), else ``rigorous``.
 """
 
 from __future__ import annotations
