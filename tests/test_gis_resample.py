@@ -101,3 +101,22 @@ def test_per_chip_sub_images_and_their_rpcs(resampled):
         rows, cols = gdal_ground_to_image(rpcs, llh[:, 0], llh[:, 1], llh[:, 2])
         err = np.hypot(rows - 0.5 - ll.ravel(), cols - 0.5 + lo - cc.ravel())
         assert np.sqrt(np.mean(err**2)) <= RMS_TOL_PX and err.max() <= MAX_TOL_PX
+
+
+def test_simulate_raster_option_writes_one_raster_per_image(tmp_path):
+    """``pba simulate ... --raster`` (parsed here) writes <job stem>.<image id>.tif: the image's
+    size, texture and targets brighter than any texture (checked at the truth's projections)."""
+    from solver.cli import build_parser
+    from solver.simulate.raster import write_rasters
+
+    assert build_parser().parse_args(["simulate", "prism-single", "-o", "x.json", "--raster"]).raster is True
+    scene, _job, _report, _model = two_chip()
+    (path,) = write_rasters(scene, tmp_path / "sim.json")
+    assert path.name == "sim.mc.tif"
+    with rasterio.open(path) as src:
+        data = src.read(1)
+    assert data.shape == (3000, 2400)
+    truth = scene.images[0].ground_to_image(np.array([p.ecef_m for p in scene.points]))
+    inside = truth.inside & (np.abs(truth.column - 1199.5) > 12)
+    peaks = data[np.rint(truth.line[inside]).astype(int), np.rint(truth.column[inside]).astype(int)]
+    assert peaks.min() > 160 and np.percentile(data, 99) < 150
