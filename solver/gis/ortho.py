@@ -9,9 +9,10 @@ Two methods, measured against each other (bench/bench_ortho.py):
 - ``rigorous``: the adjusted rigorous model maps the output pixel centres to the image on a grid
   of nodes every ``GRID_STEP`` output pixels, at two heights spanning the DEM (or the one
   height); every pixel's image position is interpolated bilinearly between the nodes and
-  linearly in its own height (the mapping is smooth: the interpolation error is far below a
-  pixel); the raster is then sampled bilinearly (scipy's ``map_coordinates``, pixel centres at
-  integer positions as in our convention).
+  linearly in its own height (the DEM resampled bilinearly onto the output grid by GDAL; the
+  mapping is smooth: the interpolation error is far below a pixel); the raster is then sampled
+  bilinearly, pixel centres at integer positions as in our convention
+  (:func:`solver.gis.ortho_kernel.sample_block`).
 - ``rpc``: the RPC fitted to the adjusted model (:mod:`solver.gis.rpc_fit`) and GDAL's warper
   (rasterio's ``reproject`` with ``rpcs``, ``RPC_HEIGHT`` or ``RPC_DEM``), the same as
   ``gdalwarp -rpc -to RPC_DEM=dem.tif -t_srs EPSG:.... -tr G G -r bilinear``.
@@ -109,34 +110,33 @@ def orthorectify(
         reproject(data, out, rpcs=gdal_rpc(rpc), src_crs="EPSG:4326", dst_transform=transform, dst_crs=crs, resampling=Resampling.bilinear, src_nodata=None, dst_nodata=0, **opts)
         say(1.0, "done")
     elif method == "rigorous":
-        from scipy.ndimage import map_coordinates
+        from solver.gis.ortho_kernel import sample_block
 
         to_geo = Transformer.from_crs(parse_crs(crs), parse_crs("EPSG:4326"), always_xy=True)
         rs, cs = _nodes(ny), _nodes(nx)
         rr, cc = np.meshgrid(rs, cs, indexing="ij")
         lon, lat = to_geo.transform(x0 + (cc.ravel() + 0.5) * gsd, y1 - (rr.ravel() + 0.5) * gsd)
         grids = []
-        for h in sorted(set(heights)):
+        for h in sorted({heights[0], heights[1]}):
             line, col, _ = image.ground_to_image(geodetic_to_ecef(np.column_stack([lon, lat, np.full(len(lon), h)])))
             grids.append((line.reshape(rr.shape), col.reshape(rr.shape)))
+        grids.append(grids[-1])
         say(0.2, "grid projected")
-        cols = np.arange(nx, dtype=float)
-        block = max(1, 2_000_000 // max(nx, 1))
+        dem_heights = None
+        if dem_obj is not None:
+            from rasterio.warp import Resampling, reproject
+
+            dem_heights = np.full((ny, nx), np.nan, dtype=np.float64)
+            with rasterio.open(dem) as dsrc:
+                reproject(rasterio.band(dsrc, 1), dem_heights, dst_transform=transform, dst_crs=crs, resampling=Resampling.bilinear, dst_nodata=np.nan)
+            say(0.3, "DEM on the output grid")
+        empty = np.zeros((1, 1))
+        block = max(1, 4_000_000 // max(nx, 1))
         for r0 in range(0, ny, block):
-            rows = np.arange(r0, min(r0 + block, ny), dtype=float)
-            l0, c0 = _interp(grids[0][0], rs, cs, rows, cols), _interp(grids[0][1], rs, cs, rows, cols)
-            if len(grids) > 1:
-                l1, c1 = _interp(grids[1][0], rs, cs, rows, cols), _interp(grids[1][1], rs, cs, rows, cols)
-                px, py = np.meshgrid(x0 + (cols + 0.5) * gsd, y1 - (rows + 0.5) * gsd)
-                plon, plat = to_geo.transform(px, py)
-                h = dem_obj.height(plon, plat)
-                w = (h - heights[0]) / (heights[1] - heights[0])
-                l0, c0 = l0 + w * (l1 - l0), c0 + w * (c1 - c0)
-            bad = ~(np.isfinite(l0) & np.isfinite(c0)) | (l0 < -0.5) | (l0 > image.lines - 0.5) | (c0 < -0.5) | (c0 > image.columns - 0.5)
-            vals = map_coordinates(data, [np.nan_to_num(l0), np.nan_to_num(c0)], order=1, mode="nearest")
-            vals[bad] = 0
-            out[r0 : r0 + len(rows)] = vals
-            say(0.2 + 0.8 * min(r0 + block, ny) / ny, "resampling")
+            r1 = min(r0 + block, ny)
+            hb = dem_heights[r0:r1] if dem_heights is not None else empty
+            sample_block(data, grids[0][0], grids[0][1], grids[1][0], grids[1][1], GRID_STEP, ny, nx, r0, hb, float(heights[0]), float(heights[1]), 0.5 if np.issubdtype(dtype, np.integer) else 0.0, out[r0:r1])
+            say(0.3 + 0.7 * r1 / ny, "resampling")
     else:
         raise ValueError(f"unknown method {method!r} (rigorous or rpc)")
     with rasterio.open(output, "w", driver="GTiff", width=nx, height=ny, count=1, dtype=dtype, crs=crs, transform=transform, nodata=0, compress="deflate", tiled=True) as dst:
