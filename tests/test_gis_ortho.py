@@ -83,12 +83,6 @@ def test_targets_in_the_orthoimage(ortho_inputs, method):
     assert dist.max() < 0.5 * GSD_M, dist
 
 
-def test_auto_method_takes_the_rpc_for_a_single_chip_image(ortho_inputs, capsys):
-    d, _ = ortho_inputs
-    assert main(["ortho", str(d / "cam.tif"), str(d / "job.json"), str(d / "report.json"), "--image", "cam", "--height", "450", "--crs", CRS, "--gsd", "40", "-o", str(d / "auto.tif"), "-q"]) == 0
-    assert "(EPSG:32722, rpc)" in capsys.readouterr().out
-
-
 def test_rigorous_and_rpc_orthoimages_agree(ortho_inputs):
     d, _ = ortho_inputs
     for method in ("rigorous", "rpc"):

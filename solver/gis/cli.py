@@ -59,10 +59,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gsd", type=float, required=True, help="pixel size in CRS units")
     p.add_argument(
         "--method",
-        choices=("auto", "rigorous", "rpc"),
-        default="auto",
-        help="auto (default): the fitted RPC through GDAL's warper when it matches the rigorous model to 0.01 px "
-        "(single-chip and ideal images; ~5x faster), else the rigorous model on a grid (raw multi-chip images)",
+        choices=("rigorous", "rpc"),
+        default="rigorous",
+        help="rigorous (default): the adjusted model on a grid, exact for every image (chips, IOP); "
+        "rpc: the fitted RPC through GDAL's warper (as gdalwarp -rpc)",
     )
     p.add_argument("-o", "--output", type=Path, required=True, help="orthoimage (GeoTIFF)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -222,9 +222,6 @@ def _bar(enabled: bool):
     return show
 
 
-AUTO_RPC_MAX_PX = 0.01  # pba ortho --method auto: the RPC's largest check-grid error it accepts
-
-
 def cmd_ortho(args: argparse.Namespace) -> int:
     from solver.geometry.geodesy import UnknownCRSError
     from solver.gis.ortho import orthorectify
@@ -235,7 +232,7 @@ def cmd_ortho(args: argparse.Namespace) -> int:
         return _fail("--gsd must be positive")
     rpc = None
     method = args.method
-    if method in ("rpc", "auto"):
+    if method == "rpc":
         from solver.gis.rpc_export import image_rpcs
 
         dem_range = None
@@ -244,11 +241,8 @@ def cmd_ortho(args: argparse.Namespace) -> int:
 
             dem_range = Dem(args.dem).range_m
         rpc = image_rpcs(model, image, dem_range)[0]
-        if method == "auto":
-            method = "rpc" if rpc.fit["check_residuals"]["max_px"] <= AUTO_RPC_MAX_PX else "rigorous"
-        if method == "rpc":
-            for w in rpc.fit["warnings"]:
-                print(f"warning: {w}", file=sys.stderr)
+        for w in rpc.fit["warnings"]:
+            print(f"warning: {w}", file=sys.stderr)
     try:
         info = orthorectify(image, args.raster, args.output, args.crs, args.gsd, args.height, args.dem, method, _bar(not args.quiet), rpc)
     except (ValueError, UnknownCRSError, OSError) as exc:
