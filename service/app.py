@@ -47,6 +47,7 @@ ROUTER_MODULES: tuple[str, ...] = (
     "admin",
     "ui",
     "plots",
+    "gis",
 )
 OPTIONAL_ROUTERS = frozenset({"ui", "plots"})
 

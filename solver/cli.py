@@ -14,6 +14,7 @@ import importlib
 import sys
 
 from solver import commands
+from solver.gis import cli as gis_cli
 from solver.importers import cli as importers_cli
 from solver.simulate import cli as simulate_cli
 
@@ -28,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     commands.register(sub)  # run, models, compare, validate, export-camera, warmup
     simulate_cli.register(sub)  # simulate
     importers_cli.register(sub)  # job, job-sources
+    gis_cli.register(sub)  # ground-to-image, image-to-ground, export-rpc, export-geojson
     try:
         service = importlib.import_module(SERVICE_COMMANDS)
     except ModuleNotFoundError as exc:

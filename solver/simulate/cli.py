@@ -49,6 +49,12 @@ def _common(p: argparse.ArgumentParser) -> None:
         "(df ~2 mm, chip shifts 0.02-0.03 mm on the non-master chips, a few ppm of a1/b1), or a "
         "JSON file {camera id: {name: value}} with the names of docs/models.md section 8",
     )
+    p.add_argument(
+        "--raster",
+        action="store_true",
+        help="also write each image's synthetic raster (textured ground, a bright target at every "
+        "control and check point): <output stem>.<image id>.tif, raw image geometry",
+    )
 
 
 def _chip_layout(p: argparse.ArgumentParser) -> None:
@@ -155,6 +161,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         scene = presets.strip(settings, args.triplets, args.tie_points, args.gcps, args.checks)
     job_path, truth_path = write_documents(scene, Path(args.output), args.truth, args.indent)
+    if args.raster:
+        from solver.simulate.raster import write_rasters
+
+        for path in write_rasters(scene, job_path):
+            print(f"{path}: synthetic raster")
     n_obs = len(scene.noisy_observations())
     print(
         f"{job_path}: {len(scene.images)} images, {len(scene.points)} points, {n_obs} observations "

@@ -604,6 +604,9 @@
       const plots = el("div", { id: "plots-section" });
       box.append(plots);
       renderPlots(plots, jobId, null);
+      const map = el("div", { id: "map-section" });
+      box.append(map);
+      if (window.pbaMap) window.pbaMap.render(map, jobId, report, { api, el, download });
     }
   }
 

@@ -1,0 +1,1 @@
+"""Results that GIS tools can use: ground/image transforms, RPC export, GeoJSON (issue 16)."""

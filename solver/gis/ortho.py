@@ -1,0 +1,145 @@
+"""Orthorectification of an image's raster with its adjusted orientation (``pba ortho``).
+
+Output: a GeoTIFF in the chosen CRS with square pixels of ``gsd`` (CRS units), north up,
+covering the image's footprint; bilinear resampling; 0 is no-data. Heights: a constant
+ellipsoidal height or a DEM (:class:`solver.gis.dem.Dem`).
+
+Two methods, measured against each other (bench/bench_ortho.py):
+
+- ``rigorous``: the adjusted rigorous model maps the output pixel centres to the image on a grid
+  of nodes every ``GRID_STEP`` output pixels, at two heights spanning the DEM (or the one
+  height); every pixel's image position is interpolated bilinearly between the nodes and
+  linearly in its own height (the DEM resampled bilinearly onto the output grid by GDAL; the
+  mapping is smooth: the interpolation error is far below a pixel); the raster is then sampled
+  bilinearly, pixel centres at integer positions as in our convention
+  (:func:`solver.gis.ortho_kernel.sample_block`).
+- ``rpc``: the RPC fitted to the adjusted model (:mod:`solver.gis.rpc_fit`) and GDAL's warper
+  (rasterio's ``reproject`` with ``rpcs``, ``RPC_HEIGHT`` or ``RPC_DEM``), the same as
+  ``gdalwarp -rpc -to RPC_DEM=dem.tif -t_srs EPSG:.... -tr G G -r bilinear``.
+
+``rigorous`` is the default of ``pba ortho``: exact for every image (a raw multi-chip image's
+whole-image RPC is off by the chip jumps, ~0.9 px RMS on PRISM), faster than GDAL's warper with
+a DEM and 1.8x slower at a constant height on a PRISM-size image (bench/bench_ortho.py).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from pyproj import Transformer
+
+from solver.geometry.geodesy import ecef_to_geodetic, geodetic_to_ecef, parse_crs
+from solver.gis.model import AdjustedImage
+
+GRID_STEP = 32
+Progress = Callable[[float, str], None]
+
+
+def _bounds(image: AdjustedImage, crs: str, heights: tuple[float, float], gsd: float):
+    to_crs = Transformer.from_crs(parse_crs("EPSG:4326"), parse_crs(crs), always_xy=True)
+    t = np.linspace(0.0, 1.0, 16)
+    L, C = image.lines - 1.0, image.columns - 1.0
+    line = np.concatenate([0 * t, t * L, L + 0 * t, t * L])
+    col = np.concatenate([t * C, C + 0 * t, t * C, 0 * t])
+    xs, ys = [], []
+    for h in heights:
+        llh = ecef_to_geodetic(image.image_to_ground(line, col, h))
+        x, y = to_crs.transform(llh[:, 0], llh[:, 1])
+        xs.append(x)
+        ys.append(y)
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    ok = np.isfinite(x) & np.isfinite(y)
+    x0, x1 = np.floor(x[ok].min() / gsd) * gsd, np.ceil(x[ok].max() / gsd) * gsd
+    y0, y1 = np.floor(y[ok].min() / gsd) * gsd, np.ceil(y[ok].max() / gsd) * gsd
+    return x0, y1, int(round((x1 - x0) / gsd)), int(round((y1 - y0) / gsd))
+
+
+def _nodes(n: int) -> np.ndarray:
+    a = np.arange(0, n, GRID_STEP, dtype=float)
+    return a if a[-1] == n - 1 else np.append(a, n - 1)
+
+
+def _interp(grid: np.ndarray, rs: np.ndarray, cs: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    i = np.clip(np.searchsorted(rs, rows, side="right") - 1, 0, max(len(rs) - 2, 0))
+    j = np.clip(np.searchsorted(cs, cols, side="right") - 1, 0, max(len(cs) - 2, 0))
+    i1, j1 = np.minimum(i + 1, len(rs) - 1), np.minimum(j + 1, len(cs) - 1)
+    fr = ((rows - rs[i]) / np.where(rs[i1] > rs[i], rs[i1] - rs[i], 1.0))[:, None]
+    fc = ((cols - cs[j]) / np.where(cs[j1] > cs[j], cs[j1] - cs[j], 1.0))[None, :]
+    return (grid[np.ix_(i, j)] * (1 - fr) * (1 - fc) + grid[np.ix_(i, j1)] * (1 - fr) * fc + grid[np.ix_(i1, j)] * fr * (1 - fc) + grid[np.ix_(i1, j1)] * fr * fc)
+
+
+def orthorectify(
+    image: AdjustedImage,
+    raster: Path,
+    output: Path,
+    crs: str,
+    gsd: float,
+    height_m: float | None = None,
+    dem: Path | None = None,
+    method: str = "rigorous",
+    progress: Progress | None = None,
+    rpc=None,
+) -> dict:
+    """Write the orthoimage; returns its size, transform origin and the method used."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from solver.gis.dem import Dem
+
+    if (height_m is None) == (dem is None):
+        raise ValueError("give exactly one of --height and --dem")
+    dem_obj = Dem(dem) if dem is not None else None
+    heights = dem_obj.range_m if dem_obj is not None else (height_m, height_m)
+    say = progress or (lambda f, m: None)
+    x0, y1, nx, ny = _bounds(image, crs, heights, gsd)
+    transform = from_origin(x0, y1, gsd, gsd)
+    with rasterio.open(raster) as src:
+        data = src.read(1)
+        dtype = data.dtype
+    if data.shape != (image.lines, image.columns):
+        raise ValueError(f"{raster}: {data.shape[0]} x {data.shape[1]} pixels, the image has {image.lines} x {image.columns}")
+    out = np.zeros((ny, nx), dtype=dtype)
+    say(0.0, f"{nx} x {ny} pixels ({method})")
+    if method == "rpc":
+        from rasterio.warp import Resampling, reproject
+
+        from solver.gis.rpc_io import gdal_rpc
+
+        opts = {"RPC_DEM": str(dem)} if dem is not None else {"RPC_HEIGHT": float(height_m)}
+        reproject(data, out, rpcs=gdal_rpc(rpc), src_crs="EPSG:4326", dst_transform=transform, dst_crs=crs, resampling=Resampling.bilinear, src_nodata=None, dst_nodata=0, **opts)
+        say(1.0, "done")
+    elif method == "rigorous":
+        from solver.gis.ortho_kernel import sample_block
+
+        to_geo = Transformer.from_crs(parse_crs(crs), parse_crs("EPSG:4326"), always_xy=True)
+        rs, cs = _nodes(ny), _nodes(nx)
+        rr, cc = np.meshgrid(rs, cs, indexing="ij")
+        lon, lat = to_geo.transform(x0 + (cc.ravel() + 0.5) * gsd, y1 - (rr.ravel() + 0.5) * gsd)
+        grids = []
+        for h in sorted({heights[0], heights[1]}):
+            line, col, _ = image.ground_to_image(geodetic_to_ecef(np.column_stack([lon, lat, np.full(len(lon), h)])))
+            grids.append((line.reshape(rr.shape), col.reshape(rr.shape)))
+        grids.append(grids[-1])
+        say(0.2, "grid projected")
+        dem_heights = None
+        if dem_obj is not None:
+            from rasterio.warp import Resampling, reproject
+
+            dem_heights = np.full((ny, nx), np.nan, dtype=np.float64)
+            with rasterio.open(dem) as dsrc:
+                reproject(rasterio.band(dsrc, 1), dem_heights, dst_transform=transform, dst_crs=crs, resampling=Resampling.bilinear, dst_nodata=np.nan)
+            say(0.3, "DEM on the output grid")
+        empty = np.zeros((1, 1))
+        block = max(1, 4_000_000 // max(nx, 1))
+        for r0 in range(0, ny, block):
+            r1 = min(r0 + block, ny)
+            hb = dem_heights[r0:r1] if dem_heights is not None else empty
+            sample_block(data, grids[0][0], grids[0][1], grids[1][0], grids[1][1], GRID_STEP, ny, nx, r0, hb, float(heights[0]), float(heights[1]), 0.5 if np.issubdtype(dtype, np.integer) else 0.0, out[r0:r1])
+            say(0.3 + 0.7 * r1 / ny, "resampling")
+    else:
+        raise ValueError(f"unknown method {method!r} (rigorous or rpc)")
+    with rasterio.open(output, "w", driver="GTiff", width=nx, height=ny, count=1, dtype=dtype, crs=crs, transform=transform, nodata=0, compress="deflate", tiled=True) as dst:
+        dst.write(out, 1)
+    return {"width": nx, "height": ny, "origin": [x0, y1], "gsd": gsd, "crs": crs, "method": method}

@@ -1,0 +1,81 @@
+"""Synthetic rasters of simulated images (``pba simulate ... --raster``): what the camera would
+record of a textured ground with marked targets, in the image's raw geometry (line, column;
+pixel centres at integer positions, no georeferencing).
+
+The ground is a smooth texture (sums of sines of east and north, wavelengths 25-60 ground
+sample distances, grey levels 70-130) with a bright Gaussian target (peak +120, sigma 1.5 GSD)
+at the true position of every control and check point. Each pixel takes the value of the ground
+point its centre sees: the exact rays (:meth:`ImageGeometry.image_to_ground` on the terrain) on
+a grid every ``step`` pixels, interpolated bilinearly between (the mapping is smooth: well under
+0.01 px for the default step of 8 on the preset scenes).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from solver.geometry.geodesy import LocalFrame
+
+TARGET_PEAK = 120.0
+TARGET_SIGMA_GSD = 1.5
+
+
+def _axis(n: int, step: int) -> np.ndarray:
+    a = np.arange(0, n, step, dtype=float)
+    return a if a[-1] == n - 1 else np.append(a, n - 1)
+
+
+def _bilinear(grid: np.ndarray, ls: np.ndarray, cs: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Values of ``grid`` (on nodes ``ls`` x ``cs``) at every (row, col) of the full raster."""
+    i = np.clip(np.searchsorted(ls, rows, side="right") - 1, 0, len(ls) - 2)
+    j = np.clip(np.searchsorted(cs, cols, side="right") - 1, 0, len(cs) - 2)
+    fr = ((rows - ls[i]) / (ls[i + 1] - ls[i]))[:, None]
+    fc = ((cols - cs[j]) / (cs[j + 1] - cs[j]))[None, :]
+    a, b = grid[np.ix_(i, j)], grid[np.ix_(i, j + 1)]
+    c, d = grid[np.ix_(i + 1, j)], grid[np.ix_(i + 1, j + 1)]
+    return a * (1 - fr) * (1 - fc) + b * (1 - fr) * fc + c * fr * (1 - fc) + d * fr * fc
+
+
+def render_image(scene, index: int, step: int = 8) -> np.ndarray:
+    """(lines, columns) uint8 raster of simulated image ``index`` of ``scene``."""
+    geom = scene.images[index]
+    cam = geom.camera
+    frame = LocalFrame.at_centroid(np.array([p.ecef_m for p in scene.points]))
+    ls, cs = _axis(cam.lines, step), _axis(cam.columns, step)
+    ll, cc = np.meshgrid(ls, cs, indexing="ij")
+    ground = frame.to_lgs(geom.image_to_ground(ll.ravel(), cc.ravel(), terrain=scene.terrain))
+    e_grid = ground[:, 0].reshape(ll.shape)
+    n_grid = ground[:, 1].reshape(ll.shape)
+    gsd = float(np.median(np.hypot(np.diff(e_grid, axis=1), np.diff(n_grid, axis=1)))) / step
+    rows, cols = np.arange(cam.lines, dtype=float), np.arange(cam.columns, dtype=float)
+    e = _bilinear(e_grid, ls, cs, rows, cols)
+    n = _bilinear(n_grid, ls, cs, rows, cols)
+    tau = 2 * np.pi
+    value = 100.0 + 15.0 * np.sin(tau * e / (37 * gsd)) * np.cos(tau * n / (53 * gsd)) + 12.0 * np.sin(tau * (e + n) / (25 * gsd))
+    sigma = TARGET_SIGMA_GSD * gsd
+    for p in scene.points:
+        if p.role not in ("gcp", "check"):
+            continue
+        te, tn, _ = frame.to_lgs(p.ecef_m)
+        near = (np.abs(e - te) < 6 * sigma) & (np.abs(n - tn) < 6 * sigma)
+        if near.any():
+            value[near] += TARGET_PEAK * np.exp(-((e[near] - te) ** 2 + (n[near] - tn) ** 2) / (2 * sigma**2))
+    return np.clip(np.rint(value), 0, 255).astype(np.uint8)
+
+
+def write_rasters(scene, job_path: Path, step: int = 8) -> list[Path]:
+    """One GeoTIFF per image beside the job: ``<job stem>.<image id>.tif`` (raw geometry)."""
+    import rasterio
+
+    job_path = Path(job_path)
+    stem = job_path.name[:-5] if job_path.name.endswith(".json") else job_path.name
+    out = []
+    for i, geom in enumerate(scene.images):
+        data = render_image(scene, i, step)
+        path = job_path.with_name(f"{stem}.{geom.id}.tif")
+        with rasterio.open(path, "w", driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype="uint8", compress="deflate") as dst:
+            dst.write(data, 1)
+        out.append(path)
+    return out
