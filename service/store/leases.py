@@ -37,7 +37,8 @@ from sqlalchemy import func, select, update
 
 from service.states import FINISHED, JobStatus
 from service.store.base import JobRecord
-from service.store.sql import JobRow, SqlStore, _status_change, utcnow
+from service.store.rows import JobRow
+from service.store.sql import SqlStore, _status_change, utcnow
 
 ClaimOutcome = Literal[
     "claimed", "taken_over", "held", "finished", "failed", "missing", "contended"
