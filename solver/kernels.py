@@ -847,7 +847,7 @@ def ideal_direction(oc, iop, chip: int, chip_len: float):
 #  solver.propagation; kc is always it[KC_START:])
 # observation record (16): image, camera, image slot, camera slot (-1: constant), chip index,
 #                          chip length (mm), oc[9], pass slot (-1: constant or no pass)
-# named offsets of the packed rows (solver.engine.tables writes them, the kernels read them)
+# named offsets of the packed rows (solver.engine.packed_tables writes them, the kernels read them)
 IT_KIND = 0  # img_tab: model kind (KIND_*)
 IT_NFREE = 1  # img_tab: number of free coefficients
 IT_FREE = 2  # img_tab: free coefficient indices, N_COEF slots

@@ -382,7 +382,7 @@ def test_parameters_csv_lists_the_pass_state():
     import csv
     import io
 
-    from service.tables import table_rows, to_csv
+    from service.report_csv import table_rows, to_csv
 
     rep = adjust_job(load_job(_pass_job()))
     rows = list(csv.DictReader(io.StringIO(to_csv(table_rows(rep, "parameters")))))
