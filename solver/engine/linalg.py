@@ -24,8 +24,11 @@ from numba import njit
 from scipy.linalg import solve_triangular
 
 import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+from solver.engine.packed_tables import current_tables, records
 from solver.engine.terms import image_terms
 from solver.kernels import all_observation_blocks
+from solver.observations.interior import camera_priors
+from solver.observations.passes import pass_terms
 from solver.state import AdjustmentState
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
@@ -134,9 +137,6 @@ class Linearisation:
 
 
 def linearise(problem: AdjustmentState) -> Linearisation:
-    from solver.engine.packed_tables import current_tables, records
-    from solver.observations.interior import camera_priors
-
     lay = layout(problem)
     obs = problem.obs
     sel = np.flatnonzero(problem.adjusted_mask)
@@ -154,8 +154,6 @@ def linearise(problem: AdjustmentState) -> Linearisation:
     terms = list(image_terms(problem))
     term_col = [int(lay.img_col[t.image_index]) for t in terms]
     term_eval = [t.evaluate(problem.images[t.image_index].params) for t in terms]
-    from solver.observations.passes import pass_terms
-
     for pt in pass_terms(problem):
         terms.append(pt)
         term_col.append(int(lay.pass_col[pt.pass_index]))

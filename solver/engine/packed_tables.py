@@ -27,6 +27,7 @@ from solver.kernels import (
     REC_OC,
     REC_PASS_SLOT,
 )
+from solver.observations.passes import refresh_segments
 from solver.state import AdjustmentState
 
 
@@ -81,8 +82,6 @@ def records(
 def current_tables(problem: AdjustmentState):
     """(image table, camera table, image free parameters (nimg, 24), camera free parameters);
     pass segments are brought up to date with the passes' current states first."""
-    from solver.observations.passes import refresh_segments
-
     refresh_segments(problem)
     img_tab, cam_tab = image_table(problem), camera_table(problem)
     img_p = np.zeros((len(problem.images), 24))

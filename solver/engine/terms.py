@@ -9,6 +9,8 @@ consume them. A family in the registry's shape is one module plus one line in
 
 from __future__ import annotations
 
+import dataclasses
+
 from solver.observations.family import ImageTerm
 from solver.observations.lines import MAX_REFRESHES, REFRESH_TOL, line_terms, refresh_lines
 from solver.observations.registry import FAMILIES
@@ -42,8 +44,6 @@ def solve_with_refreshes(problem: AdjustmentState, options, control, solve):
     The outcomes are merged: iterations, times and cost history add up, the initial cost is the
     first solve's, the rest is the last solve's.
     """
-    import dataclasses
-
     outcome = solve(problem, options, control)
     for _ in range(MAX_REFRESHES):
         if outcome.cancelled or not outcome.usable or refresh_image_terms(problem) <= REFRESH_TOL:

@@ -81,6 +81,7 @@ from solver.errors import JobError, Problem
 from solver.geometry.geodesy import UnknownCRSError, parse_crs, to_ecef
 from solver.geometry.sensor import camera_chip
 from solver.kernels import N_OBS_CONST, assemble, platform_state, project, rotation_and_derivatives
+from solver.platforms import ANGLES, ELEMENTS, HELD
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
@@ -976,8 +977,6 @@ def lines_report(problem, s_inv: np.ndarray | None, img_col: np.ndarray | None, 
             f"{ls.refresh_changes[-1]:.3g} sigma): the equivalent planes solution is not a fixed point"
         )
     if ls.model == "equivalent_planes" and ls.active():
-        from solver.platforms import ANGLES, ELEMENTS, HELD
-
         loose = sorted(
             {
                 img.id
