@@ -17,8 +17,7 @@ from solver.adjust import adjust_job, prepare
 from solver.engine.linalg import linearise
 from solver.errors import JobError
 from solver.kernels import N_KEPLER_CONST, project
-from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
-from solver.propagation import (
+from solver.kernels.propagation import (
     NODE_STEP_S,
     PASS_NODES,
     PASS_STEP,
@@ -28,6 +27,7 @@ from solver.propagation import (
     pass_state,
     segment_length,
 )
+from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.schema.job import load_job
 
 _spec = importlib.util.spec_from_file_location("exp", Path(__file__).parents[1] / "scripts" / "experiments_orbit_models.py")

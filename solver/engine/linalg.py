@@ -23,7 +23,7 @@ import scipy.sparse as sp
 from numba import njit
 from scipy.linalg import solve_triangular
 
-import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.engine.packed_tables import current_tables, records
 from solver.engine.terms import image_terms
 from solver.kernels import all_observation_blocks

@@ -27,10 +27,10 @@ import numpy as np
 
 from solver.errors import Problem
 from solver.kernels import KIND_PASS
+from solver.kernels.propagation import PASS_ATT_OFF
 from solver.observations.passes import ATTITUDE_KINDS, attitude_blocks, image_attitude_blocks, pass_line_span
 from solver.observations.state_priors import StatePrior
 from solver.platforms import coef_index, get_model
-from solver.propagation import PASS_ATT_OFF
 
 if TYPE_CHECKING:
     from solver.schema.job import AttitudeSample, Job

@@ -76,7 +76,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.errors import JobError, Problem
 from solver.geometry.geodesy import UnknownCRSError, parse_crs, to_ecef
 from solver.geometry.sensor import camera_chip

@@ -1,5 +1,5 @@
 """Passes of the pass-propagated models: grouping, segments, initial state, ephemeris terms,
-validation and report (the numerical integration is :mod:`solver.propagation`).
+validation and report (the numerical integration is :mod:`solver.kernels.propagation`).
 
 A pass is one orbit state x0 = (X, Y, Z, VX, VY, VZ) (ECEF, m and m/s) at the pass reference
 epoch ``t_ref`` (the middle of the observed lines of its images, on the images' time scale).
@@ -18,10 +18,7 @@ import numpy as np
 
 from solver.errors import Problem
 from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS, N_KEPLER_CONST
-from solver.observations.ephemeris import image_state, usable
-from solver.platforms import get_model
-from solver.platforms.registry import PASS_STATE
-from solver.propagation import (
+from solver.kernels.propagation import (
     NODE_STEP_S,
     PASS_ATT_OFF,
     PASS_INDEX,
@@ -35,6 +32,9 @@ from solver.propagation import (
     propagate,
     segment_length,
 )
+from solver.observations.ephemeris import image_state, usable
+from solver.platforms import get_model
+from solver.platforms.registry import PASS_STATE
 
 if TYPE_CHECKING:  # pragma: no cover
     from solver.platforms import PlatformModel
