@@ -1,17 +1,16 @@
 """The FastAPI application: :func:`create_app` gathers the routers and wires the services.
 
-Routers live in ``service/routes/``, one module per resource, and are listed once in
-:data:`ROUTER_MODULES`; optional ones (the web page, plots) are included when their module
-exists. Services (store, queue backend, job service, metrics) are created at start-up (the
+Routers live in ``service/routes/``, one module per resource, each imported here and listed
+once in :data:`ROUTER_MODULES` (a new router is its module, one import and one line). Services (store, queue backend, job service, metrics) are created at start-up (the
 lifespan), so building the app - e.g. for ``make openapi`` - touches nothing on disk.
 """
 
 from __future__ import annotations
 
-import importlib
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from types import ModuleType
 
 from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
@@ -31,25 +30,25 @@ from service.middleware import (
 )
 from service.queue import make_backend
 from service.retention import RetentionLoop
+from service.routes import admin, cameras, compose, gis, jobs, landing, ops, plots, processes, ui
 from service.settings import Settings
 from service.store import open_store
 
 log = logging.getLogger("pba.service")
 
-# every router module, in the order their routes are matched; optional ones may be absent
-ROUTER_MODULES: tuple[str, ...] = (
-    "landing",
-    "processes",
-    "compose",
-    "jobs",
-    "cameras",
-    "ops",
-    "admin",
-    "ui",
-    "plots",
-    "gis",
+# every router module (each has a ``router``), in the order their routes are matched
+ROUTER_MODULES: tuple[ModuleType, ...] = (
+    landing,
+    processes,
+    compose,
+    jobs,
+    cameras,
+    ops,
+    admin,
+    ui,
+    plots,
+    gis,
 )
-OPTIONAL_ROUTERS = frozenset({"ui", "plots"})
 
 API_VERSION = "1.0.0"
 
@@ -127,16 +126,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.services = None
     install_error_handlers(app)
     app.state.router_modules = []
-    for name in ROUTER_MODULES:
-        module_name = f"service.routes.{name}"
-        try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError as exc:
-            if name in OPTIONAL_ROUTERS and exc.name == module_name:
-                continue
-            raise
+    for module in ROUTER_MODULES:
         app.include_router(module.router)
-        app.state.router_modules.append(name)
+        app.state.router_modules.append(module.__name__.rpartition(".")[2])
     # middlewares: the last added runs first
     app.add_middleware(ServicesContextMiddleware)
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)

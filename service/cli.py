@@ -1,4 +1,7 @@
-"""``pba serve`` and ``pba admin ...`` (registered into the ``pba`` command by solver.cli).
+"""``pba serve`` and ``pba admin ...``, and the ``pba`` console script itself (:func:`main`).
+
+:func:`main` is the solver's command line (:mod:`solver.cli`) with these commands added: the
+service imports the solver, never the other way round.
 
 ``pba worker`` runs a distributed (Celery) worker and ``pba db`` migrates the store (issue 8)
 and prunes old jobs (issue 13).
@@ -8,6 +11,8 @@ from __future__ import annotations
 
 import argparse
 import sys
+
+from solver import cli as solver_cli
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -289,3 +294,12 @@ def cmd_db_prune(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The ``pba`` console script: the solver's commands and the server's (:func:`register`)."""
+    return solver_cli.main(argv, extra=(register,))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

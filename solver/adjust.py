@@ -15,13 +15,12 @@ from solver.engine.assemble import build_problem, parameter_names
 from solver.engine.initialize import initialise
 from solver.engine.linalg import check_rank, linearise, schur
 from solver.engine.validate import require_valid
-from solver.errors import Cancelled, JobError, RankDeficientError, UnusableSolution
-from solver.errors import Problem as JobProblem
+from solver.errors import Cancelled, JobError, Problem, RankDeficientError, UnusableSolution
 from solver.platforms import ELEMENTS, coef_index, get_model
 from solver.quality.parsimony import constraint_test
 from solver.report.document import assess
 from solver.schema.job import Job
-from solver.state import Problem
+from solver.state import AdjustmentState
 
 __all__ = ["adjust_job", "adjust_once", "assert_full_rank", "assess", "parameter_names", "prepare", "solve_problem"]
 
@@ -31,7 +30,7 @@ def _progress(progress, fraction: float, message: str, info: dict | None = None)
         progress(fraction, message, info or {})
 
 
-def prepare(job: Job, models: dict[str, str] | None = None) -> Problem:
+def prepare(job: Job, models: dict[str, str] | None = None) -> AdjustmentState:
     """Validated, assembled and initialised problem (raises JobError on bad input)."""
     require_valid(job)
     problem = build_problem(job, models)
@@ -39,7 +38,7 @@ def prepare(job: Job, models: dict[str, str] | None = None) -> Problem:
     return problem
 
 
-def assert_full_rank(problem: Problem) -> None:
+def assert_full_rank(problem: AdjustmentState) -> None:
     """Raise RankDeficientError naming the parameters the control geometry does not fix."""
     lin = linearise(problem)
     parts = schur(lin, problem)
@@ -47,7 +46,7 @@ def assert_full_rank(problem: Problem) -> None:
     for q in np.flatnonzero(parts.point_singular):
         p = problem.points[parts.est_points[q]]
         issues.append(
-            JobProblem(
+            Problem(
                 "point_geometry_singular",
                 f"point {p.id!r}: its rays are (nearly) parallel, its coordinates cannot be determined",
                 ("points", p.index),
@@ -57,7 +56,7 @@ def assert_full_rank(problem: Problem) -> None:
     if rank.deficient:
         names = ", ".join(n for n, _ in rank.null_parameters) or "(spread over many parameters)"
         issues.append(
-            JobProblem(
+            Problem(
                 "rank_deficient",
                 "the control geometry leaves these parameters undetermined (the normal matrix is "
                 f"singular, condition {rank.condition:.3g}): {names}. Add or spread control points, "
@@ -74,7 +73,7 @@ def assert_full_rank(problem: Problem) -> None:
         raise RankDeficientError(issues)
 
 
-def solve_problem(problem: Problem, control):
+def solve_problem(problem: AdjustmentState, control):
     """The bundle solve from the initial values.
 
     A per-image resection on the control before the bundle was tried and removed: it moves each
@@ -276,7 +275,7 @@ def adjust_once(
     cancel: Callable[[], bool] | None = None,
     models: dict[str, str] | None = None,
     fraction_range: tuple[float, float] = (0.0, 1.0),
-) -> tuple[Problem, dict[str, Any]]:
+) -> tuple[AdjustmentState, dict[str, Any]]:
     """One adjustment of ``job``: the problem at its solution and the report."""
     from solver.engine.backend import SolveControl  # imports pyceres: workers only
 

@@ -1,27 +1,29 @@
 """The ``pba`` command line.
 
 Subcommands live in small modules, each exposing ``register(subparsers)`` which adds its
-parsers and sets ``func`` on them. The solver's own commands are plain imports. The service's
-(``serve``, ``worker``, ``admin``, ``db``) are looked up by name: the solver never imports the
-service (an import-linter contract, docs/architecture.md), and a solver-only installation has
-no ``service`` package, so that one lookup stays dynamic.
+parsers and sets ``func`` on them; :func:`build_parser` imports and calls them, one line each.
+The solver never imports the service (an import-linter contract, docs/architecture.md): the
+installed ``pba`` console script is :func:`service.cli.main`, which passes the server's
+commands (``serve``, ``worker``, ``admin``, ``db``) in as ``extra`` registrars.
+``python -m solver.cli`` is the solver's commands alone.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
+from collections.abc import Callable, Sequence
 
 from solver import commands
 from solver.gis import cli as gis_cli
 from solver.importers import cli as importers_cli
 from solver.simulate import cli as simulate_cli
 
-SERVICE_COMMANDS = "service.cli"  # serve, worker, admin, db
+Registrar = Callable[[argparse._SubParsersAction], None]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(extra: Sequence[Registrar] = ()) -> argparse.ArgumentParser:
+    """The ``pba`` parser: the solver's commands, then those of ``extra`` (the server's)."""
     parser = argparse.ArgumentParser(
         prog="pba", description="Pushbroom bundle adjustment: orientation of linear-array images"
     )
@@ -29,19 +31,15 @@ def build_parser() -> argparse.ArgumentParser:
     commands.register(sub)  # run, models, compare, validate, export-camera, warmup
     simulate_cli.register(sub)  # simulate
     importers_cli.register(sub)  # job, job-sources
-    gis_cli.register(sub)  # ground-to-image, image-to-ground, export-rpc, export-geojson
-    try:
-        service = importlib.import_module(SERVICE_COMMANDS)
-    except ModuleNotFoundError as exc:
-        if not (exc.name and SERVICE_COMMANDS.startswith(exc.name)):
-            raise
-    else:
-        service.register(sub)
+    gis_cli.register(sub)  # ground-to-image, image-to-ground, export-rpc, export-geojson, ortho, resample
+    for register in extra:
+        register(sub)
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+def main(argv: list[str] | None = None, extra: Sequence[Registrar] = ()) -> int:
+    """Run one ``pba`` command; its exit status (2 and the help when none is given)."""
+    parser = build_parser(extra)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

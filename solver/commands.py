@@ -326,7 +326,7 @@ def cmd_export_camera(args: argparse.Namespace) -> int:
 
 def cmd_warmup(args: argparse.Namespace) -> int:
     """``pba warmup``: adjust the tiny warm-up jobs, printing each one's time."""
-    from solver.kernel_cache import cache_dir
+    from solver.kernels.cache import cache_dir
     from solver.warmup import compile_kernels
 
     total = compile_kernels(say=print)

@@ -77,7 +77,10 @@ class Observations:
 
 
 @dataclass
-class Problem:
+class AdjustmentState:
+    """The whole adjustment's data: the job, its local frame, and the images, points and
+    observations with their current parameter values (the blocks Ceres moves)."""
+
     job: Job
     frame: LocalFrame
     images: list[ImageState]

@@ -1,7 +1,7 @@
 """Compile the solver's numba kernels ahead of the first job (``pba warmup``).
 
 The kernels are compiled on first use and cached on disk (``cache=True``) in a directory keyed
-on a digest of the kernel sources (:mod:`solver.kernel_cache`: ``pba-kernels-<digest>`` under
+on a digest of the kernel sources (:mod:`solver.kernels.cache`: ``pba-kernels-<digest>`` under
 ``NUMBA_CACHE_DIR``, or ``solver/__pycache__``), so a warm-up after an upgrade compiles the new
 kernels instead of loading the old ones. A cold compile of every kernel takes one to two minutes on a small
 machine; a cached one loads in about a second. Without a warm-up that minute is paid by the

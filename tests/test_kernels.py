@@ -183,7 +183,7 @@ def test_point_block_matches_single_projections_and_layout():
     """The packed point block used by Ceres gives the same numbers as the plain kernel, with the
     Jacobian of image i only on rows 2i, 2i+1 (Ceres' dense row-major layout)."""
     from solver.engine.backend import PointCost, SolveControl
-    from solver.engine.tables import camera_table, image_table
+    from solver.engine.packed_tables import camera_table, image_table
 
     job, _ = block_job("K2", n_triplets=1, n_tie=5, n_gcp=6, n_check=2, seed=3)
     problem = prepare(load_job(job))

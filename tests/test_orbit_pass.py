@@ -17,8 +17,7 @@ from solver.adjust import adjust_job, prepare
 from solver.engine.linalg import linearise
 from solver.errors import JobError
 from solver.kernels import N_KEPLER_CONST, project
-from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
-from solver.propagation import (
+from solver.kernels.propagation import (
     NODE_STEP_S,
     PASS_NODES,
     PASS_STEP,
@@ -28,6 +27,7 @@ from solver.propagation import (
     pass_state,
     segment_length,
 )
+from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.schema.job import load_job
 
 _spec = importlib.util.spec_from_file_location("exp", Path(__file__).parents[1] / "scripts" / "experiments_orbit_models.py")
@@ -382,7 +382,7 @@ def test_parameters_csv_lists_the_pass_state():
     import csv
     import io
 
-    from service.tables import table_rows, to_csv
+    from service.report_csv import table_rows, to_csv
 
     rep = adjust_job(load_job(_pass_job()))
     rows = list(csv.DictReader(io.StringIO(to_csv(table_rows(rep, "parameters")))))

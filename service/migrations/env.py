@@ -2,7 +2,7 @@
 
 Used by :mod:`service.store.schema` (``pba db upgrade``, and the store's start-up check) and by
 the ``alembic`` command (``alembic -c service/alembic.ini ...`` with ``PBA_DATABASE_URL`` set).
-The target metadata is the store's models (:mod:`service.store.sql`); a test checks that the
+The target metadata is the store's models (:mod:`service.store.rows`); a test checks that the
 migrated schema equals it, so a model change without its migration fails the suite.
 """
 
@@ -13,7 +13,7 @@ import os
 from alembic import context
 from sqlalchemy import engine_from_config, pool
 
-from service.store.sql import Base
+from service.store.rows import Base
 
 config = context.config
 target_metadata = Base.metadata

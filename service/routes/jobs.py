@@ -15,10 +15,10 @@ from service.deps import JSON_BODY, BaseUrl, CurrentUser, ServicesDep, VisibleJo
 from service.errors import problem_responses
 from service.jobs import results_text, status_info, validate_inputs
 from service.processes import BUNDLE_ADJUSTMENT
+from service.report_csv import table_rows, to_csv
 from service.routes import StrictJSONRoute
 from service.schemas import Execute, JobList, Link, StatusInfo, ValidationReport
 from service.states import FINISHED, JobStatus
-from service.tables import table_rows, to_csv
 
 router = APIRouter(prefix="/jobs", tags=["jobs"], route_class=StrictJSONRoute)
 

@@ -37,7 +37,8 @@ from sqlalchemy import func, select, update
 
 from service.states import FINISHED, JobStatus
 from service.store.base import JobRecord
-from service.store.sql import LOST_RACE, JobRow, RunningJob, SqlStore, _status_change, utcnow
+from service.store.rows import JobRow
+from service.store.sql import LOST_RACE, RunningJob, SqlStore, _status_change, utcnow
 
 ClaimOutcome = Literal[
     "claimed", "taken_over", "held", "finished", "failed", "missing", "contended"

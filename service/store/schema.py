@@ -15,7 +15,7 @@ workers starting together do not race; DDL is transactional there, so a failed m
 leaves nothing half done. ``pba db upgrade`` and ``alembic -c service/alembic.ini`` run the
 same migrations by hand.
 
-Adding a column or table: change the model in :mod:`service.store.sql`, then add a revision
+Adding a column or table: change the model in :mod:`service.store.rows`, then add a revision
 (``PBA_DATABASE_URL=sqlite:////tmp/x.sqlite3 alembic -c service/alembic.ini revision
 --autogenerate -m "..."`` on a database at head, review the file), and the schema test passes
 again.
@@ -29,6 +29,8 @@ from typing import Any, Literal
 
 from sqlalchemy import inspect, text
 from sqlalchemy.engine import Connection, Engine
+
+from service.store.rows import Base
 
 MIGRATIONS_DIR = Path(__file__).resolve().parent.parent / "migrations"
 BASELINE = "0001"  # the schema of the stores created before migrations existed
@@ -91,8 +93,6 @@ def _locked(conn: Connection) -> None:
 
 def ensure_schema(engine: Engine) -> Outcome:
     """Bring the database to the newest revision (see module docstring); what was done."""
-    from service.store.sql import Base
-
     with engine.begin() as conn:
         _locked(conn)
         tables = set(inspect(conn).get_table_names())
@@ -112,8 +112,6 @@ def ensure_schema(engine: Engine) -> Outcome:
 
 def upgrade(engine: Engine, revision: str = "head") -> str | None:
     """Run the migrations up to ``revision`` (``pba db upgrade``); the revision reached."""
-    from service.store.sql import Base
-
     with engine.begin() as conn:
         _locked(conn)
         tables = set(inspect(conn).get_table_names())
@@ -128,8 +126,6 @@ def schema_differences(engine: Engine) -> list[Any]:
     empty when they agree."""
     from alembic.autogenerate import compare_metadata
     from alembic.runtime.migration import MigrationContext
-
-    from service.store.sql import Base
 
     with engine.connect() as conn:
         ctx = MigrationContext.configure(conn, opts={"compare_type": True})

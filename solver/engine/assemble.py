@@ -21,7 +21,7 @@ from solver.observations.passes import parameter_names as pass_names
 from solver.platforms import PlatformModel, get_model
 from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.schema.job import Job
-from solver.state import ImageState, Observations, PointState, Problem
+from solver.state import AdjustmentState, ImageState, Observations, PointState
 
 
 def kepler_constants(model: PlatformModel, frame: LocalFrame, mounting_pitch_deg: float = 0.0) -> np.ndarray:
@@ -61,7 +61,7 @@ def ground_points_ecef(job: Job) -> dict[str, np.ndarray]:
     return out
 
 
-def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
+def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentState:
     """Assemble arrays from a job that passed :func:`solver.engine.validate.validate_job`.
 
     Parameter values are zero here; :mod:`solver.engine.initialize` fills them.
@@ -138,13 +138,13 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> Problem:
     obs_chip = np.array([chip_ids(images[i].camera).index(c) for i, c in zip(obs_img, chips)], dtype=np.int64)
     obs = Observations(obs_img, obs_pt, oc, chips, np.arange(n), obs_cam, obs_chip)
     lines = build_lines(job, frame, images, line_ecef) if job.lines else None
-    problem = Problem(job, frame, images, points, obs, lines)
+    problem = AdjustmentState(job, frame, images, points, obs, lines)
     problem.cameras = cams
     problem.passes = passes
     return problem
 
 
-def parameter_names(problem: Problem) -> list[str]:
+def parameter_names(problem: AdjustmentState) -> list[str]:
     """Names of the image and camera columns, in layout order ("image/param", "camera:id/iop")."""
     names = []
     seen: set[int] = set()

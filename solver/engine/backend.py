@@ -25,13 +25,13 @@ from typing import Any, Callable
 import numpy as np
 import pyceres
 
-from solver.engine.tables import camera_table, image_table, records
+from solver.engine.packed_tables import camera_table, image_table, records
 from solver.engine.terms import image_terms
 from solver.kernels import fixed_obs_block, point_obs_block
 from solver.observations.interior import camera_priors
 from solver.observations.passes import pass_terms, refresh_segments
 from solver.schema.job import SolverOptions
-from solver.state import Problem
+from solver.state import AdjustmentState
 
 
 class SolveControl:
@@ -90,7 +90,7 @@ class SolveControl:
             self.progress(self._last_fraction, f"iteration {it}, cost {cost:.6g}", {"iteration": it, "cost": cost})
 
 
-def _slots(problem: Problem, rows: np.ndarray):
+def _slots(problem: AdjustmentState, rows: np.ndarray):
     """Parameter blocks of a residual block over ``rows``: the images (in row order), the
     distinct cameras with free interior orientation and the distinct passes of pass-propagated
     images; returns (blocks, image slots, camera slots, pass slots)."""
@@ -132,7 +132,7 @@ class ImageBatchCost(pyceres.CostFunction):
     """Observations of fixed ground points in one image: residuals (2m) wrt the image block
     (and its camera's interior orientation when that is estimated)."""
 
-    def __init__(self, problem: Problem, image_index: int, obs_rows: np.ndarray, control: SolveControl, tables):
+    def __init__(self, problem: AdjustmentState, image_index: int, obs_rows: np.ndarray, control: SolveControl, tables):
         pyceres.CostFunction.__init__(self)
         self.img_tab, self.cam_tab = tables
         self.blocks, img_slot, cam_slot, pass_slot = _slots(problem, obs_rows)
@@ -160,7 +160,7 @@ class PointCost(pyceres.CostFunction):
     straight into Ceres' output arrays, so a call costs the trampoline plus one numba dispatch.
     """
 
-    def __init__(self, problem: Problem, point_index: int, obs_rows: np.ndarray, control: SolveControl, tables):
+    def __init__(self, problem: AdjustmentState, point_index: int, obs_rows: np.ndarray, control: SolveControl, tables):
         pyceres.CostFunction.__init__(self)
         self.img_tab, self.cam_tab = tables
         self.blocks, img_slot, cam_slot, pass_slot = _slots(problem, obs_rows)
@@ -254,7 +254,7 @@ def _loss(options: SolverOptions) -> Any:
     return None
 
 
-def solve(problem: Problem, options: SolverOptions, control: SolveControl) -> SolveOutcome:
+def solve(problem: AdjustmentState, options: SolverOptions, control: SolveControl) -> SolveOutcome:
     """Build the Ceres problem from ``problem`` (parameters updated in place) and solve it."""
     t0 = time.perf_counter()
     cp = pyceres.Problem()

@@ -20,14 +20,13 @@ import math
 
 import numpy as np
 
-from solver.errors import JobError
-from solver.errors import Problem as JobProblem
+from solver.errors import JobError, Problem
 from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS, gravity_and_gradient, intersect_all, platform_state
 from solver.observations.ephemeris import image_state
 from solver.observations.passes import initialise_passes
 from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
 from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
-from solver.state import ImageState, Problem, is_kepler
+from solver.state import AdjustmentState, ImageState, is_kepler
 
 
 def angles_from_matrix(m: np.ndarray) -> tuple[float, float, float]:
@@ -90,18 +89,18 @@ def _nominal_attitude(img: ImageState, frame, v_ecef: np.ndarray | None) -> tupl
     return 0.0, math.radians(img.camera.mounting_pitch_deg), kappa
 
 
-def initialise(problem: Problem) -> None:
+def initialise(problem: AdjustmentState) -> None:
     """Fill every image's parameters and every estimated point's coordinates (in place)."""
     job = problem.job
     frame = problem.frame
-    issues: list[JobProblem] = []
+    issues: list[Problem] = []
     states: dict[int, object] = {}
     for img, im_doc in zip(problem.images, job.images):
         specs = {p.name: p for p in img.model.parameters(img.options)}
         unknown = sorted(set(im_doc.initial) - set(specs))
         if unknown:
             issues.append(
-                JobProblem(
+                Problem(
                     "unknown_parameter",
                     f"image {img.id!r}: model {img.model.name} has no parameter(s) {', '.join(unknown)}",
                     ("images", img.index, "initial"),
@@ -120,7 +119,7 @@ def initialise(problem: Problem) -> None:
             pos_names = {"X0", "Y0", "Z0"}
             if not pos_names <= set(im_doc.initial):
                 issues.append(
-                    JobProblem(
+                    Problem(
                         "no_initial_position",
                         f"image {img.id!r} needs approx_state (position/velocity at line 0), an "
                         "ephemeris covering first_line_time_s, or initial values for its position "
@@ -153,7 +152,7 @@ def initialise(problem: Problem) -> None:
     intersect_estimated_points(problem)
 
 
-def _attitude_by_resection(problem: Problem, img: ImageState, v_ecef) -> tuple[float, float, float]:
+def _attitude_by_resection(problem: AdjustmentState, img: ImageState, v_ecef) -> tuple[float, float, float]:
     if img.kind in (KIND_ORBIT_ATTITUDE, KIND_PASS):
         return 0.0, 0.0, 0.0  # attitude relative to the orbital frame: nominally zero
     obs = problem.obs
@@ -179,7 +178,7 @@ def _attitude_by_resection(problem: Problem, img: ImageState, v_ecef) -> tuple[f
     return angles_from_matrix(m)
 
 
-def intersect_estimated_points(problem: Problem) -> None:
+def intersect_estimated_points(problem: AdjustmentState) -> None:
     """Tie points (estimated points without survey) by least-squares intersection of their rays."""
     obs = problem.obs
     which = np.array([p.index for p in problem.points if p.estimated and p.known_lgs is None], dtype=np.int64)

@@ -23,10 +23,13 @@ import scipy.sparse as sp
 from numba import njit
 from scipy.linalg import solve_triangular
 
-import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+from solver.engine.packed_tables import current_tables, records
 from solver.engine.terms import image_terms
 from solver.kernels import all_observation_blocks
-from solver.state import Problem
+from solver.observations.interior import camera_priors
+from solver.observations.passes import pass_terms
+from solver.state import AdjustmentState
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
@@ -41,7 +44,7 @@ class Layout:
     pass_col: np.ndarray = field(default_factory=lambda: np.zeros(1, dtype=np.int64))  # (npass,)
 
 
-def layout(problem: Problem) -> Layout:
+def layout(problem: AdjustmentState) -> Layout:
     img_col = np.zeros(len(problem.images), dtype=np.int64)
     c = 0
     first: dict[int, int] = {}  # images sharing a parameter block share its columns
@@ -133,10 +136,7 @@ class Linearisation:
         return sp.csr_matrix((vals, (rows, cols)), shape=(row, lay.n_params))
 
 
-def linearise(problem: Problem) -> Linearisation:
-    from solver.engine.tables import current_tables, records
-    from solver.observations.interior import camera_priors
-
+def linearise(problem: AdjustmentState) -> Linearisation:
     lay = layout(problem)
     obs = problem.obs
     sel = np.flatnonzero(problem.adjusted_mask)
@@ -154,8 +154,6 @@ def linearise(problem: Problem) -> Linearisation:
     terms = list(image_terms(problem))
     term_col = [int(lay.img_col[t.image_index]) for t in terms]
     term_eval = [t.evaluate(problem.images[t.image_index].params) for t in terms]
-    from solver.observations.passes import pass_terms
-
     for pt in pass_terms(problem):
         terms.append(pt)
         term_col.append(int(lay.pass_col[pt.pass_index]))
@@ -293,7 +291,7 @@ class SchurParts:
     bounds: np.ndarray
 
 
-def schur(lin: Linearisation, problem: Problem) -> SchurParts:
+def schur(lin: Linearisation, problem: AdjustmentState) -> SchurParts:
     lay = lin.layout
     est = np.array([p.index for p in problem.points if p.estimated], dtype=np.int64)
     pt_q = -np.ones(len(problem.points), dtype=np.int64)
@@ -378,7 +376,7 @@ def positive_definite_inverse(s: np.ndarray) -> np.ndarray:
     return g.T @ g
 
 
-def covariance(lin: Linearisation, parts: SchurParts, problem: Problem) -> Covariance:
+def covariance(lin: Linearisation, parts: SchurParts, problem: AdjustmentState) -> Covariance:
     """Inverse normal-matrix blocks and observation leverages (a-priori sigma0 = 1); raises
     :class:`numpy.linalg.LinAlgError` when the reduced normal matrix is not positive definite."""
     s_inv = positive_definite_inverse(parts.s)

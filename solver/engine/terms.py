@@ -9,14 +9,16 @@ consume them. A family in the registry's shape is one module plus one line in
 
 from __future__ import annotations
 
+import dataclasses
+
 from solver.observations.family import ImageTerm
 from solver.observations.lines import MAX_REFRESHES, REFRESH_TOL, line_terms, refresh_lines
 from solver.observations.registry import FAMILIES
 from solver.observations.state_priors import all_state_priors
-from solver.state import Problem
+from solver.state import AdjustmentState
 
 
-def image_terms(problem: Problem) -> list[ImageTerm]:
+def image_terms(problem: AdjustmentState) -> list[ImageTerm]:
     """Every image-only term of the problem, in a fixed order."""
     terms: list[ImageTerm] = []
     terms += all_state_priors(problem)
@@ -26,7 +28,7 @@ def image_terms(problem: Problem) -> list[ImageTerm]:
     return terms
 
 
-def refresh_image_terms(problem: Problem) -> float:
+def refresh_image_terms(problem: AdjustmentState) -> float:
     """Let term families that linearise around the solution (the pushbroom correction of the
     equivalent planes line model) recompute that state at the current parameters.
 
@@ -35,15 +37,13 @@ def refresh_image_terms(problem: Problem) -> float:
     return max([refresh_lines(problem), *(family.refresh(problem) for family in FAMILIES)])
 
 
-def solve_with_refreshes(problem: Problem, options, control, solve):
+def solve_with_refreshes(problem: AdjustmentState, options, control, solve):
     """``solve(problem, options, control)``, repeated while :func:`refresh_image_terms` changes
     some residual by more than ``solver.observations.lines.REFRESH_TOL`` (at most ``MAX_REFRESHES`` times).
 
     The outcomes are merged: iterations, times and cost history add up, the initial cost is the
     first solve's, the rest is the last solve's.
     """
-    import dataclasses
-
     outcome = solve(problem, options, control)
     for _ in range(MAX_REFRESHES):
         if outcome.cancelled or not outcome.usable or refresh_image_terms(problem) <= REFRESH_TOL:

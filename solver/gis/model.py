@@ -29,7 +29,7 @@ from solver.geometry.geodesy import ecef_to_geodetic
 from solver.geometry.sensor import camera_chip, chip_index_of_column
 from solver.kernels import OBS_REC, REC_CAM_SLOT, REC_CAMERA, REC_CHIP, REC_CHIP_LEN, REC_IMAGE, REC_IMG_SLOT, REC_OC, REC_PASS_SLOT, _eval_record, ray, ray_cam
 from solver.schema.job import Job, load_job
-from solver.state import ImageState, Problem
+from solver.state import AdjustmentState, ImageState
 
 
 class ModelMismatch(ValueError):
@@ -39,7 +39,7 @@ class ModelMismatch(ValueError):
 HeightFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (lon_deg, lat_deg) -> ellipsoidal height m
 
 
-def _apply_report(problem: Problem, report: dict[str, Any]) -> None:
+def _apply_report(problem: AdjustmentState, report: dict[str, Any]) -> None:
     """Set every estimated value of ``problem`` to the report's (in place)."""
     from solver.observations.passes import refresh_segments
 
@@ -266,7 +266,7 @@ class AdjustedModel:
 
     def __init__(self, job: Job | dict[str, Any] | str | bytes, report: dict[str, Any]):
         from solver.adjust import prepare
-        from solver.engine.tables import camera_table, image_table
+        from solver.engine.packed_tables import camera_table, image_table
 
         self.job = job if isinstance(job, Job) else load_job(job)
         self.report = report

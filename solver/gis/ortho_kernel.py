@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

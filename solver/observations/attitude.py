@@ -25,16 +25,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from solver.errors import Problem as JobProblem
+from solver.errors import Problem
 from solver.kernels import KIND_PASS
+from solver.kernels.propagation import PASS_ATT_OFF
 from solver.observations.passes import ATTITUDE_KINDS, attitude_blocks, image_attitude_blocks, pass_line_span
 from solver.observations.state_priors import StatePrior
 from solver.platforms import coef_index, get_model
-from solver.propagation import PASS_ATT_OFF
 
 if TYPE_CHECKING:
     from solver.schema.job import AttitudeSample, Job
-    from solver.state import Problem
+    from solver.state import AdjustmentState
 
 ANGLES = ("omega", "phi", "kappa")  # the coefficient slots of roll, pitch, yaw
 
@@ -94,7 +94,7 @@ def attitude_problems(job: "Job") -> list[tuple[str, str, tuple]]:
     return out
 
 
-def _block_terms(problem: "Problem") -> list[tuple[list[int], StatePrior]]:
+def _block_terms(problem: "AdjustmentState") -> list[tuple[list[int], StatePrior]]:
     """(image indices of the block, its term) per attitude block with samples: one linear term
     of 3 rows per sample on the block's parameters (those of its first image)."""
     job = problem.job
@@ -131,12 +131,12 @@ def _block_terms(problem: "Problem") -> list[tuple[list[int], StatePrior]]:
     return out
 
 
-def attitude_terms(problem: "Problem") -> list[StatePrior]:
+def attitude_terms(problem: "AdjustmentState") -> list[StatePrior]:
     """The weighted attitude observations: one term per attitude block with samples."""
     return [term for _block, term in _block_terms(problem)]
 
 
-def attitude_report(problem: "Problem") -> list[dict]:
+def attitude_report(problem: "AdjustmentState") -> list[dict]:
     """The report's ``attitude`` section: per attitude block with weighted samples, its images,
     the number of samples, the sigmas and the residuals (measured - adjusted, deg) at the
     current parameters: RMS and largest absolute value per angle (roll, pitch, yaw)."""
@@ -163,19 +163,19 @@ class MeasuredAttitude:
     name = "attitude"
     direct_datum = True  # with weighted platform states: direct georeferencing
 
-    def problems(self, job: "Job") -> list[JobProblem]:
-        return [JobProblem(code, msg, loc) for code, msg, loc in attitude_problems(job)]
+    def problems(self, job: "Job") -> list[Problem]:
+        return [Problem(code, msg, loc) for code, msg, loc in attitude_problems(job)]
 
     def n_observations(self, job: "Job") -> int:
         return n_attitude_observations(job)
 
-    def terms(self, problem: "Problem") -> list[StatePrior]:
+    def terms(self, problem: "AdjustmentState") -> list[StatePrior]:
         return attitude_terms(problem)
 
-    def refresh(self, problem: "Problem") -> float:
+    def refresh(self, problem: "AdjustmentState") -> float:
         return 0.0  # linear in the attitude: nothing to re-linearise
 
-    def report(self, problem: "Problem") -> list[dict]:
+    def report(self, problem: "AdjustmentState") -> list[dict]:
         return attitude_report(problem)
 
 

@@ -37,13 +37,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from solver.errors import Problem as JobProblem
+from solver.errors import Problem
 from solver.kernels import platform_state
 from solver.schema.job import ApproxState, Image, SolverOptions
 from solver.state import is_kepler
 
 if TYPE_CHECKING:  # pragma: no cover
-    from solver.state import Problem
+    from solver.state import AdjustmentState
 
 DEFAULT_NODES = 4
 
@@ -213,7 +213,7 @@ def image_state(image: Image, options: SolverOptions | None = None) -> ApproxSta
     )
 
 
-def ephemeris_problems(image: Image, index: int) -> list[JobProblem]:
+def ephemeris_problems(image: Image, index: int) -> list[Problem]:
     """What prevents interpolating ``image``'s ephemeris (empty if it has none or it is fine)."""
     if not image.ephemeris:
         return []
@@ -221,12 +221,12 @@ def ephemeris_problems(image: Image, index: int) -> list[JobProblem]:
     out = []
     times = [s.time_s for s in image.ephemeris]
     if len(times) < 2:
-        out.append(JobProblem("ephemeris_too_short", f"image {image.id!r}: an ephemeris needs at least two state vectors", loc))
+        out.append(Problem("ephemeris_too_short", f"image {image.id!r}: an ephemeris needs at least two state vectors", loc))
     if len(set(times)) != len(times):
-        out.append(JobProblem("ephemeris_duplicate_time", f"image {image.id!r}: two state vectors have the same time_s", loc))
+        out.append(Problem("ephemeris_duplicate_time", f"image {image.id!r}: two state vectors have the same time_s", loc))
     if image.first_line_time_s is None:
         out.append(
-            JobProblem(
+            Problem(
                 "ephemeris_without_first_line_time",
                 f"image {image.id!r} has an ephemeris but no first_line_time_s to interpolate it to",
                 ("images", index, "first_line_time_s"),
@@ -234,7 +234,7 @@ def ephemeris_problems(image: Image, index: int) -> list[JobProblem]:
         )
     elif len(times) >= 2 and not min(times) <= image.first_line_time_s <= max(times):
         out.append(
-            JobProblem(
+            Problem(
                 "ephemeris_does_not_cover_first_line",
                 f"image {image.id!r}: first_line_time_s {image.first_line_time_s} is outside the "
                 f"ephemeris ({min(times)} .. {max(times)}); the state is not extrapolated",
@@ -244,7 +244,7 @@ def ephemeris_problems(image: Image, index: int) -> list[JobProblem]:
     return out
 
 
-def line0_state_ecef(problem: "Problem", image_index: int) -> tuple[np.ndarray, np.ndarray]:
+def line0_state_ecef(problem: "AdjustmentState", image_index: int) -> tuple[np.ndarray, np.ndarray]:
     """The adjusted model's perspective centre position (m) and velocity (m/s) at line 0, ECEF."""
 
     img = problem.images[image_index]
@@ -255,7 +255,7 @@ def line0_state_ecef(problem: "Problem", image_index: int) -> tuple[np.ndarray, 
     return frame.to_ecef(np.asarray(s)[None])[0], frame.vector_to_ecef(np.asarray(ds_dtau) / dt_dtau)
 
 
-def ephemeris_report(problem: "Problem") -> dict[str, Any]:
+def ephemeris_report(problem: "AdjustmentState") -> dict[str, Any]:
     """The report's ``ephemeris`` section: per image with an ephemeris, the interpolated
     line-0 state, the interpolator's leave-one-out accuracy, how the state was used, and the
     adjusted correction (model line-0 state - interpolated ephemeris state, seed 001's XT ...

@@ -8,9 +8,9 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 if TYPE_CHECKING:
-    from solver.errors import Problem as JobProblem
+    from solver.errors import Problem
     from solver.schema.job import Job
-    from solver.state import Problem
+    from solver.state import AdjustmentState
 
 
 class ImageTerm(Protocol):
@@ -35,7 +35,7 @@ class ObservationFamily(Protocol):
     name: str
     direct_datum: bool
 
-    def problems(self, job: Job) -> list[JobProblem]:
+    def problems(self, job: Job) -> list[Problem]:
         """What in the job cannot be used as asked (located problems); empty when usable."""
         ...
 
@@ -43,14 +43,14 @@ class ObservationFamily(Protocol):
         """Observation equations the family adds (validation's degrees of freedom)."""
         ...
 
-    def terms(self, problem: Problem) -> list[ImageTerm]:
+    def terms(self, problem: AdjustmentState) -> list[ImageTerm]:
         """The family's residual terms, in a fixed order."""
         ...
 
-    def refresh(self, problem: Problem) -> float:
+    def refresh(self, problem: AdjustmentState) -> float:
         """Re-linearise at the current parameters; the largest whitened-residual change (0: none)."""
         ...
 
-    def report(self, problem: Problem) -> Any:
+    def report(self, problem: AdjustmentState) -> Any:
         """The family's report section (JSON-ready) at the current parameters."""
         ...

@@ -76,12 +76,12 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
-from solver.errors import JobError
-from solver.errors import Problem as JobProblem
+import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+from solver.errors import JobError, Problem
 from solver.geometry.geodesy import UnknownCRSError, parse_crs, to_ecef
 from solver.geometry.sensor import camera_chip
 from solver.kernels import N_OBS_CONST, assemble, platform_state, project, rotation_and_derivatives
+from solver.platforms import ANGLES, ELEMENTS, HELD
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
@@ -534,7 +534,7 @@ def start(problem) -> None:
     ls: LineSet = problem.lines
     if ls is None or ls.started:
         return
-    issues: list[JobProblem] = []
+    issues: list[Problem] = []
     for li in ls.images:
         gl = ls.lines[li.line]
         img = problem.images[li.image]
@@ -548,7 +548,7 @@ def start(problem) -> None:
         length = math.hypot(l2 - l1, c2 - c1)
         if not (ok1 and ok2) or not np.isfinite(length) or length < MIN_IMAGE_LENGTH_PX:
             issues.append(
-                JobProblem(
+                Problem(
                     "line_edge_on",
                     f"line {gl.id!r} projects to a point in image {img.id!r} "
                     f"({length:.2g} px long with the initial orientation): it is (nearly) parallel to "
@@ -785,10 +785,10 @@ def _viewing_check(gl_ecef: np.ndarray, im, cam) -> tuple[float, float] | None:
     return angle, length * sin_a / rng * cam.focal_mm / cam.pixel_mm
 
 
-def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[JobProblem], dict[str, Any]]:
+def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[Problem], dict[str, Any]]:
     """Problems of the job's lines, and counts: ``n_observations`` (control line equations for
     the chosen model), ``per_image`` (control line observations per image id), ``n_control``."""
-    problems: list[JobProblem] = []
+    problems: list[Problem] = []
     counts: dict[str, Any] = {"n_observations": 0, "per_image": {}, "n_control": 0}
     seen_ids: dict[str, int] = {}
     rigorous = job.options.line_model == "rigorous"
@@ -798,7 +798,7 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[JobPro
         for cam in cameras.values()
     )):
         problems.append(
-            JobProblem(
+            Problem(
                 "lines_with_interior_orientation",
                 "straight-line observations are not yet combined with interior orientation (camera "
                 "iop values or options.self_calibration): the line models use the nominal camera",
@@ -808,7 +808,7 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[JobPro
     for j, gl in enumerate(job.lines):
         loc = ("lines", j)
         if gl.id in seen_ids:
-            problems.append(JobProblem("duplicate_id", f"line id {gl.id!r} is used more than once", loc + ("id",)))
+            problems.append(Problem("duplicate_id", f"line id {gl.id!r} is used more than once", loc + ("id",)))
         seen_ids[gl.id] = j
         crs = gl.crs or job.crs
         ecef = None
@@ -819,7 +819,7 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[JobPro
             problems.append(_crs_problem(exc, loc, gl.crs is not None))
         if ecef is not None and float(np.linalg.norm(ecef[1] - ecef[0])) < MIN_ENDPOINT_DISTANCE_M:
             problems.append(
-                JobProblem(
+                Problem(
                     "line_endpoints_coincide",
                     f"line {gl.id!r}: its two points coincide (less than {MIN_ENDPOINT_DISTANCE_M} m apart), "
                     "so they do not define a line",
@@ -832,19 +832,19 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[JobPro
             oloc = loc + ("observations", k)
             if o.image not in images:
                 problems.append(
-                    JobProblem("unknown_image", f"line {gl.id!r} observation {k} refers to unknown image {o.image!r}", oloc + ("image",))
+                    Problem("unknown_image", f"line {gl.id!r} observation {k} refers to unknown image {o.image!r}", oloc + ("image",))
                 )
                 continue
             if o.image in used_images:
                 problems.append(
-                    JobProblem("duplicate_line_observation", f"line {gl.id!r} is observed twice in image {o.image!r}", oloc)
+                    Problem("duplicate_line_observation", f"line {gl.id!r} is observed twice in image {o.image!r}", oloc)
                 )
                 continue
             used_images.add(o.image)
             npts = len(o.points)
             if o.fitted is not None and npts:
                 problems.append(
-                    JobProblem(
+                    Problem(
                         "line_observation_ambiguous",
                         f"line {gl.id!r} in image {o.image!r}: give either image points or fitted parameters, not both",
                         oloc,
@@ -853,7 +853,7 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[JobPro
                 continue
             if o.fitted is None and npts == 0:
                 problems.append(
-                    JobProblem(
+                    Problem(
                         "line_observation_empty",
                         f"line {gl.id!r} in image {o.image!r}: no image points and no fitted parameters",
                         oloc + ("points",),
@@ -862,7 +862,7 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[JobPro
                 continue
             if o.fitted is None and npts == 1:
                 problems.append(
-                    JobProblem(
+                    Problem(
                         "line_single_point",
                         f"line {gl.id!r} in image {o.image!r} has a single image point: a line needs at least two",
                         oloc + ("points",),
@@ -876,7 +876,7 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[JobPro
                 span = float(np.max(np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2)))
                 if span < MIN_POINT_SPAN_PX:
                     problems.append(
-                        JobProblem(
+                        Problem(
                             "line_image_points_coincide",
                             f"line {gl.id!r} in image {o.image!r}: its image points span {span:.2g} px, "
                             f"less than {MIN_POINT_SPAN_PX} px, so they do not define a line",
@@ -888,7 +888,7 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[JobPro
                     for q, pt in enumerate(o.points):
                         if not (-0.5 <= pt.line <= cam.lines - 0.5 and _on_a_chip(cam, pt.column)):
                             problems.append(
-                                JobProblem(
+                                Problem(
                                     "outside_image",
                                     f"line {gl.id!r} in image {o.image!r}: point {q} ({pt.line}, {pt.column}) is "
                                     f"outside the image (0..{cam.lines - 1}, 0..{cam.columns - 1}) or on no CCD chip",
@@ -907,7 +907,7 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[JobPro
                         else "its two points are too close together to be told apart"
                     )
                     problems.append(
-                        JobProblem(
+                        Problem(
                             "line_edge_on",
                             f"line {gl.id!r} is seen edge-on in image {o.image!r}: it would project to about "
                             f"{length_px:.2g} px ({why}), so it cannot constrain the orientation",
@@ -924,8 +924,8 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[JobPro
     return problems, counts
 
 
-def _crs_problem(exc: Exception, loc: tuple, own: bool) -> JobProblem:
-    return JobProblem("unknown_crs", str(exc), loc + ("crs",) if own else ("crs",))
+def _crs_problem(exc: Exception, loc: tuple, own: bool) -> Problem:
+    return Problem("unknown_crs", str(exc), loc + ("crs",) if own else ("crs",))
 
 
 # ---- report -----------------------------------------------------------------------------------
@@ -977,8 +977,6 @@ def lines_report(problem, s_inv: np.ndarray | None, img_col: np.ndarray | None, 
             f"{ls.refresh_changes[-1]:.3g} sigma): the equivalent planes solution is not a fixed point"
         )
     if ls.model == "equivalent_planes" and ls.active():
-        from solver.platforms import ANGLES, ELEMENTS, HELD
-
         loose = sorted(
             {
                 img.id

@@ -1,5 +1,5 @@
 """Passes of the pass-propagated models: grouping, segments, initial state, ephemeris terms,
-validation and report (the numerical integration is :mod:`solver.propagation`).
+validation and report (the numerical integration is :mod:`solver.kernels.propagation`).
 
 A pass is one orbit state x0 = (X, Y, Z, VX, VY, VZ) (ECEF, m and m/s) at the pass reference
 epoch ``t_ref`` (the middle of the observed lines of its images, on the images' time scale).
@@ -16,12 +16,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from solver.errors import Problem as JobProblem
+from solver.errors import Problem
 from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS, N_KEPLER_CONST
-from solver.observations.ephemeris import image_state, usable
-from solver.platforms import get_model
-from solver.platforms.registry import PASS_STATE
-from solver.propagation import (
+from solver.kernels.propagation import (
     NODE_STEP_S,
     PASS_ATT_OFF,
     PASS_INDEX,
@@ -35,11 +32,14 @@ from solver.propagation import (
     propagate,
     segment_length,
 )
+from solver.observations.ephemeris import image_state, usable
+from solver.platforms import get_model
+from solver.platforms.registry import PASS_STATE
 
 if TYPE_CHECKING:  # pragma: no cover
     from solver.platforms import PlatformModel
     from solver.schema.job import Job
-    from solver.state import ImageState, Problem
+    from solver.state import AdjustmentState, ImageState
 
 DEFAULT_PASS = "1"
 ATTITUDE_MODES = ("camera", "image")  # model option "attitude": one set per camera of a pass / per image
@@ -160,7 +160,7 @@ def build_passes(job: "Job", images: list["ImageState"]) -> list[PassState]:
     return passes
 
 
-def attitude_groups(problem: "Problem") -> dict[int, list[str]]:
+def attitude_groups(problem: "AdjustmentState") -> dict[int, list[str]]:
     """Image index -> ids of all images sharing its attitude block (only where shared by 2+)."""
     out = {}
     for block in image_attitude_blocks(problem.images):
@@ -170,14 +170,14 @@ def attitude_groups(problem: "Problem") -> dict[int, list[str]]:
     return out
 
 
-def refresh_segments(problem: "Problem") -> None:
+def refresh_segments(problem: "AdjustmentState") -> None:
     """Bring every pass image's trajectory segment up to its pass's current state."""
     for ps in getattr(problem, "passes", []):
         for i in ps.images:
             ensure_segment(problem.images[i].kc, ps.params)
 
 
-def state_at(problem: "Problem", image_index: int, line: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def state_at(problem: "AdjustmentState", image_index: int, line: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """ECEF position and velocity of a pass image's platform at ``line`` (segments current)."""
     img = problem.images[image_index]
     t = img.kc[PASS_T_OFF] + line * img.camera.line_time_s
@@ -185,7 +185,7 @@ def state_at(problem: "Problem", image_index: int, line: float = 0.0) -> tuple[n
     return p, v
 
 
-def initialise_passes(problem: "Problem", states: dict[int, Any]) -> list[JobProblem]:
+def initialise_passes(problem: "AdjustmentState", states: dict[int, Any]) -> list[Problem]:
     """Initial pass states: the weighted or header state of the image whose first line is nearest
     the reference epoch, propagated there with the pass's own force model. ``states`` maps image
     index -> ApproxState (or None)."""
@@ -194,7 +194,7 @@ def initialise_passes(problem: "Problem", states: dict[int, Any]) -> list[JobPro
         cands = [(abs(problem.images[i].kc[PASS_T_OFF]), i) for i in ps.images if states.get(i) is not None]
         if not cands:
             issues.append(
-                JobProblem(
+                Problem(
                     "no_initial_position",
                     f"pass {ps.id!r}: none of its images has approx_state or an ephemeris covering "
                     "first_line_time_s (one is needed to start the orbit)",
@@ -275,7 +275,7 @@ def pass_line_span(job: "Job", images: list[int]) -> tuple[float, float]:
     return min(a for a, _ in spans), max(b for _, b in spans)
 
 
-def pass_terms(problem: "Problem") -> list[PassStateTerm]:
+def pass_terms(problem: "AdjustmentState") -> list[PassStateTerm]:
     """Weighted state observations of each pass.
 
     With ``options.ephemeris`` sigmas, every *distinct* ephemeris sample of the pass's images
@@ -318,7 +318,7 @@ def pass_terms(problem: "Problem") -> list[PassStateTerm]:
     return out
 
 
-def pass_problems(job: "Job") -> list[JobProblem]:
+def pass_problems(job: "Job") -> list[Problem]:
     """Validation of the pass-propagated images: epochs, one model per pass, no lines/IOP."""
 
     out = []
@@ -333,7 +333,7 @@ def pass_problems(job: "Job") -> list[JobProblem]:
         pid = pass_id(im.model.options)
         if im.first_line_time_s is None:
             out.append(
-                JobProblem(
+                Problem(
                     "missing_first_line_time",
                     f"image {im.id!r}: model {model.name} propagates one orbit over the pass and needs "
                     "first_line_time_s (the epoch of line 0, on the same time scale for all its images)",
@@ -342,7 +342,7 @@ def pass_problems(job: "Job") -> list[JobProblem]:
             )
         if pid in models and models[pid][0] != model.name:
             out.append(
-                JobProblem(
+                Problem(
                     "mixed_pass_models",
                     f"image {im.id!r} uses {model.name} but pass {pid!r} already uses {models[pid][0]} "
                     f"(image {job.images[models[pid][1]].id!r}); one model per pass",
@@ -353,7 +353,7 @@ def pass_problems(job: "Job") -> list[JobProblem]:
         mode = attitude_mode(im.model.options)
         if mode not in ATTITUDE_MODES:
             out.append(
-                JobProblem(
+                Problem(
                     "invalid_model_options",
                     f"image {im.id!r}: attitude must be one of {', '.join(ATTITUDE_MODES)} (got {mode!r})",
                     ("images", i, "model", "options", "attitude"),
@@ -361,7 +361,7 @@ def pass_problems(job: "Job") -> list[JobProblem]:
             )
         if job.lines:
             out.append(
-                JobProblem(
+                Problem(
                     "unsupported",
                     f"image {im.id!r}: straight-line observations are not available with the "
                     "pass-propagated models yet (use OA-K/OA-J2 or a per-image model)",
@@ -371,7 +371,7 @@ def pass_problems(job: "Job") -> list[JobProblem]:
     return out + _attitude_group_problems(job)
 
 
-def _attitude_group_problems(job: "Job") -> list[JobProblem]:
+def _attitude_group_problems(job: "Job") -> list[Problem]:
     """Images sharing one attitude block (:func:`attitude_blocks`) must ask for the same model
     orders and give the same initial values as the block's first image."""
 
@@ -389,7 +389,7 @@ def _attitude_group_problems(job: "Job") -> list[JobProblem]:
             pid = pass_id(im.model.options)
             if signature(i) != signature(block[0]):
                 out.append(
-                    JobProblem(
+                    Problem(
                         "inconsistent_attitude_group",
                         f"image {im.id!r} shares the attitude of camera {im.camera!r} on pass {pid!r} with "
                         f"image {lead.id!r} but asks for other orders; give them the "
@@ -401,7 +401,7 @@ def _attitude_group_problems(job: "Job") -> list[JobProblem]:
             clash = sorted(n for n in set(lead.initial) & set(im.initial) if lead.initial[n] != im.initial[n])
             if clash:
                 out.append(
-                    JobProblem(
+                    Problem(
                         "inconsistent_attitude_group",
                         f"image {im.id!r} shares the attitude of camera {im.camera!r} on pass {pid!r} with "
                         f"image {lead.id!r} but gives other initial values for "
@@ -471,11 +471,11 @@ def n_pass_unknowns(job: "Job") -> int:
     return 6 * len(ids) + n
 
 
-def parameter_names(problem: "Problem") -> list[str]:
+def parameter_names(problem: "AdjustmentState") -> list[str]:
     return [f"pass:{ps.id}/{n}" for ps in getattr(problem, "passes", []) for n in STATE_NAMES]
 
 
-def passes_report(problem: "Problem", cov_block, var_factor: float) -> list[dict[str, Any]]:
+def passes_report(problem: "AdjustmentState", cov_block, var_factor: float) -> list[dict[str, Any]]:
     """Per pass: reference epoch, images, estimated state with sigmas and covariance (ECEF)."""
     out = []
     for ps in getattr(problem, "passes", []):

@@ -18,7 +18,7 @@ import numpy as np
 
 from solver.observations.ephemeris import image_state
 from solver.platforms import coef_index
-from solver.state import ImageState, Problem, is_kepler
+from solver.state import AdjustmentState, ImageState, is_kepler
 
 
 @dataclass
@@ -36,7 +36,7 @@ class StatePrior:
         return self.w * (self.a @ params - self.b), self.w[:, None] * self.a
 
 
-def state_prior(problem: Problem, img: ImageState) -> StatePrior | None:
+def state_prior(problem: AdjustmentState, img: ImageState) -> StatePrior | None:
     """The weighted state observation of ``img``, or None if the job gives no sigma."""
     doc = image_state(problem.job.images[img.index], problem.job.options)  # header or ephemeris
     if doc is None or doc.sigma_position_m is None:
@@ -73,5 +73,5 @@ def state_prior(problem: Problem, img: ImageState) -> StatePrior | None:
     return StatePrior(img.index, np.array(rows_a), np.array(rows_b), np.array(rows_w))
 
 
-def all_state_priors(problem: Problem) -> list[StatePrior]:
+def all_state_priors(problem: AdjustmentState) -> list[StatePrior]:
     return [p for img in problem.images if (p := state_prior(problem, img)) is not None]

@@ -3,7 +3,7 @@
 Position: one Earth-fixed state x0 = (X, Y, Z, VX, VY, VZ) at the pass reference epoch (the
 middle of the observed lines of all the pass's images), shared by every image of the pass and
 propagated by numerical integration in ECEF (two-body + J2 for PASS-J2, two-body for PASS-K;
-centrifugal and Coriolis terms; :mod:`solver.propagation`) to the epoch of each line,
+centrifugal and Coriolis terms; :mod:`solver.kernels.propagation`) to the epoch of each line,
 ``first_line_time_s + L * line_time``. Derivatives wrt x0 from the variational equations.
 
 Rotation object -> camera: as the orbit-attitude models (:mod:`solver.platforms.orbit_attitude`),

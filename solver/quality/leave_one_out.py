@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from solver.engine.linalg import Layout
-from solver.engine.tables import current_tables
+from solver.engine.packed_tables import current_tables
 from solver.quality.precision import (
     discrepancy_test,
     error_ellipse,
@@ -37,7 +37,7 @@ from solver.quality.precision import (
     sigmas_enu,
     survey_covariance,
 )
-from solver.state import Problem
+from solver.state import AdjustmentState
 
 SINGULAR = 1e-9  # I - U^T Q U below this (relative): without p the orientation is undetermined
 
@@ -54,7 +54,7 @@ def _downdated(q_ff: np.ndarray, f_cols: np.ndarray, u: np.ndarray) -> np.ndarra
     return q_ff + qu @ np.linalg.solve(core, qu.T)
 
 
-def withhold(problem: Problem, lay: Layout, q_ff: np.ndarray, point_index: int, tables=None) -> dict[str, Any] | None:
+def withhold(problem: AdjustmentState, lay: Layout, q_ff: np.ndarray, point_index: int, tables=None) -> dict[str, Any] | None:
     """The point computed from the orientation adjusted without it: position (LGS), cofactor
     (a-priori scale) and its free axes; None when p's rays or the remaining control do not
     determine it."""
@@ -94,7 +94,7 @@ def withhold(problem: Problem, lay: Layout, q_ff: np.ndarray, point_index: int, 
     return {"xyz": x0 + dx, "cofactor": q, "axes": axes, "blocks": blocks, "rows": rows}
 
 
-def leave_one_out(problem: Problem, lay: Layout, q_ff: np.ndarray | None, var_factor: float, alpha: float) -> dict[str, Any] | None:
+def leave_one_out(problem: AdjustmentState, lay: Layout, q_ff: np.ndarray | None, var_factor: float, alpha: float) -> dict[str, Any] | None:
     """The ``quality.leave_one_out`` section (docs/report-contract.md): every control point with
     known coordinates withheld in turn; None without a covariance."""
     if q_ff is None:

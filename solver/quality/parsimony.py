@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from solver.state import Problem
+from solver.state import AdjustmentState
 
 # models whose angles are the platform's attitude relative to the orbital frame (orbit-attitude,
 # pass): there an angle is physical and a sigma of degrees is implausible. The angles of the
@@ -46,7 +46,7 @@ def _angle_reach(unit: str, duration_s: float, lines: int) -> float | None:
     return None
 
 
-def implausible_sigmas(problem: Problem, images_report: list[dict[str, Any]], limit_deg: float) -> list[dict[str, Any]]:
+def implausible_sigmas(problem: AdjustmentState, images_report: list[dict[str, Any]], limit_deg: float) -> list[dict[str, Any]]:
     """Attitude parameters whose sigma, as an angle over the image, exceeds ``limit_deg``."""
     out = []
     for img, rep in zip(problem.images, images_report):

@@ -23,10 +23,9 @@ import numpy as np
 from solver.engine.assemble import build_problem, parameter_names
 from solver.engine.initialize import angles_from_matrix, initialise
 from solver.engine.linalg import check_rank, covariance, linearise, schur
-from solver.engine.tables import current_tables, records
+from solver.engine.packed_tables import current_tables, records
 from solver.engine.validate import require_valid
-from solver.errors import JobError
-from solver.errors import Problem as JobProblem
+from solver.errors import JobError, Problem
 from solver.geometry.geodesy import ecef_to_geodetic, enu_rotation
 from solver.kernels import all_observation_blocks
 from solver.observations.ephemeris import image_state
@@ -42,7 +41,7 @@ from solver.quality.precision import (
     survey_covariance,
 )
 from solver.schema.job import Job
-from solver.state import Problem
+from solver.state import AdjustmentState
 
 PROJECTION_PASSES = 3  # re-project from the last projection (the line search starts at the observed line)
 
@@ -67,7 +66,7 @@ def _rotation(omega: float, phi: float, kappa: float) -> np.ndarray:
     return rx @ ry @ rz
 
 
-def level_nominal_attitude(problem: Problem, images: list[int]) -> None:
+def level_nominal_attitude(problem: AdjustmentState, images: list[int]) -> None:
     """Tilt the nominal attitude of position-rotation models (LGS axes) to the platform's own
     vertical (in place). Without control on an image the initial attitude points the camera
     along the LGS vertical of the scene centre; the platform, hundreds of kilometres away, has
@@ -103,10 +102,10 @@ def level_nominal_attitude(problem: Problem, images: list[int]) -> None:
         img.params[:] = img.base[img.free_idx]
 
 
-def planning_problems(job: Job) -> list[JobProblem]:
+def planning_problems(job: Job) -> list[Problem]:
     """Planned points without coordinates (a pre-analysis projects every point)."""
     out = [
-        JobProblem(
+        Problem(
             "planned_point_without_coordinates",
             f"point {p.id!r}: a pre-analysis needs the planned coordinates of every point",
             ("points", i, "coordinates"),
@@ -115,7 +114,7 @@ def planning_problems(job: Job) -> list[JobProblem]:
         if p.coordinates is None
     ]
     if not job.points:
-        out.append(JobProblem("no_planned_points", "a pre-analysis needs planned points", ("points",)))
+        out.append(Problem("no_planned_points", "a pre-analysis needs planned points", ("points",)))
     return out
 
 
@@ -212,7 +211,7 @@ def preanalyse(job: Job) -> dict[str, Any]:
     rank = check_rank(parts, names)
     if rank.deficient or parts.point_singular.any():
         raise JobError(
-            JobProblem(
+            Problem(
                 "rank_deficient",
                 "the planned control layout leaves these parameters undetermined: "
                 + (", ".join(n for n, _ in rank.null_parameters) or "(points seen in one image only)"),

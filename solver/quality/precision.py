@@ -28,9 +28,9 @@ import numpy as np
 from scipy import stats
 
 from solver.engine.linalg import Layout
-from solver.engine.tables import current_tables, records
+from solver.engine.packed_tables import current_tables, records
 from solver.kernels import all_observation_blocks
-from solver.state import Problem
+from solver.state import AdjustmentState
 
 
 @dataclass
@@ -44,7 +44,7 @@ class RayBlocks:
     ok: bool
 
 
-def block_width(problem: Problem) -> int:
+def block_width(problem: AdjustmentState) -> int:
     """Columns per observation row in the Jacobian blocks (as :func:`solver.engine.linalg.linearise`)."""
     return (
         max(im.nfree for im in problem.images)
@@ -53,7 +53,7 @@ def block_width(problem: Problem) -> int:
     )
 
 
-def ray_blocks(problem: Problem, lay: Layout, rows: np.ndarray, xyz_lgs_m: np.ndarray, tables=None) -> RayBlocks:
+def ray_blocks(problem: AdjustmentState, lay: Layout, rows: np.ndarray, xyz_lgs_m: np.ndarray, tables=None) -> RayBlocks:
     """Residuals and Jacobians of the observations ``rows`` (indices in ``problem.obs``) of one
     point placed at ``xyz_lgs_m``, at the current orientation."""
     rows = np.asarray(rows, dtype=np.int64)
@@ -183,7 +183,7 @@ def survey_covariance(sigma_m: np.ndarray | None, blocks: RayBlocks, axes: tuple
 
 
 def checkpoint_precision(
-    checkpoints: dict[str, Any], problem: Problem, lay: Layout, q_ff: np.ndarray | None, var_factor: float, alpha: float
+    checkpoints: dict[str, Any], problem: AdjustmentState, lay: Layout, q_ff: np.ndarray | None, var_factor: float, alpha: float
 ) -> None:
     """Add to each check point of ``checkpoints`` (:func:`solver.report.checkpoints.compute_checkpoints`)
     its predicted standard deviations, error ellipse, normalised discrepancy and chi-square test,

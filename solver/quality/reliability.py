@@ -30,7 +30,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from solver.engine.linalg import Linearisation, SchurParts
-from solver.state import Problem
+from solver.state import AdjustmentState
 
 # a redundancy component below this is "nothing checks it": no finite detectable bias. Not
 # larger: a survey of 0.2 m seen in a 20-m-GSD image has r ~ 3e-4 and an MDB of ~50 m, weak but
@@ -106,13 +106,13 @@ def _obs_rows(lin: Linearisation, idx: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return rows, cols, jimg
 
 
-def _term_kinds(problem: Problem, lin: Linearisation) -> list[tuple[str, int, dict, list]]:
+def _term_kinds(problem: AdjustmentState, lin: Linearisation) -> list[tuple[str, int, dict, list]]:
     """(kind, rows per group, label, per-group labels) of each image-only term, in order."""
+    from solver.kernels.propagation import PASS_T_OFF
     from solver.observations.attitude import _block_terms, block_samples
     from solver.observations.lines import LineTerm
     from solver.observations.passes import PassStateTerm
     from solver.observations.state_priors import StatePrior, all_state_priors
-    from solver.propagation import PASS_T_OFF
 
     # solver.engine.terms.image_terms order: state priors, then the families (attitude), then
     # lines, passes; the attitude terms are StatePriors too, so they are told apart by position
@@ -147,7 +147,7 @@ def _term_kinds(problem: Problem, lin: Linearisation) -> list[tuple[str, int, di
     return out
 
 
-def structure(problem: Problem, lin: Linearisation, parts: SchurParts, s_inv: np.ndarray) -> Structure:
+def structure(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, s_inv: np.ndarray) -> Structure:
     """Blocks of residual cofactors and the test groups of the adjusted problem."""
     st = Structure(s_inv=s_inv)
     obs = problem.obs

@@ -41,7 +41,7 @@ from solver.quality.reliability import (
     redundancy,
     structure,
 )
-from solver.state import Problem
+from solver.state import AdjustmentState
 
 EIGEN_TOL = REDUNDANCY_NEAR_ZERO  # eigenvalues of Q_gg below this (redundancy ~0) carry no test
 SIGN = {"image_point": 1.0, "line_point": 1.0, "control_point": -1.0, "ephemeris_sample": -1.0, "attitude_sample": -1.0}
@@ -96,7 +96,7 @@ def _critical(variance: str, alpha0: float, dim: int, dof: int) -> float | None:
     return float(math.sqrt(dof * stats.beta.ppf(1.0 - alpha0, dim / 2.0, (dof - dim) / 2.0)))
 
 
-def snoop(problem: Problem, options, robust: bool = False) -> Snoop:
+def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
     """Every group's test at the current parameters of ``problem`` (``options``: the job's
     ``options.blunder_detection``). ``robust``: the parameters come from a robust adjustment;
     sigma0 is then the a-priori one, or with ``variance: estimated`` the robust estimate

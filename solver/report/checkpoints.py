@@ -17,13 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from solver.engine.tables import current_tables, records
+from solver.engine.packed_tables import current_tables, records
 from solver.kernels import all_observation_blocks, ray_cam
 from solver.report.statistics import axis_summary, shapiro_wilk, t_test
-from solver.state import Problem
+from solver.state import AdjustmentState
 
 
-def _ray(problem: Problem, r: int):
+def _ray(problem: AdjustmentState, r: int):
     obs = problem.obs
     img = problem.images[obs.img[r]]
     cam = problem.cameras[obs.cam[r]]
@@ -31,7 +31,7 @@ def _ray(problem: Problem, r: int):
     return ray_cam(img.kind, img.coef(), img.kc, obs.oc[r], cam.values(), int(k), cam.chip_len_mm[k])
 
 
-def _intersect(problem: Problem, rows: np.ndarray, start: np.ndarray, tables) -> np.ndarray:
+def _intersect(problem: AdjustmentState, rows: np.ndarray, start: np.ndarray, tables) -> np.ndarray:
     """Gauss-Newton on the point alone (orientation held), on the weighted image residuals."""
     img_tab, cam_tab, img_p, cam_p = tables
     rec = records(problem, rows)
@@ -50,7 +50,7 @@ def _intersect(problem: Problem, rows: np.ndarray, start: np.ndarray, tables) ->
     return x
 
 
-def compute_checkpoints(problem: Problem, alpha: float, gsd_m: float | None) -> dict[str, Any]:
+def compute_checkpoints(problem: AdjustmentState, alpha: float, gsd_m: float | None) -> dict[str, Any]:
     obs = problem.obs
     points_out = []
     disc: dict[str, list[float]] = {"e": [], "n": [], "u": [], "planimetric": []}

@@ -25,12 +25,12 @@ from solver.quality.parsimony import high_correlations, implausible_sigmas
 from solver.quality.precision import checkpoint_precision, error_ellipse
 from solver.report.checkpoints import compute_checkpoints
 from solver.report.statistics import chi2_test
-from solver.state import Problem
+from solver.state import AdjustmentState
 
 REPORT_SCHEMA_VERSION = "1.0"
 
 
-def assess(problem: Problem, outcome) -> dict[str, Any]:
+def assess(problem: AdjustmentState, outcome) -> dict[str, Any]:
     """Statistics, covariance, check points and the report, at the current parameters."""
     job = problem.job
     opts = job.options
@@ -118,13 +118,13 @@ def assess(problem: Problem, outcome) -> dict[str, Any]:
     }
 
 
-def _state_line0(problem: Problem, index: int) -> dict[str, list[float]]:
+def _state_line0(problem: AdjustmentState, index: int) -> dict[str, list[float]]:
     """The adjusted perspective-centre position and velocity at line 0 (ECEF), every model."""
     r, v = line0_state_ecef(problem, index)
     return {"position_ecef_m": [float(x) for x in r], "velocity_ecef_m_s": [float(x) for x in v]}
 
 
-def _images_report(problem: Problem, lin, cov: Covariance | None, var_factor: float):
+def _images_report(problem: AdjustmentState, lin, cov: Covariance | None, var_factor: float):
     out = []
     gsds = []
     lay = lin.layout
@@ -192,7 +192,7 @@ def _images_report(problem: Problem, lin, cov: Covariance | None, var_factor: fl
     return out, gsds
 
 
-def _passes_report(problem: Problem, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
+def _passes_report(problem: AdjustmentState, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
     def block(pi: int):
         if cov is None:
             return None
@@ -202,7 +202,7 @@ def _passes_report(problem: Problem, lin, cov: Covariance | None, var_factor: fl
     return passes_report(problem, block, var_factor)
 
 
-def _cameras_report(problem: Problem, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
+def _cameras_report(problem: AdjustmentState, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
     def block(ci: int):
         cam = problem.cameras[ci]
         if cov is None or not cam.nfree:
@@ -225,7 +225,7 @@ def _correlation_pairs(cov: Covariance) -> tuple[tuple[np.ndarray, np.ndarray], 
 NEAR_SINGULAR_RHO = 0.9999
 
 
-def _creeping_warning(problem: Problem, cov: Covariance | None) -> str | None:
+def _creeping_warning(problem: AdjustmentState, cov: Covariance | None) -> str | None:
     """Why a solve that ran out of iterations crept: the parameter pairs that are correlated to
     |rho| >= NEAR_SINGULAR_RHO are nearly undetermined together, and Gauss-Newton moves along
     that valley a little each iteration (e.g. a focal-length correction against the flying
@@ -246,7 +246,7 @@ def _creeping_warning(problem: Problem, cov: Covariance | None) -> str | None:
     )
 
 
-def _correlations(problem: Problem, cov: Covariance | None, threshold: float, limit: int = 2000) -> dict[str, Any]:
+def _correlations(problem: AdjustmentState, cov: Covariance | None, threshold: float, limit: int = 2000) -> dict[str, Any]:
     out: dict[str, Any] = {"threshold": threshold, "pairs": []}
     if cov is None or cov.images.size == 0:
         return out
@@ -265,7 +265,7 @@ def _correlations(problem: Problem, cov: Covariance | None, threshold: float, li
     return out
 
 
-def _observations_report(problem: Problem, lin, cov: Covariance | None) -> list[dict[str, Any]]:
+def _observations_report(problem: AdjustmentState, lin, cov: Covariance | None) -> list[dict[str, Any]]:
     obs = problem.obs
     sel = lin.obs_sel
     res = lin.res_obs.ravel()
@@ -296,7 +296,7 @@ def _observations_report(problem: Problem, lin, cov: Covariance | None) -> list[
     return out
 
 
-def _points_report(problem: Problem, cov: Covariance | None, var_factor: float, role: str) -> list[dict[str, Any]]:
+def _points_report(problem: AdjustmentState, cov: Covariance | None, var_factor: float, role: str) -> list[dict[str, Any]]:
     pts = [p for p in problem.points if p.estimated and p.role == role]
     if not pts:
         return []

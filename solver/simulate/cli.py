@@ -9,6 +9,7 @@ from pathlib import Path
 
 from solver.simulate import presets
 from solver.simulate.camera import PRISM_LAYOUTS
+from solver.simulate.lines import cbers_lines
 from solver.simulate.scene import Settings, write_documents
 
 
@@ -153,8 +154,6 @@ def run(args: argparse.Namespace) -> int:
     elif args.preset == "cbers-scene":
         scene = presets.cbers_scene(settings, args.gcps, args.checks)
     elif args.preset == "cbers-lines":
-        from solver.simulate.lines import cbers_lines
-
         scene = cbers_lines(
             settings, args.lines, args.gcps, args.checks, args.yaw_steering, args.line_noise_px, args.check_lines
         )

@@ -18,7 +18,7 @@ from typing import Any, Iterator
 import pytest
 from fastapi.testclient import TestClient
 
-from service import tables
+from service import report_csv as tables
 from service.app import create_app
 from service.auth import create_key, local_user
 from service.settings import Settings

@@ -19,6 +19,7 @@ from sqlalchemy.engine import Engine
 
 from service.states import JobStatus
 from service.store import open_store
+from service.store.rows import Base
 from service.store.schema import (
     BASELINE,
     MIGRATIONS_DIR,
@@ -29,7 +30,7 @@ from service.store.schema import (
     schema_differences,
     upgrade,
 )
-from service.store.sql import Base, make_engine
+from service.store.sql import make_engine
 
 
 @pytest.fixture(params=["sqlite", pytest.param("postgresql", marks=pytest.mark.services)])

@@ -1,7 +1,7 @@
 """Disk cache of the compiled numba kernels, keyed on the kernel sources (import before ``@njit``).
 
 numba's own cache (``cache=True``) checks only the source file of the function it loads: a
-kernel in :mod:`solver.kernels` that inlines :func:`solver.propagation.gravity_and_gradient`
+kernel in :mod:`solver.kernels` that inlines :func:`solver.kernels.propagation.gravity_and_gradient`
 is loaded from the cache unchanged after ``propagation.py`` is edited, so a developer's test
 run, or an installation upgraded in place, can run the old physics without a word.
 
@@ -37,7 +37,7 @@ from pathlib import Path
 from numba.core import caching
 from numba.misc.appdirs import AppDirs
 
-SOLVER_DIR = Path(__file__).resolve().parent
+SOLVER_DIR = Path(__file__).resolve().parent.parent  # solver/
 _CACHE_IMPL = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")  # numba >= 0.61 / older
 _JIT_DECORATORS = {"njit", "jit", "vectorize", "guvectorize", "cfunc"}
 _DECORATOR_LINE = re.compile(r"^\s*@\s*(?:numba\.)?(?:njit|jit|vectorize|guvectorize|cfunc)\b", re.M)
@@ -154,7 +154,7 @@ def install() -> None:
 
 def cache_dir() -> Path:
     """The directory the kernels of :mod:`solver.kernels` are cached in (for ``pba warmup``)."""
-    py_file = str(SOLVER_DIR / "kernels.py")
+    py_file = str(SOLVER_DIR / "kernels" / "__init__.py")
     for base in cache_bases(py_file):
         path = Path(base) / f"pba-kernels-{sources_digest()}" / KernelSourceLocator.get_suitable_cache_subpath(py_file)
         try:

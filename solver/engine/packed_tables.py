@@ -27,10 +27,11 @@ from solver.kernels import (
     REC_OC,
     REC_PASS_SLOT,
 )
-from solver.state import Problem
+from solver.observations.passes import refresh_segments
+from solver.state import AdjustmentState
 
 
-def image_table(problem: Problem) -> np.ndarray:
+def image_table(problem: AdjustmentState) -> np.ndarray:
     """One row per image: kind, nfree, free indices, base coefficients, kc (pass images: with
     their propagated segment, so rows are as long as the longest kc)."""
     width = max([IMG_TAB] + [KC_START + len(im.kc) for im in problem.images])
@@ -45,7 +46,7 @@ def image_table(problem: Problem) -> np.ndarray:
     return tab
 
 
-def camera_table(problem: Problem) -> np.ndarray:
+def camera_table(problem: AdjustmentState) -> np.ndarray:
     tab = np.zeros((max(len(problem.cameras), 1), CAM_TAB))
     for c in problem.cameras:
         r = tab[c.index]
@@ -57,7 +58,7 @@ def camera_table(problem: Problem) -> np.ndarray:
 
 
 def records(
-    problem: Problem,
+    problem: AdjustmentState,
     rows: np.ndarray,
     img_slot: np.ndarray | None = None,
     cam_slot: np.ndarray | None = None,
@@ -78,11 +79,9 @@ def records(
     return np.ascontiguousarray(rec)
 
 
-def current_tables(problem: Problem):
+def current_tables(problem: AdjustmentState):
     """(image table, camera table, image free parameters (nimg, 24), camera free parameters);
     pass segments are brought up to date with the passes' current states first."""
-    from solver.observations.passes import refresh_segments
-
     refresh_segments(problem)
     img_tab, cam_tab = image_table(problem), camera_table(problem)
     img_p = np.zeros((len(problem.images), 24))

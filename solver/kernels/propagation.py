@@ -39,7 +39,7 @@ import math
 import numpy as np
 from numba import njit
 
-import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 

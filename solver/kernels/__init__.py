@@ -3,7 +3,9 @@
 Everything that runs once per observation per solver evaluation lives here, compiled with numba
 (``error_model="numpy"`` so a division by zero gives inf instead of raising inside Ceres).
 The residual blocks in :mod:`solver.engine.backend` and the covariance code (:mod:`solver.engine.linalg`) call only
-these functions, so a compiled C++ kernel could replace this module behind the same interface.
+these functions, so a compiled C++ kernel could replace this package behind the same interface.
+Beside it: :mod:`solver.kernels.propagation` (orbit propagation, J2, pass states) and
+:mod:`solver.kernels.cache` (the disk cache of the compiled kernels, keyed on their sources).
 
 Conventions (see docs/models.md):
 
@@ -32,8 +34,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-import solver.kernel_cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
-from solver.propagation import (
+import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+from solver.kernels.propagation import (
     PASS_ATT_OFF,
     PASS_COEF_INDEX,
     PASS_INDEX,
@@ -46,7 +48,7 @@ from solver.propagation import (
 KIND_POLYNOMIAL = 0
 KIND_KEPLER = 1
 KIND_ORBIT_ATTITUDE = 2  # Kepler/J2 position, attitude relative to the orbital frame
-KIND_PASS = 3  # one propagated orbit per pass (solver.propagation), attitude as orbit-attitude
+KIND_PASS = 3  # one propagated orbit per pass (solver.kernels.propagation), attitude as orbit-attitude
 N_COEF = 24
 N_OBS_CONST = 9
 N_KEPLER_CONST = 17
@@ -844,10 +846,10 @@ def ideal_direction(oc, iop, chip: int, chip_len: float):
 # img_tab row (67): kind, nfree, free_idx[24], base[24], kc[17]
 # cam_tab row (2 + 2 N_IOP): nfree, has_iop, free_idx[N_IOP], base[N_IOP]
 # (the pass kind appends its propagated segment to kc: the row is then longer, see
-#  solver.propagation; kc is always it[KC_START:])
+#  solver.kernels.propagation; kc is always it[KC_START:])
 # observation record (16): image, camera, image slot, camera slot (-1: constant), chip index,
 #                          chip length (mm), oc[9], pass slot (-1: constant or no pass)
-# named offsets of the packed rows (solver.engine.tables writes them, the kernels read them)
+# named offsets of the packed rows (solver.engine.packed_tables writes them, the kernels read them)
 IT_KIND = 0  # img_tab: model kind (KIND_*)
 IT_NFREE = 1  # img_tab: number of free coefficients
 IT_FREE = 2  # img_tab: free coefficient indices, N_COEF slots
