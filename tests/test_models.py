@@ -108,8 +108,10 @@ def test_report_contract_fields():
     cp = rep["checkpoints"]
     for k in ("method", "mean_m", "std_m", "rmse_m", "rmse_gsd", "t_test", "shapiro_wilk"):
         assert k in cp
-    assert set(cp["rmse_m"]) == {"e", "n", "u", "planimetric"}
+    assert set(cp["rmse_m"]) == {"e", "n", "u", "planimetric", "3d"}  # "3d": issue 15
     assert cp["rmse_gsd"]["e"] == pytest.approx(cp["rmse_m"]["e"] / cp["gsd_m"])
+    d = np.array([[p["discrepancy_m"][c] for c in "enu"] for p in cp["points"]])
+    assert cp["rmse_m"]["3d"] == pytest.approx(np.sqrt(np.mean(np.sum(d**2, axis=1))), rel=1e-9)
 
 
 def test_mono_checkpoints_and_t_test_against_hand_computation():
