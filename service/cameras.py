@@ -44,15 +44,17 @@ def ensure_presets(store: Store) -> list[str]:
         if any(r.created_by != PRESETS_CREATOR for r in stored):
             log.warning("shared camera %r was published by a user: the preset of that name is not added", name)
             continue
-        for preset in versions[len(stored) :]:
-            store.add_camera(
+        for number, preset in enumerate(versions[len(stored) :], start=len(stored) + 1):
+            # exactly version ``number``: servers starting at once cannot store a preset twice
+            if store.add_camera_version(
                 name,
+                number,
                 f"{preset.description}. Source: {preset.source}",
                 preset.definition,
                 PRESETS_CREATOR,
                 owner=SHARED,
-            )
-            added.append(name)
+            ):
+                added.append(name)
     return added
 
 

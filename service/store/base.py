@@ -324,6 +324,18 @@ class Store(Protocol):
     ) -> CameraRecord:
         """Store the next version of ``name`` in namespace ``owner`` (default ``created_by``)."""
 
+    def add_camera_version(
+        self,
+        name: str,
+        version: int,
+        description: str,
+        definition: dict[str, Any],
+        created_by: str,
+        owner: str,
+    ) -> CameraRecord | None:
+        """Store exactly ``version`` of ``name`` in namespace ``owner``; None when that version
+        exists already (another writer stored it first: no duplicate, no renumbering)."""
+
     def get_camera(
         self, name: str, version: int | None = None, *, owner: str
     ) -> CameraRecord | None:

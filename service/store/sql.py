@@ -1070,6 +1070,35 @@ class SqlStore:
                 continue
         raise RuntimeError(f"could not store a new version of camera {name!r}")
 
+    def add_camera_version(
+        self,
+        name: str,
+        version: int,
+        description: str,
+        definition: dict[str, Any],
+        created_by: str,
+        owner: str,
+    ) -> CameraRecord | None:
+        """Store exactly ``version`` of ``name`` in namespace ``owner``; None when that version
+        exists already (the unique key decides between writers racing for it)."""
+        try:
+            with self.engine.begin() as conn:
+                conn.execute(
+                    insert(CameraRow).values(
+                        owner=owner,
+                        name=name,
+                        version=version,
+                        description=description,
+                        definition=json.dumps(definition),
+                        created=utcnow(),
+                        created_by=created_by,
+                        source_job=None,
+                    )
+                )
+        except IntegrityError:
+            return None
+        return self.get_camera(name, version, owner=owner)
+
     def get_camera(
         self, name: str, version: int | None = None, *, owner: str
     ) -> CameraRecord | None:

@@ -259,6 +259,44 @@ def test_camera_versions(store: Store) -> None:
     assert total == 2 and [c.version for c in cams] == [2, 1]
 
 
+def test_camera_version_exact_insert(store: Store) -> None:
+    first = store.add_camera_version("p", 1, "one", {"focal_mm": 1.0}, "presets", owner=SHARED)
+    assert first is not None and first.version == 1 and first.definition == {"focal_mm": 1.0}
+    # the same version again (another server was first): refused, nothing renumbered
+    assert store.add_camera_version("p", 1, "one", {"focal_mm": 9.0}, "presets", owner=SHARED) is None
+    cams, total = store.list_cameras("p", owners=[SHARED])
+    assert total == 1 and cams[0].definition == {"focal_mm": 1.0}
+
+
+def test_presets_published_once_by_servers_starting_together(store: Store) -> None:
+    """Several API servers start at once on one store (scale-out): every preset version is
+    stored exactly once (before, two servers could each add version 1, the second as 2)."""
+    from service.cameras import ensure_presets
+    from solver.importers.presets import PRESETS
+
+    n = 4
+    barrier = threading.Barrier(n)
+    errors: list[BaseException] = []
+
+    def start_server() -> None:
+        try:
+            barrier.wait(timeout=30)
+            ensure_presets(store)
+        except BaseException as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=start_server) for _ in range(n)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=120)
+    assert not errors, errors
+    for name, versions in PRESETS.items():
+        cams, total = store.list_cameras(name, 1000, 0, owners=[SHARED])
+        assert total == len(versions), (name, [c.version for c in cams])
+        assert sorted(c.version for c in cams) == list(range(1, len(versions) + 1))
+
+
 def test_camera_namespaces_are_separate(store: Store) -> None:
     """The same name in two users' namespaces and the shared one: versions count per
     namespace, lookups never cross namespaces."""
