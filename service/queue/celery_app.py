@@ -233,19 +233,23 @@ def execute_job(job_id: str) -> str:
     if status is not None:
         log.info("run ended: %s", status.value, extra={**extra, "status": status.value})
         return status.value
-    if beat.lost:
-        log.warning(
-            "run stopped: the job was taken from this run", extra={**extra, "status": "lost"}
-        )
-        return "lost"
     rec = store.get_job(job_id)
     if rec is not None and rec.status == JobStatus.accepted:
         # Handed back at shutdown: the broker puts this very message back at the head of the
         # queue, so another worker takes it. Publishing a new message instead would lose the
         # job if this worker died between acknowledging the old one and sending the new one;
         # a rejected message that never reaches Redis is restored by its visibility timeout.
+        # Checked before ``beat.lost``: the heartbeat may fire between the hand-back and its
+        # stop and find the job no longer ours, and acknowledging the message then would leave
+        # an accepted job without one. (If the sweeper re-queued it after a lost lease and sent
+        # a message of its own, the extra wake-up message is dropped when nothing waits.)
         log.info("run handed back to the queue", extra={**extra, "status": "requeued"})
         raise Reject("handed back at shutdown", requeue=True)
+    if beat.lost:
+        log.warning(
+            "run stopped: the job was taken from this run", extra={**extra, "status": "lost"}
+        )
+        return "lost"
     log.info("run ended without a result of its own", extra={**extra, "status": "none"})
     return "none"
 
