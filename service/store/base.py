@@ -332,6 +332,7 @@ class Store(Protocol):
         definition: dict[str, Any],
         created_by: str,
         owner: str,
+        source_job: str | None = None,
     ) -> CameraRecord | None:
         """Store exactly ``version`` of ``name`` in namespace ``owner``; None when that version
         exists already (another writer stored it first: no duplicate, no renumbering)."""

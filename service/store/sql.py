@@ -1043,31 +1043,17 @@ class SqlStore:
         creator's own); retries when two writers race."""
         owner = owner or created_by
         for _ in range(10):
-            try:
-                with self.engine.begin() as conn:
-                    latest = conn.execute(
-                        select(func.max(CameraRow.version)).where(
-                            CameraRow.owner == owner, CameraRow.name == name
-                        )
-                    ).scalar_one_or_none()
-                    version = (latest or 0) + 1
-                    conn.execute(
-                        insert(CameraRow).values(
-                            owner=owner,
-                            name=name,
-                            version=version,
-                            description=description,
-                            definition=json.dumps(definition),
-                            created=utcnow(),
-                            created_by=created_by,
-                            source_job=source_job,
-                        )
+            with self.engine.connect() as conn:
+                latest = conn.execute(
+                    select(func.max(CameraRow.version)).where(
+                        CameraRow.owner == owner, CameraRow.name == name
                     )
-                rec = self.get_camera(name, version, owner=owner)
-                assert rec is not None
-                return rec
-            except IntegrityError:
-                continue
+                ).scalar_one_or_none()
+            rec = self.add_camera_version(
+                name, (latest or 0) + 1, description, definition, created_by, owner, source_job
+            )
+            if rec is not None:
+                return rec  # else another writer took that version: read the latest again
         raise RuntimeError(f"could not store a new version of camera {name!r}")
 
     def add_camera_version(
@@ -1078,6 +1064,7 @@ class SqlStore:
         definition: dict[str, Any],
         created_by: str,
         owner: str,
+        source_job: str | None = None,
     ) -> CameraRecord | None:
         """Store exactly ``version`` of ``name`` in namespace ``owner``; None when that version
         exists already (the unique key decides between writers racing for it)."""
@@ -1092,7 +1079,7 @@ class SqlStore:
                         definition=json.dumps(definition),
                         created=utcnow(),
                         created_by=created_by,
-                        source_job=None,
+                        source_job=source_job,
                     )
                 )
         except IntegrityError:
