@@ -1,1 +1,1 @@
-"""Geometry shared by the solver and the simulator: geodesy (CRS <-> ECEF <-> local frame) and the sensor (chips, the chip of a column)."""
+"""Geometry shared by the solver and the simulator: geodesy (CRS <-> ECEF <-> local frame), the sensor (chips, the chip of a column) and the RPC00B model (its fit, its files' fields, the image-space bias of RPC images)."""
