@@ -83,7 +83,8 @@ def blunders(args) -> None:
         rng = np.random.default_rng(1000 + seed)
         bad = copy.deepcopy(job)
         injected = _inject(bad, rng, args.image_blunders, args.control_blunders)
-        bad.setdefault("options", {})["blunder_detection"] = {"robust_start": args.robust_start, "max_rejections": 50}
+        bad.setdefault("options", {})["blunder_detection"] = {"robust_start": args.robust_start, "max_rejections": 50,
+                                                              "reinstate": not args.no_reinstate}
         t0 = time.perf_counter()
         rep = run(bad)
         dt = time.perf_counter() - t0
@@ -96,6 +97,13 @@ def blunders(args) -> None:
         mdbs = {(g["kind"], g.get("image"), g["point"]): g["mdb"] for g in clean["quality"]["reliability"]["groups"]}
         missed = [[*b, "mdb", mdbs.get(b)] for b in missed]  # the clean adjustment's MDB of each
         false = [r for r in rej if r not in injected]
+        lost = (q.get("lost_control") or {}).get("points", [])
+        fair_rmse = None
+        if lost:  # the fair reference: the blunder-free run without the control points lost
+            fair = copy.deepcopy(probe)
+            fair["points"] = [p for p in fair["points"] if p["id"] not in lost]
+            fair["observations"] = [o for o in fair["observations"] if o["point"] not in lost]
+            fair_rmse = _rmse(run(fair))
         false_groups = [g for g in groups if not any(b in g for b in injected)]
         print(
             json.dumps(
@@ -117,6 +125,10 @@ def blunders(args) -> None:
                     "check_rmse_3d_m": _rmse(rep),
                     "check_rmse_3d_clean_m": _rmse(clean),
                     "ratio": _rmse(rep) / _rmse(clean),
+                    "lost_control": lost,
+                    "check_rmse_3d_clean_without_lost_m": fair_rmse,
+                    "ratio_fair": None if fair_rmse is None else _rmse(rep) / fair_rmse,
+                    "reinstated": len(q.get("reinstated", [])),
                     "time_s": dt,
                     "robust_start": args.robust_start,
                     "adjustments": q["blunder_detection"]["adjustments"],
@@ -155,6 +167,7 @@ def main() -> None:
     b.add_argument("--image-blunders", type=int, default=4)
     b.add_argument("--control-blunders", type=int, default=1)
     b.add_argument("--robust-start", default="none", choices=["none", "huber", "cauchy"])
+    b.add_argument("--no-reinstate", action="store_true")
     c = sub.add_parser("clean")
     c.add_argument("--runs", type=int, default=200)
     c.add_argument("--alpha0", type=float, default=0.001)

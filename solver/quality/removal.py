@@ -30,3 +30,57 @@ def remove(job: Job, removals: list[tuple]) -> tuple[Job, list[dict]]:
     used = {o.point for _k, o in kept}
     points = [p for p in points if p.role != "tie" or p.id in used]
     return job.model_copy(update={"points": points, "observations": [o for _k, o in kept]}), collateral
+
+
+# candidates are put back with their sigmas times this: their weight (1e-6) leaves the solution
+# that of the job without them (a 30-px blunder moves it by ~1e-5 px), while their residuals
+# and cofactors give the tests of observations outside the adjustment (snooping.predicted_tests)
+INFLATE = 1e3
+
+
+def _rays(job: Job) -> dict[str, int]:
+    count: dict[str, int] = {}
+    for o in job.observations:
+        count[o.point] = count.get(o.point, 0) + 1
+    return count
+
+
+def testable(current: Job, item: dict) -> bool:
+    """Whether a removed observation (``item``: kind, obs, point) can be predicted from the
+    adjustment of ``current``: its ground point must be determined without it (a control point
+    in ``current``, or a tie point with two rays; a survey: its point with two rays)."""
+    points = {p.id: p for p in current.points}
+    p = points.get(item["point"])
+    if p is None:
+        return False
+    rays = _rays(current).get(item["point"], 0)
+    if item["kind"] == "image_point":
+        return p.role == "gcp" or (p.role == "tie" and rays >= 2)
+    return p.role == "tie" and rays >= 2
+
+
+def with_candidates(current: Job, original: Job, items: list[dict]) -> Job:
+    """``current`` with the removed observations ``items`` put back with inflated sigmas
+    (``INFLATE``): image points appended to ``observations`` (in the order of ``items``), a
+    control point's survey restored from ``original``."""
+    orig_points = {p.id: p for p in original.points}
+    surveys = {it["point"] for it in items if it["kind"] == "control_point"}
+    points = []
+    for p in current.points:
+        if p.id in surveys:
+            q = orig_points[p.id]
+            p = q.model_copy(update={"sigma_m": tuple(s * INFLATE for s in q.sigma_m)})
+        points.append(p)
+    obs = list(current.observations) + [
+        it["obs"].model_copy(update={"sigma_px": it["obs"].sigma_px * INFLATE}) for it in items if it["kind"] == "image_point"
+    ]
+    return current.model_copy(update={"points": points, "observations": obs})
+
+
+def reinstate(current: Job, original: Job, items: list[dict]) -> Job:
+    """``current`` with ``items`` back as they were measured."""
+    orig_points = {p.id: p for p in original.points}
+    surveys = {it["point"] for it in items if it["kind"] == "control_point"}
+    points = [orig_points[p.id] if p.id in surveys else p for p in current.points]
+    obs = list(current.observations) + [it["obs"] for it in items if it["kind"] == "image_point"]
+    return current.model_copy(update={"points": points, "observations": obs})

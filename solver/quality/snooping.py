@@ -74,6 +74,7 @@ class Snoop:
     variance: str
     alpha0: float
     beta: float
+    s0_apriori: float = 1.0
     lambda0: dict[int, float] = field(default_factory=dict)
 
     def lam0(self, dim: int) -> float:
@@ -109,7 +110,7 @@ def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
     dof = len(res) - lin.layout.n_params
     vtpv = float(res @ res)
     s0_apriori = problem.job.options.sigma0_apriori
-    out = Snoop(st, [], res, dof, vtpv, options.variance, options.alpha0, options.beta)
+    out = Snoop(st, [], res, dof, vtpv, options.variance, options.alpha0, options.beta, s0_apriori)
     robust_scale = None
     if robust:
         robust_scale = s0_apriori
@@ -262,3 +263,28 @@ def reliability_section(sn: Snoop) -> dict[str, Any]:
         "groups": items,
         "unchecked_control_points": unchecked,
     }
+
+
+def predicted_test(sn: Snoop, t: Test, inflate: float, s2: tuple[float, int] | None = None) -> dict[str, Any]:
+    """The test of an observation *outside* the adjustment, from its group ``t`` put back with
+    its sigmas times ``inflate`` (``solver.quality.removal.with_candidates``): the predicted
+    residual e = inflate v' (whitened by the true sigma) has the cofactor
+    Q_e = I + inflate^2 (I - Q'_gg) = I + J Q_xx J^T, and T = e^T Q_e^-1 e ~ chi2(d)
+    (Baarda: ``w = sqrt(T) / sigma0``); with ``s2 = (s^2, r)`` (sigma0 estimated: the
+    a-posteriori variance of the adjustment without the observation and its degrees of freedom)
+    T / (d s^2) ~ F(d, r).
+    In linear theory this equals the w-test of the observation in the adjustment with it."""
+    g = t.group
+    q = group_cofactor(sn.structure, g)
+    v = sn.residuals[sn.structure.blocks[g.block].rows[g.local]]
+    e = inflate * v
+    q_e = np.eye(g.dim) + inflate**2 * (np.eye(g.dim) - q)
+    t_stat = float(e @ np.linalg.solve(q_e, e))
+    d = g.dim
+    if s2 is None:
+        w, crit = math.sqrt(t_stat) / sn.s0_apriori, _critical("apriori", sn.alpha0, d, sn.dof)
+    else:
+        w = math.sqrt(t_stat / s2[0])
+        crit = float(math.sqrt(d * stats.f.ppf(1.0 - sn.alpha0, d, max(s2[1], 1))))
+    err = SIGN[g.kind] * e * (g.sigma / inflate)
+    return {"w": w, "critical": crit, "dof": d, "estimated_error": [float(x) for x in err], "passed": w <= crit}

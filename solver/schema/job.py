@@ -529,6 +529,11 @@ class BlunderDetection(_Strict):
         description="first adjust with this loss (scale: loss_scale) and remove every observation "
         "whose test fails on the robust residuals, then snoop by least squares",
     )
+    reinstate: Bool = Field(
+        default=True,
+        description="after the removals, test every removed observation against the final "
+        "solution (as an observation outside the adjustment) and put back those that pass",
+    )
     separability: _num(gt=0.5, le=1) = Field(
         default=0.99,
         description="tests correlated at least this much with the rejected one (for its estimated "
