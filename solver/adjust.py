@@ -313,7 +313,7 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
     removed observation against the final solution and puts back those that pass (re-adjusting
     and snooping again, until nothing changes). The report is that of the last adjustment, with
     the ``quality`` section and the removed image points flagged in ``observations``."""
-    from solver.quality.removal import INFLATE, remove, reinstate, testable, with_candidates
+    from solver.quality.removal import INFLATE, reinstate, remove, testable, with_candidates
     from solver.quality.snooping import entry, failing_clusters, predicted_test, reliability_section, snoop
 
     bd = job.options.blunder_detection

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from solver.adjust import adjust_once
-from solver.api import run
 from solver.quality.removal import INFLATE, with_candidates
 from solver.quality.snooping import predicted_test, snoop
 from solver.schema.job import BlunderDetection, load_job
