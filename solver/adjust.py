@@ -506,6 +506,13 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
         pr = lost["predicted_check_rmse_m"]
         change = f"; the predicted check-point RMSE (planimetric) grows from {pr['before']:.3g} m to {pr['after']:.3g} m" if pr else ""
         warnings.append(f"data snooping removed control point(s) {', '.join(lost['points'])} (survey or all image points){change}")
+    outliers = _check_point_outliers(report, bd.alpha0)
+    if outliers:
+        warnings.append(
+            f"check point(s) {', '.join(o['point'] for o in outliers)} fail the discrepancy test at alpha0 = {bd.alpha0:g}: "
+            "a blunder in their image points or known coordinates is likely (check points are not in the adjustment, "
+            "so data snooping cannot test them; quality.check_point_outliers)"
+        )
     report["warnings"] += warnings
     report.setdefault("quality", {})
     report["quality"].update(
@@ -526,10 +533,29 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
             "not_identifiable": not_identifiable,
             "reinstated": reinstated,
             "lost_control": lost,
+            "check_point_outliers": outliers,
             "reliability": reliability_section(sn),
         }
     )
     return report
+
+
+def _check_point_outliers(report: dict[str, Any], alpha0: float) -> list[dict[str, Any]]:
+    """Check points whose discrepancy test (d^T Sigma^-1 d, chi-square; docs/report-contract.md)
+    fails at the snooping level ``alpha0``, worst first: a check point is not in the adjustment,
+    so a blunder in its image points (or its known coordinates) shows only here."""
+    from scipy import stats
+
+    out = []
+    for it in report.get("checkpoints", {}).get("points", []):
+        t = it.get("discrepancy_test")
+        if not t or not t.get("dof"):
+            continue
+        critical = float(stats.chi2.ppf(1.0 - alpha0, t["dof"]))
+        if t["statistic"] > critical:
+            out.append({"point": it["id"], "images": it.get("images"), "statistic": t["statistic"], "dof": t["dof"],
+                        "critical": critical, "discrepancy_m": it["discrepancy_m"]})
+    return sorted(out, key=lambda o: -o["statistic"] / o["critical"])
 
 
 def _lost_control(job: Job, final: Job, first: dict[str, Any], last: dict[str, Any]) -> dict[str, Any] | None:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from solver.adjust import adjust_once
+from solver.api import run
 from solver.quality.removal import INFLATE, with_candidates
 from solver.quality.snooping import predicted_test, snoop
 from solver.schema.job import BlunderDetection, load_job
@@ -50,3 +51,22 @@ def test_test_outside_the_adjustment_equals_the_w_test_inside(block) -> None:
     assert out["critical"] == pytest.approx(inside.critical, rel=1e-12)
     np.testing.assert_allclose(out["estimated_error"], inside.error, atol=0.02 * 6.0)
     assert out["estimated_error"][1] == pytest.approx(6.0, abs=1.5)  # px; noise 0.5 px over r ~ 0.5
+
+
+def test_a_check_point_image_blunder_is_named(block) -> None:
+    """A check point's image point moved 20 px: the check point is not in the adjustment (no
+    snooping test sees it), its normalised discrepancy does; the report names it, and only it
+    (the clean run names none)."""
+    job, _truth = copy.deepcopy(block)
+    job["options"] = {"blunder_detection": {}}
+    clean = run(copy.deepcopy(job))
+    assert clean["quality"]["check_point_outliers"] == []
+    checks = {p["id"] for p in job["points"] if p["role"] == "check"}
+    k = next(i for i, o in enumerate(job["observations"]) if o["point"] in checks)
+    job["observations"][k]["column"] += 20.0
+    rep = run(job)
+    named = [o["point"] for o in rep["quality"]["check_point_outliers"]]
+    assert named == [job["observations"][k]["point"]]
+    assert any(job["observations"][k]["point"] in w and "discrepancy test" in w for w in rep["warnings"])
+    # nothing in the adjustment was touched: the blunder is outside it
+    assert rep["quality"]["rejected"] == [] and rep["quality"]["not_identifiable"] == []
