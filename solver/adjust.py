@@ -431,7 +431,11 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
         if not (bd.reinstate and bd.action == "remove"):
             break
         current = state["current"]
-        cands = [it for it in items if not it.get("reinstated") and key(it) not in once and testable(current, it)]
+        cands = [
+            it for it in items
+            # a fixed control point's coordinates have no sigma to put back with: not reinstated
+            if not it.get("reinstated") and not it["entry"].get("fixed") and key(it) not in once and testable(current, it)
+        ]
         if not cands:
             break
         try:
@@ -504,7 +508,10 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
     lost = _lost_control(job, state["current"], first_report, report)
     if lost is not None:
         pr = lost["predicted_check_rmse_m"]
-        change = f"; the predicted check-point RMSE (planimetric) grows from {pr['before']:.3g} m to {pr['after']:.3g} m" if pr else ""
+        change = (
+            f"; the predicted check-point RMSE (planimetric) is now {pr['after']:.3g} m (first adjustment, with every "
+            f"observation and its variance factor: {pr['before']:.3g} m)" if pr else ""
+        )
         warnings.append(f"data snooping removed control point(s) {', '.join(lost['points'])} (survey or all image points){change}")
     outliers = _check_point_outliers(report, bd.alpha0)
     if outliers:

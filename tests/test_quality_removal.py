@@ -70,3 +70,44 @@ def test_a_check_point_image_blunder_is_named(block) -> None:
     assert any(job["observations"][k]["point"] in w and "discrepancy test" in w for w in rep["warnings"])
     # nothing in the adjustment was touched: the blunder is outside it
     assert rep["quality"]["rejected"] == [] and rep["quality"]["not_identifiable"] == []
+
+
+def test_a_moved_fixed_control_point_is_tested_through_its_rays(block) -> None:
+    """``control: fixed``: a control point moved 20 m north has no survey prior to test; the
+    bias of its known coordinates maps to its rays through the point Jacobian, and its 3-D test
+    (kind control_point, fixed: true) finds it, estimates the move, and its removal (the point
+    becomes a tie point) leaves nothing failing. The clean run rejects nothing."""
+    job, _truth = copy.deepcopy(block)
+    job["options"] = {"control": "fixed", "blunder_detection": {"action": "report"}}
+    clean = run(copy.deepcopy(job))
+    assert clean["quality"]["rejected"] == [] and clean["quality"]["not_identifiable"] == []
+    gcp = [p for p in job["points"] if p["role"] == "gcp"][3]
+    assert sum(o["point"] == gcp["id"] for o in job["observations"]) == 3
+    gcp["coordinates"][1] += 20.0 / 110540.0
+    job["options"]["blunder_detection"] = {}
+    rep = run(job)
+    q = rep["quality"]
+    assert q["not_identifiable"] == []
+    (r,) = q["rejected"]
+    assert (r["kind"], r["point"], r["fixed"], r["removed"]) == ("control_point", gcp["id"], True, True)
+    # metres east, north, up of the known coordinates; 1.5 m: the rays' noise (0.5 px of a
+    # ~2.5-m GSD over three rays) and the orientation's share
+    np.testing.assert_allclose(r["estimated_error"], [0.0, 20.0, 0.0], atol=1.5)
+    assert rep["adjustment"]["chi2"]["passed"]
+    assert q["lost_control"]["points"] == [gcp["id"]]
+    assert any(gcp["id"] in w and "removed control point" in w for w in rep["warnings"])
+
+
+def test_a_fixed_control_point_in_one_image_is_not_identifiable() -> None:
+    """One image: a fixed control point's single ray cannot tell a moved point from a wrong image
+    point (the test spaces coincide): one non-identifiable group of the two, removed."""
+    from solver.synthetic import single_image_job
+
+    job, _ = single_image_job(model="K2", n_gcp=14, n_check=4, seed=5, gcp_sigma_m=0.5)
+    job["options"] = {"control": "fixed", "blunder_detection": {}}
+    gcp = [p for p in job["points"] if p["role"] == "gcp"][2]
+    gcp["coordinates"][0] += 30.0 / (111320.0 * np.cos(np.radians(gcp["coordinates"][1])))
+    q = run(job)["quality"]
+    groups = [{(m["kind"], m["point"]) for m in g["members"]} for g in q["not_identifiable"]]
+    assert {("control_point", gcp["id"]), ("image_point", gcp["id"])} in groups
+    assert q["rejected"] == []

@@ -83,6 +83,55 @@ class Snoop:
         return self.lambda0[dim]
 
 
+@dataclass
+class FixedControlGroup(Group):
+    """A fixed control point (``control: fixed``) seen in its rays: the alternative "its known
+    coordinates are wrong by delta" biases all its rays by ``C delta`` (C: the whitened ray
+    Jacobian wrt the point, per LGS metre). The test lives in the column space of C, with the
+    orthonormal basis ``basis`` (rows x k, k = rank C: 3, or 2 for a point seen in one image),
+    and ``to_metres`` maps an estimate in that basis to metres (V S^-1)."""
+
+    basis: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    to_metres: np.ndarray = field(default_factory=lambda: np.zeros((3, 0)))
+
+
+def _basis(g: Group) -> np.ndarray | None:
+    return g.basis if isinstance(g, FixedControlGroup) else None
+
+
+def _fixed_control_groups(problem: AdjustmentState, lin, st: Structure) -> None:
+    """Add a test group for each fixed control point (its rays' block has no point columns)."""
+    from solver.engine.packed_tables import current_tables, records
+    from solver.kernels import all_observation_blocks
+
+    blocks = [
+        (b, blk) for b, blk in enumerate(st.blocks)
+        if blk.jp is None and blk.point >= 0 and problem.points[blk.point].role == "gcp" and not problem.points[blk.point].estimated
+    ]
+    if not blocks:
+        return
+    lay = lin.layout
+    img_tab, cam_tab, img_p, cam_p = current_tables(problem)
+    pts = np.ascontiguousarray(np.array([p.xyz for p in problem.points], dtype=float).reshape(-1, 3))
+    every = np.ones(len(problem.points), dtype=np.bool_)
+    jpt = all_observation_blocks(
+        records(problem, lin.obs_sel), img_tab, cam_tab, img_p, cam_p, pts, np.ascontiguousarray(lin.obs_pt), every,
+        lay.img_col, lay.cam_col, lay.pass_col, lin.jf.shape[2],
+    )[3]
+    for b, blk in blocks:
+        idx = blk.rows[0::2] // 2  # the block's observations (rows 2i, 2i + 1)
+        c = jpt[idx].reshape(-1, 3)
+        u, sv, vt = np.linalg.svd(c, full_matrices=False)
+        keep = sv > 1e-9 * sv.max()
+        point = problem.points[blk.point]
+        st.groups.append(
+            FixedControlGroup(
+                "control_point", {"point": point.id, "fixed": True}, b, np.arange(len(blk.rows)), np.ones(3), "m",
+                ["e", "n", "u"], ("control", blk.point), basis=u[:, keep], to_metres=vt[keep].T / sv[keep],
+            )
+        )
+
+
 def _pinv(q: np.ndarray) -> tuple[np.ndarray, int]:
     e, v = np.linalg.eigh(q)
     keep = e > EIGEN_TOL
@@ -106,6 +155,7 @@ def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
     parts = schur(lin, problem)
     s_inv = positive_definite_inverse(parts.s)  # LinAlgError: no tests without a covariance
     st = structure(problem, lin, parts, s_inv)
+    _fixed_control_groups(problem, lin, st)
     res = lin.residuals
     dof = len(res) - lin.layout.n_params
     vtpv = float(res @ res)
@@ -118,6 +168,7 @@ def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
             std = [
                 res[st.blocks[g.block].rows[g.local]] / np.sqrt(np.maximum(np.diag(group_cofactor(st, g)), 1e-12))
                 for g in st.groups
+                if not isinstance(g, FixedControlGroup)
             ]
             std = np.concatenate(std) if std else np.zeros(0)
             if len(std):
@@ -125,7 +176,10 @@ def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
     for g in st.groups:
         blk = st.blocks[g.block]
         v = res[blk.rows[g.local]]
-        q_inv, d = _pinv(group_cofactor(st, g))
+        basis = _basis(g)
+        if basis is not None:
+            v = basis.T @ v
+        q_inv, d = _pinv(_cofactor(st, g))
         err_w = SIGN[g.kind] * (q_inv @ v)
         t_stat = float(v @ q_inv @ v)
         w = crit = None
@@ -136,26 +190,46 @@ def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
                 w, crit = math.sqrt(t_stat) / s0_apriori, _critical("apriori", options.alpha0, d, dof)
             elif dof > 0 and vtpv > 0:
                 w, crit = math.sqrt(t_stat / (vtpv / dof)), _critical("estimated", options.alpha0, d, dof)
-        out.tests.append(Test(g, t_stat, d, w, crit, err_w, [float(x) for x in err_w * g.sigma]))
+        if basis is not None:  # the error of the known coordinates, LGS metres
+            err_w = q_inv @ v
+            error = [float(x) for x in g.to_metres @ err_w]
+        else:
+            error = [float(x) for x in err_w * g.sigma]
+        out.tests.append(Test(g, t_stat, d, w, crit, err_w, error))
     return out
+
+
+def _cofactor(st: Structure, g: Group) -> np.ndarray:
+    """Q_gg in the group's test space (a fixed control point: its basis of C)."""
+    q = group_cofactor(st, g)
+    b = _basis(g)
+    return q if b is None else b.T @ q @ b
 
 
 def cross_cofactor(st: Structure, g: Group, h: Group) -> np.ndarray:
     """Q_gh between two groups: the block's own entries, or across blocks (rows sharing only
-    image, camera or pass parameters) -U_g S^-1 U_h^T."""
+    image, camera or pass parameters) -U_g S^-1 U_h^T (in the test spaces of g and h)."""
     if g.block == h.block:
-        return st.blocks[g.block].q[np.ix_(g.local, h.local)]
-    bg, bh = st.blocks[g.block], st.blocks[h.block]
-    if not len(bg.cols) or not len(bh.cols):
-        return np.zeros((g.dim, h.dim))
-    return -(bg.u[g.local] @ st.s_inv[np.ix_(bg.cols, bh.cols)] @ bh.u[h.local].T)
+        q = st.blocks[g.block].q[np.ix_(g.local, h.local)]
+    else:
+        bg, bh = st.blocks[g.block], st.blocks[h.block]
+        if not len(bg.cols) or not len(bh.cols):
+            q = np.zeros((g.dim, h.dim))
+        else:
+            q = -(bg.u[g.local] @ st.s_inv[np.ix_(bg.cols, bh.cols)] @ bh.u[h.local].T)
+    bg_, bh_ = _basis(g), _basis(h)
+    if bg_ is not None:
+        q = bg_.T @ q
+    if bh_ is not None:
+        q = q @ bh_
+    return q
 
 
 def _correlation(st: Structure, g: Group, h: Group, direction: np.ndarray) -> float:
     """The correlation of the 1-D test of g along ``direction`` (whitened) with h's test."""
     q_gh = cross_cofactor(st, g, h)
-    q_hh_inv, d = _pinv(group_cofactor(st, h))
-    den = float(direction @ group_cofactor(st, g) @ direction)
+    q_hh_inv, d = _pinv(_cofactor(st, h))
+    den = float(direction @ _cofactor(st, g) @ direction)
     if d == 0 or den <= 0:
         return 0.0
     x = q_gh.T @ direction
@@ -227,6 +301,8 @@ def reliability_section(sn: Snoop) -> dict[str, Any]:
     d_img = np.sqrt(np.clip(np.diag(st.s_inv), 1e-300, None))
     for t in sn.tests:
         g = t.group
+        if isinstance(g, FixedControlGroup):
+            continue  # its rows are its image points' (counted there); its test is in rejected
         r = redundancy(st, g)
         total += float(r.sum())
         lam0 = sn.lam0(max(t.dof, 1))
