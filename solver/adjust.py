@@ -357,9 +357,13 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
             if m.group.removal is None:
                 continue
             obs = current.observations[m.group.removal[1]] if m.group.kind == "image_point" else None
-            items.append({"kind": m.group.kind, "obs": obs, "point": e["point"], "entry": e, "group": group,
+            items.append({"kind": m.group.kind, "obs": obs, "point": e.get("point"), "entry": e, "group": group,
                           "flag": flag_of(report, obs) if obs is not None else None})
         for c in collateral:
+            if c.get("kind") == "line_point":  # a line image left with fewer than two points
+                rejected.append({**c, "w": None, "critical": None, "dof": 0, "estimated_error": None, "units": "px",
+                                 "components": ["distance"], "removed": True, "collateral": True})
+                continue
             e = {"kind": "image_point", **c, "w": None, "critical": None, "dof": 0, "estimated_error": None,
                  "units": "px", "components": ["line", "column"], "removed": True, "collateral": True}
             rejected.append(e)
@@ -434,7 +438,8 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
         cands = [
             it for it in items
             # a fixed control point's coordinates have no sigma to put back with: not reinstated
-            if not it.get("reinstated") and not it["entry"].get("fixed") and key(it) not in once and testable(current, it)
+            if it["kind"] in ("image_point", "control_point") and not it.get("reinstated") and not it["entry"].get("fixed")
+            and key(it) not in once and testable(current, it)
         ]
         if not cands:
             break

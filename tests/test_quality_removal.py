@@ -111,3 +111,50 @@ def test_a_fixed_control_point_in_one_image_is_not_identifiable() -> None:
     groups = [{(m["kind"], m["point"]) for m in g["members"]} for g in q["not_identifiable"]]
     assert {("control_point", gcp["id"]), ("image_point", gcp["id"])} in groups
     assert q["rejected"] == []
+
+
+def test_a_line_image_point_blunder_is_found_and_removed() -> None:
+    """Rigorous lines: one measured point of a line image moved 10 px in column is rejected and
+    removed (its test fails, its estimated error is the move's component across the line), the
+    clean run rejects nothing."""
+    from solver.synthetic_lines import lines_job
+
+    job, _ = lines_job(seed=2)
+    job["options"] = {"blunder_detection": {}}
+    clean = run(copy.deepcopy(job))
+    assert clean["quality"]["rejected"] == [] and clean["quality"]["not_identifiable"] == []
+    gl = job["lines"][3]
+    lo = gl["observations"][0]
+    lo["points"][4]["column"] += 10.0
+    rep = run(job)
+    (r,) = rep["quality"]["rejected"]
+    assert (r["kind"], r["line"], r["image"], r["point"], r["removed"]) == ("line_point", gl["id"], lo["image"], 4, True)
+    assert r["w"] > r["critical"]
+    # the perpendicular distance sees the column move times |sin| of the line's angle to the
+    # columns axis: between 1 and 10 px whatever the line's direction (>= 6 deg here)
+    assert 1.0 < abs(r["estimated_error"][0]) <= 10.5
+    assert rep["adjustment"]["chi2"]["passed"]
+    assert rep["quality"]["not_identifiable"] == []
+
+
+def test_an_attitude_sample_blunder_is_found_and_removed() -> None:
+    """Measured attitude (sigma 0.002 deg): one sample's pitch moved 0.02 deg (10 sigma) is
+    rejected and removed with its estimated error; the clean run rejects nothing."""
+    import json
+    from pathlib import Path
+
+    job = json.loads((Path(__file__).resolve().parents[1] / "examples" / "prism-triplet-direct.json").read_text())
+    job["options"]["blunder_detection"] = {}
+    clean = run(copy.deepcopy(job))
+    assert clean["quality"]["rejected"] == [] and clean["quality"]["not_identifiable"] == []
+    n_before = sum(len(im["attitude"]) for im in job["images"])
+    sample = job["images"][1]["attitude"][2]
+    sample["pitch_deg"] += 0.02
+    rep = run(job)
+    (r,) = rep["quality"]["rejected"]
+    assert (r["kind"], r["time_s"], r["removed"]) == ("attitude_sample", sample["time_s"], True)
+    # deg; 0.006: three sigmas of the sample (0.002 deg) over its redundancy (~0.9)
+    np.testing.assert_allclose(r["estimated_error"], [0.0, 0.02, 0.0], atol=0.006)
+    # the adjustment after removal has one sample fewer (samples shared by images count once)
+    assert sum(a["n_samples"] for a in rep["attitude"]) == sum(a["n_samples"] for a in clean["attitude"]) - 1
+    assert n_before > 0

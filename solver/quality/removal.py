@@ -10,11 +10,62 @@ from __future__ import annotations
 from solver.schema.job import Job
 
 
+def _without_line_points(job: Job, removals: list[tuple]) -> tuple[Job, list[dict]]:
+    """``job`` without the line image points ``("line_point", line id, image id, k)`` (k: the
+    index in that image's ``points``; None: the fitted image line as a whole); a line image left
+    with fewer than two points goes as a whole (collateral)."""
+    drop: dict[tuple[str, str], set] = {}
+    for r in removals:
+        if r[0] == "line_point":
+            drop.setdefault((r[1], r[2]), set()).add(r[3])
+    if not drop:
+        return job, []
+    lines, collateral = [], []
+    for gl in job.lines:
+        obs = []
+        for lo in gl.observations:
+            gone = drop.get((gl.id, lo.image), set())
+            if None in gone:
+                continue
+            if gone:
+                pts = [q for k, q in enumerate(lo.points) if k not in gone]
+                if len(pts) < 2:
+                    collateral.append({"kind": "line_point", "line": gl.id, "image": lo.image, "point": None})
+                    continue
+                lo = lo.model_copy(update={"points": pts})
+            obs.append(lo)
+        lines.append(gl.model_copy(update={"observations": obs}))
+    return job.model_copy(update={"lines": lines}), collateral
+
+
+def _without_attitude_samples(job: Job, removals: list[tuple]) -> Job:
+    """``job`` without the attitude samples ``("attitude_sample", image id, time_s)``: the sample
+    of that image at that epoch, and the same sample (epoch and angles) in the images sharing it."""
+    gone = [(r[1], r[2]) for r in removals if r[0] == "attitude_sample"]
+    if not gone:
+        return job
+    images = {im.id: im for im in job.images}
+    drop = set()
+    for image, t in gone:
+        for s in images[image].attitude:
+            if abs(s.time_s - t) < 1e-9:
+                drop.add((s.time_s, s.roll_deg, s.pitch_deg, s.yaw_deg))
+    new = [
+        im.model_copy(update={"attitude": [s for s in im.attitude if (s.time_s, s.roll_deg, s.pitch_deg, s.yaw_deg) not in drop]})
+        for im in job.images
+    ]
+    return job.model_copy(update={"images": new})
+
+
 def remove(job: Job, removals: list[tuple]) -> tuple[Job, list[dict]]:
-    """``job`` without ``removals`` (each ``("observation", index in job.observations)`` or
-    ``("control", index in job.points)``); also the image points removed as collateral."""
-    drop_obs = {i for kind, i in removals if kind == "observation"}
-    demote = {i for kind, i in removals if kind == "control"}
+    """``job`` without ``removals`` (each ``("observation", index in job.observations)``,
+    ``("control", index in job.points)``, ``("line_point", line, image, k)`` or
+    ``("attitude_sample", image, time_s)``); also the image points (and line images) removed
+    as collateral."""
+    job, line_collateral = _without_line_points(job, removals)
+    job = _without_attitude_samples(job, removals)
+    drop_obs = {r[1] for r in removals if r[0] == "observation"}
+    demote = {r[1] for r in removals if r[0] == "control"}
     points = []
     for k, p in enumerate(job.points):
         if k in demote:
@@ -29,7 +80,7 @@ def remove(job: Job, removals: list[tuple]) -> tuple[Job, list[dict]]:
     kept = [(k, o) for k, o in kept if not (roles.get(o.point) == "tie" and count[o.point] < 2)]
     used = {o.point for _k, o in kept}
     points = [p for p in points if p.role != "tie" or p.id in used]
-    return job.model_copy(update={"points": points, "observations": [o for _k, o in kept]}), collateral
+    return job.model_copy(update={"points": points, "observations": [o for _k, o in kept]}), collateral + line_collateral
 
 
 # candidates are put back with their sigmas times this: their weight (1e-6) leaves the solution

@@ -132,6 +132,17 @@ def _fixed_control_groups(problem: AdjustmentState, lin, st: Structure) -> None:
         )
 
 
+def _term_removals(problem: AdjustmentState, st: Structure) -> None:
+    """How to remove a line image point (rigorous: one measured point; fitted: the image line)
+    and an attitude sample from the job (``solver.quality.removal.remove``); ephemeris samples
+    stay not removable (the line-0 state prior of ``options.ephemeris`` has no per-image switch)."""
+    for g in st.groups:
+        if g.kind == "line_point":
+            g.removal = ("line_point", g.label["line"], g.label["image"], g.label.get("point"))
+        elif g.kind == "attitude_sample":
+            g.removal = ("attitude_sample", g.label["image"], g.label["time_s"])
+
+
 def _pinv(q: np.ndarray) -> tuple[np.ndarray, int]:
     e, v = np.linalg.eigh(q)
     keep = e > EIGEN_TOL
@@ -156,6 +167,7 @@ def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
     s_inv = positive_definite_inverse(parts.s)  # LinAlgError: no tests without a covariance
     st = structure(problem, lin, parts, s_inv)
     _fixed_control_groups(problem, lin, st)
+    _term_removals(problem, st)
     res = lin.residuals
     dof = len(res) - lin.layout.n_params
     vtpv = float(res @ res)
