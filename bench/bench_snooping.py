@@ -90,7 +90,8 @@ def blunders(args) -> None:
         dt = time.perf_counter() - t0
         q = rep["quality"]
         rej = {(r["kind"], r.get("image"), r["point"]) for r in q["rejected"] if r["removed"]}
-        groups = [{(m["kind"], m.get("image"), m["point"]) for m in g["members"]} for g in q["not_identifiable"]]
+        groups = [{(m["kind"], m.get("image"), m["point"]) for m in g["members"] if m["removed"]} for g in q["not_identifiable"]]
+        groups = [g for g in groups if g]  # members put back (reinstated) are not removed
         found = [b for b in injected if b in rej]
         grouped = [b for b in injected if b not in rej and any(b in g for g in groups)]
         missed = [b for b in injected if b not in rej and b not in grouped]

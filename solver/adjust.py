@@ -313,7 +313,7 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
     removed observation against the final solution and puts back those that pass (re-adjusting
     and snooping again, until nothing changes). The report is that of the last adjustment, with
     the ``quality`` section and the removed image points flagged in ``observations``."""
-    from solver.quality.removal import INFLATE, reinstate, remove, testable, with_candidates
+    from solver.quality.removal import INFLATE, reinstate, remove, testable, whole_points, with_candidates
     from solver.quality.snooping import entry, failing_clusters, predicted_test, reliability_section, snoop
 
     bd = job.options.blunder_detection
@@ -435,12 +435,14 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
         if not (bd.reinstate and bd.action == "remove"):
             break
         current = state["current"]
-        cands = [
+        pool = [
             it for it in items
             # a fixed control point's coordinates have no sigma to put back with: not reinstated
             if it["kind"] in ("image_point", "control_point") and not it.get("reinstated") and not it["entry"].get("fixed")
-            and key(it) not in once and testable(current, it)
+            and key(it) not in once
         ]
+        whole = whole_points(current, pool)
+        cands = [it for it in pool if it["point"] in whole or testable(current, it)]
         if not cands:
             break
         try:
@@ -467,7 +469,7 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
                 t = by_key.get(("control_point", it["point"]))
             if t is None:
                 continue
-            test = predicted_test(sn_aug, t, INFLATE, s2)
+            test = predicted_test(sn_aug, t, INFLATE, s2, whole=it["point"] in whole)
             it["predicted"] = test
             if test["passed"]:
                 back.append(it)

@@ -158,3 +158,36 @@ def test_an_attitude_sample_blunder_is_found_and_removed() -> None:
     # the adjustment after removal has one sample fewer (samples shared by images count once)
     assert sum(a["n_samples"] for a in rep["attitude"]) == sum(a["n_samples"] for a in clean["attitude"]) - 1
     assert n_before > 0
+
+
+def test_a_point_removed_whole_is_tested_against_the_final_orientation() -> None:
+    """One image: a control point's ray and survey removed together (a non-identifiable group)
+    leave nothing of the point; put back together (inflated), the test of the ray against the
+    final orientation and the survey equals, in linear theory, its w-test inside the adjustment
+    with both (the point estimated from its own ray and survey, the orientation from the rest)."""
+    from solver.quality.removal import remove, whole_points
+    from solver.synthetic import single_image_job
+
+    job, _ = single_image_job(model="K2", n_gcp=14, n_check=0, seed=5, gcp_sigma_m=0.5)
+    gcp = [p for p in job["points"] if p["role"] == "gcp"][4]
+    k = next(i for i, o in enumerate(job["observations"]) if o["point"] == gcp["id"])
+    job["observations"][k]["column"] += 3.0  # w ~ 6 inside
+    full = load_job(copy.deepcopy(job))
+    problem, _ = adjust_once(full)
+    inside = next(t for t in snoop(problem, DEFAULTS).tests if t.group.removal == ("observation", k))
+    p_idx = next(i for i, p in enumerate(full.points) if p.id == gcp["id"])
+    without, _collateral = remove(full, [("observation", k), ("control", p_idx)])
+    assert gcp["id"] not in {p.id for p in without.points}
+    items = [
+        {"kind": "image_point", "obs": full.observations[k], "point": gcp["id"]},
+        {"kind": "control_point", "obs": None, "point": gcp["id"]},
+    ]
+    assert whole_points(without, items) == {gcp["id"]}
+    aug, _ = adjust_once(with_candidates(without, full, items))
+    sn = snoop(aug, DEFAULTS)
+    t = next(t for t in sn.tests if t.group.kind == "image_point" and t.group.label["point"] == gcp["id"])
+    out = predicted_test(sn, t, INFLATE, whole=True)
+    # 2 %: nonlinearity over a 3-px error; the formula for a point determined by the rest
+    # (whole=False) gives w = 0.02 here: the inflated survey leaves the ray nothing to test
+    assert out["dof"] == inside.dof
+    assert out["w"] == pytest.approx(inside.w, rel=0.02)

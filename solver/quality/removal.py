@@ -110,17 +110,38 @@ def testable(current: Job, item: dict) -> bool:
     return p.role == "tie" and rays >= 2
 
 
+def whole_points(current: Job, items: list[dict]) -> set[str]:
+    """Points that ``current`` no longer has and whose removed observations among ``items``
+    determine them on their own (two rays, or a survey and a ray): those observations are
+    tested together, against the final orientation (``snooping.predicted_test``, ``whole``)."""
+    present = {p.id for p in current.points}
+    rays: dict[str, int] = {}
+    survey: set[str] = set()
+    for it in items:
+        if it["point"] in present:
+            continue
+        if it["kind"] == "image_point":
+            rays[it["point"]] = rays.get(it["point"], 0) + 1
+        else:
+            survey.add(it["point"])
+    return {p for p, n in rays.items() if n >= 2 or (n >= 1 and p in survey)}
+
+
 def with_candidates(current: Job, original: Job, items: list[dict]) -> Job:
     """``current`` with the removed observations ``items`` put back with inflated sigmas
     (``INFLATE``): image points appended to ``observations`` (in the order of ``items``), a
     control point's survey restored from ``original``."""
     orig_points = {p.id: p for p in original.points}
     surveys = {it["point"] for it in items if it["kind"] == "control_point"}
+    present = {p.id for p in current.points}
+    gone = [orig_points[pid] for pid in dict.fromkeys(it["point"] for it in items) if pid not in present]
     points = []
-    for p in current.points:
+    for p in list(current.points) + gone:
         if p.id in surveys:
             q = orig_points[p.id]
             p = q.model_copy(update={"sigma_m": tuple(s * INFLATE for s in q.sigma_m)})
+        elif p.id not in present and p.role == "gcp":  # its survey is not a candidate: a tie point
+            p = p.model_copy(update={"role": "tie", "coordinates": None, "sigma_m": None, "crs": None})
         points.append(p)
     obs = list(current.observations) + [
         it["obs"].model_copy(update={"sigma_px": it["obs"].sigma_px * INFLATE}) for it in items if it["kind"] == "image_point"
@@ -132,6 +153,13 @@ def reinstate(current: Job, original: Job, items: list[dict]) -> Job:
     """``current`` with ``items`` back as they were measured."""
     orig_points = {p.id: p for p in original.points}
     surveys = {it["point"] for it in items if it["kind"] == "control_point"}
+    present = {p.id for p in current.points}
     points = [orig_points[p.id] if p.id in surveys else p for p in current.points]
+    for pid in dict.fromkeys(it["point"] for it in items):
+        if pid not in present:
+            p = orig_points[pid]
+            if p.role == "gcp" and pid not in surveys:
+                p = p.model_copy(update={"role": "tie", "coordinates": None, "sigma_m": None, "crs": None})
+            points.append(p)
     obs = list(current.observations) + [it["obs"] for it in items if it["kind"] == "image_point"]
     return current.model_copy(update={"points": points, "observations": obs})

@@ -353,7 +353,7 @@ def reliability_section(sn: Snoop) -> dict[str, Any]:
     }
 
 
-def predicted_test(sn: Snoop, t: Test, inflate: float, s2: tuple[float, int] | None = None) -> dict[str, Any]:
+def predicted_test(sn: Snoop, t: Test, inflate: float, s2: tuple[float, int] | None = None, whole: bool = False) -> dict[str, Any]:
     """The test of an observation *outside* the adjustment, from its group ``t`` put back with
     its sigmas times ``inflate`` (``solver.quality.removal.with_candidates``): the predicted
     residual e = inflate v' (whitened by the true sigma) has the cofactor
@@ -361,14 +361,31 @@ def predicted_test(sn: Snoop, t: Test, inflate: float, s2: tuple[float, int] | N
     (Baarda: ``w = sqrt(T) / sigma0``); with ``s2 = (s^2, r)`` (sigma0 estimated: the
     a-posteriori variance of the adjustment without the observation and its degrees of freedom)
     T / (d s^2) ~ F(d, r).
-    In linear theory this equals the w-test of the observation in the adjustment with it."""
+    In linear theory this equals the w-test of the observation in the adjustment with it.
+
+    ``whole``: every row of g's block is such a candidate (a point that only removed
+    observations determine): the point is estimated from them alone (its part of the hat
+    matrix, ``P = J_p C^-1 J_p^T``, does not depend on the common inflation) and the
+    orientation comes from the rest: ``Q_e = I - P + inflate^2 U S^-1 U^T`` (g's rows), of rank
+    d <= its rows (the test of g against the final orientation and the point's other removed
+    observations)."""
     g = t.group
-    q = group_cofactor(sn.structure, g)
-    v = sn.residuals[sn.structure.blocks[g.block].rows[g.local]]
+    blk = sn.structure.blocks[g.block]
+    v = sn.residuals[blk.rows[g.local]]
     e = inflate * v
-    q_e = np.eye(g.dim) + inflate**2 * (np.eye(g.dim) - q)
-    t_stat = float(e @ np.linalg.solve(q_e, e))
-    d = g.dim
+    if whole and blk.jp is not None:
+        p_pt = blk.jp @ blk.c_inv @ blk.jp.T
+        h_img = blk.u @ sn.structure.s_inv[np.ix_(blk.cols, blk.cols)] @ blk.u.T if len(blk.cols) else np.zeros_like(p_pt)
+        q_full = np.eye(len(blk.rows)) - p_pt + inflate**2 * h_img
+        q_inv, d = _pinv(q_full[np.ix_(g.local, g.local)])
+        if d == 0:
+            return {"w": None, "critical": None, "dof": 0, "estimated_error": None, "passed": False}
+        t_stat = float(e @ q_inv @ e)
+    else:
+        q = group_cofactor(sn.structure, g)
+        q_e = np.eye(g.dim) + inflate**2 * (np.eye(g.dim) - q)
+        t_stat = float(e @ np.linalg.solve(q_e, e))
+        d = g.dim
     if s2 is None:
         w, crit = math.sqrt(t_stat) / sn.s0_apriori, _critical("apriori", sn.alpha0, d, sn.dof)
     else:
