@@ -145,17 +145,20 @@ def clean(args) -> None:
     n_tests = n_fail = runs_with = 0
     for k in range(args.runs):
         job, _truth = block_job(model="P2", n_tie=30, n_gcp=8, n_check=6, seed=args.geometry_seed, gcp_sigma_m=0.5, noise_seed=10_000 + k)
-        job["options"] = {"blunder_detection": {"action": "report", "alpha0": args.alpha0}}
+        job["options"] = {"blunder_detection": {"action": args.action, "alpha0": args.alpha0, "robust_start": args.robust_start}}
         rep = run(job)
         q = rep["quality"]
         tests = len(q["reliability"]["groups"])
-        fails = len(q["rejected"]) + sum(len(g["members"]) for g in q["not_identifiable"])
+        # report: failed tests; remove: observations removed in the end (after any reinstatement)
+        fails = sum(r["removed"] or args.action == "report" for r in q["rejected"])
+        fails += sum(m["removed"] or args.action == "report" for g in q["not_identifiable"] for m in g["members"])
         n_tests += tests
         n_fail += fails
         runs_with += fails > 0
         if (k + 1) % 25 == 0 or k + 1 == args.runs:
             print(json.dumps({"runs": k + 1, "tests": n_tests, "failed_tests": n_fail, "rate_per_test": n_fail / n_tests,
-                              "alpha0": args.alpha0, "runs_with_a_rejection": runs_with}), flush=True)
+                              "alpha0": args.alpha0, "runs_with_a_rejection": runs_with, "action": args.action,
+                              "robust_start": args.robust_start}), flush=True)
 
 
 def main() -> None:
@@ -173,6 +176,8 @@ def main() -> None:
     c.add_argument("--runs", type=int, default=200)
     c.add_argument("--alpha0", type=float, default=0.001)
     c.add_argument("--geometry-seed", type=int, default=3)
+    c.add_argument("--action", default="report", choices=["report", "remove"])
+    c.add_argument("--robust-start", default="none", choices=["none", "huber", "cauchy"])
     args = ap.parse_args()
     {"blunders": blunders, "clean": clean}[args.cmd](args)
 
