@@ -526,8 +526,8 @@ class BlunderDetection(_Strict):
     )
     robust_start: Literal["none", "huber", "cauchy"] = Field(
         default="none",
-        description="first adjust with this loss (scale: loss_scale) and remove every observation "
-        "whose test fails on the robust residuals, then snoop by least squares",
+        description="first adjust with this loss (scale: loss_scale) and remove the worst failed "
+        "test of each point on the robust residuals, then snoop by least squares",
     )
     reinstate: Bool = Field(
         default=True,
