@@ -89,7 +89,8 @@ def blunders(args) -> None:
         rep = run(bad)
         dt = time.perf_counter() - t0
         q = rep["quality"]
-        rej = {(r["kind"], r.get("image"), r["point"]) for r in q["rejected"] if r["removed"]}
+        rej = {(r["kind"], r.get("image"), r["point"]) for r in q["rejected"] if r["removed"] and not r.get("collateral")}
+        collateral = [(r["kind"], r.get("image"), r["point"]) for r in q["rejected"] if r.get("collateral")]
         groups = [{(m["kind"], m.get("image"), m["point"]) for m in g["members"] if m["removed"]} for g in q["not_identifiable"]]
         groups = [g for g in groups if g]  # members put back (reinstated) are not removed
         found = [b for b in injected if b in rej]
@@ -118,6 +119,7 @@ def blunders(args) -> None:
                     "missed": missed,
                     "false_rejections": sorted(map(str, false)),
                     "false_groups": len(false_groups),
+                    "collateral": sorted(map(str, collateral)),  # last rays of tie points removed with others
                     "false_also_failed_clean": sum(r in clean_failed for r in false),
                     "clean_failed_tests": len(clean_failed),
                     "sigma0": rep["adjustment"]["sigma0_aposteriori"],

@@ -252,8 +252,9 @@ def inseparable(sn: Snoop, t: Test, threshold: float) -> list[Test]:
     """The tests that cannot be told apart from t for its estimated error (t first): all the
     tests of t's block, and the failed tests of other blocks (a test correlated with t to
     ``threshold`` >= 0.5 fails along with it when t's error is large enough to be rejected);
-    also a failed test u of the same dimension correlated with t (rho >= 0.5) whose value is not
-    significantly below t's: ``w_t - w_u < z_{1-alpha0} sqrt(2 (1 - rho))``."""
+    also a failed test u of t's block (another ray of its point) of the same dimension,
+    correlated with t (rho >= 0.5), whose value is not significantly below t's:
+    ``w_t - w_u < z_{1-alpha0} sqrt(2 (1 - rho))``."""
     members = [t]
     nrm = float(np.linalg.norm(t.error_whitened))
     if nrm == 0:
@@ -266,7 +267,13 @@ def inseparable(sn: Snoop, t: Test, threshold: float) -> list[Test]:
         rho = _correlation(sn.structure, t.group, u.group, direction)
         if rho >= threshold:
             members.append(u)
-        elif u.failed and u.dof == t.dof and rho >= 0.5 and t.w - u.w < z * math.sqrt(2.0 * (1.0 - rho)):
+        elif (
+            u.group.block == t.group.block
+            and u.failed
+            and u.dof == t.dof
+            and rho >= 0.5
+            and t.w - u.w < z * math.sqrt(2.0 * (1.0 - rho))
+        ):
             # a posteriori: the data do not prefer t over u at alpha0 (the difference of two
             # unit-variance tests correlated rho has the variance 2 (1 - rho)); e.g. the three
             # rays of a tie point with a mostly along-track error, w 6.91 / 6.87 / 6.43, rho ~0.93
