@@ -191,3 +191,48 @@ def test_a_point_removed_whole_is_tested_against_the_final_orientation() -> None
     # (whole=False) gives w = 0.02 here: the inflated survey leaves the ray nothing to test
     assert out["dof"] == inside.dof
     assert out["w"] == pytest.approx(inside.w, rel=0.02)
+
+
+def test_reinstatement_puts_back_a_clean_group_removed_along_the_way() -> None:
+    """prism-single (the independent simulator), seed 4, four image blunders and a control
+    point moved: one at a time, snooping also removes a clean {image point, survey} group on the
+    way (its test failed while the blunders were in); tested against the final solution it
+    passes and is put back. Every reinstated observation passed its predicted test, none of them
+    is a blunder, and nothing removed in the end is clean."""
+    from solver.simulate import presets
+    from solver.simulate.scene import Settings
+
+    job = presets.prism_single(Settings(preset="prism-single", seed=4, model="K2")).job()
+    rng = np.random.default_rng(1004)  # as bench/bench_snooping.py blunders --seeds 4
+    roles = {p["id"]: p["role"] for p in job["points"]}
+    injected, used = set(), set()
+    for i in rng.permutation([i for i, o in enumerate(job["observations"]) if roles[o["point"]] != "check"]):
+        o = job["observations"][i]
+        if len(injected) >= 4 or o["point"] in used:
+            continue
+        used.add(o["point"])
+        mag, ang = rng.uniform(5, 30), rng.uniform(0, 2 * np.pi)
+        o["line"] += mag * np.cos(ang)
+        o["column"] += mag * np.sin(ang)
+        injected.add(o["point"])
+    gcps = [p for p in job["points"] if p["role"] == "gcp" and p.get("sigma_m") and p["id"] not in used]
+    p = gcps[int(rng.permutation(len(gcps))[0])]
+    mag, ang = rng.uniform(10, 30), rng.uniform(0, 2 * np.pi)
+    p["coordinates"][0] += mag * np.cos(ang) / (111320.0 * np.cos(np.radians(p["coordinates"][1])))
+    p["coordinates"][1] += mag * np.sin(ang) / 110540.0
+    injected.add(p["id"])
+    reports = {}
+    for flag in (False, True):
+        j = copy.deepcopy(job)
+        j.setdefault("options", {})["blunder_detection"] = {"reinstate": flag, "max_rejections": 50}
+        reports[flag] = run(j)["quality"]
+
+    def removed_points(q):
+        out = {r["point"] for r in q["rejected"] if r["removed"]}
+        return out | {m["point"] for g in q["not_identifiable"] for m in g["members"] if m["removed"]}
+
+    back = reports[True]["reinstated"]
+    assert back, "this scene removes a clean group on the way (measured); nothing was reinstated"
+    assert all(r["predicted"]["passed"] and r["predicted"]["w"] <= r["predicted"]["critical"] for r in back)
+    assert {r["point"] for r in back} <= removed_points(reports[False]) - injected
+    assert removed_points(reports[True]) <= injected
