@@ -406,6 +406,11 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
             # next worst of the same block waits for the least-squares loop
             if c[0].group.block in blocks:
                 continue
+            if any(m.group.label.get("fixed") for m in c):
+                # a fixed control point: its rays share one loss block per image in the robust
+                # solve (all fixed rays of the image), and it cannot be reinstated; the
+                # least-squares loop tests it
+                continue
             if state["n_removed"] + len(c) > bd.max_rejections:
                 break
             take.append(c)
