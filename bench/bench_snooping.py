@@ -75,6 +75,8 @@ def blunders(args) -> None:
     }
     for seed in args.seeds:
         job = makers[args.preset](seed).job()
+        if args.fixed:  # control: fixed (the moved control point is tested through its rays)
+            job.setdefault("options", {})["control"] = "fixed"
         probe = copy.deepcopy(job)
         probe.setdefault("options", {})["blunder_detection"] = {"action": "report"}
         clean = run(probe)  # the blunder-free adjustment, with its tests (nothing removed)
@@ -174,6 +176,7 @@ def main() -> None:
     b.add_argument("--control-blunders", type=int, default=1)
     b.add_argument("--robust-start", default="none", choices=["none", "huber", "cauchy"])
     b.add_argument("--no-reinstate", action="store_true")
+    b.add_argument("--fixed", action="store_true", help="options.control = fixed")
     c = sub.add_parser("clean")
     c.add_argument("--runs", type=int, default=200)
     c.add_argument("--alpha0", type=float, default=0.001)

@@ -90,9 +90,12 @@ def test_a_moved_fixed_control_point_is_tested_through_its_rays(block) -> None:
     assert q["not_identifiable"] == []
     (r,) = q["rejected"]
     assert (r["kind"], r["point"], r["fixed"], r["removed"]) == ("control_point", gcp["id"], True, True)
-    # metres east, north, up of the known coordinates; 1.5 m: the rays' noise (0.5 px of a
-    # ~2.5-m GSD over three rays) and the orientation's share
-    np.testing.assert_allclose(r["estimated_error"], [0.0, 20.0, 0.0], atol=1.5)
+    # metres east, north, up of the known coordinates; about 3 sigma of the estimate: 1.5 m in
+    # plan (0.5 px of a ~2.5-m GSD over three rays, and the orientation's share), 4 m in height
+    # (the triplet's base-to-height ratio); measured (-0.6, 21.0, -1.0) without a robust start,
+    # (0.5, 19.6, -1.7) with it (rejected in an adjustment without some other rays, put back later)
+    err = np.asarray(r["estimated_error"])
+    assert np.all(np.abs(err - [0.0, 20.0, 0.0]) <= [1.5, 1.5, 4.0]), err
     assert rep["adjustment"]["chi2"]["passed"]
     assert q["lost_control"]["points"] == [gcp["id"]]
     assert any(gcp["id"] in w and "removed control point" in w for w in rep["warnings"])

@@ -525,7 +525,7 @@ class BlunderDetection(_Strict):
         "estimated: Pope's tau test with the a-posteriori sigma0",
     )
     robust_start: Literal["none", "huber", "cauchy"] = Field(
-        default="none",
+        default="huber",
         description="first adjust with this loss (scale: loss_scale) and remove the worst failed "
         "test of each point on the robust residuals, then snoop by least squares",
     )
