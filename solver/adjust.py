@@ -406,10 +406,10 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
             # next worst of the same block waits for the least-squares loop
             if c[0].group.block in blocks:
                 continue
-            if any(m.group.label.get("fixed") for m in c):
-                # a fixed control point: its rays share one loss block per image in the robust
-                # solve (all fixed rays of the image), and it cannot be reinstated; the
-                # least-squares loop tests it
+            if any(m.group.label.get("fixed") or m.group.kind not in ("image_point", "control_point") for m in c):
+                # a fixed control point (its rays share one loss block per image in the robust
+                # solve) and the image-only terms (lines, ephemeris, attitude: the loss does not
+                # act on them) cannot be reinstated: the least-squares loop tests them
                 continue
             if state["n_removed"] + len(c) > bd.max_rejections:
                 break

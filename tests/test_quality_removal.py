@@ -239,3 +239,30 @@ def test_reinstatement_puts_back_a_clean_group_removed_along_the_way() -> None:
     assert all(r["predicted"]["passed"] and r["predicted"]["w"] <= r["predicted"]["critical"] for r in back)
     assert {r["point"] for r in back} <= removed_points(reports[False]) - injected
     assert removed_points(reports[True]) <= injected
+
+
+def test_an_ephemeris_sample_blunder_is_found_and_removed() -> None:
+    """A pass (PASS-J2) with the ephemeris weighted (sigma 2 m): the sample at one epoch moved
+    50 m in x (in every image that carries it) is rejected, estimated ~50 m in x, removed from the
+    images, and the others stay; the clean run rejects nothing."""
+    import json
+    from pathlib import Path
+
+    job = json.loads((Path(__file__).resolve().parents[1] / "examples" / "prism-triplet-direct.json").read_text())
+    job["options"]["ephemeris"]["sigma_position_m"] = 2.0
+    job["options"]["blunder_detection"] = {}
+    clean = run(copy.deepcopy(job))
+    assert clean["quality"]["rejected"] == [] and clean["quality"]["not_identifiable"] == []
+    epochs = sorted({g["time_s"] for g in clean["quality"]["reliability"]["groups"] if g["kind"] == "ephemeris_sample"})
+    assert len(epochs) == 3
+    t = epochs[1]
+    for im in job["images"]:
+        for s in im["ephemeris"]:
+            if abs(s["time_s"] - t) < 1e-6:
+                s["position_ecef_m"][0] += 50.0
+    rep = run(job)
+    (r,) = rep["quality"]["rejected"]
+    assert (r["kind"], r["time_s"], r["removed"]) == ("ephemeris_sample", t, True)
+    # m (ECEF x, y, z); 3 m: 1.5 sigma of the sample over its redundancy (~0.4-0.7)
+    np.testing.assert_allclose(r["estimated_error"][:3], [50.0, 0.0, 0.0], atol=3.0)
+    assert rep["adjustment"]["chi2"]["passed"]

@@ -57,13 +57,43 @@ def _without_attitude_samples(job: Job, removals: list[tuple]) -> Job:
     return job.model_copy(update={"images": new})
 
 
+def _without_state_priors(job: Job, removals: list[tuple]) -> Job:
+    """``job`` without the weighted line-0 state of the images ``("state_prior", image id)``: the
+    state the solver used (header or interpolated ephemeris) stays as the image's unweighted
+    ``approx_state`` (it still initialises the model), its ephemeris goes."""
+    from solver.observations.ephemeris import image_state
+
+    samples = [(set(r[1]), r[2]) for r in removals if r[0] == "pass_sample"]
+    if samples:  # a pass's ephemeris sample: from every image of the pass that carries it
+        images = []
+        for im in job.images:
+            drop = [t for ids, t in samples if im.id in ids]
+            if drop:
+                im = im.model_copy(update={"ephemeris": [sv for sv in im.ephemeris if all(abs(sv.time_s - t) > 1e-6 for t in drop)]})
+            images.append(im)
+        job = job.model_copy(update={"images": images})
+    gone = {r[1] for r in removals if r[0] == "state_prior"}
+    if not gone:
+        return job
+    images = []
+    for im in job.images:
+        if im.id in gone:
+            state = image_state(im, job.options)
+            state = state.model_copy(update={"sigma_position_m": None, "sigma_velocity_m_s": None})
+            im = im.model_copy(update={"approx_state": state, "ephemeris": []})
+        images.append(im)
+    return job.model_copy(update={"images": images})
+
+
 def remove(job: Job, removals: list[tuple]) -> tuple[Job, list[dict]]:
     """``job`` without ``removals`` (each ``("observation", index in job.observations)``,
-    ``("control", index in job.points)``, ``("line_point", line, image, k)`` or
-    ``("attitude_sample", image, time_s)``); also the image points (and line images) removed
+    ``("control", index in job.points)``, ``("line_point", line, image, k)``,
+    ``("attitude_sample", image, time_s)``, ``("state_prior", image)`` or
+    ``("pass_sample", pass image ids, time_s)``); also the image points (and line images) removed
     as collateral."""
     job, line_collateral = _without_line_points(job, removals)
     job = _without_attitude_samples(job, removals)
+    job = _without_state_priors(job, removals)
     drop_obs = {r[1] for r in removals if r[0] == "observation"}
     demote = {r[1] for r in removals if r[0] == "control"}
     points = []

@@ -133,14 +133,20 @@ def _fixed_control_groups(problem: AdjustmentState, lin, st: Structure) -> None:
 
 
 def _term_removals(problem: AdjustmentState, st: Structure) -> None:
-    """How to remove a line image point (rigorous: one measured point; fitted: the image line)
-    and an attitude sample from the job (``solver.quality.removal.remove``); ephemeris samples
-    stay not removable (the line-0 state prior of ``options.ephemeris`` has no per-image switch)."""
+    """How to remove a line image point (rigorous: one measured point; fitted: the image line),
+    an attitude sample and an image's weighted line-0 state (header or interpolated ephemeris)
+    from the job (``solver.quality.removal.remove``), a pass's ephemeris sample (from every
+    image of the pass); the header states of a pass's images stay not removable."""
     for g in st.groups:
         if g.kind == "line_point":
             g.removal = ("line_point", g.label["line"], g.label["image"], g.label.get("point"))
         elif g.kind == "attitude_sample":
             g.removal = ("attitude_sample", g.label["image"], g.label["time_s"])
+        elif g.kind == "ephemeris_sample" and "pass" not in g.label:
+            g.removal = ("state_prior", g.label["image"])
+        elif g.kind == "ephemeris_sample" and g.label.get("time_s") is not None:
+            ps = next(ps for ps in problem.passes if ps.id == g.label["pass"])
+            g.removal = ("pass_sample", tuple(problem.images[i].id for i in ps.images), g.label["time_s"])
 
 
 def _pinv(q: np.ndarray) -> tuple[np.ndarray, int]:
