@@ -266,3 +266,4 @@ def test_an_ephemeris_sample_blunder_is_found_and_removed() -> None:
     # m (ECEF x, y, z); 3 m: 1.5 sigma of the sample over its redundancy (~0.4-0.7)
     np.testing.assert_allclose(r["estimated_error"][:3], [50.0, 0.0, 0.0], atol=3.0)
     assert rep["adjustment"]["chi2"]["passed"]
+
