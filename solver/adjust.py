@@ -521,8 +521,8 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
     if lost is not None:
         pr = lost["predicted_check_rmse_m"]
         change = (
-            f"; the predicted check-point RMSE (planimetric) is now {pr['after']:.3g} m (first adjustment, with every "
-            f"observation and its variance factor: {pr['before']:.3g} m)" if pr else ""
+            f"; the predicted check-point RMSE (planimetric) is now {pr['after']:.3g} m (first least-squares "
+            f"adjustment, with its observations and variance factor: {pr['before']:.3g} m)" if pr else ""
         )
         warnings.append(f"data snooping removed control point(s) {', '.join(lost['points'])} (survey or all image points){change}")
     outliers = _check_point_outliers(report, bd.alpha0)
