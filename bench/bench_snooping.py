@@ -75,6 +75,8 @@ def blunders(args) -> None:
     }
     for seed in args.seeds:
         job = makers[args.preset](seed).job()
+        if args.fixed:  # control: fixed (the moved control point is tested through its rays)
+            job.setdefault("options", {})["control"] = "fixed"
         probe = copy.deepcopy(job)
         probe.setdefault("options", {})["blunder_detection"] = {"action": "report"}
         clean = run(probe)  # the blunder-free adjustment, with its tests (nothing removed)
@@ -83,19 +85,29 @@ def blunders(args) -> None:
         rng = np.random.default_rng(1000 + seed)
         bad = copy.deepcopy(job)
         injected = _inject(bad, rng, args.image_blunders, args.control_blunders)
-        bad.setdefault("options", {})["blunder_detection"] = {"robust_start": args.robust_start, "max_rejections": 50}
+        bad.setdefault("options", {})["blunder_detection"] = {"robust_start": args.robust_start, "max_rejections": 50,
+                                                              "reinstate": not args.no_reinstate}
         t0 = time.perf_counter()
         rep = run(bad)
         dt = time.perf_counter() - t0
         q = rep["quality"]
-        rej = {(r["kind"], r.get("image"), r["point"]) for r in q["rejected"] if r["removed"]}
-        groups = [{(m["kind"], m.get("image"), m["point"]) for m in g["members"]} for g in q["not_identifiable"]]
+        rej = {(r["kind"], r.get("image"), r["point"]) for r in q["rejected"] if r["removed"] and not r.get("collateral")}
+        collateral = [(r["kind"], r.get("image"), r["point"]) for r in q["rejected"] if r.get("collateral")]
+        groups = [{(m["kind"], m.get("image"), m["point"]) for m in g["members"] if m["removed"]} for g in q["not_identifiable"]]
+        groups = [g for g in groups if g]  # members put back (reinstated) are not removed
         found = [b for b in injected if b in rej]
         grouped = [b for b in injected if b not in rej and any(b in g for g in groups)]
         missed = [b for b in injected if b not in rej and b not in grouped]
         mdbs = {(g["kind"], g.get("image"), g["point"]): g["mdb"] for g in clean["quality"]["reliability"]["groups"]}
         missed = [[*b, "mdb", mdbs.get(b)] for b in missed]  # the clean adjustment's MDB of each
         false = [r for r in rej if r not in injected]
+        lost = (q.get("lost_control") or {}).get("points", [])
+        fair_rmse = None
+        if lost:  # the fair reference: the blunder-free run without the control points lost
+            fair = copy.deepcopy(probe)
+            fair["points"] = [p for p in fair["points"] if p["id"] not in lost]
+            fair["observations"] = [o for o in fair["observations"] if o["point"] not in lost]
+            fair_rmse = _rmse(run(fair))
         false_groups = [g for g in groups if not any(b in g for b in injected)]
         print(
             json.dumps(
@@ -109,6 +121,7 @@ def blunders(args) -> None:
                     "missed": missed,
                     "false_rejections": sorted(map(str, false)),
                     "false_groups": len(false_groups),
+                    "collateral": sorted(map(str, collateral)),  # last rays of tie points removed with others
                     "false_also_failed_clean": sum(r in clean_failed for r in false),
                     "clean_failed_tests": len(clean_failed),
                     "sigma0": rep["adjustment"]["sigma0_aposteriori"],
@@ -117,6 +130,10 @@ def blunders(args) -> None:
                     "check_rmse_3d_m": _rmse(rep),
                     "check_rmse_3d_clean_m": _rmse(clean),
                     "ratio": _rmse(rep) / _rmse(clean),
+                    "lost_control": lost,
+                    "check_rmse_3d_clean_without_lost_m": fair_rmse,
+                    "ratio_fair": None if fair_rmse is None else _rmse(rep) / fair_rmse,
+                    "reinstated": len(q.get("reinstated", [])),
                     "time_s": dt,
                     "robust_start": args.robust_start,
                     "adjustments": q["blunder_detection"]["adjustments"],
@@ -132,17 +149,20 @@ def clean(args) -> None:
     n_tests = n_fail = runs_with = 0
     for k in range(args.runs):
         job, _truth = block_job(model="P2", n_tie=30, n_gcp=8, n_check=6, seed=args.geometry_seed, gcp_sigma_m=0.5, noise_seed=10_000 + k)
-        job["options"] = {"blunder_detection": {"action": "report", "alpha0": args.alpha0}}
+        job["options"] = {"blunder_detection": {"action": args.action, "alpha0": args.alpha0, "robust_start": args.robust_start}}
         rep = run(job)
         q = rep["quality"]
         tests = len(q["reliability"]["groups"])
-        fails = len(q["rejected"]) + sum(len(g["members"]) for g in q["not_identifiable"])
+        # report: failed tests; remove: observations removed in the end (after any reinstatement)
+        fails = sum(r["removed"] or args.action == "report" for r in q["rejected"])
+        fails += sum(m["removed"] or args.action == "report" for g in q["not_identifiable"] for m in g["members"])
         n_tests += tests
         n_fail += fails
         runs_with += fails > 0
         if (k + 1) % 25 == 0 or k + 1 == args.runs:
             print(json.dumps({"runs": k + 1, "tests": n_tests, "failed_tests": n_fail, "rate_per_test": n_fail / n_tests,
-                              "alpha0": args.alpha0, "runs_with_a_rejection": runs_with}), flush=True)
+                              "alpha0": args.alpha0, "runs_with_a_rejection": runs_with, "action": args.action,
+                              "robust_start": args.robust_start}), flush=True)
 
 
 def main() -> None:
@@ -155,10 +175,14 @@ def main() -> None:
     b.add_argument("--image-blunders", type=int, default=4)
     b.add_argument("--control-blunders", type=int, default=1)
     b.add_argument("--robust-start", default="none", choices=["none", "huber", "cauchy"])
+    b.add_argument("--no-reinstate", action="store_true")
+    b.add_argument("--fixed", action="store_true", help="options.control = fixed")
     c = sub.add_parser("clean")
     c.add_argument("--runs", type=int, default=200)
     c.add_argument("--alpha0", type=float, default=0.001)
     c.add_argument("--geometry-seed", type=int, default=3)
+    c.add_argument("--action", default="report", choices=["report", "remove"])
+    c.add_argument("--robust-start", default="none", choices=["none", "huber", "cauchy"])
     args = ap.parse_args()
     {"blunders": blunders, "clean": clean}[args.cmd](args)
 

@@ -309,11 +309,12 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
     """Data snooping (docs/quality.md): adjust, test every observation group, remove the worst
     rejected one (with the tests it cannot be separated from) and re-adjust, until no test fails
     or ``max_rejections`` is reached; ``robust_start`` first removes, in one step, every group
-    whose test fails on the residuals of a robust adjustment. The report is that of the last
-    adjustment, with the ``quality`` section and the removed image points flagged in
-    ``observations``."""
-    from solver.quality.removal import remove
-    from solver.quality.snooping import entry, failing_clusters, reliability_section, snoop
+    whose test fails on the residuals of a robust adjustment; ``reinstate`` then tests every
+    removed observation against the final solution and puts back those that pass (re-adjusting
+    and snooping again, until nothing changes). The report is that of the last adjustment, with
+    the ``quality`` section and the removed image points flagged in ``observations``."""
+    from solver.quality.removal import INFLATE, reinstate, remove, testable, whole_points, with_candidates
+    from solver.quality.snooping import entry, failing_clusters, predicted_test, reliability_section, snoop
 
     bd = job.options.blunder_detection
     f0, f1 = fraction_range
@@ -326,79 +327,181 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
 
     rejected: list[dict[str, Any]] = []
     not_identifiable: list[dict[str, Any]] = []
-    flagged: list[dict[str, Any]] = []
+    reinstated: list[dict[str, Any]] = []
     warnings: list[str] = []
-    n_removed = 0
+    # every removal: kind, obs (the ImageObservation), point, its report entry, its group, its
+    # flagged observation item, whether it was already reinstated once
+    items: list[dict[str, Any]] = []
+    state: dict[str, Any] = {"current": job, "n_removed": 0}
+    once: set[tuple] = set()  # reinstated once: not again (no oscillation)
 
-    def record(cluster, report, collateral) -> None:
-        removed_obs = {m.group.removal for m in cluster if m.group.removal}
+    def key(it: dict) -> tuple:
+        o = it["obs"]
+        return (it["kind"], it["point"]) if o is None else (it["kind"], o.image, o.point, o.line, o.column)
+
+    def flag_of(report, obs) -> dict[str, Any] | None:
+        for item in report["observations"]:
+            if (item["image"], item["point"], item["line"], item["column"]) == (obs.image, obs.point, obs.line, obs.column):
+                return {**item, "rejected": True}
+        return None
+
+    def record(cluster, report, collateral, current: Job) -> None:
         entries = [entry(m, removed=m.group.removal is not None) for m in cluster]
+        group = None
         if len(entries) == 1:
             rejected.append(entries[0])
-        else:
-            not_identifiable.append({"members": entries, "removed": all(e["removed"] for e in entries)})
-        for m in cluster:
-            if m.group.kind != "image_point" or m.group.removal not in removed_obs:
+        elif entries:
+            group = {"members": entries, "removed": all(e["removed"] for e in entries)}
+            not_identifiable.append(group)
+        for m, e in zip(cluster, entries):
+            if m.group.removal is None:
                 continue
-            lab = m.group.label
-            o = current.observations[m.group.removal[1]]
-            for item in report["observations"]:
-                if item["image"] == lab["image"] and item["point"] == lab["point"] and item["line"] == o.line and item["column"] == o.column:
-                    flagged.append({**item, "rejected": True})
-                    break
+            obs = current.observations[m.group.removal[1]] if m.group.kind == "image_point" else None
+            items.append({"kind": m.group.kind, "obs": obs, "point": e.get("point"), "entry": e, "group": group,
+                          "flag": flag_of(report, obs) if obs is not None else None})
         for c in collateral:
-            rejected.append({"kind": "image_point", **c, "w": None, "critical": None, "dof": 0, "estimated_error": None,
-                             "units": "px", "components": ["line", "column"], "removed": True, "collateral": True})
+            if c.get("kind") == "line_point":  # a line image left with fewer than two points
+                rejected.append({**c, "w": None, "critical": None, "dof": 0, "estimated_error": None, "units": "px",
+                                 "components": ["distance"], "removed": True, "collateral": True})
+                continue
+            e = {"kind": "image_point", **c, "w": None, "critical": None, "dof": 0, "estimated_error": None,
+                 "units": "px", "components": ["line", "column"], "removed": True, "collateral": True}
+            rejected.append(e)
+            obs = next(o for o in current.observations if (o.image, o.point) == (c["image"], c["point"]))
+            items.append({"kind": "image_point", "obs": obs, "point": c["point"], "entry": e, "group": None,
+                          "flag": flag_of(report, obs), "collateral": True})
 
-    current = job
+    def snoop_loop(problem, report):
+        while True:
+            sn = snoop(problem, bd)
+            if bd.action == "report":
+                return problem, report, sn
+            clusters = [c for c in failing_clusters(sn, bd.separability) if c[0].group.removal]
+            if not clusters:
+                return problem, report, sn
+            cluster = clusters[0]
+            if state["n_removed"] + len(cluster) > bd.max_rejections:
+                warnings.append(f"data snooping stopped at max_rejections = {bd.max_rejections}: some tests still fail")
+                return problem, report, sn
+            current = state["current"]
+            nxt, collateral = remove(current, [m.group.removal for m in cluster if m.group.removal])
+            try:
+                nxt_problem, nxt_report = adjust_once(nxt, progress, cancel, models, window())
+            except JobError as exc:  # rank, unusable solution, or the job no longer valid
+                warnings.append(f"data snooping stopped: without the next rejected observation the adjustment fails ({exc})")
+                return problem, report, sn
+            record(cluster, report, collateral, current)
+            state["n_removed"] += len(cluster)
+            state["current"], problem, report = nxt, nxt_problem, nxt_report
+
     if bd.robust_start != "none" and bd.action == "remove" and bd.max_rejections > 0:
         robust = job.model_copy(update={"options": job.options.model_copy(update={"loss": bd.robust_start})})
         problem, report = adjust_once(robust, progress, cancel, models, window())
         clusters = [c for c in failing_clusters(snoop(problem, bd, robust=True), bd.separability) if c[0].group.removal]
         take = []
+        blocks: set[int] = set()
         for c in clusters:
-            if n_removed + len(c) > bd.max_rejections:
+            # one cluster per block (the rays of a point and its survey): a blunder smears into
+            # the residuals of the other rays of its point, whose tests then fail with it; the
+            # next worst of the same block waits for the least-squares loop
+            if c[0].group.block in blocks:
+                continue
+            if any(m.group.label.get("fixed") or m.group.kind not in ("image_point", "control_point") for m in c):
+                # a fixed control point (its rays share one loss block per image in the robust
+                # solve) and the image-only terms (lines, ephemeris, attitude: the loss does not
+                # act on them) cannot be reinstated: the least-squares loop tests them
+                continue
+            if state["n_removed"] + len(c) > bd.max_rejections:
                 break
             take.append(c)
-            n_removed += len(c)
+            blocks.update(m.group.block for m in c)
+            state["n_removed"] += len(c)
         if take:
-            nxt, collateral = remove(current, [m.group.removal for c in take for m in c if m.group.removal])
+            nxt, collateral = remove(job, [m.group.removal for c in take for m in c if m.group.removal])
             for c in take:
-                record(c, report, [])
-            record([], report, collateral)
-            current = nxt
+                record(c, report, [], job)
+            record([], report, collateral, job)
+            state["current"] = nxt
     try:
-        problem, report = adjust_once(current, progress, cancel, models, window())
+        problem, report = adjust_once(state["current"], progress, cancel, models, window())
     except JobError as exc:
-        if current is job:
+        if state["current"] is job:
             raise
         # the robust step removed too much: snoop one at a time from the whole job instead
         warnings.append(f"the robust start's removals left no valid adjustment ({exc}); snooping from the whole job")
-        current, n_removed = job, 0
+        state.update(current=job, n_removed=0)
         rejected.clear()
         not_identifiable.clear()
-        flagged.clear()
-        problem, report = adjust_once(current, progress, cancel, models, window())
-    while True:
-        sn = snoop(problem, bd)
-        if bd.action == "report":
+        items.clear()
+        problem, report = adjust_once(job, progress, cancel, models, window())
+    first_report = report
+    problem, report, sn = snoop_loop(problem, report)
+    for _round in range(10):
+        if not (bd.reinstate and bd.action == "remove"):
             break
-        clusters = [c for c in failing_clusters(sn, bd.separability) if c[0].group.removal]
-        if not clusters:
+        current = state["current"]
+        pool = [
+            it for it in items
+            # a fixed control point's coordinates have no sigma to put back with: not reinstated
+            if it["kind"] in ("image_point", "control_point") and not it.get("reinstated") and not it["entry"].get("fixed")
+            and key(it) not in once
+        ]
+        whole = whole_points(current, pool)
+        cands = [it for it in pool if it["point"] in whole or testable(current, it)]
+        if not cands:
             break
-        cluster = clusters[0]
-        if n_removed + len(cluster) > bd.max_rejections:
-            warnings.append(f"data snooping stopped at max_rejections = {bd.max_rejections}: some tests still fail")
+        try:
+            aug_problem, _aug_report = adjust_once(with_candidates(current, job, cands), progress, cancel, models, window())
+            sn_aug = snoop(aug_problem, bd)
+        except (JobError, np.linalg.LinAlgError) as exc:
+            warnings.append(f"the reinstatement test of the removed observations failed ({exc}); none reinstated")
             break
-        nxt, collateral = remove(current, [m.group.removal for m in cluster if m.group.removal])
+        n_obs = len(current.observations)
+        s2 = (sn.vtpv / sn.dof, sn.dof) if bd.variance == "estimated" and sn.dof > 0 else None
+        by_key = {}
+        for t in sn_aug.tests:
+            if t.group.kind == "image_point" and t.group.removal[1] >= n_obs:
+                by_key[("image_point", t.group.removal[1] - n_obs)] = t
+            elif t.group.kind == "control_point":
+                by_key[("control_point", t.group.label["point"])] = t
+        back = []
+        k_img = 0
+        for it in cands:
+            if it["kind"] == "image_point":
+                t = by_key.get(("image_point", k_img))
+                k_img += 1
+            else:
+                t = by_key.get(("control_point", it["point"]))
+            if t is None:
+                continue
+            test = predicted_test(sn_aug, t, INFLATE, s2, whole=it["point"] in whole)
+            it["predicted"] = test
+            if test["passed"]:
+                back.append(it)
+        if not back:
+            break
+        nxt = reinstate(current, job, back)
         try:
             nxt_problem, nxt_report = adjust_once(nxt, progress, cancel, models, window())
-        except JobError as exc:  # rank, unusable solution, or the job no longer valid
-            warnings.append(f"data snooping stopped: without the next rejected observation the adjustment fails ({exc})")
+        except JobError as exc:
+            warnings.append(f"reinstating {len(back)} observation(s) left no valid adjustment ({exc}); none reinstated")
             break
-        record(cluster, report, collateral)
-        n_removed += len(cluster)
-        current, problem, report = nxt, nxt_problem, nxt_report
+        for it in back:
+            it["reinstated"] = True
+            once.add(key(it))
+            e = it["entry"]
+            if it["group"] is None:
+                rejected.remove(e)
+            else:
+                e["removed"] = False
+                e["reinstated"] = True
+                it["group"]["removed"] = all(m["removed"] for m in it["group"]["members"])
+            reinstated.append({**{k: v for k, v in e.items() if k not in ("removed", "reinstated")},
+                               "predicted": {k: v for k, v in it["predicted"].items()}})
+            state["n_removed"] -= 0 if it.get("collateral") else 1
+        # collateral image points whose tie point is back: they are tested in the next round
+        state["current"], problem, report = nxt, nxt_problem, nxt_report
+        problem, report, sn = snoop_loop(problem, report)
     # tests still failing in the final adjustment (report only, max_rejections, not removable)
     for cluster in failing_clusters(sn, bd.separability):
         entries = [entry(m, removed=False) for m in cluster]
@@ -408,9 +511,27 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
             not_identifiable.append({"members": entries, "removed": False})
     for item in report["observations"]:
         item["rejected"] = False
-    report["observations"] += flagged
+    report["observations"] += [it["flag"] for it in items if it["flag"] is not None and not it.get("reinstated")]
+    n_removed = state["n_removed"]
     if n_removed:
         warnings.append(f"data snooping removed {n_removed} observation(s) (quality.rejected, quality.not_identifiable)")
+    if reinstated:
+        warnings.append(f"{len(reinstated)} removed observation(s) passed the test against the final solution and were reinstated (quality.reinstated)")
+    lost = _lost_control(job, state["current"], first_report, report)
+    if lost is not None:
+        pr = lost["predicted_check_rmse_m"]
+        change = (
+            f"; the predicted check-point RMSE (planimetric) is now {pr['after']:.3g} m (first least-squares "
+            f"adjustment, with its observations and variance factor: {pr['before']:.3g} m)" if pr else ""
+        )
+        warnings.append(f"data snooping removed control point(s) {', '.join(lost['points'])} (survey or all image points){change}")
+    outliers = _check_point_outliers(report, bd.alpha0)
+    if outliers:
+        warnings.append(
+            f"check point(s) {', '.join(o['point'] for o in outliers)} fail the discrepancy test at alpha0 = {bd.alpha0:g}: "
+            "a blunder in their image points or known coordinates is likely (check points are not in the adjustment, "
+            "so data snooping cannot test them; quality.check_point_outliers)"
+        )
     report["warnings"] += warnings
     report.setdefault("quality", {})
     report["quality"].update(
@@ -422,16 +543,56 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
                 "action": bd.action,
                 "max_rejections": bd.max_rejections,
                 "robust_start": bd.robust_start,
+                "reinstate": bd.reinstate,
                 "separability": bd.separability,
                 "n_removed": n_removed,
                 "adjustments": step[0],
             },
             "rejected": rejected,
             "not_identifiable": not_identifiable,
+            "reinstated": reinstated,
+            "lost_control": lost,
+            "check_point_outliers": outliers,
             "reliability": reliability_section(sn),
         }
     )
     return report
+
+
+def _check_point_outliers(report: dict[str, Any], alpha0: float) -> list[dict[str, Any]]:
+    """Check points whose discrepancy test (d^T Sigma^-1 d, chi-square; docs/report-contract.md)
+    fails at the snooping level ``alpha0``, worst first: a check point is not in the adjustment,
+    so a blunder in its image points (or its known coordinates) shows only here."""
+    from scipy import stats
+
+    out = []
+    for it in report.get("checkpoints", {}).get("points", []):
+        t = it.get("discrepancy_test")
+        if not t or not t.get("dof"):
+            continue
+        critical = float(stats.chi2.ppf(1.0 - alpha0, t["dof"]))
+        if t["statistic"] > critical:
+            out.append({"point": it["id"], "images": it.get("images"), "statistic": t["statistic"], "dof": t["dof"],
+                        "critical": critical, "discrepancy_m": it["discrepancy_m"]})
+    return sorted(out, key=lambda o: -o["statistic"] / o["critical"])
+
+
+def _lost_control(job: Job, final: Job, first: dict[str, Any], last: dict[str, Any]) -> dict[str, Any] | None:
+    """The control points of ``job`` that data snooping took away (their survey removed, or
+    no image point of theirs left in ``final``) and the predicted planimetric check-point RMSE
+    of the first and the last adjustment (null without check points or covariance)."""
+    rays = {o.point for o in final.observations}
+    roles = {p.id: p.role for p in final.points}
+    lost = [p.id for p in job.points if p.role == "gcp" and (roles.get(p.id) != "gcp" or p.id not in rays)]
+    if not lost:
+        return None
+
+    def predicted(rep: dict[str, Any]) -> float | None:
+        pr = rep.get("checkpoints", {}).get("predicted_rmse_m")
+        return None if not pr else pr.get("planimetric")
+
+    before, after = predicted(first), predicted(last)
+    return {"points": lost, "predicted_check_rmse_m": None if before is None or after is None else {"before": before, "after": after}}
 
 
 def _outcome_detail(outcome) -> dict[str, Any]:

@@ -525,9 +525,14 @@ class BlunderDetection(_Strict):
         "estimated: Pope's tau test with the a-posteriori sigma0",
     )
     robust_start: Literal["none", "huber", "cauchy"] = Field(
-        default="none",
-        description="first adjust with this loss (scale: loss_scale) and remove every observation "
-        "whose test fails on the robust residuals, then snoop by least squares",
+        default="huber",
+        description="first adjust with this loss (scale: loss_scale) and remove the worst failed "
+        "test of each point on the robust residuals, then snoop by least squares",
+    )
+    reinstate: Bool = Field(
+        default=True,
+        description="after the removals, test every removed observation against the final "
+        "solution (as an observation outside the adjustment) and put back those that pass",
     )
     separability: _num(gt=0.5, le=1) = Field(
         default=0.99,

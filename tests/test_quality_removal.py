@@ -1,0 +1,269 @@
+"""Reinstatement, lost control points and check-point blunders of data snooping
+(solver/adjust.py ``_snooping_adjustment``, solver/quality/removal.py, docs/quality.md), against
+independent evidence: the w-test of the same observation inside the adjustment (the linear
+theory says the test of an observation outside the adjustment equals it), injected blunders."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from solver.adjust import adjust_once
+from solver.api import run
+from solver.quality.removal import INFLATE, with_candidates
+from solver.quality.snooping import predicted_test, snoop
+from solver.schema.job import BlunderDetection, load_job
+from solver.synthetic import block_job
+
+DEFAULTS = BlunderDetection()
+
+
+@pytest.fixture(scope="module")
+def block():
+    return block_job(model="P1", n_tie=30, n_gcp=14, n_check=6, seed=3, gcp_sigma_m=0.5)
+
+
+def test_test_outside_the_adjustment_equals_the_w_test_inside(block) -> None:
+    """An image point with a 6-px error: its w inside the adjustment, and the test of its
+    predicted residual against the adjustment without it (put back with inflated sigmas), are
+    the same statistic in linear theory; so are the estimated errors (the predicted residual
+    is the error estimate Q^-1 v of the inside test)."""
+    job, _truth = copy.deepcopy(block)
+    ties = [i for i, o in enumerate(job["observations"]) if "-T" in o["point"]]
+    k = ties[7]
+    job["observations"][k]["column"] += 6.0
+    full = load_job(copy.deepcopy(job))
+    problem, _ = adjust_once(full)
+    inside = next(t for t in snoop(problem, DEFAULTS).tests if t.group.removal == ("observation", k))
+    without = full.model_copy(update={"observations": [o for i, o in enumerate(full.observations) if i != k]})
+    item = {"kind": "image_point", "obs": full.observations[k], "point": full.observations[k].point}
+    aug_problem, _ = adjust_once(with_candidates(without, full, [item]))
+    sn = snoop(aug_problem, DEFAULTS)
+    n = len(without.observations)
+    t = next(t for t in sn.tests if t.group.removal == ("observation", n))
+    out = predicted_test(sn, t, INFLATE)
+    # 2 %: the nonlinearity of a 6-px error (the two statistics are evaluated at solutions 6 px
+    # apart in this observation); a cofactor without the parameters' covariance (I instead of
+    # I + J Q_xx J^T) is off by 1 / sqrt(r) ~ 20-40 % here
+    assert out["w"] == pytest.approx(inside.w, rel=0.02)
+    assert out["critical"] == pytest.approx(inside.critical, rel=1e-12)
+    np.testing.assert_allclose(out["estimated_error"], inside.error, atol=0.02 * 6.0)
+    assert out["estimated_error"][1] == pytest.approx(6.0, abs=1.5)  # px; noise 0.5 px over r ~ 0.5
+
+
+def test_a_check_point_image_blunder_is_named(block) -> None:
+    """A check point's image point moved 20 px: the check point is not in the adjustment (no
+    snooping test sees it), its normalised discrepancy does; the report names it, and only it
+    (the clean run names none)."""
+    job, _truth = copy.deepcopy(block)
+    job["options"] = {"blunder_detection": {}}
+    clean = run(copy.deepcopy(job))
+    assert clean["quality"]["check_point_outliers"] == []
+    checks = {p["id"] for p in job["points"] if p["role"] == "check"}
+    k = next(i for i, o in enumerate(job["observations"]) if o["point"] in checks)
+    job["observations"][k]["column"] += 20.0
+    rep = run(job)
+    named = [o["point"] for o in rep["quality"]["check_point_outliers"]]
+    assert named == [job["observations"][k]["point"]]
+    assert any(job["observations"][k]["point"] in w and "discrepancy test" in w for w in rep["warnings"])
+    # nothing in the adjustment was touched: the blunder is outside it
+    assert rep["quality"]["rejected"] == [] and rep["quality"]["not_identifiable"] == []
+
+
+def test_a_moved_fixed_control_point_is_tested_through_its_rays(block) -> None:
+    """``control: fixed``: a control point moved 20 m north has no survey prior to test; the
+    bias of its known coordinates maps to its rays through the point Jacobian, and its 3-D test
+    (kind control_point, fixed: true) finds it, estimates the move, and its removal (the point
+    becomes a tie point) leaves nothing failing. The clean run rejects nothing."""
+    job, _truth = copy.deepcopy(block)
+    job["options"] = {"control": "fixed", "blunder_detection": {"action": "report"}}
+    clean = run(copy.deepcopy(job))
+    assert clean["quality"]["rejected"] == [] and clean["quality"]["not_identifiable"] == []
+    gcp = [p for p in job["points"] if p["role"] == "gcp"][3]
+    assert sum(o["point"] == gcp["id"] for o in job["observations"]) == 3
+    gcp["coordinates"][1] += 20.0 / 110540.0
+    job["options"]["blunder_detection"] = {}
+    rep = run(job)
+    q = rep["quality"]
+    assert q["not_identifiable"] == []
+    (r,) = q["rejected"]
+    assert (r["kind"], r["point"], r["fixed"], r["removed"]) == ("control_point", gcp["id"], True, True)
+    # metres east, north, up of the known coordinates; about 3 sigma of the estimate: 1.5 m in
+    # plan (0.5 px of a ~2.5-m GSD over three rays, and the orientation's share), 4 m in height
+    # (the triplet's base-to-height ratio); measured (-0.6, 21.0, -1.0) without a robust start,
+    # (0.5, 19.6, -1.7) with it (rejected in an adjustment without some other rays, put back later)
+    err = np.asarray(r["estimated_error"])
+    assert np.all(np.abs(err - [0.0, 20.0, 0.0]) <= [1.5, 1.5, 4.0]), err
+    assert rep["adjustment"]["chi2"]["passed"]
+    assert q["lost_control"]["points"] == [gcp["id"]]
+    assert any(gcp["id"] in w and "removed control point" in w for w in rep["warnings"])
+
+
+def test_a_fixed_control_point_in_one_image_is_not_identifiable() -> None:
+    """One image: a fixed control point's single ray cannot tell a moved point from a wrong image
+    point (the test spaces coincide): one non-identifiable group of the two, removed."""
+    from solver.synthetic import single_image_job
+
+    job, _ = single_image_job(model="K2", n_gcp=14, n_check=4, seed=5, gcp_sigma_m=0.5)
+    job["options"] = {"control": "fixed", "blunder_detection": {}}
+    gcp = [p for p in job["points"] if p["role"] == "gcp"][2]
+    gcp["coordinates"][0] += 30.0 / (111320.0 * np.cos(np.radians(gcp["coordinates"][1])))
+    q = run(job)["quality"]
+    groups = [{(m["kind"], m["point"]) for m in g["members"]} for g in q["not_identifiable"]]
+    assert {("control_point", gcp["id"]), ("image_point", gcp["id"])} in groups
+    assert q["rejected"] == []
+
+
+def test_a_line_image_point_blunder_is_found_and_removed() -> None:
+    """Rigorous lines: one measured point of a line image moved 10 px in column is rejected and
+    removed (its test fails, its estimated error is the move's component across the line), the
+    clean run rejects nothing."""
+    from solver.synthetic_lines import lines_job
+
+    job, _ = lines_job(seed=2)
+    job["options"] = {"blunder_detection": {}}
+    clean = run(copy.deepcopy(job))
+    assert clean["quality"]["rejected"] == [] and clean["quality"]["not_identifiable"] == []
+    gl = job["lines"][3]
+    lo = gl["observations"][0]
+    lo["points"][4]["column"] += 10.0
+    rep = run(job)
+    (r,) = rep["quality"]["rejected"]
+    assert (r["kind"], r["line"], r["image"], r["point"], r["removed"]) == ("line_point", gl["id"], lo["image"], 4, True)
+    assert r["w"] > r["critical"]
+    # the perpendicular distance sees the column move times |sin| of the line's angle to the
+    # columns axis: between 1 and 10 px whatever the line's direction (>= 6 deg here)
+    assert 1.0 < abs(r["estimated_error"][0]) <= 10.5
+    assert rep["adjustment"]["chi2"]["passed"]
+    assert rep["quality"]["not_identifiable"] == []
+
+
+def test_an_attitude_sample_blunder_is_found_and_removed() -> None:
+    """Measured attitude (sigma 0.002 deg): one sample's pitch moved 0.02 deg (10 sigma) is
+    rejected and removed with its estimated error; the clean run rejects nothing."""
+    import json
+    from pathlib import Path
+
+    job = json.loads((Path(__file__).resolve().parents[1] / "examples" / "prism-triplet-direct.json").read_text())
+    job["options"]["blunder_detection"] = {}
+    clean = run(copy.deepcopy(job))
+    assert clean["quality"]["rejected"] == [] and clean["quality"]["not_identifiable"] == []
+    n_before = sum(len(im["attitude"]) for im in job["images"])
+    sample = job["images"][1]["attitude"][2]
+    sample["pitch_deg"] += 0.02
+    rep = run(job)
+    (r,) = rep["quality"]["rejected"]
+    assert (r["kind"], r["time_s"], r["removed"]) == ("attitude_sample", sample["time_s"], True)
+    # deg; 0.006: three sigmas of the sample (0.002 deg) over its redundancy (~0.9)
+    np.testing.assert_allclose(r["estimated_error"], [0.0, 0.02, 0.0], atol=0.006)
+    # the adjustment after removal has one sample fewer (samples shared by images count once)
+    assert sum(a["n_samples"] for a in rep["attitude"]) == sum(a["n_samples"] for a in clean["attitude"]) - 1
+    assert n_before > 0
+
+
+def test_a_point_removed_whole_is_tested_against_the_final_orientation() -> None:
+    """One image: a control point's ray and survey removed together (a non-identifiable group)
+    leave nothing of the point; put back together (inflated), the test of the ray against the
+    final orientation and the survey equals, in linear theory, its w-test inside the adjustment
+    with both (the point estimated from its own ray and survey, the orientation from the rest)."""
+    from solver.quality.removal import remove, whole_points
+    from solver.synthetic import single_image_job
+
+    job, _ = single_image_job(model="K2", n_gcp=14, n_check=0, seed=5, gcp_sigma_m=0.5)
+    gcp = [p for p in job["points"] if p["role"] == "gcp"][4]
+    k = next(i for i, o in enumerate(job["observations"]) if o["point"] == gcp["id"])
+    job["observations"][k]["column"] += 3.0  # w ~ 6 inside
+    full = load_job(copy.deepcopy(job))
+    problem, _ = adjust_once(full)
+    inside = next(t for t in snoop(problem, DEFAULTS).tests if t.group.removal == ("observation", k))
+    p_idx = next(i for i, p in enumerate(full.points) if p.id == gcp["id"])
+    without, _collateral = remove(full, [("observation", k), ("control", p_idx)])
+    assert gcp["id"] not in {p.id for p in without.points}
+    items = [
+        {"kind": "image_point", "obs": full.observations[k], "point": gcp["id"]},
+        {"kind": "control_point", "obs": None, "point": gcp["id"]},
+    ]
+    assert whole_points(without, items) == {gcp["id"]}
+    aug, _ = adjust_once(with_candidates(without, full, items))
+    sn = snoop(aug, DEFAULTS)
+    t = next(t for t in sn.tests if t.group.kind == "image_point" and t.group.label["point"] == gcp["id"])
+    out = predicted_test(sn, t, INFLATE, whole=True)
+    # 2 %: nonlinearity over a 3-px error; the formula for a point determined by the rest
+    # (whole=False) gives w = 0.02 here: the inflated survey leaves the ray nothing to test
+    assert out["dof"] == inside.dof
+    assert out["w"] == pytest.approx(inside.w, rel=0.02)
+
+
+def test_reinstatement_puts_back_a_clean_group_removed_along_the_way() -> None:
+    """prism-single (the independent simulator), seed 4, four image blunders and a control
+    point moved: one at a time, snooping also removes a clean {image point, survey} group on the
+    way (its test failed while the blunders were in); tested against the final solution it
+    passes and is put back. Every reinstated observation passed its predicted test, none of them
+    is a blunder, and nothing removed in the end is clean."""
+    from solver.simulate import presets
+    from solver.simulate.scene import Settings
+
+    job = presets.prism_single(Settings(preset="prism-single", seed=4, model="K2")).job()
+    rng = np.random.default_rng(1004)  # as bench/bench_snooping.py blunders --seeds 4
+    roles = {p["id"]: p["role"] for p in job["points"]}
+    injected, used = set(), set()
+    for i in rng.permutation([i for i, o in enumerate(job["observations"]) if roles[o["point"]] != "check"]):
+        o = job["observations"][i]
+        if len(injected) >= 4 or o["point"] in used:
+            continue
+        used.add(o["point"])
+        mag, ang = rng.uniform(5, 30), rng.uniform(0, 2 * np.pi)
+        o["line"] += mag * np.cos(ang)
+        o["column"] += mag * np.sin(ang)
+        injected.add(o["point"])
+    gcps = [p for p in job["points"] if p["role"] == "gcp" and p.get("sigma_m") and p["id"] not in used]
+    p = gcps[int(rng.permutation(len(gcps))[0])]
+    mag, ang = rng.uniform(10, 30), rng.uniform(0, 2 * np.pi)
+    p["coordinates"][0] += mag * np.cos(ang) / (111320.0 * np.cos(np.radians(p["coordinates"][1])))
+    p["coordinates"][1] += mag * np.sin(ang) / 110540.0
+    injected.add(p["id"])
+    reports = {}
+    for flag in (False, True):
+        j = copy.deepcopy(job)
+        j.setdefault("options", {})["blunder_detection"] = {"reinstate": flag, "max_rejections": 50}
+        reports[flag] = run(j)["quality"]
+
+    def removed_points(q):
+        out = {r["point"] for r in q["rejected"] if r["removed"]}
+        return out | {m["point"] for g in q["not_identifiable"] for m in g["members"] if m["removed"]}
+
+    back = reports[True]["reinstated"]
+    assert back, "this scene removes a clean group on the way (measured); nothing was reinstated"
+    assert all(r["predicted"]["passed"] and r["predicted"]["w"] <= r["predicted"]["critical"] for r in back)
+    assert {r["point"] for r in back} <= removed_points(reports[False]) - injected
+    assert removed_points(reports[True]) <= injected
+
+
+def test_an_ephemeris_sample_blunder_is_found_and_removed() -> None:
+    """A pass (PASS-J2) with the ephemeris weighted (sigma 2 m): the sample at one epoch moved
+    50 m in x (in every image that carries it) is rejected, estimated ~50 m in x, removed from the
+    images, and the others stay; the clean run rejects nothing."""
+    import json
+    from pathlib import Path
+
+    job = json.loads((Path(__file__).resolve().parents[1] / "examples" / "prism-triplet-direct.json").read_text())
+    job["options"]["ephemeris"]["sigma_position_m"] = 2.0
+    job["options"]["blunder_detection"] = {}
+    clean = run(copy.deepcopy(job))
+    assert clean["quality"]["rejected"] == [] and clean["quality"]["not_identifiable"] == []
+    epochs = sorted({g["time_s"] for g in clean["quality"]["reliability"]["groups"] if g["kind"] == "ephemeris_sample"})
+    assert len(epochs) == 3
+    t = epochs[1]
+    for im in job["images"]:
+        for s in im["ephemeris"]:
+            if abs(s["time_s"] - t) < 1e-6:
+                s["position_ecef_m"][0] += 50.0
+    rep = run(job)
+    (r,) = rep["quality"]["rejected"]
+    assert (r["kind"], r["time_s"], r["removed"]) == ("ephemeris_sample", t, True)
+    # m (ECEF x, y, z); 3 m: 1.5 sigma of the sample over its redundancy (~0.4-0.7)
+    np.testing.assert_allclose(r["estimated_error"][:3], [50.0, 0.0, 0.0], atol=3.0)
+    assert rep["adjustment"]["chi2"]["passed"]
+
