@@ -181,3 +181,31 @@ def test_export_rpc_after_an_adjustment_through_gdal(tmp_path) -> None:
         rows, cols = gdal_ground_to_image(src.rpcs, lon, lat, h)
     err = np.hypot(rows - GDAL_CORNER_PX - want_l, cols - GDAL_CORNER_PX - want_c)
     assert np.sqrt(np.mean(err**2)) < RMS_TOL_PX, np.sqrt(np.mean(err**2))
+
+
+def test_ground_to_image_table_with_the_bias_covariance(simulated) -> None:
+    """Propagated sigmas of an RPC image against the analytic derivatives of the bias
+    equations: a0 moves the line by 1/(1 - a_line), a_line by line_obs/(1 - a_line) (b0, b_line
+    likewise for the column with b_line's line_obs term); 1e-6 relative (central differences
+    of a linear function)."""
+    from solver.gis.transforms import ground_to_image_table
+
+    job, _ = simulated
+    entry = job["images"][0]
+    values = {"a0": 4.0, "a_line": 1e-4, "b0": -3.0, "b_line": 0.0}
+    rep = _report_entry(entry["id"], values)
+    names = ["a0", "a_line", "b0", "b_line"]
+    sig = np.array([0.2, 2e-5, 0.3, 1e-5])
+    rep["covariance"] = {"names": names, "matrix": np.diag(sig**2).tolist()}
+    image = rpc_image({**entry, "model": {"name": "RPC-DRIFT"}}, rep)
+    lon, lat, h = _ground_sample(image.rpc, n=5)
+    rows = [{"lon": a, "lat": b, "height": c} for a, b, c in zip(lon, lat, h)]
+    out = ground_to_image_table(image, rows, sigmas=True)
+    assert all("chip" not in o for o in out)
+    line = np.array([o["line"] for o in out])
+    k = 1.0 - values["a_line"]
+    want_line = np.hypot(sig[0] / k, sig[1] * line / k)
+    # column = R_c + b0 + b_line * line: b0 -> 1; b_line -> line; a0, a_line through line (b_line = 0)
+    want_col = np.hypot(sig[2], sig[3] * line)
+    np.testing.assert_allclose([o["sigma_line_px"] for o in out], want_line, rtol=1e-6)
+    np.testing.assert_allclose([o["sigma_column_px"] for o in out], want_col, rtol=1e-6)

@@ -48,6 +48,7 @@ class RpcImage:
     rpc: RPC
     bias: RpcBias
     kind: str  # RPC-SHIFT, RPC-DRIFT or RPC-AFFINE
+    report_entry: dict[str, Any] | None = None  # the report's images[i] (covariance of the bias)
 
     @property
     def line_range(self) -> tuple[float, float]:
@@ -140,7 +141,7 @@ def rpc_image(job_image: dict[str, Any], report_image: dict[str, Any] | None) ->
             values[p["name"]] = float(p["value"])
     model = job_image.get("model") or {}
     kind = model.get("name") if isinstance(model, dict) else str(model)
-    return RpcImage(str(job_image["id"]), RPC.from_job(job_image["rpc"]), RpcBias.from_parameters(values), kind or "RPC")
+    return RpcImage(str(job_image["id"]), RPC.from_job(job_image["rpc"]), RpcBias.from_parameters(values), kind or "RPC", report_image)
 
 
 FIT_GRID = (21, 21, 7)  # as solver.gis.rpc_fit
