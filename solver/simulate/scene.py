@@ -435,9 +435,12 @@ class Scene:
                     },
                 }
             )
-        return {
+        settings = _jsonable(asdict(s))
+        if s.rpc is None:  # documents without RPC images stay as they were before issue 17
+            del settings["rpc"]
+        doc = {
             "schema": TRUTH_SCHEMA,
-            "settings": _jsonable(asdict(s)),
+            "settings": settings,
             "conventions": {
                 "time": "seconds of the UTC day: job time = epoch_s + simulator time",
                 "camera_from_ecef": "rows x_c, y_c, z_c in ECEF: p_cam = M (p - S); x = -f X/Z, y = -f Y/Z",
@@ -469,12 +472,14 @@ class Scene:
                 for i, p in enumerate(self.points)
             ],
             "images": images,
-            "rpc_images": [rpc_truth(self.images[k], s.rpc.model, s.rpc.rpc_bias, rpc) for k, rpc in self.rpcs.items()],
             "observations": [
                 {"image": self.images[o.image].id, "point": self.points[o.point].id, "line": o.line, "column": o.column, "chip": self.images[o.image].camera.chips[o.chip].id}
                 for o in self.observations
             ],
         }
+        if self.rpcs:
+            doc["rpc_images"] = [rpc_truth(self.images[k], s.rpc.model, s.rpc.rpc_bias, rpc) for k, rpc in self.rpcs.items()]
+        return doc
 
 
 def _jsonable(x: Any) -> Any:
