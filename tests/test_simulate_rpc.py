@@ -125,7 +125,7 @@ def test_mixed_block_keeps_the_cameras_of_the_other_images() -> None:
     assert chips[job["images"][1]["id"]] == IDEAL_CHIP_ID and chips[job["images"][0]["id"]] != IDEAL_CHIP_ID
 
 
-@pytest.mark.parametrize("args", [["--rpc-bias", "a0=1"], ["--rpc-model", "RPC-SHIFT", "--rpc-bias", "c0=1"], ["--rpc-model", "RPC-SHIFT", "--rpc-bias", "a0"]])
+@pytest.mark.parametrize("args", [["--rpc-bias", "a0=1"], ["--rpc-model", "RPC-SHIFT", "--rpc-bias", "c0=1"], ["--rpc-model", "RPC-SHIFT", "--rpc-bias", "a0"], ["--rpc-model", "RPC-SHIFT", "--rpc-images", "2"]])
 def test_bad_rpc_options_exit_with_a_message(tmp_path, args) -> None:
     with pytest.raises(SystemExit) as exc:
         main(["simulate", "prism-single", "-o", str(tmp_path / "j.json"), *args])

@@ -11,7 +11,7 @@ from solver.geometry.rpc import BIAS_MODELS
 from solver.simulate import presets
 from solver.simulate.camera import PRISM_LAYOUTS
 from solver.simulate.lines import cbers_lines
-from solver.simulate.rpc import RpcSettings, parse_bias
+from solver.simulate.rpc import RpcSettings, RpcSettingsError, parse_bias
 from solver.simulate.scene import Settings, write_documents
 
 RPC_MODELS = tuple(BIAS_MODELS)
@@ -170,6 +170,21 @@ def _iop_errors(value: str):
     return json.loads(Path(value).read_text())
 
 
+def _scene(args: argparse.Namespace, settings: Settings):
+    """The simulated scene of the preset ``args.preset``."""
+    if args.preset == "prism-single":
+        return presets.prism_single(settings, args.camera, args.gcps, args.checks, args.chip_layout)
+    if args.preset == "prism-triplet":
+        return presets.prism_triplet(settings, args.gcps, args.checks, args.tie_points, args.chip_layout)
+    if args.preset == "cbers-scene":
+        return presets.cbers_scene(settings, args.gcps, args.checks)
+    if args.preset == "cbers-lines":
+        return cbers_lines(
+            settings, args.lines, args.gcps, args.checks, args.yaw_steering, args.line_noise_px, args.check_lines
+        )
+    return presets.strip(settings, args.triplets, args.tie_points, args.gcps, args.checks)
+
+
 def run(args: argparse.Namespace) -> int:
     settings = Settings(
         preset=args.preset,
@@ -186,18 +201,10 @@ def run(args: argparse.Namespace) -> int:
         rpc=_rpc_settings(args),
     )
     t0 = time.perf_counter()
-    if args.preset == "prism-single":
-        scene = presets.prism_single(settings, args.camera, args.gcps, args.checks, args.chip_layout)
-    elif args.preset == "prism-triplet":
-        scene = presets.prism_triplet(settings, args.gcps, args.checks, args.tie_points, args.chip_layout)
-    elif args.preset == "cbers-scene":
-        scene = presets.cbers_scene(settings, args.gcps, args.checks)
-    elif args.preset == "cbers-lines":
-        scene = cbers_lines(
-            settings, args.lines, args.gcps, args.checks, args.yaw_steering, args.line_noise_px, args.check_lines
-        )
-    else:
-        scene = presets.strip(settings, args.triplets, args.tie_points, args.gcps, args.checks)
+    try:
+        scene = _scene(args, settings)
+    except RpcSettingsError as exc:
+        raise SystemExit(str(exc)) from None
     job_path, truth_path = write_documents(scene, Path(args.output), args.truth, args.indent)
     if args.raster:
         from solver.simulate.raster import write_rasters

@@ -39,6 +39,10 @@ HEIGHT_MARGIN_M = 100.0
 IDEAL_CHIP_ID = "ideal"
 
 
+class RpcSettingsError(ValueError):
+    """RPC settings that do not fit the scene (e.g. an image number it does not have)."""
+
+
 @dataclass(frozen=True)
 class RpcSettings:
     """Which images are RPC images, their model and the bias their delivered RPC carries."""

@@ -34,7 +34,7 @@ from solver.simulate.camera import CameraSpec
 from solver.simulate.iop import resolve_iop
 from solver.simulate.orbit import EarthModel, Orbit, circular_state_over, sun_synchronous_semi_major_axis
 from solver.simulate.projection import ImageGeometry
-from solver.simulate.rpc import RpcSettings, delivered_geometry, fit_image_rpc, rpc_truth
+from solver.simulate.rpc import RpcSettings, RpcSettingsError, delivered_geometry, fit_image_rpc, rpc_truth
 from solver.simulate.terrain import Terrain
 
 TRUTH_SCHEMA = "pba-simulation-truth/1"
@@ -172,7 +172,7 @@ class Scene:
                 self.images.append(ImageGeometry(f"{cam.id}{suffix}", cam, self.platform, float(first)))
         rpc = self.settings.rpc
         if rpc is not None and rpc.images is not None and not all(1 <= n <= len(self.images) for n in rpc.images):
-            raise ValueError(f"RPC images {list(rpc.images)}: the scene has images 1..{len(self.images)}")
+            raise RpcSettingsError(f"--rpc-images {','.join(map(str, rpc.images))}: the scene has images 1..{len(self.images)}")
         if self.settings.rpc is not None:  # an RPC image is measured in the image its RPC describes
             self.images = [delivered_geometry(im) if self.settings.rpc.selects(k) else im for k, im in enumerate(self.images)]
 
