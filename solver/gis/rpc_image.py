@@ -12,9 +12,10 @@ the RPC, then the 2 x 2 linear system (exact). Image to ground at a height: the 
 position minus the bias is what the RPC gives; longitude and latitude by Newton's method on
 the RPC (numerical Jacobian, to 1e-9 px), a DEM by iterating the height.
 
-The image's extent: an RPC image has no camera, so its lines and columns are the RPC's
+The image's extent: an RPC image has no camera, so its lines and columns are those of the RPC's
 normalisation domain, ``line_off +- line_scale`` and ``samp_off +- samp_scale`` (the whole image
-for the RPCs we fit, and for vendors' RPCs as a rule).
+for the RPCs we fit, and for vendors' RPCs as a rule), moved by the bias (the observed
+coordinates of the domain's corners; first line and column at least 0).
 
 The refined RPC (:func:`refined_rpc`): without cross terms (``a_column = b_line = 0``) the bias
 folds exactly into the offsets and scales (:meth:`RpcBias.fold`); otherwise the two rational
@@ -50,13 +51,22 @@ class RpcImage:
     kind: str  # RPC-SHIFT, RPC-DRIFT or RPC-AFFINE
     report_entry: dict[str, Any] | None = None  # the report's images[i] (covariance of the bias)
 
+    def _extent(self) -> tuple[np.ndarray, np.ndarray]:
+        """Observed (line, column) of the corners of the RPC's normalisation domain."""
+        r = self.rpc
+        rl = r.line_off + r.line_scale * np.array([-1.0, -1.0, 1.0, 1.0])
+        rc = r.samp_off + r.samp_scale * np.array([-1.0, 1.0, -1.0, 1.0])
+        return self.bias.observed(rl, rc)
+
     @property
     def line_range(self) -> tuple[float, float]:
-        return max(self.rpc.line_off - self.rpc.line_scale, 0.0), self.rpc.line_off + self.rpc.line_scale
+        line, _ = self._extent()
+        return max(float(line.min()), 0.0), float(line.max())
 
     @property
     def column_range(self) -> tuple[float, float]:
-        return max(self.rpc.samp_off - self.rpc.samp_scale, 0.0), self.rpc.samp_off + self.rpc.samp_scale
+        _, col = self._extent()
+        return max(float(col.min()), 0.0), float(col.max())
 
     @property
     def lines(self) -> int:
