@@ -321,7 +321,7 @@ def rpc_image_entries(job: Job) -> dict[str, dict[str, Any]]:
         if rpc is None:
             continue
         if hasattr(rpc, "model_dump"):
-            rpc = rpc.model_dump(exclude_none=True)
+            rpc = rpc.model_dump(mode="json", exclude_none=True)
         model = getattr(img, "model", None)
         name = getattr(model, "name", None) or (model.get("name") if isinstance(model, dict) else None)
         out[img.id] = {"id": img.id, "rpc": dict(rpc), "model": {"name": name}}
