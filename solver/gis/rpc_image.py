@@ -15,7 +15,8 @@ the RPC (numerical Jacobian, to 1e-9 px), a DEM by iterating the height.
 The image's extent: an RPC image has no camera, so its lines and columns are those of the RPC's
 normalisation domain, ``line_off +- line_scale`` and ``samp_off +- samp_scale`` (the whole image
 for the RPCs we fit, and for vendors' RPCs as a rule), moved by the bias (the observed
-coordinates of the domain's corners; first line and column at least 0).
+coordinates of the domain's corners; first line and column at least 0), unless the size is
+known (:meth:`RpcImage.with_size`: ``pba ortho`` takes the raster's).
 
 The refined RPC (:func:`refined_rpc`): without cross terms (``a_column = b_line = 0``) the bias
 folds exactly into the offsets and scales (:meth:`RpcBias.fold`); otherwise the two rational
@@ -50,6 +51,11 @@ class RpcImage:
     bias: RpcBias
     kind: str  # RPC-SHIFT, RPC-DRIFT or RPC-AFFINE
     report_entry: dict[str, Any] | None = None  # the report's images[i] (covariance of the bias)
+    size: tuple[int, int] | None = None  # (lines, columns) when known (a raster's); else from the RPC
+
+    def with_size(self, lines: int, columns: int) -> "RpcImage":
+        """The same image with its size known (e.g. its raster's)."""
+        return replace(self, size=(int(lines), int(columns)))
 
     def _extent(self) -> tuple[np.ndarray, np.ndarray]:
         """Observed (line, column) of the corners of the RPC's normalisation domain."""
@@ -60,21 +66,25 @@ class RpcImage:
 
     @property
     def line_range(self) -> tuple[float, float]:
+        if self.size is not None:
+            return 0.0, float(self.size[0] - 1)
         line, _ = self._extent()
         return max(float(line.min()), 0.0), float(line.max())
 
     @property
     def column_range(self) -> tuple[float, float]:
+        if self.size is not None:
+            return 0.0, float(self.size[1] - 1)
         _, col = self._extent()
         return max(float(col.min()), 0.0), float(col.max())
 
     @property
     def lines(self) -> int:
-        return int(round(self.line_range[1])) + 1
+        return self.size[0] if self.size is not None else int(round(self.line_range[1])) + 1
 
     @property
     def columns(self) -> int:
-        return int(round(self.column_range[1])) + 1
+        return self.size[1] if self.size is not None else int(round(self.column_range[1])) + 1
 
     @property
     def n_chips(self) -> int:
