@@ -35,6 +35,11 @@ import numpy as np
 TERMS = "1 L P H LP LH PH LL PP HH PLH LLL LPP LHH LLP PPP PHH LLH PPH HHH".split()
 
 REGULARISATION = 1e-8  # Tikhonov weight on the normalised coefficients (relative to unit weights)
+# A lighter weight for grids of 7 height layers or more (the simulator's RPCs, the refit of RPC
+# images): the 1e-8 weight alone costs ~8e-4 px on a 16000-line image (the fit of an RPC to a
+# grid made by an RPC is then 8e-4 px instead of 2e-10); 1e-12 leaves ~2e-7 px on the
+# simulated PRISM images, ~3e-6 px on CBERS (bench/bench_rpc_images.py, the note of issue 17)
+FINE_REGULARISATION = 1e-12
 PIXEL_CONVENTIONS = ("center", "gdal")
 GDAL_SHIFT_PX = 0.5  # GDAL's transformer coordinates = ours + 0.5 px (pixel corner at (0, 0))
 
@@ -163,13 +168,14 @@ class RPC:
         )
 
 
-def fit_ratio(t: np.ndarray, r: np.ndarray, iterations: int = 6) -> tuple[np.ndarray, np.ndarray]:
+def fit_ratio(t: np.ndarray, r: np.ndarray, iterations: int = 6, regularisation: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Numerator (20) and denominator (20, first = 1) of ``r ~ t @ num / t @ den`` by
-    iteratively reweighted regularised least squares (normalised ``t`` and ``r``)."""
+    iteratively reweighted regularised least squares (normalised ``t`` and ``r``; Tikhonov
+    weight ``regularisation``, default :data:`REGULARISATION`)."""
     n = len(r)
     a = np.hstack([t, -r[:, None] * t[:, 1:]])  # unknowns: num (20), den[1:] (19)
     w = np.ones(n)
-    reg = np.sqrt(REGULARISATION * n) * np.eye(39)
+    reg = np.sqrt((REGULARISATION if regularisation is None else regularisation) * n) * np.eye(39)
     num = np.zeros(20)
     den = np.zeros(20)
     den[0] = 1.0
@@ -193,9 +199,10 @@ class GroundGrid:
     h: np.ndarray
 
 
-def fit_rpc(grid: GroundGrid) -> RPC:
+def fit_rpc(grid: GroundGrid, regularisation: float | None = None) -> RPC:
     """RPC00B least-squares fit to a ground grid (normalisation from the grid's extent; points
-    with a non-finite longitude or latitude are left out)."""
+    with a non-finite longitude or latitude are left out; Tikhonov weight ``regularisation``,
+    default :data:`REGULARISATION`)."""
     ok = np.isfinite(grid.lon) & np.isfinite(grid.lat)
 
     def norm(v: np.ndarray) -> tuple[float, float]:
@@ -206,8 +213,8 @@ def fit_rpc(grid: GroundGrid) -> RPC:
     (l_off, l_sc), (s_off, s_sc) = norm(grid.line), norm(grid.column)
     h_sc = max(h_sc, 1.0)
     t = monomials((grid.lon[ok] - lo_off) / lo_sc, (grid.lat[ok] - la_off) / la_sc, (grid.h[ok] - h_off) / h_sc)
-    ln, ld = fit_ratio(t, (grid.line[ok] - l_off) / l_sc)
-    sn, sd = fit_ratio(t, (grid.column[ok] - s_off) / s_sc)
+    ln, ld = fit_ratio(t, (grid.line[ok] - l_off) / l_sc, regularisation=regularisation)
+    sn, sd = fit_ratio(t, (grid.column[ok] - s_off) / s_sc, regularisation=regularisation)
     return RPC(l_off, s_off, la_off, lo_off, h_off, l_sc, s_sc, la_sc, lo_sc, h_sc, ln, ld, sn, sd)
 
 

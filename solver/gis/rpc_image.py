@@ -21,7 +21,8 @@ known (:meth:`RpcImage.with_size`: ``pba ortho`` takes the raster's).
 The refined RPC (:func:`refined_rpc`): without cross terms (``a_column = b_line = 0``) the bias
 folds exactly into the offsets and scales (:meth:`RpcBias.fold`); otherwise the two rational
 functions would need each other's denominators, so an RPC00B is refitted to the adjusted model
-on the same terrain-independent grids as the rigorous models' RPCs (:mod:`solver.gis.rpc_fit`),
+on the same terrain-independent grids as the rigorous models' RPCs (:mod:`solver.gis.rpc_fit`;
+Tikhonov weight ``FINE_REGULARISATION``: the grid comes from a rational function itself),
 image positions to the ground at each height by the iteration above. Both are checked against
 the adjusted model on the independent check grid (``fit["check_residuals"]``, pixels).
 """
@@ -34,7 +35,7 @@ from typing import Any, Callable
 import numpy as np
 
 from solver.geometry.geodesy import ecef_to_geodetic, geodetic_to_ecef
-from solver.geometry.rpc import BIAS_NAMES, RPC, GroundGrid, RpcBias, fit_rpc, heights_of, residuals_px
+from solver.geometry.rpc import BIAS_NAMES, FINE_REGULARISATION, RPC, GroundGrid, RpcBias, fit_rpc, heights_of, residuals_px
 
 HeightFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (lon_deg, lat_deg) -> ellipsoidal height m
 
@@ -192,7 +193,7 @@ def refined_rpc(image: RpcImage, height_range_m: tuple[float, float]) -> RPC:
     if image.bias.is_separable:
         rpc, method = image.bias.fold(image.rpc), "folded"
     else:
-        rpc, method = fit_rpc(fit_g), "refit"
+        rpc, method = fit_rpc(fit_g, FINE_REGULARISATION), "refit"
     rpc = replace(rpc, err_bias=-1.0, err_rand=-1.0)
     check_g = _grid(image, heights_of(height_range_m, CHECK_GRID[2], True), CHECK_GRID[:2], True)
     rpc.fit = {
