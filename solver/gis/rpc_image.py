@@ -22,7 +22,7 @@ The refined RPC (:func:`refined_rpc`): without cross terms (``a_column = b_line 
 folds exactly into the offsets and scales (:meth:`RpcBias.fold`); otherwise the two rational
 functions would need each other's denominators, so an RPC00B is refitted to the adjusted model
 on the same terrain-independent grids as the rigorous models' RPCs (:mod:`solver.gis.rpc_fit`;
-Tikhonov weight ``FINE_REGULARISATION``: the grid comes from a rational function itself),
+the better of two Tikhonov weights on the check grid, :func:`solver.geometry.rpc.fit_rpc_best`),
 image positions to the ground at each height by the iteration above. Both are checked against
 the adjusted model on the independent check grid (``fit["check_residuals"]``, pixels).
 """
@@ -35,7 +35,7 @@ from typing import Any, Callable
 import numpy as np
 
 from solver.geometry.geodesy import ecef_to_geodetic, geodetic_to_ecef
-from solver.geometry.rpc import BIAS_NAMES, FINE_REGULARISATION, RPC, GroundGrid, RpcBias, fit_rpc, heights_of, residuals_px
+from solver.geometry.rpc import BIAS_NAMES, RPC, GroundGrid, RpcBias, fit_rpc_best, heights_of, residuals_px
 
 HeightFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (lon_deg, lat_deg) -> ellipsoidal height m
 
@@ -190,13 +190,14 @@ def refined_rpc(image: RpcImage, height_range_m: tuple[float, float]) -> RPC:
     RPC refitted to the adjusted model; ``fit`` holds the method and the residuals (pixels)
     against the adjusted model on the fit and check grids."""
     fit_g = _grid(image, heights_of(height_range_m, FIT_GRID[2]), FIT_GRID[:2], False)
+    check_g = _grid(image, heights_of(height_range_m, CHECK_GRID[2], True), CHECK_GRID[:2], True)
     if image.bias.is_separable:
         rpc, method = image.bias.fold(image.rpc), "folded"
     else:
-        rpc, method = fit_rpc(fit_g, FINE_REGULARISATION), "refit"
-    rpc = replace(rpc, err_bias=-1.0, err_rand=-1.0)
-    check_g = _grid(image, heights_of(height_range_m, CHECK_GRID[2], True), CHECK_GRID[:2], True)
+        rpc, method = fit_rpc_best(fit_g, check_g), "refit"
+    rpc = replace(rpc, err_bias=-1.0, err_rand=-1.0, fit=dict(rpc.fit))
     rpc.fit = {
+        **rpc.fit,
         "image": image.id,
         "chip": None,
         "model": image.kind,

@@ -16,7 +16,8 @@ For an image chosen as an RPC image (``pba simulate ... --rpc-model RPC-DRIFT --
    image position minus the bias at it (:meth:`solver.geometry.rpc.RpcBias.to_rpc`), so that
    ``true observed = RPC + bias`` as the RPC models define it (exact for the affine bias, which is
    explicit in the observed coordinates). The RPC00B is fitted by :func:`solver.geometry.rpc.fit_rpc`
-   (Tikhonov weight ``FINE_REGULARISATION``) and assessed on an independent check grid (cells' centres, heights between the fit layers):
+   (:func:`solver.geometry.rpc.fit_rpc_best`: the better of two Tikhonov weights on the check
+   grid) and assessed on an independent check grid (cells' centres, heights between the fit layers):
    ``check_residuals`` (pixels) in the truth file.
 """
 
@@ -28,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from solver.geometry.geodesy import ecef_to_geodetic
-from solver.geometry.rpc import BIAS_MODELS, BIAS_NAMES, FINE_REGULARISATION, RPC, GroundGrid, RpcBias, fit_rpc, heights_of, residuals_px
+from solver.geometry.rpc import BIAS_MODELS, BIAS_NAMES, RPC, GroundGrid, RpcBias, fit_rpc_best, heights_of, residuals_px
 from solver.simulate.camera import CameraSpec, ChipSpec
 from solver.simulate.iop import NO_IOP
 from solver.simulate.projection import ImageGeometry
@@ -112,9 +113,10 @@ def fit_image_rpc(im: ImageGeometry, bias: RpcBias, height_range_m: tuple[float,
     """The RPC of a delivered image carrying ``bias``, with fit and check residuals (pixels) in ``fit``."""
     hr = (height_range_m[0] - HEIGHT_MARGIN_M, height_range_m[1] + HEIGHT_MARGIN_M)
     fit_g = _grid(im, bias, heights_of(hr, FIT_GRID[2]), FIT_GRID[:2], False)
-    rpc = fit_rpc(fit_g, FINE_REGULARISATION)
     check_g = _grid(im, bias, heights_of(hr, CHECK_GRID[2], True), CHECK_GRID[:2], True)
+    rpc = fit_rpc_best(fit_g, check_g)
     rpc.fit = {
+        **rpc.fit,
         "height_range_m": list(hr),
         "fit_grid": list(FIT_GRID),
         "check_grid": list(CHECK_GRID),
