@@ -280,6 +280,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
             problems += rpc_issues
             if not rpc_issues:
                 n_unknowns += len(model.parameters({}))
+                n_prior_obs += len(im.bias_prior)
                 image_info.append({"id": im.id, "model": model.name, "n_parameters": len(model.parameters({}))})
             continue
         if im.camera not in cameras:
