@@ -195,3 +195,16 @@ def test_report_and_quality_sections_cover_rpc_images() -> None:
     assert {o["image"] for o in report["observations"]} >= rpc_ids
     checked = {p["id"] for p in report["checkpoints"]["points"]}
     assert {p for p in only_rpc if roles[p] == "check"} <= checked
+
+
+def test_lines_observed_in_an_rpc_image_are_refused_where_they_are() -> None:
+    """The line observation family needs a projection centre and image rays: a line observed in
+    an RPC image is a 4xx problem at that line's observations, not a crash or a silent drop."""
+    from solver.simulate.lines import cbers_lines
+
+    s = Settings(preset="cbers-lines", seed=7, rpc=RpcSettings("RPC-SHIFT", {"a0": 5.0}, None))
+    doc = cbers_lines(s, lines=3, gcps=6, checks=2).job()
+    result = api.validate(doc)
+    assert not result["valid"]
+    where = {tuple(p["location"]) for p in result["problems"] if p["code"] == "not_for_rpc_image"}
+    assert where == {("lines", k, "observations") for k in range(3)}
