@@ -208,3 +208,16 @@ def test_lines_observed_in_an_rpc_image_are_refused_where_they_are() -> None:
     assert not result["valid"]
     where = {tuple(p["location"]) for p in result["problems"] if p["code"] == "not_for_rpc_image"}
     assert where == {("lines", k, "observations") for k in range(3)}
+
+
+def test_preanalysis_places_planned_points_in_rpc_images() -> None:
+    """Pre-analysis of an all-RPC triplet (planned control and check points, no ties): every
+    point projects inside each RPC image's domain through its RPC (no camera extent), and the
+    predicted check-point precision is of the order of the simulated block's (0.5-3 m)."""
+    doc = _triplet("RPC-DRIFT", seed=1, gcps=4, checks=8, ties=0)
+    doc["observations"] = []
+    report = api.preanalyse(doc)
+    n_points = len(doc["points"])
+    assert [im["n_observations"] for im in report["images"]] == [n_points] * 3
+    rmse = report["checkpoints"]["predicted_rmse_m"]
+    assert 0.3 < rmse["e"] < 3.0 and 0.3 < rmse["n"] < 3.0
