@@ -221,3 +221,22 @@ def test_preanalysis_places_planned_points_in_rpc_images() -> None:
     assert [im["n_observations"] for im in report["images"]] == [n_points] * 3
     rmse = report["checkpoints"]["predicted_rmse_m"]
     assert 0.3 < rmse["e"] < 3.0 and 0.3 < rmse["n"] < 3.0
+
+
+def test_rpc_block_without_control_with_bias_priors() -> None:
+    """RPC images need no ground control when the bias is weighted a priori (the RPC is its own
+    ground reference): with a0, b0 known to 0.5 px (the true 20 / -12 px given as prior values)
+    and no control, the other parameters and the check points come out as with the prior."""
+    doc = _triplet("RPC-SHIFT", seed=2, gcps=4, checks=20, ties=40)
+    for p in doc["points"]:
+        if p["role"] == "gcp":
+            p["role"] = "check"
+    for im in doc["images"]:
+        im["bias_prior"] = {"a0": {"value": 20.0, "sigma": 0.5}, "b0": {"value": -12.0, "sigma": 0.5}}
+    report = api.run(doc)
+    assert report["adjustment"]["converged"]
+    for entry in report["images"]:
+        value, sigma = _params(entry)
+        assert sigma["a0"] < 0.5 and abs(value["a0"] - 20.0) < 3 * sigma["a0"]
+        assert sigma["b0"] < 0.5 and abs(value["b0"] + 12.0) < 3 * sigma["b0"]
+    assert report["checkpoints"]["rmse_m"]["planimetric"] < 3.0  # ~ 0.5 px x 2.5 m, within a GSD or so

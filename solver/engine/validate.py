@@ -437,6 +437,8 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     # direct georeferencing: weighted platform states and measured attitude define the datum
     # without ground control (whether they fix every parameter is the rank check's to say)
     direct = weighted_states > 0 and n_datum_obs > 0
+    # RPC images carry their own ground reference: weighted a-priori bias values define the datum
+    direct = direct or any(im.bias_prior for im in job.images)
     if not any(p.role == "gcp" for p in job.points) and line_counts["n_control"] == 0 and not direct:
         problems.append(
             Problem(
