@@ -78,7 +78,7 @@ def rpc_document(rec: JobRecord, image_id: str, fmt: str, chip: str | None) -> t
     if chip is not None:
         rpcs = [r for r in rpcs if r.fit["chip"] == chip]
         if not rpcs:
-            ids = [c.id for c in image.image.camera.chips] or ["1"]
+            ids = ([c.id for c in image.image.camera.chips] if hasattr(image, "image") else []) or ["1"]
             raise NoSuchImage(f"image {image_id!r} has no chip {chip!r} (chips: {', '.join(ids)})")
     return render(rpcs[0], fmt), rpcs[0].fit
 

@@ -17,6 +17,7 @@ from collections.abc import Callable, Sequence
 from solver import commands
 from solver.gis import cli as gis_cli
 from solver.importers import cli as importers_cli
+from solver.importers import rpc_cli as import_rpc_cli
 from solver.simulate import cli as simulate_cli
 
 Registrar = Callable[[argparse._SubParsersAction], None]
@@ -31,6 +32,7 @@ def build_parser(extra: Sequence[Registrar] = ()) -> argparse.ArgumentParser:
     commands.register(sub)  # run, models, compare, validate, export-camera, warmup
     simulate_cli.register(sub)  # simulate
     importers_cli.register(sub)  # job, job-sources
+    import_rpc_cli.register(sub)  # import-rpc
     gis_cli.register(sub)  # ground-to-image, image-to-ground, export-rpc, export-geojson, ortho, resample
     for register in extra:
         register(sub)

@@ -15,6 +15,7 @@ import numpy as np
 from solver.adjust import adjust_job
 from solver.engine.validate import comparison_problems
 from solver.errors import JobError
+from solver.platforms import get_model
 from solver.schema.job import Job
 
 __all__ = ["compare_models", "comparison_problems"]
@@ -53,7 +54,8 @@ def compare_models(
     progress: Callable[..., None] | None = None,
     cancel: Callable[[], bool] | None = None,
 ) -> dict[str, Any]:
-    """Adjust ``job`` once per model (every image switched to that model)."""
+    """Adjust ``job`` once per model (every image switched to that model; an RPC bias model
+    switches the RPC images, a rigorous model the images with a camera)."""
     problems = comparison_problems(models, ("options", "models"))
     if problems:
         raise JobError(problems)
@@ -62,7 +64,14 @@ def compare_models(
     table = []
     n = len(models)
     for k, name in enumerate(models):
-        override = {im.id: name for im in job.images}
+        # an RPC bias model replaces the models of the RPC images, a rigorous one those of the others
+        rpc = get_model(name).is_rpc
+        override = {im.id: name for im in job.images if (im.rpc is not None) == rpc}
+        if not override:
+            kind = "RPC" if rpc else "camera (rigorous)"
+            table.append({"model": name, "error": f"the job has no {kind} image for model {name}"})
+            reports[name] = {"error": {"message": table[-1]["error"]}}
+            continue
         try:
             rep = adjust_job(plain, progress=progress, cancel=cancel, models=override, fraction_range=(k / n, (k + 1) / n))
         except JobError as exc:

@@ -23,7 +23,7 @@ class ImageState:
 
     id: str
     index: int
-    camera: Camera
+    camera: Camera | None  # None: an RPC image (model.is_rpc)
     model: PlatformModel
     options: dict
     kc: np.ndarray  # (N_KEPLER_CONST,) = (17,) Kepler constants (also set, unused, for polynomial models)

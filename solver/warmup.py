@@ -32,6 +32,16 @@ def _triplet() -> dict[str, Any]:
     return scene.job()
 
 
+def _rpc_triplet() -> dict[str, Any]:
+    """The triplet with images 2 and 3 as RPC-DRIFT images (RPC kernels beside a rigorous image)."""
+    from solver.simulate import presets
+    from solver.simulate.rpc import RpcSettings
+    from solver.simulate.scene import Settings
+
+    settings = Settings(preset="prism-triplet", seed=7, rpc=RpcSettings("RPC-DRIFT", {"a0": 5.0, "b0": -3.0}, [2, 3]))
+    return presets.prism_triplet(settings, gcps=10, checks=2, tie_points=10).job()
+
+
 def _lines() -> dict[str, Any]:
     """A CBERS-like scene with 10 ground lines, 6 control and 2 check points."""
     from solver.simulate.lines import cbers_lines
@@ -53,6 +63,7 @@ def warmup_jobs() -> Iterator[tuple[str, dict[str, Any]]]:
         if model in ("K2", "PASS-J2"):  # one kernel self-calibrates every model kind
             options["self_calibration"] = {"estimate": ["df", "a0", "b0"]}
         yield model, job
+    yield "RPC-DRIFT (mixed block)", _rpc_triplet()
     lines = _lines()
     for line_model in ("rigorous", "equivalent_planes"):
         job = copy.deepcopy(lines)

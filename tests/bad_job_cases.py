@@ -54,7 +54,57 @@ FOCAL = triplet()["cameras"][0]["focal_mm"]
 STATE = ("images", 0, "approx_state")
 
 # id -> (mutation, location that must be named)
+def _rpc(**changes: Any) -> dict[str, Any]:
+    """A well-formed RPC00B near the example's ground (line = -lat, sample = lon, normalised);
+    validation does not need it to be the image's true geometry."""
+    unit = [0.0] * 20
+    den = [1.0] + [0.0] * 19
+    rpc = {
+        "line_off": 8000.0, "samp_off": 2000.0, "lat_off": -22.0, "long_off": -51.2, "height_off": 450.0,
+        "line_scale": 8000.0, "samp_scale": 2000.0, "lat_scale": 0.2, "long_scale": 0.2, "height_scale": 500.0,
+        "line_num_coeff": [0.0, 0.0, -1.0] + unit[3:], "line_den_coeff": list(den),
+        "samp_num_coeff": [0.0, 1.0] + unit[2:], "samp_den_coeff": list(den),
+    }
+    rpc.update(changes)
+    return rpc
+
+
+def _rpc_image(extra: dict[str, Any] | None = None, keep: tuple[str, ...] = (), **changes: Any) -> Callable[[dict[str, Any]], None]:
+    """Image 0 becomes an RPC-DRIFT image (RPC from :func:`_rpc`), keeping the fields ``keep``."""
+
+    def mutate(doc: dict[str, Any]) -> None:
+        im = doc["images"][0]
+        doc["images"][0] = {"id": im["id"], "model": {"name": "RPC-DRIFT"}, "rpc": _rpc(**changes),
+                            **{k: im[k] for k in keep}, **(extra or {})}
+
+    return mutate
+
+
+def _add_rpc(doc: dict[str, Any]) -> None:
+    doc["images"][0]["rpc"] = _rpc()
+
+
 CASES: dict[str, tuple[Callable[[dict[str, Any]], None], tuple]] = {
+    "rpc_model_without_rpc": (_model("RPC-SHIFT", {}), ("images", 0, "rpc")),
+    "rpc_with_rigorous_model": (_add_rpc, ("images", 0, "rpc")),
+    "rpc_zero_scale": (_rpc_image(lat_scale=0.0), ("images", 0, "rpc", "lat_scale")),
+    "rpc_zero_denominator": (_rpc_image(samp_den_coeff=[0.0] * 20), ("images", 0, "rpc", "samp_den_coeff", 0)),
+    "rpc_19_coefficients": (_rpc_image(line_num_coeff=[0.0] * 19), ("images", 0, "rpc", "line_num_coeff")),
+    "rpc_bad_pixel_convention": (_rpc_image(pixel_convention="corner"), ("images", 0, "rpc", "pixel_convention")),
+    "rpc_image_with_camera": (_rpc_image(keep=("camera",)), ("images", 0, "camera")),
+    "rpc_image_with_approx_state": (_rpc_image(keep=("approx_state",)), ("images", 0, "approx_state")),
+    "rpc_image_with_ephemeris": (_rpc_image(keep=("ephemeris", "first_line_time_s")), ("images", 0, "ephemeris")),
+    "rpc_image_with_attitude": (_rpc_image(keep=("attitude",)), ("images", 0, "attitude")),
+    "rpc_unknown_initial": (_rpc_image({"initial": {"X0": 1.0}}), ("images", 0, "initial", "X0")),
+    "rpc_prior_not_estimated": (
+        _rpc_image({"bias_prior": {"a_column": {"value": 0.0, "sigma": 1e-5}}}),
+        ("images", 0, "bias_prior", "a_column"),
+    ),
+    "rpc_prior_zero_sigma": (
+        _rpc_image({"bias_prior": {"a0": {"value": 0.0, "sigma": 0.0}}}),
+        ("images", 0, "bias_prior", "a0", "sigma"),
+    ),
+    "rpc_model_options": (_rpc_image({"model": {"name": "RPC-SHIFT", "options": {"orders": {"X": 1}}}}), ("images", 0, "model", "options")),
     "lines_1e400": (_set(("cameras", 0, "lines"), 10**400), ("cameras", 0, "lines")),
     "orders_as_list": (_model("GENERAL", {"orders": [50] * 6}), ("images", 0, "model", "options", "orders")),
     "orders_beyond_3": (_model("GENERAL", {"orders": {"X": 50}}), ("images", 0, "model", "options", "orders", "X")),

@@ -21,8 +21,9 @@ from solver.schema.job import load_job
 from solver.synthetic import block_job, single_image_job
 
 # the pass-propagated models need passes (several images, epochs) that the per-image synthetic
-# scenes here do not have; tests/test_orbit_pass.py covers their Jacobians and projections
-PER_IMAGE_MODELS = [m for m in model_names() if not get_model(m).propagated]
+# scenes here do not have; tests/test_orbit_pass.py covers their Jacobians and projections;
+# the RPC bias models have no camera (tests/test_rpc_models.py)
+PER_IMAGE_MODELS = [m for m in model_names() if not get_model(m).propagated and not get_model(m).is_rpc]
 
 REL_TOL = 2e-5  # finite differences (central) vs analytic, relative to the column scale
 

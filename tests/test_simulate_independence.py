@@ -11,8 +11,10 @@ import sys
 from pathlib import Path
 
 SIMULATE = Path(__file__).resolve().parents[1] / "solver" / "simulate"
-# the geometry shared by design (issue 14): CRS plumbing and the chip-of-a-column rule
-ALLOWED = {"solver.geometry", "solver.geometry.geodesy", "solver.geometry.sensor"}
+# the geometry shared by design (issue 14): CRS plumbing and the chip-of-a-column rule; (issue 17)
+# the RPC00B polynomial, its least-squares fit and the bias equations of RPC images (the
+# simulated RPC images' truth is checked through GDAL, tests/test_simulate_rpc.py)
+ALLOWED = {"solver.geometry", "solver.geometry.geodesy", "solver.geometry.sensor", "solver.geometry.rpc"}
 
 
 def test_simulate_sources_import_only_geometry_from_the_solver() -> None:

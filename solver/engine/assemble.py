@@ -11,16 +11,18 @@ import math
 
 import numpy as np
 
-from solver.geometry.geodesy import LocalFrame, to_ecef
+from solver.geometry.geodesy import A_WGS84_M, E2_WGS84, LocalFrame, to_ecef
+from solver.geometry.rpc import RPC
 from solver.geometry.sensor import camera_chip
 from solver.kernels import N_COEF, N_KEPLER_CONST, N_OBS_CONST
+from solver.kernels.rpc import KC_A, KC_E2, RPC_LEN, RPC_START
 from solver.observations.interior import build_cameras, chip_ids
 from solver.observations.lines import build_lines, control_line_points_ecef, lines_ecef
 from solver.observations.passes import build_passes
 from solver.observations.passes import parameter_names as pass_names
 from solver.platforms import PlatformModel, get_model
 from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
-from solver.schema.job import Job
+from solver.schema.job import Image, Job
 from solver.state import AdjustmentState, ImageState, Observations, PointState
 
 
@@ -33,6 +35,27 @@ def kepler_constants(model: PlatformModel, frame: LocalFrame, mounting_pitch_deg
     kc[13] = OMEGA_RAD_S
     kc[14] = J2 if model.j2 else 0.0
     kc[15] = AE_M
+    return kc
+
+
+RPC_CHIP = "1"  # chip name of RPC image observations (one image, no chips)
+
+
+def rpc_constants(image: Image, frame: LocalFrame) -> np.ndarray:
+    """kc of an RPC image (layout in :mod:`solver.kernels.rpc`): frame, ellipsoid, and the RPC
+    converted to our pixel convention (the one place where ``pixel_convention`` is applied)."""
+    rpc = RPC.from_job(image.rpc.model_dump(mode="json"))
+    kc = np.zeros(RPC_START + RPC_LEN)
+    kc[0:9] = frame.rotation_ecef_to_lgs.ravel()
+    kc[9:12] = frame.origin_ecef_m
+    kc[KC_A] = A_WGS84_M
+    kc[KC_E2] = E2_WGS84
+    r = kc[RPC_START:]
+    r[0:10] = (
+        rpc.line_off, rpc.samp_off, rpc.lat_off, rpc.long_off, rpc.height_off,
+        rpc.line_scale, rpc.samp_scale, rpc.lat_scale, rpc.long_scale, rpc.height_scale,
+    )
+    r[10:90] = np.concatenate([rpc.line_num, rpc.line_den, rpc.samp_num, rpc.samp_den])
     return kc
 
 
@@ -77,6 +100,23 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
         model = get_model((models or {}).get(im.id, im.model.name))
         opts = dict(im.model.options)
         free = model.free_indices(opts)
+        if model.is_rpc:
+            images.append(
+                ImageState(
+                    id=im.id,
+                    index=i,
+                    camera=None,
+                    model=model,
+                    options=opts,
+                    kc=rpc_constants(im, frame),
+                    base=np.zeros(N_COEF),
+                    free_idx=free,
+                    params=np.zeros(free.shape[0]),
+                    tau_per_line=0.0,
+                    initial=dict(im.initial),
+                )
+            )
+            continue
         cam = cameras[im.camera]
         images.append(
             ImageState(
@@ -116,6 +156,12 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
     for k, o in enumerate(job.observations):
         im = images[img_index[o.image]]
         cam = im.camera
+        if cam is None:  # RPC image: line, column, sigma only (solver.kernels.rpc)
+            obs_img[k] = im.index
+            obs_pt[k] = pt_index[o.point]
+            oc[k] = (o.line, o.column, o.sigma_px, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            chips.append(RPC_CHIP)
+            continue
         chip_id, dx, dy, centre = camera_chip(cam, o.column, o.chip)
         x0, y0 = cam.principal_point_mm
         obs_img[k] = im.index
@@ -134,8 +180,11 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
         chips.append(chip_id)
     cams = build_cameras(job)
     cam_index = {c.id: c.index for c in cams}
-    obs_cam = np.array([cam_index[images[i].camera.id] for i in obs_img], dtype=np.int64)
-    obs_chip = np.array([chip_ids(images[i].camera).index(c) for i, c in zip(obs_img, chips)], dtype=np.int64)
+    # RPC images have no camera: index -1 (the kernels never read a camera for them)
+    obs_cam = np.array([cam_index[images[i].camera.id] if images[i].camera else -1 for i in obs_img], dtype=np.int64)
+    obs_chip = np.array(
+        [chip_ids(images[i].camera).index(c) if images[i].camera else 0 for i, c in zip(obs_img, chips)], dtype=np.int64
+    )
     obs = Observations(obs_img, obs_pt, oc, chips, np.arange(n), obs_cam, obs_chip)
     lines = build_lines(job, frame, images, line_ecef) if job.lines else None
     problem = AdjustmentState(job, frame, images, points, obs, lines)

@@ -108,9 +108,9 @@ def _slots(problem: AdjustmentState, rows: np.ndarray):
     seen_cam: dict[int, int] = {}
     for q, r in enumerate(rows):
         cm = int(obs.cam[r])
-        cam = problem.cameras[cm]
-        if cam.nfree == 0:
+        if cm < 0 or problem.cameras[cm].nfree == 0:  # -1: an RPC image (no camera)
             continue
+        cam = problem.cameras[cm]
         if cm not in seen_cam:
             seen_cam[cm] = len(blocks)
             blocks.append(cam.params)

@@ -107,6 +107,10 @@ def initialise(problem: AdjustmentState) -> None:
                 )
             )
             continue
+        if img.model.is_rpc:  # bias 0, or the job's initial values
+            _apply_initial(img)
+            img.params[:] = img.base[img.free_idx]
+            continue
         v_ecef = None
         state = image_state(im_doc, job.options)  # approx_state or the interpolated ephemeris
         states[img.index] = state

@@ -72,7 +72,7 @@ def records(
     rec[:, REC_IMG_SLOT] = -1 if img_slot is None else img_slot
     rec[:, REC_CAM_SLOT] = -1 if cam_slot is None else cam_slot
     rec[:, REC_CHIP] = obs.chip_idx[rows]
-    lens = np.array([problem.cameras[c].chip_len_mm[k] for c, k in zip(obs.cam[rows], obs.chip_idx[rows])])
+    lens = np.array([problem.cameras[c].chip_len_mm[k] if c >= 0 else 0.0 for c, k in zip(obs.cam[rows], obs.chip_idx[rows])])
     rec[:, REC_CHIP_LEN] = lens
     rec[:, REC_OC:REC_PASS_SLOT] = obs.oc[rows]
     rec[:, REC_PASS_SLOT] = -1 if pass_slot is None else pass_slot

@@ -23,7 +23,7 @@ from solver.observations.lines import collect_line_problems
 from solver.observations.passes import n_pass_state_observations, n_pass_unknowns, pass_problems
 from solver.observations.registry import FAMILIES
 from solver.platforms import HELD, PlatformModel, get_model
-from solver.schema.job import MAX_COMPARED_MODELS, Camera, ImageObservation, Job
+from solver.schema.job import MAX_COMPARED_MODELS, Camera, Image, ImageObservation, Job
 
 # ellipsoidal heights of ground points: the deepest ocean trench to far above any aircraft
 MIN_HEIGHT_M = -5e4
@@ -206,6 +206,43 @@ def comparison_problems(models: list[str], location: tuple[str | int, ...]) -> l
     return out
 
 
+def rpc_image_problems(job: Job, im: Image, i: int, model: PlatformModel) -> list[Problem]:
+    """Problems of an image with an RPC or an RPC bias model: both or neither; an RPC image has
+    no camera, platform data, lines or self-calibration; its RPC must be usable (non-zero scales,
+    non-zero constant denominator terms); ``initial`` and ``bias_prior`` name its parameters."""
+    loc = ("images", i)
+    if not model.is_rpc:
+        return [Problem("rpc_with_rigorous_model", f"image {im.id!r} has an rpc but the rigorous model {model.name}; "
+                        "use an RPC bias model (RPC-SHIFT, RPC-DRIFT, RPC-AFFINE) or leave rpc out", loc + ("rpc",))]
+    if im.rpc is None:
+        return [Problem("missing_rpc", f"image {im.id!r}: model {model.name} needs images[].rpc (an RPC00B)", loc + ("rpc",))]
+    out = []
+    for field in ("camera", "approx_state", "first_line_time_s", "ephemeris", "attitude"):
+        if getattr(im, field):
+            out.append(Problem("not_for_rpc_image", f"image {im.id!r} is an RPC image: {field} does not apply "
+                               "(the RPC is its whole sensor model)", loc + (field,)))
+    for field in ("line_scale", "samp_scale", "lat_scale", "long_scale", "height_scale"):
+        if getattr(im.rpc, field) == 0:
+            out.append(Problem("invalid_rpc", f"image {im.id!r}: rpc {field} is 0", loc + ("rpc", field)))
+    for field in ("line_den_coeff", "samp_den_coeff"):
+        if getattr(im.rpc, field)[0] == 0:
+            out.append(Problem("invalid_rpc", f"image {im.id!r}: the constant term of rpc {field} is 0", loc + ("rpc", field, 0)))
+    names = {p.name for p in model.parameters({})}
+    for field in ("initial", "bias_prior"):
+        unknown = sorted(set(getattr(im, field)) - names)
+        if unknown:
+            out.append(Problem("unknown_parameter", f"image {im.id!r}: model {model.name} has no parameter(s) "
+                               f"{', '.join(unknown)}", loc + (field, unknown[0])))
+    if model.options_doc == {} and im.model.options:
+        out.append(Problem("invalid_model_options", f"image {im.id!r}: model {model.name} takes no options", loc + ("model", "options")))
+    for k, ln in enumerate(job.lines):
+        if any(o.image == im.id for o in ln.observations):
+            out.append(Problem("not_for_rpc_image", f"line {ln.id!r} is observed in RPC image {im.id!r}: line observations "
+                               "need a rigorous model (their condition uses the projection centre and the image ray)",
+                               ("lines", k, "observations")))
+    return out
+
+
 def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     """All problems of a job plus the counts (observations, unknowns, dof) when computable."""
     problems: list[Problem] = []
@@ -233,16 +270,24 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     weighted_states = 0  # images whose line-0 state (header or ephemeris) is a weighted observation
     image_info = []
     for i, im in enumerate(job.images):
-        if im.camera not in cameras:
-            problems.append(
-                Problem("unknown_camera", f"image {im.id!r} uses unknown camera {im.camera!r}", ("images", i, "camera"))
-            )
-        problems += ephemeris_problems(im, i)
         try:
             model = get_model(im.model.name)
         except KeyError as exc:
             problems.append(Problem("unknown_model", str(exc.args[0]), ("images", i, "model", "name")))
             continue
+        if model.is_rpc or im.rpc is not None:
+            rpc_issues = rpc_image_problems(job, im, i, model)
+            problems += rpc_issues
+            if not rpc_issues:
+                n_unknowns += len(model.parameters({}))
+                n_prior_obs += len(im.bias_prior)
+                image_info.append({"id": im.id, "model": model.name, "n_parameters": len(model.parameters({}))})
+            continue
+        if im.camera not in cameras:
+            problems.append(
+                Problem("unknown_camera", f"image {im.id!r} uses unknown camera {im.camera!r}", ("images", i, "camera"))
+            )
+        problems += ephemeris_problems(im, i)
         option_problems = model_option_problems(model, im.model.options, ("images", i, "model"))
         if option_problems:
             problems += option_problems
@@ -392,6 +437,8 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     # direct georeferencing: weighted platform states and measured attitude define the datum
     # without ground control (whether they fix every parameter is the rank check's to say)
     direct = weighted_states > 0 and n_datum_obs > 0
+    # RPC images carry their own ground reference: weighted a-priori bias values define the datum
+    direct = direct or any(im.bias_prior for im in job.images)
     if not any(p.role == "gcp" for p in job.points) and line_counts["n_control"] == 0 and not direct:
         problems.append(
             Problem(

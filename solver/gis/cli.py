@@ -260,10 +260,13 @@ def cmd_resample(args: argparse.Namespace) -> int:
     from solver.gis.resample import resample_raster, write_chip_rasters
     from solver.gis.rpc_export import height_range, image_rpcs
     from solver.gis.rpc_fit import fit_image_rpc
+    from solver.gis.rpc_image import RpcImage
     from solver.gis.rpc_io import write_sidecar
 
     model = _load_model(args)
     image = _image(model, args.image)
+    if isinstance(image, RpcImage):
+        return _fail(f"image {image.id!r} is an RPC image: it has no camera to resample from (its refined RPC: pba export-rpc)")
     try:
         if args.per_chip:
             rpcs = image_rpcs(model, image, per_chip=True)

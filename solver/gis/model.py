@@ -15,6 +15,10 @@ line (``first_line_time_s``), columns follow the camera's chip layout
 (:mod:`solver.gis.rpc_io`).
 
 Ground coordinates are ECEF metres (EPSG:4978) at this interface; heights are ellipsoidal.
+
+RPC images (issue 17: an image with ``rpc`` and a model RPC-SHIFT, RPC-DRIFT or RPC-AFFINE,
+no camera) are :class:`solver.gis.rpc_image.RpcImage`: the delivered RPC plus the report's bias
+``a0 .. b_column``, with the same ``ground_to_image`` / ``image_to_ground`` interface.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import numpy as np
 
 from solver.geometry.geodesy import ecef_to_geodetic
 from solver.geometry.sensor import camera_chip, chip_index_of_column
+from solver.gis.rpc_image import RpcImage, rpc_image
 from solver.kernels import OBS_REC, REC_CAM_SLOT, REC_CAMERA, REC_CHIP, REC_CHIP_LEN, REC_IMAGE, REC_IMG_SLOT, REC_OC, REC_PASS_SLOT, _eval_record, ray, ray_cam
 from solver.schema.job import Job, load_job
 from solver.state import AdjustmentState, ImageState
@@ -281,13 +286,18 @@ class AdjustedModel:
         self.tables = (image_table(self.problem), camera_table(self.problem))
         self.refresh_tables = lambda: setattr(self, "tables", (image_table(self.problem), camera_table(self.problem)))
         self.no_params = np.zeros((1, 1))
-        self._images = {im.id: AdjustedImage(self, im) for im in self.problem.images}
+        rpc_entries = rpc_image_entries(self.job)
+        reported = {e["id"]: e for e in report.get("images", [])}
+        self._images: dict[str, AdjustedImage | RpcImage] = {
+            im.id: rpc_image(rpc_entries[im.id], reported.get(im.id)) if im.id in rpc_entries else AdjustedImage(self, im)
+            for im in self.problem.images
+        }
 
     @property
     def image_ids(self) -> list[str]:
         return list(self._images)
 
-    def image(self, image_id: str) -> AdjustedImage:
+    def image(self, image_id: str) -> "AdjustedImage | RpcImage":
         try:
             return self._images[image_id]
         except KeyError:
@@ -301,6 +311,21 @@ class AdjustedModel:
             return -margin_m, margin_m
         h = ecef_to_geodetic(self.problem.frame.to_ecef(np.array(pts)))[:, 2]
         return float(math.floor(h.min() - margin_m)), float(math.ceil(h.max() + margin_m))
+
+
+def rpc_image_entries(job: Job) -> dict[str, dict[str, Any]]:
+    """``{id: {"id", "rpc", "model"}}`` of the job's RPC images (those with ``rpc``), as plain data."""
+    out: dict[str, dict[str, Any]] = {}
+    for img in job.images:
+        rpc = getattr(img, "rpc", None)
+        if rpc is None:
+            continue
+        if hasattr(rpc, "model_dump"):
+            rpc = rpc.model_dump(mode="json", exclude_none=True)
+        model = getattr(img, "model", None)
+        name = getattr(model, "name", None) or (model.get("name") if isinstance(model, dict) else None)
+        out[img.id] = {"id": img.id, "rpc": dict(rpc), "model": {"name": name}}
+    return out
 
 
 def load_model(job: Job | dict[str, Any] | str | bytes, report: dict[str, Any]) -> AdjustedModel:

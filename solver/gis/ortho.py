@@ -32,6 +32,7 @@ from pyproj import Transformer
 
 from solver.geometry.geodesy import ecef_to_geodetic, geodetic_to_ecef, parse_crs
 from solver.gis.model import AdjustedImage
+from solver.gis.rpc_image import RpcImage
 
 GRID_STEP = 32
 Progress = Callable[[float, str], None]
@@ -93,11 +94,13 @@ def orthorectify(
     dem_obj = Dem(dem) if dem is not None else None
     heights = dem_obj.range_m if dem_obj is not None else (height_m, height_m)
     say = progress or (lambda f, m: None)
-    x0, y1, nx, ny = _bounds(image, crs, heights, gsd)
-    transform = from_origin(x0, y1, gsd, gsd)
     with rasterio.open(raster) as src:
         data = src.read(1)
         dtype = data.dtype
+    if isinstance(image, RpcImage):  # no camera: the raster gives the image's size
+        image = image.with_size(*data.shape)
+    x0, y1, nx, ny = _bounds(image, crs, heights, gsd)
+    transform = from_origin(x0, y1, gsd, gsd)
     if data.shape != (image.lines, image.columns):
         raise ValueError(f"{raster}: {data.shape[0]} x {data.shape[1]} pixels, the image has {image.lines} x {image.columns}")
     out = np.zeros((ny, nx), dtype=dtype)

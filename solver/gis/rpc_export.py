@@ -1,6 +1,10 @@
 """RPC export of one adjusted image: fit (:mod:`solver.gis.rpc_fit`) and write
 (:mod:`solver.gis.rpc_io`) as a sidecar, an ``.RPB`` or the tags of a GeoTIFF copy.
 
+An RPC image's (:mod:`solver.gis.rpc_image`) is its refined RPC: the adjusted bias folded into
+the delivered RPC (no cross terms) or an RPC refitted to the adjusted model; it has one "chip"
+(``"1"``), the whole image.
+
 Per-chip RPCs (``per_chip``) map ground points to the columns of the chip's sub-image: the
 delivered image's columns from the chip's first column inside the image (``first``), so the
 sub-image's column 0 is the delivered image's column ``first`` (``fit["column_offset"]``).
@@ -14,6 +18,7 @@ from typing import Any
 
 from solver.gis.model import AdjustedImage, AdjustedModel
 from solver.gis.rpc_fit import HEIGHT_MARGIN_M, RPC, fit_image_rpc
+from solver.gis.rpc_image import RpcImage, refined_rpc
 from solver.gis.rpc_io import write_raster_with_rpc, write_sidecar
 
 
@@ -24,9 +29,14 @@ def height_range(model: AdjustedModel, dem_range_m: tuple[float, float] | None =
     return model.height_range_m(HEIGHT_MARGIN_M)
 
 
-def image_rpcs(model: AdjustedModel, image: AdjustedImage, dem_range_m=None, per_chip: bool = False) -> list[RPC]:
+def image_rpcs(model: AdjustedModel, image: AdjustedImage | RpcImage, dem_range_m=None, per_chip: bool = False) -> list[RPC]:
     """The whole image's RPC, or one per chip (sub-image columns)."""
     hr = height_range(model, dem_range_m)
+    if isinstance(image, RpcImage):
+        rpc = refined_rpc(image, hr)
+        if per_chip:
+            rpc.fit["chip"] = "1"
+        return [rpc]
     if not per_chip:
         return [fit_image_rpc(image, hr)]
     out = []
@@ -47,7 +57,7 @@ def _chip_path(output: Path, chip: str) -> Path:
 
 
 def export_rpcs(
-    model: AdjustedModel, image: AdjustedImage, output: Path, raster: Path | None = None, dem_range_m=None, per_chip: bool = False
+    model: AdjustedModel, image: AdjustedImage | RpcImage, output: Path, raster: Path | None = None, dem_range_m=None, per_chip: bool = False
 ) -> tuple[list[Path], list[dict[str, Any]]]:
     """Write the RPC(s) of ``image`` to ``output`` (format from its name); with ``raster`` a
     GeoTIFF copy with the RPC tags. Returns the paths written and the fit records."""

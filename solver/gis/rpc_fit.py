@@ -5,7 +5,9 @@ for photogrammetric processing", PE&RS 67(12)): a 3-D grid of virtual control po
 intersecting the rays of a regular grid of image positions with several constant ellipsoidal
 heights spanning the job's height range (plus a margin) or a DEM's; the 78 coefficients are
 estimated by iteratively reweighted, Tikhonov-regularised linear least squares (the linearised
-form ``N(X) - r D(X) = 0`` weighted by ``1 / D(X)`` of the previous iteration). The fit is
+form ``N(X) - r D(X) = 0`` weighted by ``1 / D(X)`` of the previous iteration), with the better
+on the check grid of two weights (1e-12: ~1e-7 px for a smooth geometry; 1e-8: steadier where
+the geometry jumps, the whole image of a multi-chip camera; :func:`solver.geometry.rpc.fit_rpc_best`). The fit is
 assessed on an independent check grid (image positions half-way between the fit grid's, heights
 between its layers), reported as residuals in pixels.
 
@@ -31,6 +33,7 @@ from solver.geometry.rpc import (  # noqa: F401  (re-exported: the GIS modules a
     GroundGrid,
     fit_ratio,
     fit_rpc,
+    fit_rpc_best,
     heights_of,
     monomials,
     residuals_px,
@@ -73,9 +76,10 @@ def fit_image_rpc(image, height_range_m: tuple[float, float], chip: int | None =
     lines = (0.0, float(image.lines - 1))
     columns = image.chip_range(chip) if chip is not None else (0.0, float(image.columns - 1))
     fit_g = ground_grid(image, lines, columns, heights_of(height_range_m, FIT_GRID[2]), FIT_GRID[:2], chip)
-    rpc = fit_rpc(fit_g)
     check_g = ground_grid(image, lines, columns, heights_of(height_range_m, CHECK_GRID[2], True), CHECK_GRID[:2], chip, cell_centres=True)
+    rpc = fit_rpc_best(fit_g, check_g)
     rpc.fit = {
+        **rpc.fit,
         "image": image.id,
         "chip": None if chip is None else (image.image.camera.chips[chip].id if image.image.camera.chips else "1"),
         "model": image.kind,

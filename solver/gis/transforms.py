@@ -18,12 +18,15 @@ the covariance of cameras (self-calibration) and passes is not included. Ground 
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Callable
 
 import numpy as np
 
 from solver.geometry.geodesy import GEODETIC_CRS, ecef_to_geodetic, enu_rotation, from_ecef, parse_crs, to_ecef
+from solver.geometry.rpc import BIAS_NAMES
 from solver.gis.model import AdjustedImage, HeightFn
+from solver.gis.rpc_image import RpcImage
 
 _ABBREV = {"lon": "lon", "long": "lon", "lat": "lat", "h": "height"}
 
@@ -78,12 +81,44 @@ def _with_parameters(image: AdjustedImage, delta: np.ndarray, fn: Callable[[], n
         model.refresh_tables()
 
 
-def _propagate(image: AdjustedImage, fn: Callable[[], np.ndarray]) -> np.ndarray | None:
+def _propagate_rpc(image: RpcImage, entry: dict[str, Any], fn: Callable[[], np.ndarray]) -> np.ndarray | None:
+    """:func:`_propagate` for an RPC image: the covariance of its bias parameters (px, px/px)."""
+    cov = np.asarray(entry["covariance"]["matrix"], float)
+    names = entry["covariance"]["names"]
+    if not set(names) <= set(BIAS_NAMES):
+        return None
+    sig = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    keep = image.bias
+    cols = []
+    try:
+        for j, name in enumerate(names):
+            step = 1e-3 * sig[j]
+            if step == 0.0:
+                cols.append(None)
+                continue
+            image.bias = replace(keep, **{name: getattr(keep, name) + step})
+            plus = fn()
+            image.bias = replace(keep, **{name: getattr(keep, name) - step})
+            minus = fn()
+            cols.append((plus - minus) / (2.0 * step))
+    finally:
+        image.bias = keep
+    base = fn()
+    jac = np.stack([c if c is not None else np.zeros_like(base) for c in cols], axis=-1)
+    return np.einsum("nkp,pq,nlq->nkl", jac, cov, jac)
+
+
+def _propagate(image: AdjustedImage | RpcImage, fn: Callable[[], np.ndarray]) -> np.ndarray | None:
     """Covariance (n, k, k) of ``fn()``'s (n, k) output from the image's parameter covariance
     (report units), by central differences with steps of 1e-3 sigma; None without covariance."""
-    entry = next((e for e in image.model.report.get("images", []) if e["id"] == image.id), None)
+    if isinstance(image, RpcImage):
+        entry = image.report_entry
+    else:
+        entry = next((e for e in image.model.report.get("images", []) if e["id"] == image.id), None)
     if not entry or not entry.get("covariance"):
         return None
+    if isinstance(image, RpcImage):
+        return _propagate_rpc(image, entry, fn)
     cov = np.asarray(entry["covariance"]["matrix"], float)
     specs = image.image.model.parameters(image.image.options)
     names = entry["covariance"]["names"]
@@ -121,7 +156,7 @@ def ground_to_image_table(image: AdjustedImage, rows: list[dict[str, Any]], crs:
             return np.column_stack([l2, c2])
 
         cov = _propagate(image, fn)
-    chip_ids = [c.id for c in image.image.camera.chips]
+    chip_ids = [] if isinstance(image, RpcImage) else [c.id for c in image.image.camera.chips]
     for i, r in enumerate(rows):
         o = dict(r)
         o["line"] = float(line[i]) if np.isfinite(line[i]) else None

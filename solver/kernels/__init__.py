@@ -44,11 +44,13 @@ from solver.kernels.propagation import (
     gravity_and_gradient,
     pass_state,
 )
+from solver.kernels.rpc import rpc_project, rpc_ray
 
 KIND_POLYNOMIAL = 0
 KIND_KEPLER = 1
 KIND_ORBIT_ATTITUDE = 2  # Kepler/J2 position, attitude relative to the orbital frame
 KIND_PASS = 3  # one propagated orbit per pass (solver.kernels.propagation), attitude as orbit-attitude
+KIND_RPC = 4  # RPC00B plus an image-space bias (solver.kernels.rpc): no camera, no platform
 N_COEF = 24
 N_OBS_CONST = 9
 N_KEPLER_CONST = 17
@@ -561,6 +563,8 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
     dL_dp[3], dC_dcoef[24], dC_dp[3]); derivatives by the implicit function theorem (for
     KIND_PASS the pass-state derivatives are in the coefficient slots PASS_COEF_INDEX).
     """
+    if kind == KIND_RPC:
+        return rpc_project(coef, kc, p, oc, want_jac)
     f = oc[3]
     px = oc[4]
     xo = oc[5]
@@ -642,6 +646,8 @@ def object_to_camera(kind, coef, kc, tau: float):
 @njit(**_JIT)
 def ray(kind, coef, kc, oc):
     """Perspective centre S (LGS) and unit viewing direction (LGS) of an observation's pixel."""
+    if kind == KIND_RPC:
+        return rpc_ray(coef, kc, oc)
     tau = oc[0] * oc[8]
     s, ds_dc, ds_dt, ang, da_dc, da_dt = platform_state(kind, coef, kc, tau)
     m = object_to_camera(kind, coef, kc, tau)
@@ -890,7 +896,7 @@ def _eval_record(r, img_tab, cam_tab, p, params, want: bool):
         ensure_segment(kc, params[int(r[REC_PASS_SLOT])])
     oc = r[REC_OC:REC_PASS_SLOT]
     ct = cam_tab[cm]
-    if ct[1] != 0.0:
+    if ct[1] != 0.0 and kind != KIND_RPC:
         iop = ct[2 + N_IOP : 2 + 2 * N_IOP].copy()
         if cslot >= 0:
             pc = params[cslot]
@@ -1003,13 +1009,13 @@ def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, est
         it = img_tab[im]
         ct = cam_tab[cm]
         nf = int(it[IT_NFREE])
-        nc = int(ct[0])
+        nc = int(ct[0]) if int(it[IT_KIND]) != KIND_RPC else 0
         coef = it[IT_BASE:KC_START].copy()
         for j in range(nf):
             coef[int(it[IT_FREE + j])] = img_p[im, j]
         oc = r[REC_OC:REC_PASS_SLOT]
         p = pts[pt_idx[i]]
-        if ct[1] != 0.0:
+        if ct[1] != 0.0 and int(it[IT_KIND]) != KIND_RPC:
             iop = ct[2 + N_IOP : 2 + 2 * N_IOP].copy()
             for j in range(nc):
                 iop[int(ct[2 + j])] = cam_p[cm, j]

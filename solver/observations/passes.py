@@ -106,7 +106,7 @@ def attitude_blocks(job: "Job") -> list[list[int]]:
 def image_attitude_blocks(images: list["ImageState"]) -> list[list[int]]:
     """:func:`_attitude_blocks` of a problem's images (with the models actually adjusted,
     which a model comparison may override)."""
-    return _attitude_blocks((img.model, img.options, img.camera.id) for img in images)
+    return _attitude_blocks((img.model, img.options, img.camera.id if img.camera else None) for img in images)
 
 
 def _line_span(job_image, camera, lines_observed: list[float]) -> tuple[float, float]:

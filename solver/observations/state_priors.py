@@ -73,5 +73,32 @@ def state_prior(problem: AdjustmentState, img: ImageState) -> StatePrior | None:
     return StatePrior(img.index, np.array(rows_a), np.array(rows_b), np.array(rows_w))
 
 
+class BiasPrior(StatePrior):
+    """Weighted a-priori values of an RPC image's bias parameters (same algebra as the state)."""
+
+
+def bias_prior(problem: AdjustmentState, img: ImageState) -> StatePrior | None:
+    """Weighted a-priori values of an RPC image's bias parameters (``images[].bias_prior``,
+    report units: px, px/px): ``r = (p_k - value) / sigma`` per named parameter."""
+    given = problem.job.images[img.index].bias_prior if img.model.is_rpc else {}
+    if not given:
+        return None
+    col = {s.name: q for q, s in enumerate(img.model.parameters(img.options))}
+    rows_a, rows_b, rows_w = [], [], []
+    for name, prior in given.items():
+        row = np.zeros(img.nfree)
+        row[col[name]] = 1.0
+        rows_a.append(row)
+        rows_b.append(prior.value)
+        rows_w.append(1.0 / prior.sigma)
+    return BiasPrior(img.index, np.array(rows_a), np.array(rows_b), np.array(rows_w))
+
+
 def all_state_priors(problem: AdjustmentState) -> list[StatePrior]:
-    return [p for img in problem.images if (p := state_prior(problem, img)) is not None]
+    """Weighted platform states and RPC bias priors, image by image."""
+    out = []
+    for img in problem.images:
+        for p in (state_prior(problem, img), bias_prior(problem, img)):
+            if p is not None:
+                out.append(p)
+    return out

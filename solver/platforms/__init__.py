@@ -8,6 +8,7 @@ import solver.platforms.kepler  # noqa: F401
 import solver.platforms.orbit_attitude  # noqa: F401
 import solver.platforms.orbit_pass  # noqa: F401
 import solver.platforms.polynomial  # noqa: F401
+import solver.platforms.rpc_bias  # noqa: F401
 from solver.platforms.registry import (  # noqa: F401
     ANGLES,
     ELEMENTS,

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from solver.kernels import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL
+from solver.kernels import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL, KIND_RPC
 
 ELEMENTS = ("X", "Y", "Z", "omega", "phi", "kappa")
 ANGLES = ("omega", "phi", "kappa")
@@ -68,6 +68,13 @@ class PlatformModel:
     options_doc: dict[str, str] = field(default_factory=dict)
     order_option: bool = False  # GENERAL: orders come from job options
     angle_names: tuple[str, str, str] = ("omega", "phi", "kappa")
+    # RPC bias models (kind KIND_RPC): the estimated bias parameters, each (name, unit, coef slot)
+    bias: tuple[tuple[str, str, int], ...] = ()
+
+    @property
+    def is_rpc(self) -> bool:
+        """The image's sensor model is its RPC plus this image-space bias (no camera, no platform)."""
+        return self.kind == KIND_RPC
 
     # ---- time ---------------------------------------------------------------------------
     @property
@@ -82,6 +89,8 @@ class PlatformModel:
 
     @property
     def time_variable(self) -> str:
+        if self.is_rpc:
+            return "none (the RPC maps the ground to the image; bias in image coordinates)"
         if self.orbital:
             return "t = L * line_time (s) since the first line"
         return "L (image line number); internally tau = L / 1000"
@@ -117,6 +126,8 @@ class PlatformModel:
 
     def parameters(self, options: dict[str, Any] | None = None) -> list[ParameterSpec]:
         """The estimated parameters, in report order."""
+        if self.is_rpc:
+            return [ParameterSpec(name, unit, slot, 1.0) for name, unit, slot in self.bias]
         orders = self.effective_orders(options or {})
         specs: list[ParameterSpec] = []
         deg = 180.0 / math.pi

@@ -50,7 +50,7 @@ def implausible_sigmas(problem: AdjustmentState, images_report: list[dict[str, A
     """Attitude parameters whose sigma, as an angle over the image, exceeds ``limit_deg``."""
     out = []
     for img, rep in zip(problem.images, images_report):
-        if img.model.angle_names != ORBITAL_FRAME_ANGLES:
+        if img.camera is None or img.model.angle_names != ORBITAL_FRAME_ANGLES:
             continue
         cam = img.camera
         lines = cam.lines or 0

@@ -27,6 +27,7 @@ from solver.engine.packed_tables import current_tables, records
 from solver.engine.validate import require_valid
 from solver.errors import JobError, Problem
 from solver.geometry.geodesy import ecef_to_geodetic, enu_rotation
+from solver.geometry.rpc import RPC
 from solver.kernels import all_observation_blocks
 from solver.observations.ephemeris import image_state
 from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
@@ -46,13 +47,23 @@ from solver.state import AdjustmentState
 PROJECTION_PASSES = 3  # re-project from the last projection (the line search starts at the observed line)
 
 
+def _extent(job: Job, image_id: str) -> tuple[float | None, float | None]:
+    """(lines, columns) of an image: its camera's, or for an RPC image the RPC's domain
+    (line_off + line_scale, samp_off + samp_scale, our pixel convention, plus one)."""
+    im = next(i for i in job.images if i.id == image_id)
+    if im.rpc is not None:
+        rpc = RPC.from_job(im.rpc.model_dump(mode="json"))
+        return rpc.line_off + rpc.line_scale + 1.0, rpc.samp_off + rpc.samp_scale + 1.0
+    cam = next(c for c in job.cameras if c.id == im.camera)
+    return cam.lines, cam.columns
+
+
 def _all_pairs(job: Job, placement: dict[tuple[str, str], tuple[float, float]]) -> list[dict[str, Any]]:
-    cams = {c.id: c for c in job.cameras}
     out = []
     for im in job.images:
-        cam = cams[im.camera]
+        lines, columns = _extent(job, im.id)
         for p in job.points:
-            line, col = placement.get((im.id, p.id), ((cam.lines or 1) / 2.0, (cam.columns or 1) / 2.0))
+            line, col = placement.get((im.id, p.id), ((lines or 1) / 2.0, (columns or 1) / 2.0))
             out.append({"image": im.id, "point": p.id, "line": line, "column": col, "sigma_px": 1.0})
     return out
 
@@ -145,7 +156,7 @@ def _projections(job: Job, level: bool) -> tuple[dict[tuple[str, str], tuple[flo
         )
         for k in rows:
             im = problem.images[obs.img[k]]
-            cam = im.camera
+            lines, columns = _extent(job, im.id)
             line = float(obs.oc[k, 0] - res[k, 0] * obs.oc[k, 2])
             col = float(obs.oc[k, 1] - res[k, 1] * obs.oc[k, 2])
             key = (im.id, problem.points[obs.pt[k]].id)
@@ -154,8 +165,8 @@ def _projections(job: Job, level: bool) -> tuple[dict[tuple[str, str], tuple[flo
                 ok[k]
                 and math.isfinite(line)
                 and math.isfinite(col)
-                and 0.0 <= col <= (cam.columns - 1 if cam.columns else math.inf)
-                and (0.0 <= line <= cam.lines - 1 if cam.lines else True)
+                and 0.0 <= col <= (columns - 1 if columns else math.inf)
+                and (0.0 <= line <= lines - 1 if lines else True)
             )
     return placement, inside
 

@@ -112,7 +112,7 @@ def _term_kinds(problem: AdjustmentState, lin: Linearisation) -> list[tuple[str,
     from solver.observations.attitude import _block_terms, block_samples
     from solver.observations.lines import LineTerm
     from solver.observations.passes import PassStateTerm
-    from solver.observations.state_priors import StatePrior, all_state_priors
+    from solver.observations.state_priors import BiasPrior, StatePrior, all_state_priors
 
     # solver.engine.terms.image_terms order: state priors, then the families (attitude), then
     # lines, passes; the attitude terms are StatePriors too, so they are told apart by position
@@ -134,6 +134,8 @@ def _term_kinds(problem: AdjustmentState, lin: Linearisation) -> list[tuple[str,
             else:
                 label = {"pass": ps.id, "time_s": float(term.kc[PASS_T_OFF] + ps.t_ref_s)}
             out.append(("ephemeris_sample", term.n_residuals, label, None))
+        elif isinstance(term, BiasPrior):
+            out.append(("", 0, {}, None))  # a-priori RPC bias values: not tested, like IOP priors
         elif isinstance(term, StatePrior) and n_state <= k < n_state + len(att_blocks):
             block = att_blocks[k - n_state]
             samples = block_samples(problem.job, block)

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from solver.engine.packed_tables import current_tables, records
-from solver.kernels import all_observation_blocks, ray_cam
+from solver.kernels import all_observation_blocks, ray, ray_cam
 from solver.report.statistics import axis_summary, shapiro_wilk, t_test
 from solver.state import AdjustmentState
 
@@ -26,6 +26,8 @@ from solver.state import AdjustmentState
 def _ray(problem: AdjustmentState, r: int):
     obs = problem.obs
     img = problem.images[obs.img[r]]
+    if img.camera is None:  # RPC image: the line of sight through the RPC's height range
+        return ray(img.kind, img.coef(), img.kc, obs.oc[r])
     cam = problem.cameras[obs.cam[r]]
     k = obs.chip_idx[r]
     return ray_cam(img.kind, img.coef(), img.kc, obs.oc[r], cam.values(), int(k), cam.chip_len_mm[k])

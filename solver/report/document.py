@@ -15,6 +15,7 @@ from solver.engine.assemble import parameter_names
 from solver.engine.linalg import Covariance, covariance, linearise, schur
 from solver.geometry.geodesy import ecef_to_geodetic
 from solver.kernels import platform_state
+from solver.kernels.rpc import RPC_START, rpc_image_to_ground
 from solver.observations.ephemeris import ephemeris_report, line0_state_ecef
 from solver.observations.interior import cameras_report
 from solver.observations.lines import lines_report
@@ -124,6 +125,19 @@ def _state_line0(problem: AdjustmentState, index: int) -> dict[str, list[float]]
     return {"position_ecef_m": [float(x) for x in r], "velocity_ecef_m_s": [float(x) for x in v]}
 
 
+def rpc_gsd_m(coef: np.ndarray, kc: np.ndarray, oc: np.ndarray) -> float | None:
+    """Mean ground distance (m) between the RPC's ground points of adjacent columns at the RPC's
+    mean height, over the observed pixels ``oc`` (an RPC image's ground sample distance)."""
+    h = kc[RPC_START + 4]
+    d = []
+    for row in oc:
+        ok1, p1 = rpc_image_to_ground(coef, kc, row[0], row[1], h)
+        ok2, p2 = rpc_image_to_ground(coef, kc, row[0], row[1] + 1.0, h)
+        if ok1 and ok2:
+            d.append(float(np.linalg.norm(p2 - p1)))
+    return float(np.mean(d)) if d else None
+
+
 def _images_report(problem: AdjustmentState, lin, cov: Covariance | None, var_factor: float):
     out = []
     gsds = []
@@ -146,27 +160,31 @@ def _images_report(problem: AdjustmentState, lin, cov: Covariance | None, var_fa
             params.append(
                 {"name": s.name, "value": float(c[s.index] * s.to_report), "sigma": sigma, "unit": s.unit, "estimated": True}
             )
-        held = img.model.held_values_rad(img.options, img.camera.mounting_pitch_deg)
-        for e, val in held.items():
-            params.append({"name": e, "value": math.degrees(val), "sigma": None, "unit": "deg", "estimated": False})
         mine = np.flatnonzero(obs.img[sel] == img.index)
         sig = obs.oc[sel][mine, 2]
         rl = res[2 * mine] * sig
         rc = res[2 * mine + 1] * sig
-        px = img.camera.pixel_mm
         rms = lambda v: float(np.sqrt(np.mean(v**2))) if len(v) else None  # noqa: E731
-        # ground sample distance: range to the observed points x pixel / focal length
-        ranges = []
-        for k in np.flatnonzero(obs.img == img.index)[:200]:
-            s = platform_state(img.kind, c, img.kc, obs.oc[k, 0] * obs.oc[k, 8])[0]
-            ranges.append(np.linalg.norm(problem.points[obs.pt[k]].xyz - s))
-        gsd = float(np.mean(ranges) * px / img.camera.focal_mm) if ranges else None
+        if img.camera is None:  # RPC image: bias parameters only, no camera or platform state
+            px = None
+            gsd = rpc_gsd_m(c, img.kc, obs.oc[obs.img == img.index][:200])
+        else:
+            held = img.model.held_values_rad(img.options, img.camera.mounting_pitch_deg)
+            for e, val in held.items():
+                params.append({"name": e, "value": math.degrees(val), "sigma": None, "unit": "deg", "estimated": False})
+            px = img.camera.pixel_mm
+            # ground sample distance: range to the observed points x pixel / focal length
+            ranges = []
+            for k in np.flatnonzero(obs.img == img.index)[:200]:
+                s = platform_state(img.kind, c, img.kc, obs.oc[k, 0] * obs.oc[k, 8])[0]
+                ranges.append(np.linalg.norm(problem.points[obs.pt[k]].xyz - s))
+            gsd = float(np.mean(ranges) * px / img.camera.focal_mm) if ranges else None
         if gsd:
             gsds.append(gsd)
         out.append(
             {
                 "id": img.id,
-                "camera": img.camera.id,
+                "camera": img.camera.id if img.camera else None,
                 "model": img.model.name,
                 "frame": img.model.frame,
                 "time_variable": img.model.time_variable,
@@ -177,16 +195,16 @@ def _images_report(problem: AdjustmentState, lin, cov: Covariance | None, var_fa
                 "residual_rmse": {
                     "line_px": rms(rl),
                     "column_px": rms(rc),
-                    "x_mm": None if rms(rl) is None else rms(rl) * px,
-                    "y_mm": None if rms(rc) is None else rms(rc) * px,
+                    "x_mm": None if rms(rl) is None or px is None else rms(rl) * px,
+                    "y_mm": None if rms(rc) is None or px is None else rms(rc) * px,
                 },
                 "n_observations": int(len(mine)),
-                "state_line0": _state_line0(problem, img.index),
+                "state_line0": _state_line0(problem, img.index) if img.camera else None,
                 "pass": problem.passes[img.pass_index].id if img.pass_index >= 0 else None,
                 "attitude_shared_with": groups.get(img.index),
                 "gsd_m": gsd,
-                "lines": img.camera.lines,
-                "columns": img.camera.columns,
+                "lines": img.camera.lines if img.camera else None,
+                "columns": img.camera.columns if img.camera else None,
             }
         )
     return out, gsds

@@ -323,15 +323,59 @@ class ApproxState(_Strict):
     sigma_velocity_m_s: _num(ge=1e-9, le=1e5) | None = None
 
 
+RpcCoefficients = Annotated[list[Num], Field(min_length=20, max_length=20)]
+
+
+class Rpc(_Strict):
+    """An RPC00B sensor model (``images[].rpc``): GDAL's RPC metadata field names in lower case,
+    20 coefficients per polynomial in the RPC00B term order. ``pixel_convention`` ``"center"``
+    (ours, default: the centre of the top-left pixel is line 0, column 0) or ``"gdal"`` (the
+    top-left pixel's corner is 0: ``line_off`` and ``samp_off`` are half a pixel larger, what
+    GDAL's RPC transformer uses); converted once when the job is assembled."""
+
+    line_off: Num
+    samp_off: Num
+    lat_off: _num(ge=-90, le=90)
+    long_off: _num(ge=-360, le=360)
+    height_off: _num(ge=-1e5, le=1e5)
+    line_scale: Num
+    samp_scale: Num
+    lat_scale: Num
+    long_scale: Num
+    height_scale: Num
+    line_num_coeff: RpcCoefficients
+    line_den_coeff: RpcCoefficients
+    samp_num_coeff: RpcCoefficients
+    samp_den_coeff: RpcCoefficients
+    err_bias: Num = -1.0
+    err_rand: Num = -1.0
+    pixel_convention: Literal["center", "gdal"] = "center"
+
+
+class BiasPrior(_Strict):
+    """A weighted a-priori value of one RPC bias parameter (report units: px or px/px)."""
+
+    value: _num(ge=-1e9, le=1e9) = 0.0
+    sigma: _num(gt=0, le=1e9)
+
+
 class Image(_Strict):
-    """One pushbroom image."""
+    """One pushbroom image: a camera with a platform model, or an RPC (``rpc``) with an RPC
+    bias model (RPC-SHIFT, RPC-DRIFT, RPC-AFFINE), which needs no camera."""
 
     id: str = Field(min_length=1, max_length=64)
-    camera: str = Field(
+    camera: str | None = Field(
+        default=None,
         min_length=1,
         max_length=64,
         description='id of a camera of cameras[]; or, in place, {"ref": {"name": "prism-nadir"}} '
-        "(a library camera or sensor preset, added to cameras[])",
+        "(a library camera or sensor preset, added to cameras[]); omitted for an RPC image",
+    )
+    rpc: Rpc | None = Field(default=None, description="RPC00B sensor model (RPC bias models only)")
+    bias_prior: dict[str, BiasPrior] = Field(
+        default_factory=dict,
+        description="RPC images: weighted a-priori values of bias parameters by name "
+        "(a0, a_line, a_column, b0, b_line, b_column)",
     )
     model: ModelChoice
     approx_state: ApproxState | None = None
@@ -646,7 +690,7 @@ class Job(_Strict):
     crs: str = Field(
         default="EPSG:4326", min_length=1, max_length=4096, description="default CRS of ground coordinates"
     )
-    cameras: list[Camera] = Field(min_length=1)
+    cameras: list[Camera] = Field(default_factory=list, description="empty when every image is an RPC image")
     images: list[Image] = Field(min_length=1)
     points: list[GroundPoint] = Field(default_factory=list)
     observations: list[ImageObservation] = Field(default_factory=list)

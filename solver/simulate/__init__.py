@@ -13,6 +13,7 @@ Layers, each in its own module:
 - :mod:`.projection` exact ground -> image (root finding on the line) and image -> ground
 - :mod:`.terrain`    a smooth synthetic terrain around the scene
 - :mod:`.scene`      point selection, noise, the job document and the truth file
+- :mod:`.rpc`        RPC images: the RPC00B fitted to the true geometry plus a known bias
 - :mod:`.presets`    ``prism-triplet``, ``prism-single``, ``cbers-scene``, ``strip``
 - :mod:`.cli`        ``pba simulate PRESET ...``
 

@@ -7,10 +7,14 @@ import json
 import time
 from pathlib import Path
 
+from solver.geometry.rpc import BIAS_MODELS
 from solver.simulate import presets
 from solver.simulate.camera import PRISM_LAYOUTS
 from solver.simulate.lines import cbers_lines
+from solver.simulate.rpc import RpcSettings, RpcSettingsError, parse_bias
 from solver.simulate.scene import Settings, write_documents
+
+RPC_MODELS = tuple(BIAS_MODELS)
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -49,6 +53,26 @@ def _common(p: argparse.ArgumentParser) -> None:
         help="interior-orientation errors of the simulated cameras: none (default), default "
         "(df ~2 mm, chip shifts 0.02-0.03 mm on the non-master chips, a few ppm of a1/b1), or a "
         "JSON file {camera id: {name: value}} with the names of docs/models.md section 8",
+    )
+    p.add_argument(
+        "--rpc-model",
+        choices=RPC_MODELS,
+        help="make images RPC images with this bias model: the job gets images[].rpc (the RPC00B fitted "
+        "to the true geometry plus --rpc-bias) and no camera for them; multi-chip cameras are measured in "
+        "their chip-aligned ideal image; the truth file's rpc_images has the bias and the fit residuals",
+    )
+    p.add_argument(
+        "--rpc-bias",
+        metavar="NAME=VALUE,...",
+        default="",
+        help="the known bias the delivered RPCs carry (observed = RPC + bias), e.g. "
+        "'a0=20,b0=-12,a_line=1e-4'; names a0, a_line, a_column, b0, b_line, b_column (px, px/px); default none",
+    )
+    p.add_argument(
+        "--rpc-images",
+        metavar="N,N,...",
+        help="only these images (1-based, in the job's order) are RPC images, the others keep their "
+        "camera and --model (a mixed block); default every image",
     )
     p.add_argument(
         "--raster",
@@ -126,10 +150,39 @@ def _job_options(args: argparse.Namespace) -> dict:
     return options
 
 
+def _rpc_settings(args: argparse.Namespace) -> RpcSettings | None:
+    """RpcSettings from --rpc-model, --rpc-bias and --rpc-images (exit with a message when bad)."""
+    if args.rpc_model is None:
+        if args.rpc_bias or args.rpc_images:
+            raise SystemExit("--rpc-bias and --rpc-images need --rpc-model (RPC-SHIFT, RPC-DRIFT or RPC-AFFINE)")
+        return None
+    try:
+        bias = parse_bias(args.rpc_bias)
+        images = tuple(int(x) for x in args.rpc_images.split(",")) if args.rpc_images else None
+    except ValueError as exc:
+        raise SystemExit(f"--rpc-bias / --rpc-images: {exc}") from None
+    return RpcSettings(args.rpc_model, bias, images)
+
+
 def _iop_errors(value: str):
     if value in ("none", "default"):
         return value
     return json.loads(Path(value).read_text())
+
+
+def _scene(args: argparse.Namespace, settings: Settings):
+    """The simulated scene of the preset ``args.preset``."""
+    if args.preset == "prism-single":
+        return presets.prism_single(settings, args.camera, args.gcps, args.checks, args.chip_layout)
+    if args.preset == "prism-triplet":
+        return presets.prism_triplet(settings, args.gcps, args.checks, args.tie_points, args.chip_layout)
+    if args.preset == "cbers-scene":
+        return presets.cbers_scene(settings, args.gcps, args.checks)
+    if args.preset == "cbers-lines":
+        return cbers_lines(
+            settings, args.lines, args.gcps, args.checks, args.yaw_steering, args.line_noise_px, args.check_lines
+        )
+    return presets.strip(settings, args.triplets, args.tie_points, args.gcps, args.checks)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -145,20 +198,13 @@ def run(args: argparse.Namespace) -> int:
         iop_errors=_iop_errors(args.iop_errors),
         attitude_sigma_deg=args.attitude_noise_deg,
         job_options=_job_options(args),
+        rpc=_rpc_settings(args),
     )
     t0 = time.perf_counter()
-    if args.preset == "prism-single":
-        scene = presets.prism_single(settings, args.camera, args.gcps, args.checks, args.chip_layout)
-    elif args.preset == "prism-triplet":
-        scene = presets.prism_triplet(settings, args.gcps, args.checks, args.tie_points, args.chip_layout)
-    elif args.preset == "cbers-scene":
-        scene = presets.cbers_scene(settings, args.gcps, args.checks)
-    elif args.preset == "cbers-lines":
-        scene = cbers_lines(
-            settings, args.lines, args.gcps, args.checks, args.yaw_steering, args.line_noise_px, args.check_lines
-        )
-    else:
-        scene = presets.strip(settings, args.triplets, args.tie_points, args.gcps, args.checks)
+    try:
+        scene = _scene(args, settings)
+    except RpcSettingsError as exc:
+        raise SystemExit(str(exc)) from None
     job_path, truth_path = write_documents(scene, Path(args.output), args.truth, args.indent)
     if args.raster:
         from solver.simulate.raster import write_rasters

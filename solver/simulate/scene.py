@@ -34,6 +34,7 @@ from solver.simulate.camera import CameraSpec
 from solver.simulate.iop import resolve_iop
 from solver.simulate.orbit import EarthModel, Orbit, circular_state_over, sun_synchronous_semi_major_axis
 from solver.simulate.projection import ImageGeometry
+from solver.simulate.rpc import RpcSettings, RpcSettingsError, delivered_geometry, fit_image_rpc, rpc_truth
 from solver.simulate.terrain import Terrain
 
 TRUTH_SCHEMA = "pba-simulation-truth/1"
@@ -82,6 +83,9 @@ class Settings:
     # solver options written into the job (e.g. {"ephemeris": {...}, "attitude": {...}} to weight
     # the simulated state vectors and attitude samples); none by default
     job_options: dict[str, Any] = field(default_factory=dict)
+    # RPC images (solver.simulate.rpc): which images, their model and the bias of their RPC;
+    # None: every image has its camera and rigorous model
+    rpc: RpcSettings | None = None
 
 
 @dataclass
@@ -166,6 +170,11 @@ class Scene:
                 group.images.append(len(self.images))
                 suffix = "" if len(self.groups) == 1 else f"-{g + 1:02d}"
                 self.images.append(ImageGeometry(f"{cam.id}{suffix}", cam, self.platform, float(first)))
+        rpc = self.settings.rpc
+        if rpc is not None and rpc.images is not None and not all(1 <= n <= len(self.images) for n in rpc.images):
+            raise RpcSettingsError(f"--rpc-images {','.join(map(str, rpc.images))}: the scene has images 1..{len(self.images)}")
+        if self.settings.rpc is not None:  # an RPC image is measured in the image its RPC describes
+            self.images = [delivered_geometry(im) if self.settings.rpc.selects(k) else im for k, im in enumerate(self.images)]
 
     # -- 3. points ----------------------------------------------------------------------------
     def _candidates(self, group: Group, n: int) -> tuple[np.ndarray, list, np.ndarray, np.ndarray]:
@@ -236,7 +245,20 @@ class Scene:
         self._place_images()
         self._select_points()
         self._draw_noise()
+        self._fit_rpcs()
         return self
+
+    # -- RPC images ------------------------------------------------------------------------------
+    def _fit_rpcs(self) -> None:
+        """The delivered RPC of every RPC image: fitted to the true geometry plus the known bias."""
+        s = self.settings
+        self.rpcs = {}
+        if s.rpc is None:
+            return
+        bias = s.rpc.rpc_bias
+        for k, im in enumerate(self.images):
+            if s.rpc.selects(k):
+                self.rpcs[k] = fit_image_rpc(im, bias, (s.terrain_min_m, s.terrain_max_m))
 
     # -- 4. noise ------------------------------------------------------------------------------
     def _draw_noise(self) -> None:
@@ -299,8 +321,9 @@ class Scene:
     def job(self) -> dict[str, Any]:
         s = self.settings
         cams = {}
-        for im in self.images:
-            cams.setdefault(im.camera.id, im.camera.to_job())
+        for k, im in enumerate(self.images):
+            if k not in self.rpcs:
+                cams.setdefault(im.camera.id, im.camera.to_job())
         coords = self.written_coordinates()
         points = []
         for i, p in enumerate(self.points):
@@ -314,6 +337,9 @@ class Scene:
             points.append(d)
         images = []
         for k, im in enumerate(self.images):
+            if k in self.rpcs:  # an RPC image: no physical description
+                images.append({"id": im.id, "rpc": self.rpcs[k].to_job(), "model": {"name": s.rpc.model}})
+                continue
             t_first, t_last = im.first_line_time_s, im.time_of_line(im.camera.lines - 1)
             sel = (self.ephemeris_t >= t_first - s.ephemeris_margin_s) & (self.ephemeris_t <= t_last + s.ephemeris_margin_s)
             images.append(
@@ -409,9 +435,12 @@ class Scene:
                     },
                 }
             )
-        return {
+        settings = _jsonable(asdict(s))
+        if s.rpc is None:  # documents without RPC images stay as they were before issue 17
+            del settings["rpc"]
+        doc = {
             "schema": TRUTH_SCHEMA,
-            "settings": _jsonable(asdict(s)),
+            "settings": settings,
             "conventions": {
                 "time": "seconds of the UTC day: job time = epoch_s + simulator time",
                 "camera_from_ecef": "rows x_c, y_c, z_c in ECEF: p_cam = M (p - S); x = -f X/Z, y = -f Y/Z",
@@ -448,6 +477,9 @@ class Scene:
                 for o in self.observations
             ],
         }
+        if self.rpcs:
+            doc["rpc_images"] = [rpc_truth(self.images[k], s.rpc.model, s.rpc.rpc_bias, rpc) for k, rpc in self.rpcs.items()]
+        return doc
 
 
 def _jsonable(x: Any) -> Any:

@@ -1,0 +1,104 @@
+"""``pba import-rpc``: an RPC00B that GDAL reads, as the job's ``images[].rpc`` object.
+
+Sources (all read by GDAL through rasterio, never by our own parsers):
+
+- a raster (``IMAGE.tif`` and anything else GDAL opens): its RPC metadata domain, i.e. GeoTIFF
+  RPC tags, or the sidecar GDAL finds beside it (``IMAGE_RPC.TXT``, ``IMAGE.RPB``, a DIMAP
+  product's ``RPC_*.XML``), or a format's own (NITF RPC00B, a DIMAP ``DIM_*.XML``);
+- a bare sidecar: ``NAME_RPC.TXT`` (GDAL's RPC text), ``NAME.RPB`` (DigitalGlobe style) or a
+  DIMAP RPC XML (``RPC_*.XML``, Pleiades/SPOT 6-7 ``Rational_Function_Model``). GDAL reads
+  those only beside a raster, so the file is copied into a temporary directory beside a 1 x 1
+  GeoTIFF under the names GDAL looks for, and GDAL reads that raster's RPC.
+
+Pixel convention. GDAL's RPC metadata holds RPC00B's convention: the centre of the top-left
+pixel at (0, 0) (GDAL converts DIMAP's 1-based ``LINE_OFF``/``SAMP_OFF`` itself, from
+``FIRST_COL`` when the file has it). That is ours, so the object is written with
+``"pixel_convention": "center"`` unchanged; ``pixel_convention="gdal"`` writes GDAL's
+transformer convention instead (``line_off`` and ``samp_off`` + 0.5 px, converted once here;
+the solver converts it back when it reads the job, :meth:`solver.geometry.rpc.RPC.from_job`).
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import warnings
+from pathlib import Path
+from typing import Any
+
+from solver.geometry.rpc import RPC
+from solver.importers.errors import fail
+
+SIDECAR_KINDS = ("txt", "rpb", "dimap")
+
+
+def sidecar_kind(path: Path) -> str | None:
+    """``txt``, ``rpb`` or ``dimap`` for a bare RPC file (by name), None for anything else."""
+    name = path.name.lower()
+    if name.endswith(".txt"):  # NAME_RPC.TXT (any .txt is tried as GDAL's RPC text)
+        return "txt"
+    if name.endswith(".rpb"):
+        return "rpb"
+    if name.endswith(".xml") and not name.startswith("dim_"):
+        return "dimap"
+    return None
+
+
+def _dummy_raster(path: Path) -> None:
+    import numpy as np
+    import rasterio
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # NotGeoreferencedWarning
+        with rasterio.open(path, "w", driver="GTiff", width=1, height=1, count=1, dtype="uint8") as dst:
+            dst.write(np.zeros((1, 1, 1), np.uint8))
+
+
+def _gdal_rpcs(raster: Path, shown: str) -> RPC:
+    import rasterio
+    from rasterio.errors import RasterioIOError
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # NotGeoreferencedWarning: an RPC image has no transform
+            with rasterio.open(raster) as src:
+                rpcs = src.rpcs
+    except RasterioIOError as exc:
+        raise fail(shown, 0, "", f"GDAL cannot open it: {exc}") from None
+    if rpcs is None:
+        raise fail(shown, 0, "", "GDAL finds no RPC in it (no RPC tags, no readable _RPC.TXT, .RPB or RPC XML)")
+    try:
+        return RPC.from_gdal(rpcs.to_gdal())
+    except (KeyError, ValueError) as exc:
+        raise fail(shown, 0, "", f"incomplete RPC: {exc}") from None
+
+
+def read_rpc(path: str | Path) -> RPC:
+    """The RPC of a raster or a bare RPC file (module docstring), through GDAL; our pixel
+    convention. Raises :class:`solver.importers.errors.SourceError` naming the file."""
+    path = Path(path)
+    shown = str(path)
+    if not path.is_file():
+        raise fail(shown, 0, "", "no such file")
+    kind = sidecar_kind(path)
+    if kind is None:
+        return _gdal_rpcs(path, shown)
+    with tempfile.TemporaryDirectory(prefix="pba-rpc-") as tmp:
+        d = Path(tmp)
+        # the names GDAL's readers look for beside a raster (GDALMDReaderPleiades: IMG_<x>_R1C1
+        # -> RPC_<x>_R1C1.XML)
+        raster = d / ("IMG_PBA_R1C1.tif" if kind == "dimap" else "image.tif")
+        sidecar = {"txt": d / "image_RPC.TXT", "rpb": d / "image.RPB", "dimap": d / "RPC_PBA_R1C1.XML"}[kind]
+        _dummy_raster(raster)
+        shutil.copyfile(path, sidecar)
+        return _gdal_rpcs(raster, shown)
+
+
+def rpc_object(path: str | Path, pixel_convention: str = "center") -> dict[str, Any]:
+    """The job's ``images[].rpc`` object of a file GDAL reads."""
+    return read_rpc(path).to_job(pixel_convention)
+
+
+def image_entry(path: str | Path, image_id: str, model: str, pixel_convention: str = "center") -> dict[str, Any]:
+    """A whole RPC image of the job: ``{"id", "rpc", "model": {"name"}}`` (no camera)."""
+    return {"id": image_id, "rpc": rpc_object(path, pixel_convention), "model": {"name": model}}
