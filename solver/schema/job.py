@@ -534,6 +534,12 @@ class BlunderDetection(_Strict):
         description="tests correlated at least this much with the rejected one (for its estimated "
         "error) cannot be told apart from it: they are reported as one non-identifiable group",
     )
+    external_points: bool = Field(
+        default=False,
+        description="external reliability on points: per tie and check point, the largest effect of "
+        "any observation's minimal detectable bias and which observation (quality.reliability."
+        "external_points; costs about one more covariance pass, docs/quality.md)",
+    )
 
 
 class QualityWarnings(_Strict):
