@@ -571,6 +571,9 @@ class PreanalysisOptions(_Strict):
     """Pre-analysis (``pba preanalysis``): how the planned points will be measured."""
 
     sigma_px: SigmaPx = Field(default=0.5, description="image measurement sigma of every planned observation, pixels")
+    line_points: _int(ge=2, le=100) = Field(
+        default=8, description="image points planned per control line and image (evenly spaced between its endpoints)"
+    )
 
 
 class SolverOptions(_Strict):
