@@ -556,6 +556,12 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
             "reliability": reliability_section(sn),
         }
     )
+    if bd.external_points:
+        from solver.quality.external import external_points
+
+        report["quality"]["reliability"]["external_points"] = external_points(
+            problem, sn.structure, sn.lam0, [t.dof for t in sn.tests], report.get("checkpoints")
+        )
     return report
 
 

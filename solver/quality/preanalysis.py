@@ -30,6 +30,7 @@ from solver.geometry.geodesy import ecef_to_geodetic, enu_rotation
 from solver.geometry.rpc import RPC
 from solver.kernels import all_observation_blocks
 from solver.observations.ephemeris import image_state
+from solver.observations.lines import lines_ecef
 from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
 from solver.quality.parsimony import high_correlations
 from solver.quality.precision import (
@@ -171,19 +172,45 @@ def _projections(job: Job, level: bool) -> tuple[dict[tuple[str, str], tuple[flo
     return placement, inside
 
 
-def plan_observations(job: Job) -> tuple[list[dict[str, Any]], set[str]]:
+def _line_samples(job: Job, n: int) -> tuple[list[dict[str, Any]], dict[str, list[str]]]:
+    """``n`` ground points evenly spaced between the endpoints of every control line (ECEF
+    straight segment; geodetic EPSG:4979 coordinates), as temporary check points to project,
+    and their ids per line."""
+    ecef = lines_ecef(job)
+    points: list[dict[str, Any]] = []
+    ids: dict[str, list[str]] = {}
+    for k, gl in enumerate(job.lines):
+        if gl.role != "control" or gl.id not in ecef:
+            continue
+        e = ecef[gl.id]
+        xyz = e[0] + np.linspace(0.0, 1.0, n)[:, None] * (e[1] - e[0])
+        ids[gl.id] = [f"line {k} sample {j}" for j in range(n)]
+        for pid, g in zip(ids[gl.id], ecef_to_geodetic(xyz)):
+            points.append({"id": pid, "role": "check", "coordinates": [float(x) for x in g], "crs": "EPSG:4979"})
+    return points, ids
+
+
+def plan_observations(job: Job) -> tuple[list[dict[str, Any]], set[str], dict[str, list[dict[str, Any]]]]:
     """The image observations of the planned points: their projections with the initial
     orientation that fall inside the images (JSON-ready, ``sigma_px`` of ``options.preanalysis``),
-    and the images whose nominal attitude was levelled (:func:`level_nominal_attitude`: per
-    image, the variant that sees more planned points)."""
+    the images whose nominal attitude was levelled (:func:`level_nominal_attitude`: per
+    image, the variant that sees more planned points), and per control line its planned image
+    observations (``options.preanalysis.line_points`` points evenly spaced between its
+    endpoints, projected; an image sees the line where at least two of them fall inside)."""
     missing = planning_problems(job)
     if missing:
         raise JobError(missing)
-    sigma = job.options.preanalysis.sigma_px if job.options.preanalysis is not None else 0.5
-    flat = _projections(job, level=False)
-    tilted = _projections(job, level=True)
+    pre = job.options.preanalysis
+    sigma = pre.sigma_px if pre is not None else 0.5
+    samples, sample_ids = _line_samples(job, pre.line_points if pre is not None else 8)
+    ext = job
+    if samples:
+        ext = Job.model_validate({**job.model_dump(), "points": [*job.model_dump()["points"], *samples]})
+    flat = _projections(ext, level=False)
+    tilted = _projections(ext, level=True)
     levelled: set[str] = set()
     out = []
+    lines: dict[str, list[dict[str, Any]]] = {}
     for im in job.images:
         n_flat = sum(v for (i, _p), v in flat[1].items() if i == im.id)
         n_tilted = sum(v for (i, _p), v in tilted[1].items() if i == im.id)
@@ -194,13 +221,22 @@ def plan_observations(job: Job) -> tuple[list[dict[str, Any]], set[str]]:
             if inside[(im.id, p.id)]:
                 line, col = placement[(im.id, p.id)]
                 out.append({"image": im.id, "point": p.id, "line": line, "column": col, "sigma_px": sigma})
-    return out, levelled
+        for line_id, ids in sample_ids.items():
+            seen = [placement[(im.id, pid)] for pid in ids if inside[(im.id, pid)]]
+            if len(seen) >= 2:
+                lines.setdefault(line_id, []).append(
+                    {"image": im.id, "points": [{"line": a, "column": b} for a, b in seen], "sigma_px": sigma}
+                )
+    return out, levelled, lines
 
 
 def preanalyse(job: Job) -> dict[str, Any]:
     """The pre-analysis report (docs/report-contract.md, ``kind: "preanalysis"``)."""
-    planned, levelled = plan_observations(job)
-    doc = Job.model_validate({**job.model_dump(), "observations": planned})
+    planned, levelled, planned_lines = plan_observations(job)
+    dump = job.model_dump()
+    for gl in dump["lines"]:
+        gl["observations"] = planned_lines.get(gl["id"], []) if gl["role"] == "control" else []
+    doc = Job.model_validate({**dump, "observations": planned})
     require_valid(doc)
     problem = build_problem(doc)
     initialise(problem)
@@ -289,6 +325,7 @@ def preanalyse(job: Job) -> dict[str, Any]:
             "dof": n_obs - lay.n_params,
             "sigma0_apriori": job.options.sigma0_apriori,
             "n_planned_image_points": len(planned),
+            "n_planned_line_points": sum(len(o["points"]) for obs in planned_lines.values() for o in obs),
             "condition": rank.condition if np.isfinite(rank.condition) else None,
         },
         "images": [{"id": im.id, "model": im.model.name, "n_observations": int(np.sum(obs.img == im.index))} for im in problem.images],
@@ -297,4 +334,9 @@ def preanalyse(job: Job) -> dict[str, Any]:
         "points": ground,
         "quality": {"warnings": high_correlations(cov.images, names, job.options.quality_warnings.correlation)},
         "observations": planned,
+        "lines": [
+            {"id": gl.id, "images": [o["image"] for o in planned_lines.get(gl.id, [])],
+             "n_points": sum(len(o["points"]) for o in planned_lines.get(gl.id, []))}
+            for gl in job.lines if gl.role == "control"
+        ],
     }

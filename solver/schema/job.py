@@ -583,6 +583,12 @@ class BlunderDetection(_Strict):
         description="tests correlated at least this much with the rejected one (for its estimated "
         "error) cannot be told apart from it: they are reported as one non-identifiable group",
     )
+    external_points: bool = Field(
+        default=False,
+        description="external reliability on points: per tie and check point, the largest effect of "
+        "any observation's minimal detectable bias and which observation (quality.reliability."
+        "external_points; costs about one more covariance pass, docs/quality.md)",
+    )
 
 
 class QualityWarnings(_Strict):
@@ -614,6 +620,9 @@ class PreanalysisOptions(_Strict):
     """Pre-analysis (``pba preanalysis``): how the planned points will be measured."""
 
     sigma_px: SigmaPx = Field(default=0.5, description="image measurement sigma of every planned observation, pixels")
+    line_points: _int(ge=2, le=100) = Field(
+        default=8, description="image points planned per control line and image (evenly spaced between its endpoints)"
+    )
 
 
 class SolverOptions(_Strict):
