@@ -235,6 +235,24 @@ def fit_rpc_best(grid: GroundGrid, check: GroundGrid) -> RPC:
     return rpc
 
 
+FIT_GRID = (21, 21, 7)  # lines x columns x heights of the fit grid
+CHECK_GRID = (20, 20, 6)  # check grid: cells' centres of the fit grid, heights between its layers
+
+
+def fit_record(rpc: RPC, fit_grid: GroundGrid, check_grid: GroundGrid, height_range_m: tuple[float, float], **fields: Any) -> dict[str, Any]:
+    """``rpc.fit`` extended with ``fields``, the height range (m), the grid sizes and the
+    residuals (pixels) on the fit and check grids: the record every RPC fit reports."""
+    return {
+        **rpc.fit,
+        **fields,
+        "height_range_m": list(height_range_m),
+        "fit_grid": list(FIT_GRID),
+        "check_grid": list(CHECK_GRID),
+        "fit_residuals": residuals_px(rpc, fit_grid),
+        "check_residuals": residuals_px(rpc, check_grid),
+    }
+
+
 def residuals_px(rpc: RPC, grid: GroundGrid) -> dict[str, float]:
     """RMS and maximum of the RPC's image error on a grid (pixels: line, column, total)."""
     line, col = rpc.project(grid.lon, grid.lat, grid.h)

@@ -27,11 +27,14 @@ import numpy as np
 
 from solver.geometry.geodesy import ecef_to_geodetic, geodetic_to_ecef
 from solver.geometry.rpc import (  # noqa: F401  (re-exported: the GIS modules and tests import them from here)
+    CHECK_GRID,
+    FIT_GRID,
     REGULARISATION,
     RPC,
     TERMS,
     GroundGrid,
     fit_ratio,
+    fit_record,
     fit_rpc,
     fit_rpc_best,
     heights_of,
@@ -39,8 +42,6 @@ from solver.geometry.rpc import (  # noqa: F401  (re-exported: the GIS modules a
     residuals_px,
 )
 
-FIT_GRID = (21, 21, 7)  # lines x columns x heights of the fit grid
-CHECK_GRID = (20, 20, 6)  # check grid: cells' centres of the fit grid, heights between its layers
 HEIGHT_MARGIN_M = 100.0
 
 
@@ -78,18 +79,9 @@ def fit_image_rpc(image, height_range_m: tuple[float, float], chip: int | None =
     fit_g = ground_grid(image, lines, columns, heights_of(height_range_m, FIT_GRID[2]), FIT_GRID[:2], chip)
     check_g = ground_grid(image, lines, columns, heights_of(height_range_m, CHECK_GRID[2], True), CHECK_GRID[:2], chip, cell_centres=True)
     rpc = fit_rpc_best(fit_g, check_g)
-    rpc.fit = {
-        **rpc.fit,
-        "image": image.id,
-        "chip": None if chip is None else (image.image.camera.chips[chip].id if image.image.camera.chips else "1"),
-        "model": image.kind,
-        "height_range_m": list(height_range_m),
-        "fit_grid": list(FIT_GRID),
-        "check_grid": list(CHECK_GRID),
-        "fit_residuals": residuals_px(rpc, fit_g),
-        "check_residuals": residuals_px(rpc, check_g),
-        "warnings": [],
-    }
+    chip_id = None if chip is None else (image.image.camera.chips[chip].id if image.image.camera.chips else "1")
+    rpc.fit = fit_record(rpc, fit_g, check_g, height_range_m, image=image.id, chip=chip_id, model=image.kind)
+    rpc.fit["warnings"] = []
     if chip is None and image.n_chips > 1:
         res = rpc.fit["check_residuals"]
         if res["rms_px"] > MULTI_CHIP_WARNING_PX:

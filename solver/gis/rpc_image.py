@@ -35,7 +35,7 @@ from typing import Any, Callable
 import numpy as np
 
 from solver.geometry.geodesy import ecef_to_geodetic, geodetic_to_ecef
-from solver.geometry.rpc import BIAS_NAMES, RPC, GroundGrid, RpcBias, fit_rpc_best, heights_of, residuals_px
+from solver.geometry.rpc import BIAS_NAMES, CHECK_GRID, FIT_GRID, RPC, GroundGrid, RpcBias, fit_record, fit_rpc_best, heights_of
 
 HeightFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (lon_deg, lat_deg) -> ellipsoidal height m
 
@@ -165,8 +165,6 @@ def rpc_image(job_image: dict[str, Any], report_image: dict[str, Any] | None) ->
     return RpcImage(str(job_image["id"]), RPC.from_job(job_image["rpc"]), RpcBias.from_parameters(values), kind or "RPC", report_image)
 
 
-FIT_GRID = (21, 21, 7)  # as solver.gis.rpc_fit
-CHECK_GRID = (20, 20, 6)
 
 
 def _grid(image: RpcImage, heights: np.ndarray, n: tuple[int, int], cell_centres: bool) -> GroundGrid:
@@ -196,18 +194,6 @@ def refined_rpc(image: RpcImage, height_range_m: tuple[float, float]) -> RPC:
     else:
         rpc, method = fit_rpc_best(fit_g, check_g), "refit"
     rpc = replace(rpc, err_bias=-1.0, err_rand=-1.0, fit=dict(rpc.fit))
-    rpc.fit = {
-        **rpc.fit,
-        "image": image.id,
-        "chip": None,
-        "model": image.kind,
-        "method": method,
-        "bias": image.bias.as_dict(),
-        "height_range_m": list(height_range_m),
-        "fit_grid": list(FIT_GRID),
-        "check_grid": list(CHECK_GRID),
-        "fit_residuals": residuals_px(rpc, fit_g),
-        "check_residuals": residuals_px(rpc, check_g),
-        "warnings": [],
-    }
+    rpc.fit = fit_record(rpc, fit_g, check_g, height_range_m, image=image.id, chip=None, model=image.kind, method=method, bias=image.bias.as_dict())
+    rpc.fit["warnings"] = []
     return rpc

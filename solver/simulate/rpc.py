@@ -29,13 +29,11 @@ from typing import Any
 import numpy as np
 
 from solver.geometry.geodesy import ecef_to_geodetic
-from solver.geometry.rpc import BIAS_MODELS, BIAS_NAMES, RPC, GroundGrid, RpcBias, fit_rpc_best, heights_of, residuals_px
+from solver.geometry.rpc import BIAS_MODELS, BIAS_NAMES, CHECK_GRID, FIT_GRID, RPC, GroundGrid, RpcBias, fit_record, fit_rpc_best, heights_of
 from solver.simulate.camera import CameraSpec, ChipSpec
 from solver.simulate.iop import NO_IOP
 from solver.simulate.projection import ImageGeometry
 
-FIT_GRID = (21, 21, 7)  # lines x columns x heights (as solver.gis.rpc_fit)
-CHECK_GRID = (20, 20, 6)
 HEIGHT_MARGIN_M = 100.0
 IDEAL_CHIP_ID = "ideal"
 
@@ -115,14 +113,7 @@ def fit_image_rpc(im: ImageGeometry, bias: RpcBias, height_range_m: tuple[float,
     fit_g = _grid(im, bias, heights_of(hr, FIT_GRID[2]), FIT_GRID[:2], False)
     check_g = _grid(im, bias, heights_of(hr, CHECK_GRID[2], True), CHECK_GRID[:2], True)
     rpc = fit_rpc_best(fit_g, check_g)
-    rpc.fit = {
-        **rpc.fit,
-        "height_range_m": list(hr),
-        "fit_grid": list(FIT_GRID),
-        "check_grid": list(CHECK_GRID),
-        "fit_residuals": residuals_px(rpc, fit_g),
-        "check_residuals": residuals_px(rpc, check_g),
-    }
+    rpc.fit = fit_record(rpc, fit_g, check_g, hr)
     return rpc
 
 
