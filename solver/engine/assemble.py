@@ -100,24 +100,12 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
         model = get_model((models or {}).get(im.id, im.model.name))
         opts = dict(im.model.options)
         free = model.free_indices(opts)
-        if model.is_rpc:
-            images.append(
-                ImageState(
-                    id=im.id,
-                    index=i,
-                    camera=None,
-                    model=model,
-                    options=opts,
-                    kc=rpc_constants(im, frame),
-                    base=np.zeros(N_COEF),
-                    free_idx=free,
-                    params=np.zeros(free.shape[0]),
-                    tau_per_line=0.0,
-                    initial=dict(im.initial),
-                )
-            )
-            continue
-        cam = cameras[im.camera]
+        if model.is_rpc:  # no camera: the RPC and the frame are the image's constants
+            cam, kc, tau_per_line = None, rpc_constants(im, frame), 0.0
+        else:
+            cam = cameras[im.camera]
+            kc = kepler_constants(model, frame, cam.mounting_pitch_deg)
+            tau_per_line = model.tau_per_line(cam.line_time_s or 0.0)
         images.append(
             ImageState(
                 id=im.id,
@@ -125,11 +113,11 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
                 camera=cam,
                 model=model,
                 options=opts,
-                kc=kepler_constants(model, frame, cam.mounting_pitch_deg),
+                kc=kc,
                 base=np.zeros(N_COEF),
                 free_idx=free,
                 params=np.zeros(free.shape[0]),
-                tau_per_line=model.tau_per_line(cam.line_time_s or 0.0),
+                tau_per_line=tau_per_line,
                 initial=dict(im.initial),
             )
         )
