@@ -31,6 +31,12 @@ def _rmse(report) -> float:
     return float(np.sqrt(r["planimetric"] ** 2 + (r["u"] or 0.0) ** 2))  # mono check points: no u
 
 
+def _key(entry: dict) -> tuple:
+    """An observation of the quality section: kind, image, and its point (or line, pass, time)."""
+    other = entry.get("point") or entry.get("line") or entry.get("pass") or entry.get("time_s")
+    return entry["kind"], entry.get("image"), other
+
+
 def _inject(job: dict, rng, n_image: int, n_control: int) -> list[tuple[str, str | None, str]]:
     """Blunders in adjusted image points (tie / gcp) and control coordinates; returns
     (kind, image, point) of each."""
@@ -68,10 +74,17 @@ def blunders(args) -> None:
     from solver.simulate import presets
     from solver.simulate.scene import Settings
 
+    # --ephemeris: the simulated state vectors weighted (2 m, 0.01 m/s), as a satellite's
+    # on-board ephemeris would be (tests/test_quality_defaults.py uses the same)
+    opts = {"ephemeris": {"sigma_position_m": 2.0, "sigma_velocity_m_s": 0.01}} if args.ephemeris else {}
+
+    def settings(preset: str, seed: int) -> Settings:
+        return Settings(preset=preset, seed=seed, model=args.model, job_options=copy.deepcopy(opts))
+
     makers = {
-        "prism-triplet": lambda s: presets.prism_triplet(Settings(preset="prism-triplet", seed=s, model=args.model)),
-        "prism-single": lambda s: presets.prism_single(Settings(preset="prism-single", seed=s, model=args.model)),
-        "cbers-scene": lambda s: presets.cbers_scene(Settings(preset="cbers-scene", seed=s, model=args.model)),
+        "prism-triplet": lambda s: presets.prism_triplet(settings("prism-triplet", s)),
+        "prism-single": lambda s: presets.prism_single(settings("prism-single", s)),
+        "cbers-scene": lambda s: presets.cbers_scene(settings("cbers-scene", s)),
     }
     for seed in args.seeds:
         job = makers[args.preset](seed).job()
@@ -80,8 +93,8 @@ def blunders(args) -> None:
         probe = copy.deepcopy(job)
         probe.setdefault("options", {})["blunder_detection"] = {"action": "report"}
         clean = run(probe)  # the blunder-free adjustment, with its tests (nothing removed)
-        clean_failed = {(r["kind"], r.get("image"), r["point"]) for r in clean["quality"]["rejected"]}
-        clean_failed |= {(m["kind"], m.get("image"), m["point"]) for g in clean["quality"]["not_identifiable"] for m in g["members"]}
+        clean_failed = {_key(r) for r in clean["quality"]["rejected"]}
+        clean_failed |= {_key(m) for g in clean["quality"]["not_identifiable"] for m in g["members"]}
         rng = np.random.default_rng(1000 + seed)
         bad = copy.deepcopy(job)
         injected = _inject(bad, rng, args.image_blunders, args.control_blunders)
@@ -91,14 +104,14 @@ def blunders(args) -> None:
         rep = run(bad)
         dt = time.perf_counter() - t0
         q = rep["quality"]
-        rej = {(r["kind"], r.get("image"), r["point"]) for r in q["rejected"] if r["removed"] and not r.get("collateral")}
-        collateral = [(r["kind"], r.get("image"), r["point"]) for r in q["rejected"] if r.get("collateral")]
-        groups = [{(m["kind"], m.get("image"), m["point"]) for m in g["members"] if m["removed"]} for g in q["not_identifiable"]]
+        rej = {_key(r) for r in q["rejected"] if r["removed"] and not r.get("collateral")}
+        collateral = [_key(r) for r in q["rejected"] if r.get("collateral")]
+        groups = [{_key(m) for m in g["members"] if m["removed"]} for g in q["not_identifiable"]]
         groups = [g for g in groups if g]  # members put back (reinstated) are not removed
         found = [b for b in injected if b in rej]
         grouped = [b for b in injected if b not in rej and any(b in g for g in groups)]
         missed = [b for b in injected if b not in rej and b not in grouped]
-        mdbs = {(g["kind"], g.get("image"), g["point"]): g["mdb"] for g in clean["quality"]["reliability"]["groups"]}
+        mdbs = {_key(g): g["mdb"] for g in clean["quality"]["reliability"]["groups"]}
         missed = [[*b, "mdb", mdbs.get(b)] for b in missed]  # the clean adjustment's MDB of each
         false = [r for r in rej if r not in injected]
         lost = (q.get("lost_control") or {}).get("points", [])
@@ -114,6 +127,7 @@ def blunders(args) -> None:
                 {
                     "preset": args.preset,
                     "model": args.model,
+                    "ephemeris_weighted": args.ephemeris,
                     "seed": seed,
                     "injected": len(injected),
                     "rejected": len(found),
@@ -177,6 +191,7 @@ def main() -> None:
     b.add_argument("--robust-start", default="none", choices=["none", "huber", "cauchy"])
     b.add_argument("--no-reinstate", action="store_true")
     b.add_argument("--fixed", action="store_true", help="options.control = fixed")
+    b.add_argument("--ephemeris", action="store_true", help="weight the simulated ephemeris (2 m, 0.01 m/s)")
     c = sub.add_parser("clean")
     c.add_argument("--runs", type=int, default=200)
     c.add_argument("--alpha0", type=float, default=0.001)

@@ -313,6 +313,7 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
     removed observation against the final solution and puts back those that pass (re-adjusting
     and snooping again, until nothing changes). The report is that of the last adjustment, with
     the ``quality`` section and the removed image points flagged in ``observations``."""
+    from solver.quality.flags import flag_sections, line_point_coordinates
     from solver.quality.removal import INFLATE, reinstate, remove, testable, whole_points, with_candidates
     from solver.quality.snooping import entry, failing_clusters, predicted_test, reliability_section, snoop
 
@@ -356,6 +357,8 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
         for m, e in zip(cluster, entries):
             if m.group.removal is None:
                 continue
+            if m.group.kind == "line_point":  # the point's measured pixels (its index shifts with removals)
+                e["measured"] = line_point_coordinates(current, m.group.removal[1], m.group.removal[2], m.group.removal[3])
             obs = current.observations[m.group.removal[1]] if m.group.kind == "image_point" else None
             items.append({"kind": m.group.kind, "obs": obs, "point": e.get("point"), "entry": e, "group": group,
                           "flag": flag_of(report, obs) if obs is not None else None})
@@ -556,6 +559,7 @@ def _snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tup
             "reliability": reliability_section(sn),
         }
     )
+    flag_sections(report)
     if bd.external_points:
         from solver.quality.external import external_points
 

@@ -138,6 +138,11 @@ def test_a_line_image_point_blunder_is_found_and_removed() -> None:
     assert 1.0 < abs(r["estimated_error"][0]) <= 10.5
     assert rep["adjustment"]["chi2"]["passed"]
     assert rep["quality"]["not_identifiable"] == []
+    # flagged in the lines section with its measured pixels (the index shifts with removals)
+    assert r["measured"] == {"line": lo["points"][4]["line"], "column": lo["points"][4]["column"]}
+    flagged = {it["id"]: it["rejected"] for it in rep["lines"]["items"]}
+    assert flagged[gl["id"]] == [{"image": lo["image"], **r["measured"]}]
+    assert all(v == [] for k, v in flagged.items() if k != gl["id"])
 
 
 def test_an_attitude_sample_blunder_is_found_and_removed() -> None:
@@ -158,6 +163,10 @@ def test_an_attitude_sample_blunder_is_found_and_removed() -> None:
     assert (r["kind"], r["time_s"], r["removed"]) == ("attitude_sample", sample["time_s"], True)
     # deg; 0.006: three sigmas of the sample (0.002 deg) over its redundancy (~0.9)
     np.testing.assert_allclose(r["estimated_error"], [0.0, 0.02, 0.0], atol=0.006)
+    # flagged in the attitude section: the block of that image lists the removed epoch
+    blocks = {tuple(b["images"]): b["rejected_samples_s"] for b in rep["attitude"]}
+    assert [v for k, v in blocks.items() if job["images"][1]["id"] in k] == [[sample["time_s"]]]
+    assert sum(len(v) for v in blocks.values()) == 1
     # the adjustment after removal has one sample fewer (samples shared by images count once)
     assert sum(a["n_samples"] for a in rep["attitude"]) == sum(a["n_samples"] for a in clean["attitude"]) - 1
     assert n_before > 0
@@ -265,5 +274,49 @@ def test_an_ephemeris_sample_blunder_is_found_and_removed() -> None:
     assert (r["kind"], r["time_s"], r["removed"]) == ("ephemeris_sample", t, True)
     # m (ECEF x, y, z); 3 m: 1.5 sigma of the sample over its redundancy (~0.4-0.7)
     np.testing.assert_allclose(r["estimated_error"][:3], [50.0, 0.0, 0.0], atol=3.0)
+    assert rep["adjustment"]["chi2"]["passed"]
+    # flagged in the ephemeris section of every image that carried the sample
+    carried = {im["id"] for im in job["images"] if any(abs(s["time_s"] - t) < 1e-6 for s in im["ephemeris"])}
+    flagged = {e["image"]: e["rejected_samples_s"] for e in rep["ephemeris"]["images"]}
+    assert carried and {k for k, v in flagged.items() if v} == carried
+    assert all(v == [pytest.approx(t, abs=1e-6)] for k, v in flagged.items() if k in carried)
+    assert rep["ephemeris"]["rejected_states"] == []
+
+
+def test_a_weighted_line_0_state_blunder_is_found_and_removed() -> None:
+    """OA-J2 (one orbit state per image, weighted from the interpolated ephemeris, sigma 2 m):
+    one image's ephemeris moved 250 m in x (about three times the state's MDB, ~80 m in the
+    clean run) makes its line-0 state fail; it is removed (the state stays as the unweighted
+    approximate state) and flagged in the ephemeris section; the clean run rejects nothing."""
+    import json
+    from pathlib import Path
+
+    job = json.loads((Path(__file__).resolve().parents[1] / "examples" / "prism-triplet-direct.json").read_text())
+    for im in job["images"]:
+        im["model"] = {"name": "OA-J2"}
+    job["options"]["ephemeris"]["sigma_position_m"] = 2.0
+    job["options"]["blunder_detection"] = {}
+    clean = run(copy.deepcopy(job))
+    assert clean["quality"]["rejected"] == [] and clean["quality"]["not_identifiable"] == []
+    target = job["images"][1]["id"]
+    for s in job["images"][1]["ephemeris"]:
+        s["position_ecef_m"][0] += 250.0
+    rep = run(job)
+    q = rep["quality"]
+    states = [r for r in q["rejected"] if r["kind"] == "ephemeris_sample"]
+    assert [(r["image"], r["time_s"], r["removed"]) for r in states] == [(target, None, True)], q["rejected"]
+    # m (ECEF x, y, z): the interpolated state moved 250 m in x. The estimate's sigma per
+    # component is sigma / sqrt(r) = MDB / sqrt(lambda0(d)) (d = 6, position and velocity; from
+    # the clean run's MDBs of this state, much of a position error being taken up by the
+    # attitude): within 3 of them (measured 250.8, 9.6, -21.2)
+    (g,) = [g for g in clean["quality"]["reliability"]["groups"] if g["kind"] == "ephemeris_sample" and g["image"] == target]
+    sigma_est = np.asarray(g["mdb"][:3]) / np.sqrt(clean["quality"]["reliability"]["lambda0"][str(len(g["mdb"]))])
+    assert np.all(np.abs(np.asarray(states[0]["estimated_error"][:3]) - [250.0, 0.0, 0.0]) <= 3 * sigma_est), sigma_est
+    # flagged in the ephemeris section; the image no longer has an ephemeris there (its state is
+    # the unweighted approximate state now), the others keep theirs, weighted
+    assert rep["ephemeris"]["rejected_states"] == [target]
+    eph = {e["image"]: e for e in rep["ephemeris"]["images"]}
+    assert set(eph) == {im["id"] for im in job["images"]} - {target}
+    assert all(e["used_as"] == "weighted_observation" for e in eph.values())
     assert rep["adjustment"]["chi2"]["passed"]
 
