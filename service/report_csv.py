@@ -78,13 +78,40 @@ def _rows_of(report: dict[str, Any], table: str) -> list[dict[str, Any]]:
             for p in ps.get("parameters") or []:
                 rows.append(_flatten({"image": None, "camera": None, "model": ps.get("model"), "pass": ps.get("id"), **p}))
         return rows
-    if table == "rejected":  # data snooping (docs/quality.md): rejected tests, then the groups
-        quality = report.get("quality") or {}
-        rows = [_flatten({"group": None, **r}) for r in quality.get("rejected") or []]
-        for k, g in enumerate(quality.get("not_identifiable") or [], start=1):
-            rows += [_flatten({"group": k, **m}) for m in g.get("members") or []]
-        return rows
+    if table == "rejected":
+        return _rejected_rows(report.get("quality") or {})
     raise KeyError(table)
+
+
+def _status(entry: dict[str, Any]) -> str:
+    if entry.get("reinstated"):
+        return "reinstated"
+    return "removed" if entry.get("removed") else "kept"
+
+
+def _where(entry: dict[str, Any]) -> tuple:
+    return tuple(entry.get(k) for k in ("kind", "image", "point", "line", "pass", "time_s"))
+
+
+def _rejected_rows(quality: dict[str, Any]) -> list[dict[str, Any]]:
+    """Data snooping (docs/quality.md): the failed tests (``status`` removed, or kept when not
+    removed), the members of the non-identifiable groups (``group`` their number), the
+    observations put back after the test against the final solution (``status`` reinstated,
+    with the ``predicted_*`` test), and the control points the removals took away (``status``
+    lost_control, with the predicted check-point RMSE before and after)."""
+    back = {_where(r): r for r in quality.get("reinstated") or []}
+    rows = [_flatten({"status": _status(r), "group": None, **r}) for r in quality.get("rejected") or []]
+    for k, g in enumerate(quality.get("not_identifiable") or [], start=1):
+        for m in g.get("members") or []:
+            # a member put back is listed with its group, with its predicted test
+            extra = {"predicted": back.pop(_where(m))["predicted"]} if m.get("reinstated") and _where(m) in back else {}
+            rows.append(_flatten({"status": _status(m), "group": k, **m, **extra}))
+    rows += [_flatten({"status": "reinstated", "group": None, **r}) for r in back.values()]
+    lost = quality.get("lost_control") or {}
+    for pid in lost.get("points") or []:
+        rows.append(_flatten({"status": "lost_control", "group": None, "kind": "control_point", "point": pid,
+                              "predicted_check_rmse_m": lost.get("predicted_check_rmse_m")}))
+    return rows
 
 
 def table_rows(report: dict[str, Any], table: str) -> list[dict[str, Any]]:

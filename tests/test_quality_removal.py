@@ -205,39 +205,30 @@ def test_a_point_removed_whole_is_tested_against_the_final_orientation() -> None
     assert out["w"] == pytest.approx(inside.w, rel=0.02)
 
 
-def test_reinstatement_puts_back_a_clean_group_removed_along_the_way() -> None:
+@pytest.fixture(scope="module")
+def single_with_blunders() -> tuple[set[str], dict[bool, dict]]:
+    """prism-single (the independent simulator), seed 4, as bench/bench_snooping.py blunders
+    --seeds 4: four image blunders and a control point moved; the injected points and the
+    reports without and with reinstatement."""
+    from blunder_scenes import prism_single_with_blunders
+
+    job, injected = prism_single_with_blunders(seed=4)
+    reports = {}
+    for flag in (False, True):
+        j = copy.deepcopy(job)
+        j.setdefault("options", {})["blunder_detection"] = {"reinstate": flag, "max_rejections": 50}
+        reports[flag] = run(j)
+    return injected, reports
+
+
+def test_reinstatement_puts_back_a_clean_group_removed_along_the_way(single_with_blunders) -> None:
     """prism-single (the independent simulator), seed 4, four image blunders and a control
     point moved: one at a time, snooping also removes a clean {image point, survey} group on the
     way (its test failed while the blunders were in); tested against the final solution it
     passes and is put back. Every reinstated observation passed its predicted test, none of them
     is a blunder, and nothing removed in the end is clean."""
-    from solver.simulate import presets
-    from solver.simulate.scene import Settings
-
-    job = presets.prism_single(Settings(preset="prism-single", seed=4, model="K2")).job()
-    rng = np.random.default_rng(1004)  # as bench/bench_snooping.py blunders --seeds 4
-    roles = {p["id"]: p["role"] for p in job["points"]}
-    injected, used = set(), set()
-    for i in rng.permutation([i for i, o in enumerate(job["observations"]) if roles[o["point"]] != "check"]):
-        o = job["observations"][i]
-        if len(injected) >= 4 or o["point"] in used:
-            continue
-        used.add(o["point"])
-        mag, ang = rng.uniform(5, 30), rng.uniform(0, 2 * np.pi)
-        o["line"] += mag * np.cos(ang)
-        o["column"] += mag * np.sin(ang)
-        injected.add(o["point"])
-    gcps = [p for p in job["points"] if p["role"] == "gcp" and p.get("sigma_m") and p["id"] not in used]
-    p = gcps[int(rng.permutation(len(gcps))[0])]
-    mag, ang = rng.uniform(10, 30), rng.uniform(0, 2 * np.pi)
-    p["coordinates"][0] += mag * np.cos(ang) / (111320.0 * np.cos(np.radians(p["coordinates"][1])))
-    p["coordinates"][1] += mag * np.sin(ang) / 110540.0
-    injected.add(p["id"])
-    reports = {}
-    for flag in (False, True):
-        j = copy.deepcopy(job)
-        j.setdefault("options", {})["blunder_detection"] = {"reinstate": flag, "max_rejections": 50}
-        reports[flag] = run(j)["quality"]
+    injected, full = single_with_blunders
+    reports = {flag: rep["quality"] for flag, rep in full.items()}
 
     def removed_points(q):
         out = {r["point"] for r in q["rejected"] if r["removed"]}
@@ -320,3 +311,28 @@ def test_a_weighted_line_0_state_blunder_is_found_and_removed() -> None:
     assert all(e["used_as"] == "weighted_observation" for e in eph.values())
     assert rep["adjustment"]["chi2"]["passed"]
 
+
+
+def test_rejected_csv_lists_reinstated_observations_and_lost_control(single_with_blunders) -> None:
+    """rejected.csv (service.report_csv) of the same scene: one row per failed test or group
+    member with its status, the reinstated observations with their predicted test, and one
+    row per control point the removals took away; nothing listed twice."""
+    from service.report_csv import table_rows, to_csv
+
+    _injected, full = single_with_blunders
+    q = full[True]["quality"]
+    rows = table_rows(full[True], "rejected")
+    by_status: dict[str, list] = {}
+    for r in rows:
+        by_status.setdefault(r["status"], []).append(r)
+    n_members = sum(len(g["members"]) for g in q["not_identifiable"])
+    n_single_back = sum(1 for r in q["reinstated"] if not any(
+        (m["kind"], m["image"], m["point"]) == (r["kind"], r["image"], r["point"]) for g in q["not_identifiable"] for m in g["members"]))
+    assert len(rows) == len(q["rejected"]) + n_members + n_single_back + len(q["lost_control"]["points"])
+    assert len(by_status["reinstated"]) == len(q["reinstated"]) > 0
+    assert all(r["predicted_passed"] is True and r["predicted_w"] <= r["predicted_critical"] for r in by_status["reinstated"])
+    assert sorted(r["point"] for r in by_status["lost_control"]) == sorted(q["lost_control"]["points"])
+    assert all(r["predicted_check_rmse_m_after"] == q["lost_control"]["predicted_check_rmse_m"]["after"] for r in by_status["lost_control"])
+    assert all(float(r["w"]) > float(r["critical"]) for r in by_status["removed"])
+    text = to_csv(rows)
+    assert text.splitlines()[0].startswith("status,group,kind")

@@ -312,6 +312,35 @@ def test_blunder_detection_table(page: Any, local_server: Server, artifacts: Pat
     page.locator("#result").screenshot(path=str(artifacts / "blunder-detection-result.png"))
 
 
+def test_blunder_detection_shows_reinstated_and_lost_control(page: Any, local_server: Server, artifacts: Path) -> None:
+    """One image with four image blunders on control points and a moved control point
+    (prism-single seed 4): every blunder of a single image's control point is a
+    non-identifiable {image point, survey} group whose removal costs the control point; a
+    clean group removed on the way is put back. The page lists the reinstated members with
+    their predicted test and names the lost control points with the predicted check RMSE."""
+    from blunder_scenes import prism_single_with_blunders
+
+    import solver.api
+
+    job, _injected = prism_single_with_blunders(seed=4)
+    job["options"] = {"blunder_detection": {"max_rejections": 50}}
+    q = solver.api.run(json.loads(json.dumps(job)))["quality"]
+    assert q["reinstated"] and q["lost_control"]["points"], "the scene reinstates and loses control (measured)"
+    open_ui(page, local_server)
+    set_document(page, json.dumps(job))
+    expect(page.locator("#validation")).to_have_class(OK, timeout=30_000)
+    page.click("#submit")
+    expect(page.locator("#cur-percent")).to_have_text("100%", timeout=SOLVE_MS)
+    back = page.locator("#snooping-table tbody tr.reinstated")
+    expect(back).to_have_count(len(q["reinstated"]))
+    expect(back.first).to_contain_text("reinstated (predicted w")
+    lost = page.locator("#lost-control")
+    for pid in q["lost_control"]["points"]:
+        expect(lost).to_contain_text(pid)
+    expect(lost).to_contain_text("predicted check-point RMSE")
+    page.locator("#result").screenshot(path=str(artifacts / "blunder-detection-reinstated.png"))
+
+
 def test_preanalysis_of_a_planned_layout(page: Any, local_server: Server, artifacts: Path) -> None:
     """The example triplet as planned (no observations, tie points at their simulated places),
     run as the preanalysis process: the page shows the predicted precision of every planned

@@ -694,16 +694,36 @@
     box.append(el("h3", { text: "Blunder detection" }));
     box.append(el("p", { class: "muted", text: `${bd.test === "pope" ? "Pope's tau test (σ0 estimated)" : "Baarda's data snooping (σ0 a priori)"}, α0 ${bd.alpha0}, β ${bd.beta}; ${bd.n_removed} observation(s) removed in ${bd.adjustments} adjustment(s)` }));
     const where = (r) => [r.image, r.point ?? r.line ?? r.pass ?? "", r.time_s != null ? `t ${fmtNum(r.time_s, 3)} s` : ""].filter((x) => x !== null && x !== "").join(" / ");
-    const row = (r, group) => el("tr", { class: r.removed ? "rejected" : null },
+    // reinstated: removed, then put back because its test against the final solution passed
+    const key = (r) => [r.kind, r.image, r.point, r.line, r.pass, r.time_s].join("|");
+    const back = new Map((q.reinstated || []).map((r) => [key(r), r]));
+    const status = (r) => {
+      if (!r.reinstated && !back.has(key(r))) return r.removed ? "removed" : "kept";
+      const p = (back.get(key(r)) || {}).predicted || {};
+      return `reinstated (predicted w ${fmtNum(p.w, 2)} ≤ ${fmtNum(p.critical, 2)})`;
+    };
+    const row = (r, group) => el("tr", { class: r.removed ? "rejected" : (back.has(key(r)) ? "reinstated" : null) },
       el("td", { text: group }), el("td", { text: r.kind }), el("td", {}, el("code", { text: where(r) })),
       el("td", { class: "num", text: fmtNum(r.w, 2) }), el("td", { class: "num", text: fmtNum(r.critical, 2) }),
       el("td", { class: "num", text: (r.estimated_error || []).map((x) => fmtNum(x, 2)).join(", ") + (r.units ? ` ${r.units}` : "") }),
-      el("td", { text: r.removed ? "removed" : "kept" }));
-    const rows = rejected.map((r) => row(r, "–")).concat(groups.flatMap((g, k) => (g.members || []).map((m) => row(m, `not identifiable #${k + 1}`))));
+      el("td", { text: status(r) }));
+    const grouped = new Set(groups.flatMap((g) => (g.members || []).map(key)));
+    const rows = rejected.map((r) => row(r, "–"))
+      .concat(groups.flatMap((g, k) => (g.members || []).map((m) => row(m, `not identifiable #${k + 1}`))))
+      .concat((q.reinstated || []).filter((r) => !grouped.has(key(r))).map((r) => row(r, "–")));
     if (!rows.length) box.append(el("p", { text: "No test failed." }));
     else box.append(el("div", { class: "table-wrap" }, el("table", { class: "data compact", id: "snooping-table" },
       el("thead", {}, el("tr", {}, ["group", "kind", "observation", "w", "critical", "estimated error", ""].map((h, i) => el("th", { class: i >= 3 && i <= 5 ? "num" : null, text: h })))),
       el("tbody", {}, rows))));
+    const lost = q.lost_control;
+    if (lost && (lost.points || []).length) {
+      const pr = lost.predicted_check_rmse_m;
+      box.append(el("p", { class: "warnings", id: "lost-control",
+        text: `Control points lost to the removals: ${lost.points.join(", ")}` + (pr ? `; predicted check-point RMSE (planimetric) ${fmtNum(pr.before, 3)} m before, ${fmtNum(pr.after, 3)} m after.` : ".") }));
+    }
+    const outliers = q.check_point_outliers || [];
+    if (outliers.length) box.append(el("p", { class: "warnings", id: "check-point-outliers",
+      text: `Check points whose discrepancy test fails (a blunder outside the adjustment): ${outliers.map((o) => `${o.point} (χ² ${fmtNum(o.statistic, 1)} > ${fmtNum(o.critical, 1)})`).join("; ")}` }));
     const unchecked = (q.reliability || {}).unchecked_control_points || [];
     if (unchecked.length) box.append(el("p", { class: "muted", id: "unchecked-control", text: `Control points nothing checks (redundancy ≈ 0): ${unchecked.map((u) => `${u.point} (${u.unchecked.join(", ")})`).join("; ")}` }));
   }
