@@ -14,7 +14,7 @@ from scipy import stats
 from solver.adjust import adjust_once
 from solver.api import run, validate
 from solver.engine.linalg import linearise
-from solver.quality.reliability import minimal_detectable_bias, noncentrality, redundancy
+from solver.quality.reliability import minimal_detectable_bias, noncentrality, redundancy, weakest_direction
 from solver.quality.snooping import snoop
 from solver.schema.job import BlunderDetection, load_job
 from solver.synthetic import block_job, single_image_job
@@ -301,3 +301,45 @@ def test_max_rejections_stops_and_reports_the_rest(weighted_block) -> None:
     assert ratios == sorted(ratios, reverse=True) and ratios[-1] > 1.0
     assert kept[0]["estimated_error"][1] == pytest.approx(-12.0, abs=1.5)  # px, 3 sigma of the estimate
     assert any("max_rejections" in w for w in rep["warnings"])
+
+
+def test_weakest_direction_mdb_is_the_largest_over_directions(weighted_block) -> None:
+    """``mdb_max``: the bias of the group's weakest direction whose non-centrality is lambda0.
+    Checked by a re-adjustment (not by the cofactor that produced it): a bias of mdb_max / 8
+    along that direction, injected into a noise-free tie image point, moves the test statistic
+    as a non-centrality of lambda0 / 64 predicts; the same bias across it moves it more; and
+    the value is at least every per-component MDB."""
+    job, _truth = copy.deepcopy(weighted_block)
+    exact, _ = block_job(model="P1", n_tie=30, n_gcp=14, n_check=6, seed=3, gcp_sigma_m=0.5, noise_px=1e-6)
+    for o, e in zip(job["observations"], exact["observations"]):
+        o["line"], o["column"] = e["line"], e["column"]
+    problem, _ = _adjusted(job)
+    sn = snoop(problem, DEFAULTS)
+    target = next(t for t in sn.tests if t.group.kind == "image_point" and t.group.label["role"] == "tie")
+    lam0 = sn.lam0(2)
+    weakest = weakest_direction(sn.structure, target.group, lam0)
+    u = np.asarray(weakest["direction"])
+    assert np.linalg.norm(u) == pytest.approx(1.0, abs=1e-12)
+    mdb = minimal_detectable_bias(sn.structure, target.group, lam0)
+    # the per-component MDBs are biases along two particular directions: none exceeds the max
+    assert all(m <= weakest["value"] * (1 + 1e-9) for m in mdb)
+    q = sn.structure.blocks[target.group.block].q[np.ix_(target.group.local, target.group.local)]
+    v0 = sn.residuals[sn.structure.blocks[target.group.block].rows[target.group.local]]
+    sigma = np.asarray(target.group.sigma)
+    k = target.group.removal[1]
+    stat = {}
+    for name, direction in (("weakest", u), ("across", np.array([-u[1], u[0]]))):
+        biased = copy.deepcopy(job)
+        bias = weakest["value"] / 8.0 * direction  # px, (line, column)
+        biased["observations"][k]["line"] += bias[0]
+        biased["observations"][k]["column"] += bias[1]
+        problem2, _ = _adjusted(biased)
+        t2 = next(t for t in snoop(problem2, DEFAULTS).tests if t.group.label == target.group.label)
+        b = bias / sigma
+        predicted = float((v0 + q @ b) @ np.linalg.solve(q, v0 + q @ b))
+        # 3 %: the linearisation error at MDB / 8, as in the per-component MDB test above
+        assert t2.statistic == pytest.approx(predicted, rel=0.03)
+        stat[name] = float(b @ q @ b)
+    # the weakest direction's non-centrality is lambda0 at mdb_max (here / 64), the other larger
+    assert stat["weakest"] == pytest.approx(lam0 / 64.0, rel=1e-6)
+    assert stat["across"] >= stat["weakest"]

@@ -25,6 +25,7 @@ in a group's rows moves the residuals by ``-Q b``; the group's test statistic
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy import optimize, stats
@@ -268,6 +269,29 @@ def minimal_detectable_bias(st: Structure, g: Group, lam0: float) -> list[float 
     observation's units, sigma0 a priori) that the group's test detects with power beta."""
     r = redundancy(st, g)
     return [float(g.sigma[k] * np.sqrt(lam0 / r[k])) if r[k] > REDUNDANCY_NEAR_ZERO else None for k in range(g.dim)]
+
+
+def weakest_direction(st: Structure, g: Group, lam0: float) -> dict[str, Any] | None:
+    """Internal reliability over every direction of the group, not component by component: a
+    bias ``m u`` (``u`` a unit vector in the observation's units) has the non-centrality
+    ``m^2 u^T S^-1 Q_gg S^-1 u`` (``S`` the sigmas), so the largest MDB of the group is
+    ``sqrt(lam0 / mu)`` along the eigenvector of the smallest eigenvalue ``mu`` of
+    ``S^-1 Q_gg S^-1``, over the components that something checks (redundancy above
+    ``REDUNDANCY_NEAR_ZERO``). It exceeds every per-component MDB when the components'
+    redundancies are correlated: a control point's survey on one image can hide an error
+    along a combination of east and north that the orientation absorbs. None for one
+    component or none checked."""
+    r = redundancy(st, g)
+    keep = [k for k in range(g.dim) if r[k] > REDUNDANCY_NEAR_ZERO]
+    if len(keep) < 2:
+        return None
+    sig = np.asarray(g.sigma, dtype=float)[keep]
+    m = group_cofactor(st, g)[np.ix_(keep, keep)] / np.outer(sig, sig)
+    mu, vec = np.linalg.eigh(0.5 * (m + m.T))
+    u = np.zeros(g.dim)
+    u[keep] = vec[:, 0] * (1.0 if vec[np.argmax(np.abs(vec[:, 0])), 0] >= 0 else -1.0)
+    value = float(np.sqrt(lam0 / mu[0])) if mu[0] > 0 else None
+    return {"value": value, "direction": [float(x) for x in u]}
 
 
 def bias_effect(st: Structure, g: Group, bias_whitened: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:

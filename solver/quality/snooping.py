@@ -40,6 +40,7 @@ from solver.quality.reliability import (
     noncentrality,
     redundancy,
     structure,
+    weakest_direction,
 )
 from solver.state import AdjustmentState
 
@@ -356,6 +357,7 @@ def reliability_section(sn: Snoop) -> dict[str, Any]:
             **{k: v for k, v in g.label.items() if k != "role"},
             "redundancy": [float(x) for x in r],
             "mdb": mdb,
+            "mdb_max": weakest_direction(st, g, lam0),
             "units": g.units,
             "bias_to_noise": bias_to_noise(st, g, lam0),
             "effect_on_parameters_sigma": effect_sigma,
