@@ -72,6 +72,16 @@ def set_document(page: Any, text: str) -> None:
     )
 
 
+def solve_document(page: Any, server: Server, job: dict) -> None:
+    """Open the page, paste ``job`` as the document, wait for its validation, submit it and wait
+    for the run to finish."""
+    open_ui(page, server)
+    set_document(page, json.dumps(job))
+    expect(page.locator("#validation")).to_have_class(OK, timeout=30_000)
+    page.click("#submit")
+    expect(page.locator("#cur-percent")).to_have_text("100%", timeout=SOLVE_MS)
+
+
 def pick_example(page: Any, name: str) -> None:
     page.select_option("#example", name)
     expect(page.locator("#validation")).to_have_class(OK, timeout=30_000)
@@ -294,11 +304,7 @@ def test_blunder_detection_table(page: Any, local_server: Server, artifacts: Pat
     job["observations"][ties[0]]["line"] += 20.0
     job["observations"][ties[5]]["column"] += 12.0
     job["options"] = {"blunder_detection": {}}
-    open_ui(page, local_server)
-    set_document(page, json.dumps(job))
-    expect(page.locator("#validation")).to_have_class(OK, timeout=30_000)
-    page.click("#submit")
-    expect(page.locator("#cur-percent")).to_have_text("100%", timeout=SOLVE_MS)
+    solve_document(page, local_server, job)
     rows = page.locator("#snooping-table tbody tr")
     expect(rows).to_have_count(4)
     expect(rows.first).to_contain_text(job["observations"][ties[5]]["point"])
@@ -326,11 +332,7 @@ def test_blunder_detection_shows_reinstated_and_lost_control(page: Any, local_se
     job["options"] = {"blunder_detection": {"max_rejections": 50}}
     q = solver.api.run(json.loads(json.dumps(job)))["quality"]
     assert q["reinstated"] and q["lost_control"]["points"], "the scene reinstates and loses control (measured)"
-    open_ui(page, local_server)
-    set_document(page, json.dumps(job))
-    expect(page.locator("#validation")).to_have_class(OK, timeout=30_000)
-    page.click("#submit")
-    expect(page.locator("#cur-percent")).to_have_text("100%", timeout=SOLVE_MS)
+    solve_document(page, local_server, job)
     back = page.locator("#snooping-table tbody tr.reinstated")
     expect(back).to_have_count(len(q["reinstated"]))
     expect(back.first).to_contain_text("reinstated (predicted w")
