@@ -140,7 +140,8 @@ def get_results_table(
     job: VisibleJob, table: Literal["observations", "checkpoints", "parameters", "rejected"]
 ) -> Response:
     """One table of the report as CSV: observations (residuals), checkpoints, parameters,
-    rejected (data snooping: rejected observations and non-identifiable groups)."""
+    rejected (data snooping: failed tests and non-identifiable groups with their status, removed,
+    kept or reinstated, and the control points the removals took away; docs/quality.md)."""
     import json
 
     report = json.loads(results_text(job))
