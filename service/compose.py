@@ -43,7 +43,8 @@ class _Spec(BaseModel):
 
 
 class ImageSpec(_Spec):
-    """One image: its id, the uploaded files of its measurements and times, its camera."""
+    """One image: its id, the uploaded files of its measurements and times, its camera; or, for
+    an RPC image, the uploaded file of its RPC (instead of camera and times) and its bias model."""
 
     id: str = Field(min_length=1, max_length=64)
     camera: str | None = Field(default=None, min_length=1, max_length=128)
@@ -51,6 +52,8 @@ class ImageSpec(_Spec):
     ephemeris: str | None = None
     attitude: str | None = None
     state: str | None = None
+    rpc: str | None = Field(default=None, description="an RPC image: its NAME_RPC.TXT, NAME.RPB, DIMAP RPC XML or raster with RPC tags")
+    rpc_model: str | None = Field(default=None, max_length=32, description="its bias model (default: the spec's rpc_model)")
 
 
 class ComposeSpec(_Spec):
@@ -66,6 +69,7 @@ class ComposeSpec(_Spec):
     camera: str | None = Field(default=None, description="camera of images without their own")
     crs: str | None = Field(default=None, max_length=4096, description="CRS of the point tables")
     models: list[str] = Field(default_factory=lambda: ["K2"], min_length=1, max_length=16)
+    rpc_model: str = Field(default="RPC-DRIFT", max_length=32, description="bias model of the RPC images without their own")
     options: dict[str, Any] = Field(default_factory=dict)
     name: str = Field(default="job", max_length=200)
     time_scale: str | None = Field(default=None, max_length=32)
@@ -125,6 +129,8 @@ def _request(spec: ComposeSpec, uploads: dict[str, bytes]) -> ComposeRequest:
                     file(n, ("images", k, attr)) if n else None
                     for attr, n in (("ephemeris", im.ephemeris), ("attitude", im.attitude), ("state", im.state))
                 ),
+                rpc=file(im.rpc, ("images", k, "rpc")) if im.rpc else None,
+                rpc_model=im.rpc_model,
             )
         )
     req = ComposeRequest(
@@ -136,6 +142,7 @@ def _request(spec: ComposeSpec, uploads: dict[str, bytes]) -> ComposeRequest:
         camera=spec.camera,
         crs=spec.crs,
         models=spec.models,
+        rpc_model=spec.rpc_model,
         options=spec.options,
         name=spec.name,
         time_scale=spec.time_scale,

@@ -129,3 +129,44 @@ def test_bad_files_exit_2_with_the_file_named(tmp_path, capsys, name, content) -
     assert str(path) in err and "Traceback" not in err
     with pytest.raises(SourceError):
         read_rpc(path)
+
+
+@pytest.mark.parametrize("kind", ["txt", "rpb", "tif"])
+def test_uploaded_bytes_are_read_under_their_name_only(tmp_path, rpc, kind) -> None:
+    """An upload (bytes and the name the client gave): read through GDAL like the file, the
+    name deciding the reader; a name with directories is never opened as a path."""
+    from solver.gis.rpc_io import rpc_rpb, rpc_txt
+    from solver.importers.rpc import read_rpc_bytes
+
+    if kind == "tif":
+        _blank_tif(tmp_path / "blank.tif")
+        path = write_raster_with_rpc(rpc, tmp_path / "blank.tif", tmp_path / "scene.tif")
+        data, name = path.read_bytes(), "../../elsewhere/scene.tif"
+    else:
+        data = (rpc_txt if kind == "txt" else rpc_rpb)(rpc).encode()
+        name = "/etc/scene_RPC.TXT" if kind == "txt" else "..\\scene.RPB"
+    _assert_same(read_rpc_bytes(data, name).to_job(), rpc)
+    with pytest.raises(SourceError) as exc:
+        read_rpc_bytes(b"LINE_OFF: 12\n", "/etc/passwd_RPC.TXT")
+    assert exc.value.source_problems[0].file == "/etc/passwd_RPC.TXT"  # named as given, not opened
+
+
+def test_compose_an_rpc_image_from_an_upload(rpc) -> None:
+    """The composer (pba job, POST /jobs/compose): an image with an RPC file and no camera
+    becomes {id, rpc, model}; a bad RPC file is a located problem."""
+    from solver.gis.rpc_io import rpc_txt
+    from solver.importers.compose import ComposeRequest, ImageSources, SourceFile, compose_job
+
+    meas = SourceFile("N.csv", "point,line,column\nA,100.5,200.25\nB,900,3000\nC,5000,1000\n")
+    survey = SourceFile("survey.csv", "id,x,y,z\nA,-51.1,-22.0,400\nB,-51.2,-22.1,410\nC,-51.15,-22.05,420\n")
+    req = ComposeRequest(images=[ImageSources("N", [meas], rpc=SourceFile("N_RPC.TXT", rpc_txt(rpc)), rpc_model="RPC-SHIFT")],
+                         gcps=[survey], models=["K2"])
+    job = compose_job(req).job
+    (image,) = job["images"]
+    assert set(image) == {"id", "rpc", "model"} and image["model"] == {"name": "RPC-SHIFT"}
+    _assert_same(image["rpc"], rpc)
+    assert job["cameras"] == []
+    bad = ComposeRequest(images=[ImageSources("N", [meas], rpc=SourceFile("N_RPC.TXT", "LINE_OFF: 12\n"))], gcps=[survey])
+    with pytest.raises(SourceError) as exc:
+        compose_job(bad)
+    assert [p.file for p in exc.value.source_problems] == ["N_RPC.TXT"]

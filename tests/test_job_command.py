@@ -10,6 +10,7 @@ import shlex
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from solver.cli import main
@@ -193,3 +194,51 @@ def test_column_map_model_comparison_and_options(
     assert job["options"] == {"covariance": False, "models": ["K1", "K2"]}
     assert job["images"][0]["model"] == {"name": "K1"}
     assert "problem: " in capsys.readouterr().err
+
+
+def _rpc_numbers(rpc: dict[str, Any]) -> np.ndarray:
+    keys = [k for k in sorted(rpc) if k != "pixel_convention"]
+    return np.concatenate([np.atleast_1d(np.asarray(rpc[k], float)) for k in keys])
+
+
+def test_rpc_images_round_trip_through_job_sources_and_pba_job(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A mixed block of the simulator (K2 nadir camera image, two RPC-DRIFT images) written as
+    sources (the RPC images' RPCs as GDAL's NAME_RPC.TXT) and composed again by ``pba job --rpc
+    ... --rpc-model ...``: the RPCs come back through GDAL (every number to 1e-12 relative: the
+    text carries 16 significant digits), the RPC images have no camera, the rest is the same
+    job, and its adjustment equals the original's."""
+    from solver.api import run
+    from solver.simulate import presets
+    from solver.simulate.rpc import RpcSettings
+    from solver.simulate.scene import Settings
+
+    s = Settings(preset="prism-triplet", seed=2, rpc=RpcSettings("RPC-DRIFT", {"a0": 15.0, "b0": -8.0}, (1, 3)))
+    job = presets.prism_triplet(s, gcps=8, checks=8, tie_points=20).job()
+    rpc_ids = [im["id"] for im in job["images"] if im.get("rpc")]
+    assert len(rpc_ids) == 2 and len(job["cameras"]) == 1
+    src = tmp_path / "src"
+    job_path = tmp_path / "original.json"
+    job_path.write_text(json.dumps(job))
+    assert main(["job-sources", str(job_path), "-o", str(src)]) == 0
+    assert sorted(p.name for p in src.glob("*_RPC.TXT")) == sorted(f"{i}_RPC.TXT" for i in rpc_ids)
+    # the command it prints: "pba job ARGS -o job.json"
+    printed = shlex.split(capsys.readouterr().err.strip().splitlines()[-1])
+    assert printed[:2] == ["pba", "job"] and printed[-2:] == ["-o", "job.json"]
+    args = printed[2:-2]
+    assert "--rpc" in args and "--rpc-model" in args
+    monkeypatch.chdir(src)
+    out = tmp_path / "job.json"
+    assert main(["job", *args, "-o", str(out)]) == 0
+    back = json.loads(out.read_text())
+    for a, b in zip(back["images"], job["images"], strict=True):
+        assert a["id"] == b["id"] and a["model"] == b["model"]
+        if b.get("rpc"):
+            assert "camera" not in a and a["rpc"]["pixel_convention"] == "center"
+            np.testing.assert_allclose(_rpc_numbers(a["rpc"]), _rpc_numbers(b["rpc"]), rtol=1e-12, atol=1e-300)
+    rigorous = lambda d: {**d, "images": [im for im in d["images"] if not im.get("rpc")]}  # noqa: E731
+    same_job_content(rigorous(back), rigorous(job))
+    ra, rb = run(back), run(job)
+    # the same adjustment: the RPC numbers differ by at most 1e-12 relative (measured 0)
+    assert ra["checkpoints"]["rmse_m"]["3d"] == pytest.approx(rb["checkpoints"]["rmse_m"]["3d"], rel=1e-6)

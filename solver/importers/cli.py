@@ -5,6 +5,7 @@ Example::
 
     pba job --camera prism-nadir --image N=N_points.csv --gcps survey.csv --crs EPSG:31982 \\
         --model K2 -o job.json
+    pba job --rpc N=N.tif --rpc-model RPC-SHIFT --image N=N_points.csv --gcps survey.csv -o job.json
 
 Flags taking ``ID=VALUE`` are per image (``--camera N=prism-nadir``); ``--camera NAME`` alone
 is the default of every image. A measurement file's type follows its extension: ``.csv``
@@ -56,10 +57,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--attitude", action="append", default=[], metavar="ID=FILE", help="attitude samples of image ID")
     p.add_argument("--state", action="append", default=[], metavar="ID=FILE",
                    help="header state of image ID: one row, the state at the first line and its time")
+    p.add_argument("--rpc", action="append", default=[], metavar="ID=FILE",
+                   help="image ID is an RPC image: its raster (RPC tags or a sidecar beside it), NAME_RPC.TXT, "
+                   "NAME.RPB or DIMAP RPC XML, read by GDAL (no camera or time files for it)")
+    p.add_argument("--rpc-model", action="append", default=[], metavar="[ID=]NAME",
+                   help="bias model of the RPC images (RPC-SHIFT, RPC-DRIFT, RPC-AFFINE; default RPC-DRIFT); ID= for one image")
     p.add_argument("--time-scale", help="time scale of time files that do not state one (GPS, UTC, ...)")
     p.add_argument("--columns", action="append", default=[], metavar="FILE:NAME=COLUMN[,...]",
                    help="map a file's column names onto the format's (e.g. survey.csv:E=x,N=y,H=z)")
-    p.add_argument("--model", default="K2", help="platform model; several comma-separated: a model comparison")
+    p.add_argument("--model", default="K2",
+                   help="platform model of the images with a camera; several comma-separated: a model comparison")
     p.add_argument("--options", help="solver options as JSON (object) or a JSON file")
     p.add_argument("--name", default="job", help="job name")
     p.add_argument("--sigma-px", type=float, default=0.5, help="measurement sigma where a file gives none (px)")
@@ -126,6 +133,15 @@ def request_from_args(args: argparse.Namespace) -> ComposeRequest:
     for flag, attr in (("--ephemeris", "ephemeris"), ("--attitude", "attitude"), ("--state", "state")):
         for iid, path in _pairs(getattr(args, attr), flag):
             setattr(image(iid), attr, _file(path, columns))
+    for iid, path in _pairs(args.rpc, "--rpc"):  # read by GDAL from its place (sidecars beside a raster)
+        image(iid).rpc = SourceFile(path, b"", path=path)
+    rpc_model = "RPC-DRIFT"
+    for v in args.rpc_model:
+        if "=" in v:
+            iid, name = v.split("=", 1)
+            image(iid).rpc_model = name
+        else:
+            rpc_model = v
     options: dict[str, Any] = {}
     if args.options:
         text = Path(args.options).read_text() if Path(args.options).is_file() else args.options
@@ -145,6 +161,7 @@ def request_from_args(args: argparse.Namespace) -> ComposeRequest:
         camera=default_camera,
         crs=args.crs,
         models=[m.strip() for m in args.model.split(",") if m.strip()],
+        rpc_model=rpc_model,
         options=options,
         name=args.name,
         time_scale=args.time_scale,

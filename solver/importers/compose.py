@@ -53,6 +53,9 @@ class SourceFile:
     name: str
     data: bytes | str
     columns: dict[str, str] = field(default_factory=dict)
+    # a file on the caller's own disk (``pba job``): GDAL then also finds an RPC sidecar beside a
+    # raster; never set for uploads (their names are not paths of the server's)
+    path: str | None = None
 
     @property
     def kind(self) -> str | None:
@@ -61,7 +64,9 @@ class SourceFile:
 
 @dataclass
 class ImageSources:
-    """What is known of one image: its id, measurement files, camera name and time files."""
+    """What is known of one image: its id, measurement files, camera name and time files; or,
+    for an RPC image, its RPC file (a raster or a sidecar GDAL reads) instead of camera and
+    times, and optionally its bias model (default ``ComposeRequest.rpc_model``)."""
 
     id: str
     measurements: list[SourceFile] = field(default_factory=list)
@@ -70,6 +75,8 @@ class ImageSources:
     attitude: SourceFile | None = None
     state: SourceFile | None = None
     first_line_time_s: float | None = None
+    rpc: SourceFile | None = None
+    rpc_model: str | None = None
 
 
 @dataclass
@@ -85,7 +92,8 @@ class ComposeRequest:
     camera_files: list[SourceFile] = field(default_factory=list)
     camera: str | None = None  # default camera of images without their own
     crs: str | None = None
-    models: list[str] = field(default_factory=lambda: ["K2"])
+    models: list[str] = field(default_factory=lambda: ["K2"])  # of the images with a camera
+    rpc_model: str = "RPC-DRIFT"  # bias model of the RPC images without their own
     options: dict[str, Any] = field(default_factory=dict)
     name: str = "job"
     time_scale: str | None = None
@@ -237,8 +245,23 @@ def _asp(
     return obs
 
 
+def _rpc_image(im: ImageSources, req: ComposeRequest) -> dict[str, Any]:
+    """An RPC image: ``{"id", "rpc", "model"}`` (no camera; time files given with it stay, for
+    the solver's checks to refuse where they are)."""
+    from solver.importers.rpc import read_rpc, read_rpc_bytes
+
+    f = im.rpc
+    rpc = read_rpc(f.path, shown=f.name) if f.path else read_rpc_bytes(f.data, f.name)
+    return {"id": im.id, "rpc": rpc.to_job(), "model": {"name": im.rpc_model or req.rpc_model}}
+
+
 def _image(im: ImageSources, req: ComposeRequest) -> dict[str, Any]:
-    image: dict[str, Any] = {"id": im.id, "camera": im.camera or req.camera or im.id, "model": {"name": req.models[0]}}
+    if im.rpc is not None:
+        image = _rpc_image(im, req)
+        if im.camera:
+            image["camera"] = im.camera
+    else:
+        image = {"id": im.id, "camera": im.camera or req.camera or im.id, "model": {"name": req.models[0]}}
     scales: dict[str, str] = {}
     if im.state is not None:
         t, state, scales[im.state.name] = read_state(im.state.data, im.state.name, req.time_scale, im.state.columns)
@@ -282,6 +305,8 @@ def _cameras(req: ComposeRequest, lookup: CameraLookup, problems: list[SourcePro
     out: list[dict[str, Any]] = []
     done: set[str] = set()
     for im in req.images:
+        if im.rpc is not None and not im.camera:  # an RPC image needs no camera
+            continue
         name = im.camera or req.camera or im.id
         if name in done:
             continue

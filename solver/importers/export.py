@@ -5,7 +5,7 @@ same content: the survey (``survey.csv``, control and check points with a role c
 cameras (``cameras.json``), and per image its measurements in the chosen format (``csv``,
 ``qgis`` ``.points`` with the tie points, which a ``.points`` file has no room for, in a
 ``-ties.csv`` beside it, or ``asp`` ``.gcp`` likewise), its header state, ephemeris and
-attitude tables. It returns the ``pba job`` arguments that rebuild the job.
+attitude tables, and an RPC image's RPC as ``ID_RPC.TXT``. It returns the ``pba job`` arguments that rebuild the job.
 """
 
 from __future__ import annotations
@@ -14,6 +14,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from solver.geometry.rpc import RPC
+from solver.gis.rpc_io import rpc_txt
 from solver.importers.asp_gcp import write_asp_gcp
 from solver.importers.attitude_csv import write_attitude
 from solver.importers.ephemeris_csv import write_ephemeris, write_state
@@ -38,12 +40,17 @@ def write_sources(
     args = ["--name", job.get("name", "job"), "--crs", crs]
     (out_dir / "survey.csv").write_text(write_points(surveyed, crs))
     args += ["--points", "survey.csv"]
-    (out_dir / "cameras.json").write_text(json.dumps(job["cameras"], indent=1) + "\n")
-    args += ["--camera-file", "cameras.json"]
-    models = {im["model"]["name"] for im in job["images"]}
-    args += ["--model", ",".join(sorted(models))]
+    if job.get("cameras"):
+        (out_dir / "cameras.json").write_text(json.dumps(job["cameras"], indent=1) + "\n")
+        args += ["--camera-file", "cameras.json"]
+    models = {im["model"]["name"] for im in job["images"] if not im.get("rpc")}
+    if models:
+        args += ["--model", ",".join(sorted(models))]
     for im in job["images"]:
         iid = im["id"]
+        if im.get("rpc"):  # an RPC image: its RPC as GDAL's NAME_RPC.TXT (RPC00B's pixel convention)
+            (out_dir / f"{iid}_RPC.TXT").write_text(rpc_txt(RPC.from_job(im["rpc"])))
+            args += ["--rpc", f"{iid}={iid}_RPC.TXT", "--rpc-model", f"{iid}={im['model']['name']}"]
         obs = [o for o in job.get("observations", []) if o["image"] == iid]
         fmt = (formats or {}).get(iid, "csv")
         if fmt == "csv":
@@ -63,7 +70,7 @@ def write_sources(
             if tie_obs:
                 (out_dir / f"{iid}-ties.csv").write_text(write_measurements(tie_obs, with_image=False))
                 args += ["--image", f"{iid}={iid}-ties.csv"]
-        if im["camera"] != iid:
+        if im.get("camera") and im["camera"] != iid:
             args += ["--camera", f"{iid}={im['camera']}"]
         if im.get("approx_state") and im.get("first_line_time_s") is not None:
             state = {k: im["approx_state"][k] for k in ("position_ecef_m", "velocity_ecef_m_s")}

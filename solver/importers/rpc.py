@@ -23,7 +23,7 @@ from __future__ import annotations
 import shutil
 import tempfile
 import warnings
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Any
 
 from solver.geometry.rpc import RPC
@@ -73,11 +73,26 @@ def _gdal_rpcs(raster: Path, shown: str) -> RPC:
         raise fail(shown, 0, "", f"incomplete RPC: {exc}") from None
 
 
-def read_rpc(path: str | Path) -> RPC:
+def read_rpc_bytes(data: bytes | str, name: str) -> RPC:
+    """The RPC of an uploaded file (its bytes and the name it was given, which decides how it
+    is read: a bare RPC file by its name, else a raster), through GDAL, as :func:`read_rpc`.
+    The name is never opened as a path: the bytes are written under its last component into a
+    temporary directory first."""
+    base = PurePath(name.replace("\\", "/")).name or "upload"
+    if base in (".", ".."):
+        base = "upload"
+    with tempfile.TemporaryDirectory(prefix="pba-rpc-upload-") as tmp:
+        path = Path(tmp) / base
+        path.write_bytes(data.encode() if isinstance(data, str) else data)
+        return read_rpc(path, shown=name)
+
+
+def read_rpc(path: str | Path, shown: str | None = None) -> RPC:
     """The RPC of a raster or a bare RPC file (module docstring), through GDAL; our pixel
-    convention. Raises :class:`solver.importers.errors.SourceError` naming the file."""
+    convention. Raises :class:`solver.importers.errors.SourceError` naming the file (``shown``,
+    default its path)."""
     path = Path(path)
-    shown = str(path)
+    shown = str(path) if shown is None else shown
     if not path.is_file():
         raise fail(shown, 0, "", "no such file")
     kind = sidecar_kind(path)

@@ -92,3 +92,35 @@ def test_an_unrecognised_header_gets_a_column_map(page: Any, local_server: Serve
         page.select_option(f'select.b-map[data-column="{column}"]', name)
     expect(page.locator("#builder-status")).to_contain_text("219 degrees of freedom", timeout=60_000)
     expect(row.locator(".problem")).to_have_count(0)
+
+
+def test_build_an_rpc_block_from_its_files(page: Any, local_server: Server, tmp_path: Path) -> None:
+    """RPC images: each image's NAME_RPC.TXT is recognised as its RPC, the image gets a bias
+    model instead of a sensor, and the composed job has RPC images (no cameras) with the models
+    chosen on the page; submitted, it is adjusted."""
+    from solver.importers.export import write_sources
+    from solver.simulate import presets
+    from solver.simulate.rpc import RpcSettings
+    from solver.simulate.scene import Settings
+
+    s = Settings(preset="prism-triplet", seed=5, rpc=RpcSettings("RPC-DRIFT", {"a0": 6.0, "b0": -4.0}))
+    job = presets.prism_triplet(s, gcps=6, checks=4, tie_points=12).job()
+    write_sources(job, tmp_path)
+    ids = [im["id"] for im in job["images"]]
+    page.goto(f"{local_server.url}/ui")
+    page.set_input_files("#builder-input", [str(p) for p in sorted(tmp_path.iterdir())])
+    expect(page.locator("#builder-status")).to_contain_text("degrees of freedom", timeout=60_000)
+    for i in ids:
+        expect(page.locator(f'select.b-kind[data-file="{i}_RPC.TXT"]')).to_have_value("rpc")
+        expect(page.locator(f'input.b-image[data-file="{i}_RPC.TXT"]')).to_have_value(i)
+        expect(page.locator(f'select.b-rpc-model[data-image="{i}"]')).to_have_value("RPC-DRIFT")
+    expect(page.locator("select.b-camera")).to_have_count(0)
+    page.select_option(f'select.b-rpc-model[data-image="{ids[0]}"]', "RPC-SHIFT")
+    expect(page.locator("#builder-json")).to_have_value(re.compile('"RPC-SHIFT"'), timeout=60_000)
+    expect(page.locator("#builder-status")).to_contain_text("degrees of freedom", timeout=60_000)
+    built = json.loads(page.locator("#builder-json").input_value())
+    assert built["cameras"] == []
+    assert [im["model"]["name"] for im in built["images"]] == ["RPC-SHIFT", "RPC-DRIFT", "RPC-DRIFT"]
+    assert all("rpc" in im and "camera" not in im for im in built["images"])
+    page.click("#builder-submit")
+    expect(page.locator("#cur-status")).to_have_text("successful", timeout=SOLVE_MS)

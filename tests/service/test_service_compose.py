@@ -154,3 +154,36 @@ def test_hostile_uploads_are_4xx_never_500(local: TestClient) -> None:
     r = upload(local, {"images": image}, {"a.csv": b"point,line,column,row\nA,1,2,3\n"})
     doc = assert_problem(r, 422, "/files/a.csv")
     assert (doc["errors"][0]["line"], doc["errors"][0]["column"]) == (1, "row")
+
+
+def test_compose_rpc_images_from_uploaded_rpc_files(local: TestClient, tmp_path: Path) -> None:
+    """An all-RPC triplet of the simulator written as source files (measurements, survey, each
+    image's NAME_RPC.TXT) and uploaded: a valid job of RPC images (no cameras) with the spec's
+    bias model and one image's own; a bad RPC file is a 422 naming it."""
+    from solver.importers.export import write_sources
+    from solver.simulate import presets
+    from solver.simulate.rpc import RpcSettings
+    from solver.simulate.scene import Settings
+
+    s = Settings(preset="prism-triplet", seed=4, rpc=RpcSettings("RPC-SHIFT", {"a0": 5.0, "b0": 3.0}))
+    job = presets.prism_triplet(s, gcps=6, checks=4, tie_points=12).job()
+    write_sources(job, tmp_path)
+    files = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    ids = [im["id"] for im in job["images"]]
+    spec = {
+        "crs": job["crs"], "points": ["survey.csv"], "rpc_model": "RPC-SHIFT",
+        "images": [{"id": i, "measurements": [f"{i}.csv"], "rpc": f"{i}_RPC.TXT"} for i in ids],
+    }
+    spec["images"][1]["rpc_model"] = "RPC-DRIFT"
+    r = upload(local, spec, files)
+    assert r.status_code == 200, r.text[:2000]
+    doc = r.json()
+    assert doc["validation"]["valid"] is True, doc["validation"]
+    assert doc["job"]["cameras"] == []
+    assert [im["model"]["name"] for im in doc["job"]["images"]] == ["RPC-SHIFT", "RPC-DRIFT", "RPC-SHIFT"]
+    assert all(set(im) == {"id", "rpc", "model"} for im in doc["job"]["images"])
+    files[f"{ids[0]}_RPC.TXT"] = b"LINE_OFF: 12\n"
+    assert_problem(upload(local, spec, files), 422, f"/files/{ids[0]}_RPC.TXT")
+    spec["images"][2]["rpc"] = "missing_RPC.TXT"
+    files[f"{ids[0]}_RPC.TXT"] = (tmp_path / f"{ids[0]}_RPC.TXT").read_bytes()
+    assert_problem(upload(local, spec, files), 422, "/spec/images/2/rpc")

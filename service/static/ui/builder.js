@@ -19,11 +19,13 @@
     state: "header state",
     ephemeris: "ephemeris",
     attitude: "attitude",
+    rpc: "RPC of an image (RPC00B)",
     cameras: "camera file (JSON)",
     asp_gcp: "ASP GCP (several images)",
     ignore: "ignore",
   };
-  const PER_IMAGE = new Set(["measurements", "state", "ephemeris", "attitude"]);
+  const PER_IMAGE = new Set(["measurements", "state", "ephemeris", "attitude", "rpc"]);
+  const RPC_MODELS = ["RPC-SHIFT", "RPC-DRIFT", "RPC-AFFINE"];
   const CANONICAL = {
     points: ["id", "x", "y", "z", "sx", "sy", "sz", "role"],
     gcps: ["id", "x", "y", "z", "sx", "sy", "sz"],
@@ -69,6 +71,10 @@
     const lower = name.toLowerCase();
     const stem = name.replace(/\.[^.]+$/, "");
     if (lower.endsWith(".json")) return { kind: "cameras" };
+    // an image's RPC: GDAL's NAME_RPC.TXT, NAME.RPB, a DIMAP RPC_NAME.XML (a raster with RPC tags: choose "RPC")
+    if (lower.endsWith("_rpc.txt")) return { kind: "rpc", image: name.slice(0, -8) };
+    if (lower.endsWith(".rpb")) return { kind: "rpc", image: stem };
+    if (lower.startsWith("rpc_") && lower.endsWith(".xml")) return { kind: "rpc", image: stem.slice(4) };
     if (lower.endsWith(".points") || lower.endsWith(".gcp")) return { kind: "measurements", image: stem };
     for (const k of ["state", "ephemeris", "attitude"]) {
       if (lower.endsWith(`.${k}.csv`)) return { kind: k, image: name.slice(0, -(k.length + 5)) };
@@ -149,6 +155,15 @@
     const box = $("builder-images");
     box.replaceChildren();
     for (const id of imageIds()) {
+      if (st.files.some((f) => f.kind === "rpc" && f.image === id)) {
+        // an RPC image: no sensor, a bias model instead
+        const chosen = (st.rpcModel || {})[id] || "RPC-DRIFT";
+        const sel = el("select", { "data-image": id, class: "b-rpc-model" });
+        for (const m of RPC_MODELS) sel.append(el("option", { value: m, text: m, selected: m === chosen }));
+        sel.addEventListener("change", () => { (st.rpcModel = st.rpcModel || {})[id] = sel.value; schedule(); });
+        box.append(el("label", {}, `${id} (RPC): `, sel));
+        continue;
+      }
       const sel = el("select", { "data-image": id, class: "b-camera" });
       const names = [...Object.keys(st.cameras), ...st.library.filter((n) => !(n in st.cameras))];
       const chosen = st.choice && st.choice[id] ? st.choice[id] : (names.includes(id) ? id : "");
@@ -172,6 +187,8 @@
       }
       const cam = document.querySelector(`select.b-camera[data-image="${CSS.escape(id)}"]`);
       if (cam && cam.value) im.camera = cam.value;
+      const rpcModel = document.querySelector(`select.b-rpc-model[data-image="${CSS.escape(id)}"]`);
+      if (im.rpc && rpcModel) im.rpc_model = rpcModel.value;
       return im;
     });
     const of = (kind) => st.files.filter((f) => f.kind === kind).map((f) => f.name);
