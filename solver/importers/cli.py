@@ -123,25 +123,24 @@ def request_from_args(args: argparse.Namespace) -> ComposeRequest:
 
     for iid, path in _pairs(args.image, "--image"):
         image(iid).measurements.append(_file(path, columns))
-    default_camera = None
-    for v in args.camera:
-        if "=" in v:
-            iid, name = v.split("=", 1)
-            image(iid).camera = name
-        else:
-            default_camera = v
+
+    def per_image(values: list[str], attr: str, default: str | None) -> str | None:
+        """``[ID=]NAME`` flags: ID=NAME sets ``attr`` of that image, NAME alone the default."""
+        for v in values:
+            if "=" in v:
+                iid, name = v.split("=", 1)
+                setattr(image(iid), attr, name)
+            else:
+                default = v
+        return default
+
+    default_camera = per_image(args.camera, "camera", None)
     for flag, attr in (("--ephemeris", "ephemeris"), ("--attitude", "attitude"), ("--state", "state")):
         for iid, path in _pairs(getattr(args, attr), flag):
             setattr(image(iid), attr, _file(path, columns))
     for iid, path in _pairs(args.rpc, "--rpc"):  # read by GDAL from its place (sidecars beside a raster)
         image(iid).rpc = SourceFile(path, b"", path=path)
-    rpc_model = "RPC-DRIFT"
-    for v in args.rpc_model:
-        if "=" in v:
-            iid, name = v.split("=", 1)
-            image(iid).rpc_model = name
-        else:
-            rpc_model = v
+    rpc_model = per_image(args.rpc_model, "rpc_model", "RPC-DRIFT")
     options: dict[str, Any] = {}
     if args.options:
         text = Path(args.options).read_text() if Path(args.options).is_file() else args.options
