@@ -52,7 +52,7 @@ class ImageSpec(_Spec):
     ephemeris: str | None = None
     attitude: str | None = None
     state: str | None = None
-    rpc: str | None = Field(default=None, description="an RPC image: its NAME_RPC.TXT, NAME.RPB, DIMAP RPC XML or raster with RPC tags")
+    rpc: str | None = Field(default=None, description="an RPC image: its NAME_RPC.TXT, NAME.RPB or DIMAP RPC_*.XML (no raster)")
     rpc_model: str | None = Field(default=None, max_length=32, description="its bias model (default: the spec's rpc_model)")
 
 

@@ -131,21 +131,22 @@ def test_bad_files_exit_2_with_the_file_named(tmp_path, capsys, name, content) -
         read_rpc(path)
 
 
-@pytest.mark.parametrize("kind", ["txt", "rpb", "tif"])
+@pytest.mark.parametrize("kind", ["txt", "rpb", "dimap"])
 def test_uploaded_bytes_are_read_under_their_name_only(tmp_path, rpc, kind) -> None:
     """An upload (bytes and the name the client gave): read through GDAL like the file, the
-    name deciding the reader; a name with directories is never opened as a path."""
+    name deciding the reader; a name with directories is never opened as a path; a raster is
+    refused (uploads are read in the server's process: its small sidecar is what to send)."""
     from solver.gis.rpc_io import rpc_rpb, rpc_txt
     from solver.importers.rpc import read_rpc_bytes
 
-    if kind == "tif":
-        _blank_tif(tmp_path / "blank.tif")
-        path = write_raster_with_rpc(rpc, tmp_path / "blank.tif", tmp_path / "scene.tif")
-        data, name = path.read_bytes(), "../../elsewhere/scene.tif"
-    else:
-        data = (rpc_txt if kind == "txt" else rpc_rpb)(rpc).encode()
-        name = "/etc/scene_RPC.TXT" if kind == "txt" else "..\\scene.RPB"
+    data = {"txt": rpc_txt, "rpb": rpc_rpb, "dimap": _dimap_xml}[kind](rpc).encode()
+    name = {"txt": "/etc/scene_RPC.TXT", "rpb": "..\\scene.RPB", "dimap": "../RPC_PHR1A_P_2018_SEN_1.XML"}[kind]
     _assert_same(read_rpc_bytes(data, name).to_job(), rpc)
+    _blank_tif(tmp_path / "blank.tif")
+    raster = write_raster_with_rpc(rpc, tmp_path / "blank.tif", tmp_path / "scene.tif")
+    with pytest.raises(SourceError) as exc:
+        read_rpc_bytes(raster.read_bytes(), "scene.tif")
+    assert exc.value.source_problems[0].code == "not_an_rpc_file"
     with pytest.raises(SourceError) as exc:
         read_rpc_bytes(b"LINE_OFF: 12\n", "/etc/passwd_RPC.TXT")
     assert exc.value.source_problems[0].file == "/etc/passwd_RPC.TXT"  # named as given, not opened

@@ -74,13 +74,16 @@ def _gdal_rpcs(raster: Path, shown: str) -> RPC:
 
 
 def read_rpc_bytes(data: bytes | str, name: str) -> RPC:
-    """The RPC of an uploaded file (its bytes and the name it was given, which decides how it
-    is read: a bare RPC file by its name, else a raster), through GDAL, as :func:`read_rpc`.
-    The name is never opened as a path: the bytes are written under its last component into a
-    temporary directory first."""
+    """The RPC of an uploaded bare RPC file (its bytes and the name it was given, which decides
+    the reader: ``NAME_RPC.TXT``, ``NAME.RPB``, a DIMAP RPC XML), through GDAL, as
+    :func:`read_rpc`. The name is never opened as a path: the bytes are written under its last
+    component into a temporary directory first. Rasters are refused: an upload goes through the
+    server's own process, and a raster's RPC is a small sidecar the caller can send instead
+    (``pba import-rpc`` reads rasters on the caller's machine)."""
     base = PurePath(name.replace("\\", "/")).name or "upload"
-    if base in (".", ".."):
-        base = "upload"
+    if base in (".", "..") or sidecar_kind(Path(base)) is None:
+        raise fail(name, 0, "", "an uploaded RPC is a NAME_RPC.TXT, NAME.RPB or DIMAP RPC_*.XML file (by its name); "
+                   "for a raster's RPC, send its sidecar or the output of pba import-rpc", "not_an_rpc_file")
     with tempfile.TemporaryDirectory(prefix="pba-rpc-upload-") as tmp:
         path = Path(tmp) / base
         path.write_bytes(data.encode() if isinstance(data, str) else data)

@@ -184,6 +184,10 @@ def test_compose_rpc_images_from_uploaded_rpc_files(local: TestClient, tmp_path:
     assert all(set(im) == {"id", "rpc", "model"} for im in doc["job"]["images"])
     files[f"{ids[0]}_RPC.TXT"] = b"LINE_OFF: 12\n"
     assert_problem(upload(local, spec, files), 422, f"/files/{ids[0]}_RPC.TXT")
+    raster = {**files, "scene.tif": b"II*\x00" + bytes(64)}  # uploads are read in the server's process: sidecars only
+    raster_spec = {**spec, "images": [{**spec["images"][0], "rpc": "scene.tif"}, *spec["images"][1:]]}
+    doc = assert_problem(upload(local, raster_spec, raster), 422, "/files/scene.tif")
+    assert doc["errors"][0]["code"] == "not_an_rpc_file"
     spec["images"][2]["rpc"] = "missing_RPC.TXT"
     files[f"{ids[0]}_RPC.TXT"] = (tmp_path / f"{ids[0]}_RPC.TXT").read_bytes()
     assert_problem(upload(local, spec, files), 422, "/spec/images/2/rpc")

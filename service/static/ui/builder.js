@@ -71,7 +71,7 @@
     const lower = name.toLowerCase();
     const stem = name.replace(/\.[^.]+$/, "");
     if (lower.endsWith(".json")) return { kind: "cameras" };
-    // an image's RPC: GDAL's NAME_RPC.TXT, NAME.RPB, a DIMAP RPC_NAME.XML (a raster with RPC tags: choose "RPC")
+    // an image's RPC: GDAL's NAME_RPC.TXT, NAME.RPB, a DIMAP RPC_NAME.XML (a raster's RPC: its sidecar, or pba import-rpc)
     if (lower.endsWith("_rpc.txt")) return { kind: "rpc", image: name.slice(0, -8) };
     if (lower.endsWith(".rpb")) return { kind: "rpc", image: stem };
     if (lower.startsWith("rpc_") && lower.endsWith(".xml")) return { kind: "rpc", image: stem.slice(4) };
