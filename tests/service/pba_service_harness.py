@@ -180,5 +180,13 @@ def wait_status(
         time.sleep(0.1)
 
 
+def solved_report(client: httpx.Client, job: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """Submit ``job``, wait until it succeeds (asserted) and return its id and report."""
+    job_id = submit_async(client, job)
+    st = wait_status(client, job_id)
+    assert st["status"] == "successful", st
+    return job_id, client.get(f"/jobs/{job_id}/results").json()["report"]
+
+
 def load_example(name: str) -> dict[str, Any]:
     return json.loads((EXAMPLES / name).read_text())

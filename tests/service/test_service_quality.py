@@ -10,7 +10,7 @@ import csv
 import io
 from typing import Any
 
-from pba_service_harness import Server, submit_async, wait_status
+from pba_service_harness import Server, solved_report
 
 from solver.synthetic import block_job
 
@@ -30,10 +30,7 @@ def test_quality_fields_through_the_http_api(server: Server, keys: dict[str, str
     job = _job_with_blunders()
     direct = solver.api.run(copy.deepcopy(job))
     with server.client(keys["alice"]) as c:
-        job_id = submit_async(c, job)
-        st = wait_status(c, job_id)
-        assert st["status"] == "successful", st
-        report = c.get(f"/jobs/{job_id}/results").json()["report"]
+        job_id, report = solved_report(c, job)
         q = report["quality"]
         assert q["blunder_detection"]["n_removed"] == direct["quality"]["blunder_detection"]["n_removed"] == 4
         assert [(r["image"], r["point"]) for r in q["rejected"]] == [(r["image"], r["point"]) for r in direct["quality"]["rejected"]]

@@ -13,7 +13,7 @@ import copy
 from typing import Any
 
 import numpy as np
-from pba_service_harness import Server, submit_async, wait_status
+from pba_service_harness import Server, solved_report
 
 from solver.geometry.rpc import RPC
 from solver.gis.rpc_io import gdal_ground_to_image, gdal_rpc, read_rpc_txt
@@ -51,10 +51,7 @@ def test_rpc_block_through_the_http_api(server: Server, keys: dict[str, str]) ->
     job = _rpc_job()
     direct = solver.api.run(copy.deepcopy(job))
     with server.client(keys["alice"]) as c:
-        job_id = submit_async(c, job)
-        st = wait_status(c, job_id)
-        assert st["status"] == "successful", st
-        report = c.get(f"/jobs/{job_id}/results").json()["report"]
+        job_id, report = solved_report(c, job)
         assert [im["model"] for im in report["images"]] == ["RPC-DRIFT"] * 3
         # the server's adjustment is the solver's (another process): every bias parameter within
         # 1e-6 of its sigma (the same code; what may differ is the BLAS of another process)
