@@ -35,6 +35,22 @@ def _rmse(report) -> float:
     return float(np.sqrt(r["planimetric"] ** 2 + (r["u"] or 0.0) ** 2))  # mono check points: no u
 
 
+# --ephemeris: the simulated state vectors weighted (2 m, 0.01 m/s), as a satellite's on-board
+# ephemeris would be (tests/test_quality_defaults.py uses the same)
+EPHEMERIS_WEIGHTS = {"ephemeris": {"sigma_position_m": 2.0, "sigma_velocity_m_s": 0.01}}
+
+
+def _scene_job(preset: str, seed: int, model: str, ephemeris: bool) -> dict:
+    """The job of a ``pba simulate`` preset (the independent simulator), the ephemeris weighted
+    when asked."""
+    from solver.simulate import presets
+    from solver.simulate.scene import Settings
+
+    maker = {"prism-triplet": presets.prism_triplet, "prism-single": presets.prism_single, "cbers-scene": presets.cbers_scene}[preset]
+    opts = copy.deepcopy(EPHEMERIS_WEIGHTS) if ephemeris else {}
+    return maker(Settings(preset=preset, seed=seed, model=model, job_options=opts)).job()
+
+
 def _key(entry: dict) -> tuple:
     """An observation of the quality section: kind, image, and its point (or line, pass, time)."""
     other = entry.get("point") or entry.get("line") or entry.get("pass") or entry.get("time_s")
@@ -75,23 +91,8 @@ def _inject(job: dict, rng, n_image: int, n_control: int) -> list[tuple[str, str
 
 
 def blunders(args) -> None:
-    from solver.simulate import presets
-    from solver.simulate.scene import Settings
-
-    # --ephemeris: the simulated state vectors weighted (2 m, 0.01 m/s), as a satellite's
-    # on-board ephemeris would be (tests/test_quality_defaults.py uses the same)
-    opts = {"ephemeris": {"sigma_position_m": 2.0, "sigma_velocity_m_s": 0.01}} if args.ephemeris else {}
-
-    def settings(preset: str, seed: int) -> Settings:
-        return Settings(preset=preset, seed=seed, model=args.model, job_options=copy.deepcopy(opts))
-
-    makers = {
-        "prism-triplet": lambda s: presets.prism_triplet(settings("prism-triplet", s)),
-        "prism-single": lambda s: presets.prism_single(settings("prism-single", s)),
-        "cbers-scene": lambda s: presets.cbers_scene(settings("cbers-scene", s)),
-    }
     for seed in args.seeds:
-        job = makers[args.preset](seed).job()
+        job = _scene_job(args.preset, seed, args.model, args.ephemeris)
         if args.fixed:  # control: fixed (the moved control point is tested through its rays)
             job.setdefault("options", {})["control"] = "fixed"
         probe = copy.deepcopy(job)
@@ -187,14 +188,9 @@ def clean_sim(args) -> None:
     """Clean scenes of the independent simulator (no blunder injected; its model error is real):
     the rate of failed tests (``action: report``) and of removals (the default ``remove``), per
     test, against alpha0."""
-    from solver.simulate import presets
-    from solver.simulate.scene import Settings
-
-    opts = {"ephemeris": {"sigma_position_m": 2.0, "sigma_velocity_m_s": 0.01}} if args.ephemeris else {}
-    maker = {"prism-triplet": presets.prism_triplet, "prism-single": presets.prism_single, "cbers-scene": presets.cbers_scene}[args.preset]
     n_tests = n_fail = n_removed = runs_with = 0
     for k, seed in enumerate(range(args.first_seed, args.first_seed + args.runs)):
-        job = maker(Settings(preset=args.preset, seed=seed, model=args.model, job_options=copy.deepcopy(opts))).job()
+        job = _scene_job(args.preset, seed, args.model, args.ephemeris)
         out = {}
         for action in ("report", "remove"):
             j = copy.deepcopy(job)

@@ -17,7 +17,10 @@ from solver.engine.linalg import check_rank, linearise, schur
 from solver.engine.validate import require_valid
 from solver.errors import Cancelled, JobError, Problem, RankDeficientError, UnusableSolution
 from solver.platforms import ELEMENTS, coef_index, get_model
+from solver.quality.flags import flag_sections, line_point_coordinates
 from solver.quality.parsimony import constraint_test
+from solver.quality.removal import INFLATE, reinstate, remove, testable, whole_points, with_candidates
+from solver.quality.snooping import entry, failing_clusters, predicted_test, reliability_section, snoop
 from solver.report.document import assess
 from solver.schema.job import Job
 from solver.state import AdjustmentState
@@ -362,9 +365,6 @@ class _Snooping:
     def record(self, cluster, report, collateral, current: Job) -> None:
         """Enter the removed ``cluster`` (one test, or a non-identifiable group) and the
         ``collateral`` removals in the report lists and the items."""
-        from solver.quality.flags import line_point_coordinates
-        from solver.quality.snooping import entry
-
         entries = [entry(m, removed=m.group.removal is not None) for m in cluster]
         group = None
         if len(entries) == 1:
@@ -395,9 +395,6 @@ class _Snooping:
     def snoop_loop(self, problem, report):
         """Remove the worst failed cluster and re-adjust until no removable test fails (or
         ``max_rejections``, or the adjustment without it fails); ``action: report`` tests only."""
-        from solver.quality.removal import remove
-        from solver.quality.snooping import failing_clusters, snoop
-
         bd = self.bd
         while True:
             sn = snoop(problem, bd)
@@ -423,9 +420,6 @@ class _Snooping:
     def robust_start(self) -> None:
         """Adjust with the robust loss and remove, in one step, the worst failed cluster of each
         block (image points and surveys of estimated points only)."""
-        from solver.quality.removal import remove
-        from solver.quality.snooping import failing_clusters, snoop
-
         bd, job = self.bd, self.job
         robust = job.model_copy(update={"options": job.options.model_copy(update={"loss": bd.robust_start})})
         problem, report = self.adjust(robust)
@@ -459,9 +453,6 @@ class _Snooping:
         """Test the removed image points and surveys against the final solution (put back with
         inflated sigmas) and put back those that pass; None when nothing is put back, else the
         re-adjusted (problem, report)."""
-        from solver.quality.removal import INFLATE, reinstate, testable, whole_points, with_candidates
-        from solver.quality.snooping import predicted_test, snoop
-
         bd, current = self.bd, self.current
         pool = [
             it for it in self.items
@@ -527,8 +518,6 @@ class _Snooping:
         return nxt_problem, nxt_report
 
     def run(self) -> dict[str, Any]:
-        from solver.quality.snooping import entry, failing_clusters
-
         bd, job = self.bd, self.job
         if bd.robust_start != "none" and bd.action == "remove" and bd.max_rejections > 0:
             self.robust_start()
@@ -565,9 +554,6 @@ class _Snooping:
     def finish(self, problem, report, sn, first_report) -> dict[str, Any]:
         """The report of the last adjustment with the removed image points flagged, the
         warnings and the ``quality`` section."""
-        from solver.quality.flags import flag_sections
-        from solver.quality.snooping import reliability_section
-
         bd, warnings = self.bd, self.warnings
         for item in report["observations"]:
             item["rejected"] = False

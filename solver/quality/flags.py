@@ -51,15 +51,17 @@ def removed_entries(quality: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def flag_sections(report: dict[str, Any]) -> None:
-    """Add the ``rejected`` / ``rejected_samples_s`` / ``state_rejected`` flags (module doc) to
-    the ``lines``, ``attitude`` and ``ephemeris`` sections of ``report`` in place."""
+    """Add the ``rejected`` / ``rejected_samples_s`` / ``rejected_states`` flags (module doc)
+    to the ``lines``, ``attitude`` and ``ephemeris`` sections of ``report`` in place."""
     removed = removed_entries(report.get("quality") or {})
     lines = report.get("lines") or {}
     items = {it["id"]: it for it in lines.get("items") or []}
     for it in items.values():
         it["rejected"] = []
+    block_of = {}
     for block in report.get("attitude") or []:
         block["rejected_samples_s"] = []
+        block_of.update({image: block for image in block.get("images") or []})
     ephemeris = report.get("ephemeris")
     eph_images = {e["image"]: e for e in (ephemeris or {}).get("images") or []}
     for e in eph_images.values():
@@ -71,10 +73,8 @@ def flag_sections(report: dict[str, Any]) -> None:
         if kind == "line_point" and r.get("line") in items:
             where = r.get("measured") or {"line": None, "column": None}
             items[r["line"]]["rejected"].append({"image": r.get("image"), **where})
-        elif kind == "attitude_sample":
-            for block in report.get("attitude") or []:
-                if r.get("image") in (block.get("images") or []):
-                    block["rejected_samples_s"].append(r.get("time_s"))
+        elif kind == "attitude_sample" and r.get("image") in block_of:
+            block_of[r["image"]]["rejected_samples_s"].append(r.get("time_s"))
         elif kind == "ephemeris_sample":
             if r.get("time_s") is None:  # an image's weighted line-0 state
                 rejected_states.append(r.get("image"))

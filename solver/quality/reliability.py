@@ -287,9 +287,12 @@ def weakest_direction(st: Structure, g: Group, lam0: float) -> dict[str, Any] | 
         return None
     sig = np.asarray(g.sigma, dtype=float)[keep]
     m = group_cofactor(st, g)[np.ix_(keep, keep)] / np.outer(sig, sig)
-    mu, vec = np.linalg.eigh(0.5 * (m + m.T))
+    mu, vec = np.linalg.eigh(m)
+    v = vec[:, 0]
+    if v[np.argmax(np.abs(v))] < 0:  # the sign is arbitrary: largest component positive
+        v = -v
     u = np.zeros(g.dim)
-    u[keep] = vec[:, 0] * (1.0 if vec[np.argmax(np.abs(vec[:, 0])), 0] >= 0 else -1.0)
+    u[keep] = v
     value = float(np.sqrt(lam0 / mu[0])) if mu[0] > 0 else None
     return {"value": value, "direction": [float(x) for x in u]}
 
