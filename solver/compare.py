@@ -65,7 +65,7 @@ def compare_models(
     n = len(models)
     for k, name in enumerate(models):
         # an RPC bias model replaces the models of the RPC images, a rigorous one those of the others
-        rpc = get_model(name).is_rpc
+        rpc = not get_model(name).kind.has_camera  # an RPC bias model
         override = {im.id: name for im in job.images if (im.rpc is not None) == rpc}
         if not override:
             kind = "RPC" if rpc else "camera (rigorous)"

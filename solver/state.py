@@ -23,7 +23,7 @@ class ImageState:
 
     id: str
     index: int
-    camera: Camera | None  # None: an RPC image (model.is_rpc)
+    camera: Camera | None  # None: a kind without camera (an RPC image, model.kind.has_camera)
     model: PlatformModel
     options: dict
     kc: np.ndarray  # (N_KEPLER_CONST,) = (17,) Kepler constants (also set, unused, for polynomial models)
@@ -36,7 +36,9 @@ class ImageState:
 
     @property
     def kind(self) -> int:
-        return self.model.kind
+        """The kernels' dispatch code of the model's kind (``model.kind.kernel``); the stages ask
+        the kind object (``model.kind``), never this number."""
+        return self.model.kind.kernel
 
     @property
     def nfree(self) -> int:
@@ -99,4 +101,4 @@ class AdjustmentState:
 
 def is_kepler(image: ImageState) -> bool:
     """Position from the image's own Earth-fixed state vector (Kepler, J2, orbit-attitude)."""
-    return image.model.orbital and not image.model.propagated
+    return image.model.kind.ecef_state

@@ -89,9 +89,9 @@ def true_coefficients(model_name: str, frame: LocalFrame, r0: np.ndarray, v0: np
     coef = np.zeros(N_COEF)
     tpl = model.tau_per_line(line_time)
     dt_dtau = line_time / tpl
-    if model.kind == 2:
+    if model.kind.attitude_in_orbital_frame:
         angles = _orbit_relative_angles(frame, r0, v0, line_time, angles, mount_rad)
-    if model.orbital:
+    if model.kind.earth_fixed:
         for e in range(3):
             coef[e * 4] = r0[e]
             coef[e * 4 + 1] = v0[e]
@@ -129,7 +129,7 @@ def _obs_consts(cam: dict, line: float, col: float, sigma: float, tpl: float) ->
 def ground_point_of_pixel(img: SyntheticImage, cam: dict, line: float, col: float) -> np.ndarray:
     """LGS point on the terrain seen by pixel (line, col) with the true orientation."""
     oc = _obs_consts(cam, line, col, 1.0, img.tau_per_line)
-    kind = get_model(img.model).kind
+    kind = get_model(img.model).kind.kernel
     s, d = ray(kind, img.coef, img.kc, oc)
     z = 0.0
     for _ in range(20):
@@ -144,7 +144,7 @@ def ground_point_of_pixel(img: SyntheticImage, cam: dict, line: float, col: floa
 
 
 def project_point(img: SyntheticImage, cam: dict, p: np.ndarray, line_guess: float) -> tuple[float, float]:
-    kind = get_model(img.model).kind
+    kind = get_model(img.model).kind.kernel
     oc = _obs_consts(cam, line_guess, (cam["columns"] - 1) / 2.0, 1.0, img.tau_per_line)
     ok, line, col, *_ = project(kind, img.coef, img.kc, p, oc, False)
     return float(line), float(col)
@@ -272,7 +272,7 @@ def truth_parameters(model: str, coef: np.ndarray, options: dict | None = None) 
 
 
 def position_at_line(model: str, coef: np.ndarray, kc: np.ndarray, line: float, tau_per_line: float) -> np.ndarray:
-    return platform_state(get_model(model).kind, coef, kc, line * tau_per_line)[0]
+    return platform_state(get_model(model).kind.kernel, coef, kc, line * tau_per_line)[0]
 
 
 __all__ = ["single_image_job", "truth_parameters", "PRISM_NADIR", "terrain_height", "AE_M", "GM_M3_S2", "J2", "OMEGA_RAD_S"]
@@ -296,7 +296,7 @@ def _project_true(img: SyntheticImage, cam: dict, p: np.ndarray, line_guess: flo
     vec = np.zeros(N_IOP)
     for k, v in (iop or {}).items():
         vec[names.index(k)] = v
-    kind = get_model(img.model).kind
+    kind = get_model(img.model).kind.kernel
     col = (cam["columns"] - 1) / 2.0
     line = line_guess
     for _ in range(4):  # the chip follows the column

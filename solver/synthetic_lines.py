@@ -35,7 +35,7 @@ from solver.synthetic import (
 def ground_point(img: SyntheticImage, cam: dict, line: float, col: float, offset_m: float) -> np.ndarray:
     """LGS point seen by pixel (line, col) on the synthetic terrain lowered by ``offset_m``."""
     oc = _obs_consts(cam, line, col, 1.0, img.tau_per_line)
-    s, d = ray(get_model(img.model).kind, img.coef, img.kc, oc)
+    s, d = ray(get_model(img.model).kind.kernel, img.coef, img.kc, oc)
     z = 0.0
     for _ in range(30):
         p = s + d * ((z - s[2]) / d[2])

@@ -31,7 +31,7 @@ from solver.synthetic_lines import lines_job
 # the pass-propagated models need passes (several images, epochs) that the per-image synthetic
 # scenes here do not have; tests/test_orbit_pass.py covers their Jacobians and projections;
 # the RPC bias models have no camera (tests/test_rpc_models.py)
-PER_IMAGE_MODELS = [m for m in model_names() if not get_model(m).propagated and not get_model(m).is_rpc]
+PER_IMAGE_MODELS = [m for m in model_names() if get_model(m).kind.position_from_image_state]
 
 REL_TOL = 2e-5  # central differences vs analytic, relative to the largest derivative of the column
 PIXELS = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 1.0])

@@ -558,3 +558,26 @@ def test_self_calibration_jacobian_with_the_pass_model(iop_error_triplet):
         assert cam.nfree
         _assert_columns_match_differences(problem, cam.params, int(lay.cam_col[cam.index]), None)
     _assert_columns_match_differences(problem, problem.passes[0].params, int(lay.pass_col[0]), [20.0] * 3 + [0.02] * 3)
+
+
+POSITION_MATCH_M = 1e-3  # the propagator matches DOP853 to 1e-7 m; one line late moves ~2.6 m
+
+
+def test_line_epochs_of_pass_images_match_an_independent_integration():
+    """Line L of a pass image is exposed at first_line_time_s + L line_time: the perspective
+    centre the kernel gives there (from the pass state at the reference epoch) is the state
+    integrated independently (DOP853, inertial frame) to that absolute epoch."""
+    from solver.kernels import platform_state
+
+    job = _pass_job()
+    problem = prepare(load_job(job))
+    ps = problem.passes[0]
+    for i in ps.images:
+        img = problem.images[i]
+        t0 = job["images"][i]["first_line_time_s"]
+        lines = np.array([0.0, 1.0, 2500.0, 7001.5])
+        times = t0 + lines * img.camera.line_time_s - ps.t_ref_s
+        for line, (_t, r_ref, _v) in zip(lines, _inertial_reference(ps.params.copy(), times, J2)):
+            s = platform_state(img.kind, img.coef(), img.kc, line * img.tau_per_line)[0]
+            miss = np.linalg.norm(problem.frame.to_ecef(np.asarray(s)[None])[0] - r_ref)
+            assert miss < POSITION_MATCH_M, (img.id, line, miss)

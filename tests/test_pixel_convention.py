@@ -130,6 +130,6 @@ def test_line_time_convention(model: str) -> None:
     """Line L is exposed at tau = L tau_per_line after line 0: L/1000 for polynomial models,
     L line_time_s (seconds since first_line_time_s) for orbital ones (docs/models.md)."""
     m = get_model(model)
-    expected = LINE_TIME_S if m.orbital else 1.0 / 1000.0
+    expected = LINE_TIME_S if m.kind.earth_fixed else 1.0 / 1000.0
     assert m.tau_per_line(LINE_TIME_S) == pytest.approx(expected, rel=1e-15)  # a copy or a division by 1000
-    assert ("line_time" in m.time_variable) is m.orbital
+    assert ("line_time" in m.time_variable) is m.kind.earth_fixed

@@ -120,3 +120,52 @@ def test_monte_carlo_predicted_sigmas_match_the_scatter():
     for z in (np.array(check), np.array(loo)):
         rms = np.sqrt(np.mean(z**2, axis=0))
         assert np.all((rms > 0.8) & (rms < 1.25)), rms
+
+
+@pytest.mark.parametrize("azimuth_deg", [0.0, 30.0, 75.0, 120.0, 165.0])
+def test_error_ellipse_of_a_hand_built_covariance(azimuth_deg):
+    """A covariance built from its ellipse: major axis 3 m along the azimuth (clockwise from
+    north, so the unit vector is (east, north) = (sin az, cos az)), minor axis 1 m across it.
+    An east/north swap reports 90 - az; 1e-9 deg and 1e-12 m are rounding."""
+    from solver.quality.precision import error_ellipse
+
+    a = np.radians(azimuth_deg)
+    major = np.array([np.sin(a), np.cos(a)])
+    minor = np.array([np.cos(a), -np.sin(a)])
+    cov = 9.0 * np.outer(major, major) + 1.0 * np.outer(minor, minor)
+    ell = error_ellipse(cov)
+    assert ell["semi_major_m"] == pytest.approx(3.0, abs=1e-12)
+    assert ell["semi_minor_m"] == pytest.approx(1.0, abs=1e-12)
+    assert ell["azimuth_deg"] == pytest.approx(azimuth_deg, abs=1e-9)
+
+
+def _ellipse_covariance(ell: dict) -> np.ndarray:
+    """The (east, north) covariance an error ellipse describes."""
+    a = np.radians(ell["azimuth_deg"])
+    major = np.array([np.sin(a), np.cos(a)])
+    minor = np.array([np.cos(a), -np.sin(a)])
+    return ell["semi_major_m"] ** 2 * np.outer(major, major) + ell["semi_minor_m"] ** 2 * np.outer(minor, minor)
+
+
+def test_mono_check_point_discrepancy_test_is_chi_square_with_two_dof():
+    """Check points seen in one image (mono: the ray meets the known height) have a horizontal
+    discrepancy only: its test is chi-square with 2 dof, whose 1 - alpha quantile is -2 ln alpha
+    (no quantile function needed), on T = d_en^T C^-1 d_en with C the covariance the point's
+    error ellipse describes (which must also give its east and north sigmas)."""
+    from solver.synthetic import single_image_job
+
+    job, _ = single_image_job("K2", seed=6, n_check=9)
+    rep = adjust_job(load_job(job))
+    alpha = rep["checkpoints"]["points"][0]["discrepancy_test"]["alpha"]
+    mono = [p for p in rep["checkpoints"]["points"] if p["method"] == "mono"]
+    assert len(mono) == 9
+    for p in mono:
+        t = p["discrepancy_test"]
+        c = _ellipse_covariance(p["error_ellipse"])
+        assert np.sqrt(np.diag(c)) == pytest.approx([p["sigma_m"]["e"], p["sigma_m"]["n"]], rel=1e-9)
+        d = np.array([p["discrepancy_m"]["e"], p["discrepancy_m"]["n"]])
+        statistic = float(d @ np.linalg.solve(c, d))
+        assert t["dof"] == 2
+        assert t["critical"] == pytest.approx(-2.0 * np.log(alpha), rel=1e-12)
+        assert t["statistic"] == pytest.approx(statistic, rel=1e-9)
+        assert t["passed"] is bool(statistic <= -2.0 * np.log(alpha))

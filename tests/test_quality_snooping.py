@@ -6,6 +6,7 @@ re-solve, and the recovery of injected blunders through ``solver.api.run``."""
 from __future__ import annotations
 
 import copy
+import math
 
 import numpy as np
 import pytest
@@ -343,3 +344,20 @@ def test_weakest_direction_mdb_is_the_largest_over_directions(weighted_block) ->
     # the weakest direction's non-centrality is lambda0 at mdb_max (here / 64), the other larger
     assert stat["weakest"] == pytest.approx(lam0 / 64.0, rel=1e-6)
     assert stat["across"] >= stat["weakest"]
+
+
+@pytest.mark.parametrize("alpha0", [0.001, 0.01, 0.05])
+def test_w_test_critical_values_match_closed_forms(alpha0) -> None:
+    """The critical values of the w- and tau-tests against forms written without chi-square or
+    Beta quantiles: one observation (d = 1) is the two-sided normal quantile z_{1-alpha0/2}
+    (3.29 for 0.001); d = 2 is sqrt(-2 ln alpha0) (chi-square with 2 dof is exponential);
+    Pope's tau with d = 1 is sqrt(r) t / sqrt(r - 1 + t^2), t the two-sided Student quantile
+    with r - 1 dof. A test at 1 - alpha0/2 instead of 1 - alpha0 is 5 % to 10 % too high."""
+    from solver.quality.snooping import _critical
+
+    rel = 1e-9  # quantile functions evaluated two ways
+    assert _critical("apriori", alpha0, 1, 50) == pytest.approx(stats.norm.ppf(1 - alpha0 / 2), rel=rel)
+    assert _critical("apriori", alpha0, 2, 50) == pytest.approx(math.sqrt(-2 * math.log(alpha0)), rel=rel)
+    r = 40
+    t = stats.t.ppf(1 - alpha0 / 2, r - 1)
+    assert _critical("estimated", alpha0, 1, r) == pytest.approx(math.sqrt(r) * t / math.sqrt(r - 1 + t * t), rel=rel)

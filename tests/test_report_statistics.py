@@ -203,3 +203,26 @@ def test_checkpoint_t_tests_and_shapiro_wilk_against_scipy(fixture, request) -> 
         w, p = stats.shapiro(v)
         assert sw["statistic"] == pytest.approx(w, rel=1e-12) and sw["p_value"] == pytest.approx(p, rel=1e-12), k
         assert sw["passed"] is bool(p > ALPHA), k
+
+
+def _samples_with_p_between(lo: float, hi: float) -> np.ndarray:
+    """20 skewed values whose scipy Shapiro-Wilk p-value lies in (lo, hi] (first seed that does)."""
+    for seed in range(10_000):
+        v = np.random.default_rng(seed).gamma(2.0, size=20)
+        if lo < stats.shapiro(v).pvalue <= hi:
+            return v
+    raise AssertionError(f"no sample with p in ({lo}, {hi}]")
+
+
+@pytest.mark.parametrize("alpha", [0.05, 0.01])
+def test_shapiro_wilk_verdict_at_the_edges_of_alpha(alpha) -> None:
+    """Normality is rejected when p <= alpha, kept when p > alpha: samples whose scipy p-value
+    lies in (alpha/2, alpha] and in (alpha, 2 alpha] tell the level from half of it (the
+    report's check-point discrepancies are far from the edge, so they cannot)."""
+    from solver.report.statistics import shapiro_wilk
+
+    below = _samples_with_p_between(alpha / 2, alpha)
+    above = _samples_with_p_between(alpha, 2 * alpha)
+    assert shapiro_wilk(below, alpha)["passed"] is False
+    assert shapiro_wilk(above, alpha)["passed"] is True
+    assert shapiro_wilk(below, alpha)["p_value"] == pytest.approx(stats.shapiro(below).pvalue, rel=1e-12)

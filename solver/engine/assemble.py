@@ -100,7 +100,7 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
         model = get_model((models or {}).get(im.id, im.model.name))
         opts = dict(im.model.options)
         free = model.free_indices(opts)
-        if model.is_rpc:  # no camera: the RPC and the frame are the image's constants
+        if not model.kind.has_camera:  # the RPC and the frame are the image's constants
             cam, kc, tau_per_line = None, rpc_constants(im, frame), 0.0
         else:
             cam = cameras[im.camera]

@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from solver.errors import JobError, Problem
-from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS, gravity_and_gradient, intersect_all, platform_state
+from solver.kernels import gravity_and_gradient, intersect_all, platform_state
 from solver.observations.ephemeris import image_state
 from solver.observations.passes import initialise_passes
 from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
@@ -107,7 +107,7 @@ def initialise(problem: AdjustmentState) -> None:
                 )
             )
             continue
-        if img.model.is_rpc:  # bias 0, or the job's initial values
+        if not img.model.kind.has_camera:  # an RPC bias: 0, or the job's initial values
             _apply_initial(img)
             img.params[:] = img.base[img.free_idx]
             continue
@@ -117,9 +117,9 @@ def initialise(problem: AdjustmentState) -> None:
         if state is not None:
             r_ecef = np.array(state.position_ecef_m, dtype=float)
             v_ecef = np.array(state.velocity_ecef_m_s, dtype=float)
-            if not img.model.propagated:  # pass states: initialise_passes below
+            if img.model.kind.position_from_image_state:  # pass states: initialise_passes below
                 _set_position_from_state(img, frame, r_ecef, v_ecef)
-        elif not img.model.propagated:
+        elif img.model.kind.position_from_image_state:
             pos_names = {"X0", "Y0", "Z0"}
             if not pos_names <= set(im_doc.initial):
                 issues.append(
@@ -157,7 +157,7 @@ def initialise(problem: AdjustmentState) -> None:
 
 
 def _attitude_by_resection(problem: AdjustmentState, img: ImageState, v_ecef) -> tuple[float, float, float]:
-    if img.kind in (KIND_ORBIT_ATTITUDE, KIND_PASS):
+    if img.model.kind.attitude_in_orbital_frame:
         return 0.0, 0.0, 0.0  # attitude relative to the orbital frame: nominally zero
     obs = problem.obs
     sel = [

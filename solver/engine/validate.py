@@ -101,7 +101,7 @@ def model_option_problems(model: PlatformModel, options: dict[str, Any], loc: tu
                     (*loc, "options", "orders", e),
                 )
             )
-    if not out and not model.propagated and not model.parameters(options):
+    if not out and not model.kind.shares_pass_orbit and not model.parameters(options):
         out.append(
             Problem(
                 "invalid_model_options",
@@ -211,7 +211,7 @@ def rpc_image_problems(job: Job, im: Image, i: int, model: PlatformModel) -> lis
     no camera, platform data, lines or self-calibration; its RPC must be usable (non-zero scales,
     non-zero constant denominator terms); ``initial`` and ``bias_prior`` name its parameters."""
     loc = ("images", i)
-    if not model.is_rpc:
+    if model.kind.has_camera:
         return [Problem("rpc_with_rigorous_model", f"image {im.id!r} has an rpc but the rigorous model {model.name}; "
                         "use an RPC bias model (RPC-SHIFT, RPC-DRIFT, RPC-AFFINE) or leave rpc out", loc + ("rpc",))]
     if im.rpc is None:
@@ -275,7 +275,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
         except KeyError as exc:
             problems.append(Problem("unknown_model", str(exc.args[0]), ("images", i, "model", "name")))
             continue
-        if model.is_rpc or im.rpc is not None:
+        if not model.kind.has_camera or im.rpc is not None:
             rpc_issues = rpc_image_problems(job, im, i, model)
             problems += rpc_issues
             if not rpc_issues:
@@ -308,7 +308,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
                 )
             )
         state = image_state(im, job.options)  # approx_state or the interpolated ephemeris
-        if state is None and not model.propagated and not {"X0", "Y0", "Z0"} <= set(im.initial):
+        if state is None and model.kind.position_from_image_state and not {"X0", "Y0", "Z0"} <= set(im.initial):
             problems.append(
                 Problem(
                     "no_initial_position",
@@ -321,7 +321,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
         n_unknowns += len(params)
         weighted = state is not None and state.sigma_position_m is not None
         weighted_states += weighted
-        if weighted and not model.propagated:  # pass states: orbit_pass.n_pass_state_observations
+        if weighted and model.kind.position_from_image_state:  # pass states: orbit_pass.n_pass_state_observations
             n_prior_obs += sum(1 for n in ("X0", "Y0", "Z0") if n in names)
             if state.sigma_velocity_m_s is not None:
                 n_prior_obs += sum(1 for n in ("ux", "uy", "uz", "X1", "Y1", "Z1") if n in names)

@@ -26,9 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from solver.errors import Problem
-from solver.kernels import KIND_PASS
-from solver.kernels.propagation import PASS_ATT_OFF
-from solver.observations.passes import ATTITUDE_KINDS, attitude_blocks, image_attitude_blocks, pass_line_span
+from solver.observations.passes import attitude_blocks, image_attitude_blocks, pass_line_span
 from solver.observations.state_priors import StatePrior
 from solver.platforms import coef_index, get_model
 
@@ -73,7 +71,7 @@ def attitude_problems(job: "Job") -> list[tuple[str, str, tuple]]:
             model = get_model(im.model.name)
         except KeyError:
             continue  # reported by the model check
-        if model.kind not in ATTITUDE_KINDS:
+        if not model.kind.attitude_in_orbital_frame:
             out.append(
                 (
                     "attitude_needs_orbital_frame",
@@ -109,7 +107,7 @@ def _block_terms(problem: "AdjustmentState") -> list[tuple[list[int], StatePrior
             continue
         img = problem.images[block[0]]
         t_first = job.images[block[0]].first_line_time_s
-        offset = img.kc[PASS_ATT_OFF] if img.kind == KIND_PASS else 0.0
+        offset = img.model.kind.attitude_time_offset(img.kc)
         where = {int(j): q for q, j in enumerate(img.free_idx)}
         rows_a, rows_b, rows_w = [], [], []
         for sample in samples:

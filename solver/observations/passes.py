@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from solver.errors import Problem
-from solver.kernels import KIND_ORBIT_ATTITUDE, KIND_PASS, N_KEPLER_CONST
+from solver.kernels import N_KEPLER_CONST
 from solver.kernels.propagation import (
     NODE_STEP_S,
     PASS_ATT_OFF,
@@ -46,7 +46,6 @@ ATTITUDE_MODES = ("camera", "image")  # model option "attitude": one set per cam
 MARGIN_S = 5.0  # trajectory nodes beyond the image's first/last line (Newton iterates)
 STATE_NAMES = tuple(n for n, _u in PASS_STATE)
 STATE_UNITS = tuple(u for _n, u in PASS_STATE)
-ATTITUDE_KINDS = (KIND_ORBIT_ATTITUDE, KIND_PASS)  # attitude relative to the orbital frame
 
 
 @dataclass
@@ -81,9 +80,9 @@ def _attitude_blocks(entries) -> list[list[int]]:
     checks by it, and measured attitude attaches to it (:mod:`solver.observations.attitude`)."""
     blocks: dict[tuple, list[int]] = {}
     for i, (model, options, camera) in enumerate(entries):
-        if model is None or model.kind not in ATTITUDE_KINDS:
+        if model is None or not model.kind.attitude_in_orbital_frame:
             continue
-        if model.propagated and attitude_mode(options) == "camera":
+        if model.kind.shares_pass_orbit and attitude_mode(options) == "camera":
             key: tuple = ("camera", pass_id(options), camera)
         else:
             key = ("image", i)
@@ -120,7 +119,7 @@ def build_passes(job: "Job", images: list["ImageState"]) -> list[PassState]:
     (uncomputed) trajectory segment. Call after the images are built, before the tables."""
     groups: dict[str, list["ImageState"]] = {}
     for img in images:
-        if img.model.propagated:
+        if img.model.kind.shares_pass_orbit:
             groups.setdefault(pass_id(img.options), []).append(img)
     if not groups:
         return []
@@ -328,7 +327,7 @@ def pass_problems(job: "Job") -> list[Problem]:
             model = get_model(im.model.name)
         except KeyError:
             continue
-        if not model.propagated:
+        if not model.kind.shares_pass_orbit:
             continue
         pid = pass_id(im.model.options)
         if im.first_line_time_s is None:
@@ -421,7 +420,7 @@ def n_pass_state_observations(job: "Job") -> int:
     groups: dict[str, list[int]] = {}
     for i, im in enumerate(job.images):
         try:
-            if get_model(im.model.name).propagated and im.first_line_time_s is not None:
+            if get_model(im.model.name).kind.shares_pass_orbit and im.first_line_time_s is not None:
                 groups.setdefault(pass_id(im.model.options), []).append(i)
         except KeyError:
             continue
@@ -459,7 +458,7 @@ def n_pass_unknowns(job: "Job") -> int:
             model = get_model(im.model.name)
         except KeyError:
             return None
-        return model if model.propagated and _orders_ok(model, im.model.options) else None
+        return model if model.kind.shares_pass_orbit and _orders_ok(model, im.model.options) else None
 
     ids = {pass_id(im.model.options) for i, im in enumerate(job.images) if valid(i) is not None}
     n = 0

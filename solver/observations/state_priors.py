@@ -80,7 +80,7 @@ class BiasPrior(StatePrior):
 def bias_prior(problem: AdjustmentState, img: ImageState) -> StatePrior | None:
     """Weighted a-priori values of an RPC image's bias parameters (``images[].bias_prior``,
     report units: px, px/px): ``r = (p_k - value) / sigma`` per named parameter."""
-    given = problem.job.images[img.index].bias_prior if img.model.is_rpc else {}
+    given = problem.job.images[img.index].bias_prior if not img.model.kind.has_camera else {}
     if not given:
         return None
     col = {s.name: q for q, s in enumerate(img.model.parameters(img.options))}

@@ -21,7 +21,7 @@ at southern latitudes (phi close to -90 deg), which ruins conditioning.
 
 from __future__ import annotations
 
-from solver.kernels import KIND_KEPLER
+from solver.platforms.kinds import KEPLER
 from solver.platforms.registry import PlatformModel, register
 
 GM_M3_S2 = 3.986005e14  # seed 000 (GRS80)
@@ -35,7 +35,7 @@ K1 = register(
     PlatformModel(
         name="K1",
         title="UCL Kepler (Earth-fixed), kappa linear",
-        kind=KIND_KEPLER,
+        kind=KEPLER,
         frame="ECEF",
         orders=(1, 1, 1, 0, 0, 1),
         reference="seed 000 eq 19 (model 1), seed 001 eqs 34-37",
@@ -46,7 +46,7 @@ K2 = register(
     PlatformModel(
         name="K2",
         title="UCL Kepler (Earth-fixed), kappa quadratic",
-        kind=KIND_KEPLER,
+        kind=KEPLER,
         frame="ECEF",
         orders=(1, 1, 1, 0, 0, 2),
         reference="seed 000 eqs 19-20 (model 2)",
@@ -57,7 +57,7 @@ J2_1 = register(
     PlatformModel(
         name="J2-1",
         title="J2-perturbed orbit (Earth-fixed), kappa linear",
-        kind=KIND_KEPLER,
+        kind=KEPLER,
         frame="ECEF",
         orders=(1, 1, 1, 0, 0, 1),
         j2=True,
@@ -70,7 +70,7 @@ J2_2 = register(
     PlatformModel(
         name="J2-2",
         title="J2-perturbed orbit (Earth-fixed), kappa quadratic",
-        kind=KIND_KEPLER,
+        kind=KEPLER,
         frame="ECEF",
         orders=(1, 1, 1, 0, 0, 2),
         j2=True,

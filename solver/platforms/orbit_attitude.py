@@ -17,7 +17,7 @@ position-rotation models whose angles are constant in the Earth-fixed frame.
 
 from __future__ import annotations
 
-from solver.kernels import KIND_ORBIT_ATTITUDE
+from solver.platforms.kinds import ORBIT_ATTITUDE
 from solver.platforms.registry import PlatformModel, register
 
 _EQ = "S(t)=S0+u t+1/2 a(S0,u) t^2 (ECEF); M = Ry(mount) Rx(roll) Ry(pitch) Rz(yaw) R_orbit(S(t), V(t))"
@@ -26,7 +26,7 @@ OA_K = register(
     PlatformModel(
         name="OA-K",
         title="Orbit-attitude, Kepler orbit: attitude relative to the orbital frame, yaw linear",
-        kind=KIND_ORBIT_ATTITUDE,
+        kind=ORBIT_ATTITUDE,
         frame="ECEF",
         orders=(1, 1, 1, 0, 0, 1),
         angle_names=("roll", "pitch", "yaw"),
@@ -40,7 +40,7 @@ OA_J2 = register(
     PlatformModel(
         name="OA-J2",
         title="Orbit-attitude, J2-perturbed orbit: attitude relative to the orbital frame, yaw linear",
-        kind=KIND_ORBIT_ATTITUDE,
+        kind=ORBIT_ATTITUDE,
         frame="ECEF",
         orders=(1, 1, 1, 0, 0, 1),
         angle_names=("roll", "pitch", "yaw"),

@@ -20,7 +20,7 @@ observation of the propagated state at that image's first line.
 
 from __future__ import annotations
 
-from solver.kernels import KIND_PASS
+from solver.platforms.kinds import PASS
 from solver.platforms.registry import PlatformModel, register
 
 _EQ = (
@@ -39,7 +39,7 @@ PASS_K = register(
     PlatformModel(
         name="PASS-K",
         title="Pass-propagated two-body orbit (one state per pass), attitude relative to the orbital frame",
-        kind=KIND_PASS,
+        kind=PASS,
         frame="ECEF",
         orders=(1, 1, 1, 1, 1, 1),
         angle_names=("roll", "pitch", "yaw"),
@@ -53,7 +53,7 @@ PASS_J2 = register(
     PlatformModel(
         name="PASS-J2",
         title="Pass-propagated J2 orbit (one state per pass), attitude relative to the orbital frame",
-        kind=KIND_PASS,
+        kind=PASS,
         frame="ECEF",
         orders=(1, 1, 1, 1, 1, 1),
         angle_names=("roll", "pitch", "yaw"),

@@ -12,7 +12,7 @@ polynomials use tau = L / 1000 for conditioning; reported coefficients are per l
 
 from __future__ import annotations
 
-from solver.kernels import KIND_POLYNOMIAL
+from solver.platforms.kinds import POLYNOMIAL
 from solver.platforms.registry import HELD, PlatformModel, register
 
 _EQ = "X(L)=X0+X1 L+X2 L^2, Y, Z likewise; kappa(L)=kappa+kappa1 L(+kappa2 L^2)"
@@ -26,7 +26,7 @@ GENERAL = register(
     PlatformModel(
         name="GENERAL",
         title="General polynomial model (Gugan & Dowman 1988): all six elements polynomial",
-        kind=KIND_POLYNOMIAL,
+        kind=POLYNOMIAL,
         frame="LGS",
         orders=(2, 2, 2, 2, 2, 2),
         order_option=True,
@@ -41,7 +41,7 @@ ON1 = register(
     PlatformModel(
         name="ON1",
         title="Orun & Natarajan: X, Y, Z quadratic, kappa linear, omega/phi held",
-        kind=KIND_POLYNOMIAL,
+        kind=POLYNOMIAL,
         frame="LGS",
         orders=(2, 2, 2, HELD, HELD, 1),
         reference="seed 000 eq 17 (model 5)",
@@ -55,7 +55,7 @@ ON2 = register(
     PlatformModel(
         name="ON2",
         title="Orun & Natarajan: X, Y, Z, kappa quadratic, omega/phi held",
-        kind=KIND_POLYNOMIAL,
+        kind=POLYNOMIAL,
         frame="LGS",
         orders=(2, 2, 2, HELD, HELD, 2),
         reference="seed 000 eqs 17, 23 (model 6); = seed 002 12-parameter model",
@@ -70,7 +70,7 @@ P1 = register(
     PlatformModel(
         name="P1",
         title="Polynomial: X, Y, Z quadratic, kappa linear, omega/phi estimated constants",
-        kind=KIND_POLYNOMIAL,
+        kind=POLYNOMIAL,
         frame="LGS",
         orders=(2, 2, 2, 0, 0, 1),
         reference="seed 000 model 7",
@@ -82,7 +82,7 @@ P2 = register(
     PlatformModel(
         name="P2",
         title="Polynomial: X, Y, Z, kappa quadratic, omega/phi estimated constants",
-        kind=KIND_POLYNOMIAL,
+        kind=POLYNOMIAL,
         frame="LGS",
         orders=(2, 2, 2, 0, 0, 2),
         reference="seed 000 model 8",
@@ -94,7 +94,7 @@ MT8 = register(
     PlatformModel(
         name="MT8",
         title="Medeiros & Tommaselli 8 parameters: X, Y, Z, kappa linear, omega/phi held",
-        kind=KIND_POLYNOMIAL,
+        kind=POLYNOMIAL,
         frame="LGS",
         orders=(1, 1, 1, HELD, HELD, 1),
         reference="seed 002 eq 2 (first order)",

@@ -6,8 +6,7 @@ position and the attitude angles (omega, phi, kappa). All models share one numer
 (X, Y, Z, omega, phi, kappa) and powers tau^0..tau^3, of which a model frees a subset, holds some
 at given values, and (Kepler kind) interprets coef[0:3, 0:2] as the Earth-fixed state vector.
 
-Adding a model: one module defining a :class:`PlatformModel`, ``register(model)``, an entry in
-docs/models.md, and a test in tests/test_models.py (the parametrised tests pick it up).
+Adding a model or a kind: docs/architecture.md, "Where new code goes" (the one checklist).
 """
 
 from __future__ import annotations
@@ -18,32 +17,20 @@ from typing import Any
 
 import numpy as np
 
-from solver.kernels import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL, KIND_RPC
+from solver.platforms.kinds import (
+    ANGLES,
+    ELEMENTS,
+    POLY_TIME_SCALE_LINES,
+    ParameterSpec,
+    PlatformKind,
+    all_kinds,
+    coef_index,
+    register_kind,
+)
 
-ELEMENTS = ("X", "Y", "Z", "omega", "phi", "kappa")
-ANGLES = ("omega", "phi", "kappa")
 HELD = -1  # order value meaning "held at a given value, not estimated"
-POLY_TIME_SCALE_LINES = 1000.0  # tau = L / 1000 for polynomial models (conditioning)
 # the state of a pass-propagated model (solver.observations.passes), ECEF at the pass reference epoch
 PASS_STATE = (("X", "m"), ("Y", "m"), ("Z", "m"), ("VX", "m/s"), ("VY", "m/s"), ("VZ", "m/s"))
-
-
-def coef_index(element: str, power: int) -> int:
-    """Index of coefficient (element, power) in the flattened full vector."""
-    return ELEMENTS.index(element) * 4 + power
-
-
-@dataclass(frozen=True)
-class ParameterSpec:
-    """One estimated parameter: its name, report unit and place in the full vector.
-
-    ``to_report`` multiplies the internal value (m or rad per tau^k) to give the report value.
-    """
-
-    name: str
-    unit: str
-    index: int
-    to_report: float
 
 
 @dataclass(frozen=True)
@@ -58,7 +45,7 @@ class PlatformModel:
 
     name: str
     title: str
-    kind: int
+    kind: PlatformKind  # what the stages ask (solver.platforms.kinds); kind.kernel for the kernels
     frame: str  # "LGS" or "ECEF"
     orders: tuple[int, int, int, int, int, int]
     reference: str
@@ -68,36 +55,16 @@ class PlatformModel:
     options_doc: dict[str, str] = field(default_factory=dict)
     order_option: bool = False  # GENERAL: orders come from job options
     angle_names: tuple[str, str, str] = ("omega", "phi", "kappa")
-    # RPC bias models (kind KIND_RPC): the estimated bias parameters, each (name, unit, coef slot)
+    # RPC bias models (kind RPC_BIAS): the estimated bias parameters, each (name, unit, coef slot)
     bias: tuple[tuple[str, str, int], ...] = ()
 
     @property
-    def is_rpc(self) -> bool:
-        """The image's sensor model is its RPC plus this image-space bias (no camera, no platform)."""
-        return self.kind == KIND_RPC
-
-    # ---- time ---------------------------------------------------------------------------
-    @property
-    def orbital(self) -> bool:
-        """Position from an Earth-fixed state vector (Kepler / J2 / orbit-attitude / pass kinds)."""
-        return self.kind in (KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS)
-
-    @property
-    def propagated(self) -> bool:
-        """The state is shared by the images of a pass (a separate parameter block)."""
-        return self.kind == KIND_PASS
-
-    @property
     def time_variable(self) -> str:
-        if self.is_rpc:
-            return "none (the RPC maps the ground to the image; bias in image coordinates)"
-        if self.orbital:
-            return "t = L * line_time (s) since the first line"
-        return "L (image line number); internally tau = L / 1000"
+        return self.kind.time_variable
 
     def tau_per_line(self, line_time_s: float) -> float:
         """d tau / d L for this model."""
-        return line_time_s if self.orbital else 1.0 / POLY_TIME_SCALE_LINES
+        return self.kind.tau_per_line(line_time_s)
 
     # ---- parameters -----------------------------------------------------------------------
     @property
@@ -110,7 +77,7 @@ class PlatformModel:
         """Elements whose order the ``orders`` option sets (orbital kinds: the angles only)."""
         if not self.order_option:
             return ()
-        return ANGLES if self.orbital else ELEMENTS
+        return self.kind.order_elements()
 
     def effective_orders(self, options: dict[str, Any]) -> tuple[int, ...]:
         if not self.order_option:
@@ -126,35 +93,7 @@ class PlatformModel:
 
     def parameters(self, options: dict[str, Any] | None = None) -> list[ParameterSpec]:
         """The estimated parameters, in report order."""
-        if self.is_rpc:
-            return [ParameterSpec(name, unit, slot, 1.0) for name, unit, slot in self.bias]
-        orders = self.effective_orders(options or {})
-        specs: list[ParameterSpec] = []
-        deg = 180.0 / math.pi
-        if self.orbital:
-            for e in ("X", "Y", "Z") if not self.propagated else ():
-                specs.append(ParameterSpec(f"{e}0", "m", coef_index(e, 0), 1.0))
-            for e, u in zip(("X", "Y", "Z"), ("ux", "uy", "uz")) if not self.propagated else ():
-                specs.append(ParameterSpec(u, "m/s", coef_index(e, 1), 1.0))
-            for e, shown in zip(ANGLES, self.angle_names):
-                for k in range(orders[ELEMENTS.index(e)] + 1):
-                    if self.kind == KIND_KEPLER:
-                        name = e if k == 0 else (f"d{k}" if e == "kappa" else f"{e}{k}")
-                    else:
-                        name = shown if k == 0 else f"{shown}{k}"
-                    unit = "deg" if k == 0 else f"deg/s^{k}" if k > 1 else "deg/s"
-                    specs.append(ParameterSpec(name, unit, coef_index(e, k), deg))
-            return specs
-        for e in ELEMENTS:
-            order = orders[ELEMENTS.index(e)]
-            is_angle = e in ANGLES
-            for k in range(order + 1):
-                name = (e if k == 0 else f"{e}{k}") if is_angle else f"{e}{k}"
-                base = "deg" if is_angle else "m"
-                unit = base if k == 0 else (f"{base}/line" if k == 1 else f"{base}/line^{k}")
-                scale = (deg if is_angle else 1.0) / POLY_TIME_SCALE_LINES**k
-                specs.append(ParameterSpec(name, unit, coef_index(e, k), scale))
-        return specs
+        return self.kind.parameters(self, self.effective_orders(options or {}))
 
     def free_indices(self, options: dict[str, Any] | None = None) -> np.ndarray:
         return np.array([p.index for p in self.parameters(options)], dtype=np.int64)
@@ -180,7 +119,7 @@ class PlatformModel:
             "frame": self.frame,
             "time_variable": self.time_variable,
             "parameters": [{"name": p.name, "unit": p.unit} for p in self.parameters({})],
-            "pass_parameters": [{"name": n, "unit": u} for n, u in PASS_STATE] if self.propagated else [],
+            "pass_parameters": [{"name": n, "unit": u} for n, u in PASS_STATE] if self.kind.shares_pass_orbit else [],
             "held": sorted(self.held_defaults),
             "options": self.options_doc,
             "reference": self.reference,
@@ -223,8 +162,11 @@ __all__ = [
     "ANGLES",
     "ELEMENTS",
     "HELD",
-    "KIND_KEPLER",
-    "KIND_POLYNOMIAL",
+    "PASS_STATE",
+    "POLY_TIME_SCALE_LINES",
+    "PlatformKind",
+    "all_kinds",
+    "register_kind",
     "ParameterSpec",
     "PlatformModel",
     "all_models",

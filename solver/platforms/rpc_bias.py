@@ -14,7 +14,7 @@ does not estimate are 0. The kernel is :func:`solver.kernels.rpc.rpc_project`.
 from __future__ import annotations
 
 from solver.geometry.rpc import BIAS_MODELS, BIAS_NAMES
-from solver.kernels import KIND_RPC
+from solver.platforms.kinds import RPC_BIAS
 from solver.platforms.registry import HELD, PlatformModel, register
 
 _EQ = (
@@ -38,7 +38,7 @@ for _name in ("RPC-SHIFT", "RPC-DRIFT", "RPC-AFFINE"):
         PlatformModel(
             name=_name,
             title=_TITLES[_name],
-            kind=KIND_RPC,
+            kind=RPC_BIAS,
             frame="image (RPC00B of the image; WGS 84 geodetic ground)",
             orders=(HELD,) * 6,
             reference="Grodecki & Dial 2003 (PE&RS 69(1) 59-68), eqs 1-4",

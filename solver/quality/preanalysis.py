@@ -89,7 +89,7 @@ def level_nominal_attitude(problem: AdjustmentState, images: list[int]) -> None:
     for i in images:
         img = problem.images[i]
         im_doc = problem.job.images[i]
-        if img.model.orbital and img.model.angle_names != ("omega", "phi", "kappa"):
+        if img.model.kind.attitude_in_orbital_frame:
             continue
         state = image_state(im_doc, problem.job.options)
         if state is None or state.attitude_deg is not None or set(im_doc.initial) & {"omega", "phi", "kappa"}:

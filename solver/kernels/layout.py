@@ -1,0 +1,52 @@
+"""Numbers the kernels share with the Python side: the platform kinds' dispatch codes, vector
+sizes, and the named offsets of the packed image/camera tables and observation records.
+
+No kernel lives here. A platform kind (:mod:`solver.platforms.kinds`) carries its dispatch code
+(``kernel``); the kernels branch on it in :mod:`solver.kernels.platform` (platform evaluation)
+and :mod:`solver.kernels.projection` (the projection entry point), nowhere else.
+"""
+
+from __future__ import annotations
+
+from solver.schema.iop_names import IOP_CHIP, IOP_OPTICAL, MAX_CHIPS
+
+KIND_POLYNOMIAL = 0  # polynomials of tau = L / 1000 in the LGS
+KIND_KEPLER = 1  # Earth-fixed state at line 0, Kepler/J2 quadratic, angles in the LGS
+KIND_ORBIT_ATTITUDE = 2  # Kepler/J2 position, attitude relative to the orbital frame
+KIND_PASS = 3  # one propagated orbit per pass (solver.kernels.propagation), attitude as orbit-attitude
+KIND_RPC = 4  # RPC00B plus an image-space bias (solver.kernels.rpc): no camera, no platform
+N_COEF = 24
+N_OBS_CONST = 9
+N_KEPLER_CONST = 17
+# full IOP vector of a camera: x0, y0, df, k1, k2, sy, then per chip (a0, b0, a1, b1, delta)
+N_IOP = len(IOP_OPTICAL) + len(IOP_CHIP) * MAX_CHIPS
+
+JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)  # options of every @njit here
+
+# ---- residual blocks over image and camera tables ----------------------------------------
+# img_tab row (67): kind, nfree, free_idx[24], base[24], kc[17]
+# cam_tab row (2 + 2 N_IOP): nfree, has_iop, free_idx[N_IOP], base[N_IOP]
+# (the pass kind appends its propagated segment to kc: the row is then longer, see
+#  solver.kernels.propagation; kc is always it[KC_START:])
+# observation record (16): image, camera, image slot, camera slot (-1: constant), chip index,
+#                          chip length (mm), oc[9], pass slot (-1: constant or no pass)
+# named offsets of the packed rows (solver.engine.packed_tables writes them, the kernels read them)
+IT_KIND = 0  # img_tab: model kind (KIND_*)
+IT_NFREE = 1  # img_tab: number of free coefficients
+IT_FREE = 2  # img_tab: free coefficient indices, N_COEF slots
+IT_BASE = IT_FREE + N_COEF  # img_tab: full coefficient vector (held and current), N_COEF long
+KC_START = IT_BASE + N_COEF  # img_tab: kc, N_KEPLER_CONST long (pass kind: + its segment)
+IMG_TAB = KC_START + N_KEPLER_CONST
+CAM_TAB = 2 + 2 * N_IOP
+REC_IMAGE = 0  # observation record: image index
+REC_CAMERA = 1  # camera index
+REC_IMG_SLOT = 2  # image parameter slot (-1: constant)
+REC_CAM_SLOT = 3  # camera parameter slot (-1: constant)
+REC_CHIP = 4  # chip index in the camera
+REC_CHIP_LEN = 5  # chip length (mm)
+REC_OC = 6  # oc[N_OBS_CONST]: line, column, sigma_px, ...
+REC_LINE = REC_OC  # observed line (px)
+REC_COLUMN = REC_OC + 1  # observed column (px)
+REC_SIGMA = REC_OC + 2  # sigma (px)
+REC_PASS_SLOT = REC_OC + N_OBS_CONST  # pass parameter slot (-1: constant or no pass)
+OBS_REC = REC_PASS_SLOT + 1

@@ -1,0 +1,374 @@
+"""Platform evaluation (numba): the perspective centre and the rotation object -> camera of an
+image at a scaled time tau, with derivatives, for every platform kind. This module and
+:mod:`solver.kernels.projection` are the only places the kernels branch on the kind's dispatch
+code (``KIND_*``, :mod:`solver.kernels.layout`); a kind with new mathematics adds its branch
+here (and, without a camera, in the projection entry point)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+from solver.kernels.layout import JIT as _JIT
+from solver.kernels.layout import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL, N_COEF
+from solver.kernels.propagation import PASS_ATT_OFF, PASS_COEF_INDEX, PASS_T_OFF, gravity_and_gradient, pass_state
+from solver.kernels.rotation import (
+    _mount,
+    _orbital_frame,
+    _orbital_frame_rate,
+    _rotation_into,
+    ro_offset,
+    rotation_and_derivatives,
+)
+
+
+@njit(**_JIT)
+def platform_state(kind: int, coef, kc, tau: float):
+    """Perspective centre (LGS, m) and angles (rad) at scaled time tau, with derivatives.
+
+    Returns (S[3], dS_dcoef[3,24], dS_dtau[3], ang[3], dang_dcoef[3,24], dang_dtau[3]).
+    """
+    s = np.zeros(3)
+    ds_dc = np.zeros((3, N_COEF))
+    ds_dt = np.zeros(3)
+    ang = np.zeros(3)
+    da_dc = np.zeros((3, N_COEF))
+    da_dt = np.zeros(3)
+    tp = np.ones(4)
+    ta = _attitude_time(kind, kc, tau)
+    for k in range(1, 4):
+        tp[k] = tp[k - 1] * ta
+    # angles: polynomials for every model
+    for e in range(3):
+        for k in range(4):
+            c = coef[(3 + e) * 4 + k]
+            ang[e] += c * tp[k]
+            da_dc[e, (3 + e) * 4 + k] = tp[k]
+            if k >= 1:
+                da_dt[e] += k * c * tp[k - 1]
+    for k in range(1, 4):
+        tp[k] = tp[k - 1] * tau
+    if kind == KIND_POLYNOMIAL:
+        for e in range(3):
+            for k in range(4):
+                c = coef[e * 4 + k]
+                s[e] += c * tp[k]
+                ds_dc[e, e * 4 + k] = tp[k]
+                if k >= 1:
+                    ds_dt[e] += k * c * tp[k - 1]
+        return s, ds_dc, ds_dt, ang, da_dc, da_dt
+    rot = kc[0:9].reshape(3, 3)
+    org = kc[9:12]
+    if kind == KIND_PASS:
+        pe, ve, _ae, dse6, _dv6 = pass_state(kc, kc[PASS_T_OFF] + tau, True)
+        s = rot @ (pe - org)
+        ds6 = rot @ dse6
+        for q in range(6):
+            for i in range(3):
+                ds_dc[i, PASS_COEF_INDEX[q]] = ds6[i, q]
+        ds_dt = rot @ ve
+        return s, ds_dc, ds_dt, ang, da_dc, da_dt
+    # Kepler / J2 in the Earth-fixed frame
+    r0 = np.array([coef[0], coef[4], coef[8]])
+    u = np.array([coef[1], coef[5], coef[9]])
+    a, da_dr = _kepler_terms(coef, kc)
+    da_du = np.zeros((3, 3))
+    da_du[0, 1] = 2.0 * kc[13]
+    da_du[1, 0] = -2.0 * kc[13]
+    h = 0.5 * tau * tau
+    se = r0 + u * tau + a * h
+    sdt = u + a * tau
+    dse = np.zeros((3, N_COEF))
+    for i in range(3):
+        for j in range(3):
+            dse[i, j * 4] = (1.0 if i == j else 0.0) + h * da_dr[i, j]
+            dse[i, j * 4 + 1] = (tau if i == j else 0.0) + h * da_du[i, j]
+    s = rot @ (se - org)
+    ds_dc = rot @ dse
+    ds_dt = rot @ sdt
+    return s, ds_dc, ds_dt, ang, da_dc, da_dt
+
+
+@njit(**_JIT)
+def _kepler_terms(coef, kc):
+    """Rotating-frame acceleration at the state (S0, u) and its derivatives (once per call)."""
+    r0 = np.empty(3)
+    r0[0] = coef[0]
+    r0[1] = coef[4]
+    r0[2] = coef[8]
+    om = kc[13]
+    g, gg = gravity_and_gradient(r0, kc[12], kc[14], kc[15])
+    a = g
+    a[0] += om * om * r0[0] + 2.0 * om * coef[5]
+    a[1] += om * om * r0[1] - 2.0 * om * coef[1]
+    gg[0, 0] += om * om
+    gg[1, 1] += om * om
+    return a, gg
+
+
+@njit(**_JIT)
+def _attitude_time(kind, kc, tau: float) -> float:
+    """Time variable of the angle polynomials: tau, shifted for pass images whose attitude is
+    shared by the images of one camera (then in s since the pass reference epoch)."""
+    if kind == KIND_PASS:
+        return tau + kc[PASS_ATT_OFF]
+    return tau
+
+
+@njit(**_JIT)
+def _attitude_angles(coef, tau, ang, angdot):
+    for e in range(3):
+        c0 = coef[(3 + e) * 4]
+        c1 = coef[(3 + e) * 4 + 1]
+        c2 = coef[(3 + e) * 4 + 2]
+        c3 = coef[(3 + e) * 4 + 3]
+        ang[e] = c0 + tau * (c1 + tau * (c2 + tau * c3))
+        angdot[e] = c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
+
+
+@njit(**_JIT)
+def _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot):
+    """Position (LGS) and its tau-derivative, angles and their tau-derivatives, at tau."""
+    _attitude_angles(coef, tau, ang, angdot)
+    if kind == KIND_POLYNOMIAL:
+        for e in range(3):
+            c0 = coef[e * 4]
+            c1 = coef[e * 4 + 1]
+            c2 = coef[e * 4 + 2]
+            c3 = coef[e * 4 + 3]
+            s[e] = c0 + tau * (c1 + tau * (c2 + tau * c3))
+            sdot[e] = c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
+        return
+    h = 0.5 * tau * tau
+    for i in range(3):
+        se_i = coef[i * 4] + coef[i * 4 + 1] * tau + acc[i] * h - kc[9 + i]
+        sd_i = coef[i * 4 + 1] + acc[i] * tau
+        sdot[i] = sd_i
+        s[i] = se_i
+    # rotate ECEF offsets into the LGS
+    x, y, z = s[0], s[1], s[2]
+    vx, vy, vz = sdot[0], sdot[1], sdot[2]
+    for i in range(3):
+        s[i] = kc[3 * i] * x + kc[3 * i + 1] * y + kc[3 * i + 2] * z
+        sdot[i] = kc[3 * i] * vx + kc[3 * i + 1] * vy + kc[3 * i + 2] * vz
+
+
+@njit(**_JIT)
+def _orbit_pos(kind, coef, kc, acc, tau, s, sdot, vdot):
+    """Position (LGS), velocity and acceleration (LGS axes) of the orbit-attitude kinds at tau:
+    the Kepler/J2 quadratic (KIND_ORBIT_ATTITUDE) or the propagated pass (KIND_PASS)."""
+    r0 = kc[0:9].reshape(3, 3)
+    if kind == KIND_PASS:
+        pe, ve, ae, _ds, _dv = pass_state(kc, kc[PASS_T_OFF] + tau, False)
+        for i in range(3):
+            pe[i] -= kc[9 + i]
+        s[:] = r0 @ pe
+        sdot[:] = r0 @ ve
+        vdot[:] = r0 @ ae
+        return
+    ang = np.empty(3)
+    angdot = np.empty(3)
+    _pose(KIND_KEPLER, coef, kc, acc, tau, s, sdot, ang, angdot)
+    vdot[:] = r0 @ acc
+
+
+@njit(**_JIT)
+def _orbit_jac(kind, kc, da_dr, tau):
+    """d(S, V)/d(state) in LGS axes (3 x 6 each): state = (S0, u) at line 0 for the Kepler
+    quadratic, the pass state x0 at the reference epoch for KIND_PASS."""
+    r0 = kc[0:9].reshape(3, 3)
+    ds_dth = np.empty((3, 6))
+    dv_dth = np.empty((3, 6))
+    if kind == KIND_PASS:
+        _p, _v, _a, ds, dv = pass_state(kc, kc[PASS_T_OFF] + tau, True)
+        ds_dth[:, :] = r0 @ ds
+        dv_dth[:, :] = r0 @ dv
+        return ds_dth, dv_dth
+    # S_lgs = R0 (S0 + u t + a h - O), V_lgs = R0 (u + a t); a = a(S0, u)
+    h = 0.5 * tau * tau
+    da_du = np.zeros((3, 3))
+    da_du[0, 1] = 2.0 * kc[13]
+    da_du[1, 0] = -2.0 * kc[13]
+    ds_dth[:, 0:3] = r0 @ (np.eye(3) + h * da_dr)
+    ds_dth[:, 3:6] = r0 @ (tau * np.eye(3) + h * da_du)
+    dv_dth[:, 0:3] = r0 @ (tau * da_dr)
+    dv_dth[:, 3:6] = r0 @ (np.eye(3) + tau * da_du)
+    return ds_dth, dv_dth
+
+
+@njit(**_JIT)
+def _oa_pose(kind, coef, kc, acc, tau, rot):
+    """What the orbit-attitude projection needs at tau: S, Sdot, M = A R_orbit, dM/dtau, the
+    attitude part A = Ry(mount) R_att, the mounting and R_orbit (``rot`` receives R_att and its
+    angle derivatives)."""
+    s = np.empty(3)
+    sdot = np.empty(3)
+    vdot = np.empty(3)
+    ang = np.empty(3)
+    angdot = np.empty(3)
+    _orbit_pos(kind, coef, kc, acc, tau, s, sdot, vdot)
+    _attitude_angles(coef, _attitude_time(kind, kc, tau), ang, angdot)
+    _rotation_into(ang[0], ang[1], ang[2], rot)
+    ro, dro_dt = _orbital_frame_rate(s, sdot, ro_offset(kc), sdot, vdot)
+    mnt = _mount(kc[16])
+    a_att = mnt @ rot[0]
+    m = a_att @ ro
+    dm_dt = a_att @ dro_dt
+    datt = rot[1] * angdot[0] + rot[2] * angdot[1] + rot[3] * angdot[2]
+    dm_dt += mnt @ datt @ ro
+    return s, sdot, m, dm_dt, a_att, mnt, ro
+
+
+@njit(**_JIT)
+def _state_directions(kind, kc, da_dr, tau, s, sdot, a_att, m, v):
+    """dd/d(state_q) (6 x 3) of the camera vector d = A R_orbit(S, V) (P - S) for the
+    orbit-attitude kinds: through S(t) and through the orbital frame's dependence on S and V."""
+    ds_dth, dv_dth = _orbit_jac(kind, kc, da_dr, tau)
+    _ro, d_s, d_v = _orbital_frame(s, sdot, ro_offset(kc))
+    out = np.empty((6, 3))
+    for q in range(6):
+        dro = np.zeros((3, 3))
+        for k in range(3):
+            dro += d_s[:, :, k] * ds_dth[k, q] + d_v[:, :, k] * dv_dth[k, q]
+        out[q] = a_att @ dro @ v - m @ np.ascontiguousarray(ds_dth[:, q])
+    return out
+
+
+@njit(**_JIT)
+def _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, ang, angdot, v, d, ddt, mm, a_att, mnt, ro):
+    """Everything a projection needs at tau, for every kind, filled in place: S, dS/dtau, the
+    rotation M (``mm``), v = P - S, d = M v and dd/dtau; ``rot`` receives the angle rotation and
+    its angle derivatives (the attitude part for the orbit-attitude kinds), and for those kinds
+    ``a_att``, ``mnt``, ``ro`` the factors A = Ry(mount) R_att, Ry(mount) and R_orbit (left as
+    they are for the other kinds)."""
+    if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
+        s1, sdot1, m, dm_dt, a1, mnt1, ro1 = _oa_pose(kind, coef, kc, acc, tau, rot)
+        s[:] = s1
+        sdot[:] = sdot1
+        mm[:, :] = m
+        a_att[:, :] = a1
+        mnt[:, :] = mnt1
+        ro[:, :] = ro1
+        for i in range(3):
+            v[i] = p[i] - s[i]
+        d[:] = m @ v
+        ddt[:] = dm_dt @ v - m @ sdot
+        return
+    _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot)
+    _rotation_into(ang[0], ang[1], ang[2], rot)
+    mm[:, :] = rot[0]
+    for i in range(3):
+        v[i] = p[i] - s[i]
+    for i in range(3):
+        di = 0.0
+        dti = 0.0
+        for j in range(3):
+            mij = rot[0, i, j]
+            dmij = rot[1, i, j] * angdot[0] + rot[2, i, j] * angdot[1] + rot[3, i, j] * angdot[2]
+            di += mij * v[j]
+            dti += dmij * v[j] - mij * sdot[j]
+        d[i] = di
+        ddt[i] = dti
+
+
+@njit(**_JIT)
+def _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, gx0, gx2, gy1, gy2):
+    """Derivatives along every coefficient of two image functions whose gradients wrt the
+    camera vector d are (gx0, 0, gx2) and (0, gy1, gy2), at the line's tau: returns (gxs[24],
+    gys[24]). For KIND_PASS the pass-state derivatives are in the slots PASS_COEF_INDEX."""
+    gxs = np.zeros(N_COEF)
+    gys = np.zeros(N_COEF)
+    oa = kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS
+    # angles: dd/d(angle) = dM/d(angle) v (orbit-attitude: Ry(mount) dR_att R_orbit v), x t^k
+    ta = _attitude_time(kind, kc, tau)
+    rov = ro @ v if oa else v
+    for e in range(3):
+        if oa:
+            dd = mnt @ (rot[1 + e] @ rov)
+            d0, d1, d2 = dd[0], dd[1], dd[2]
+        else:  # scalar form: this runs for every observation of the per-image models
+            d0 = rot[1 + e, 0, 0] * v[0] + rot[1 + e, 0, 1] * v[1] + rot[1 + e, 0, 2] * v[2]
+            d1 = rot[1 + e, 1, 0] * v[0] + rot[1 + e, 1, 1] * v[1] + rot[1 + e, 1, 2] * v[2]
+            d2 = rot[1 + e, 2, 0] * v[0] + rot[1 + e, 2, 1] * v[1] + rot[1 + e, 2, 2] * v[2]
+        gxd = gx0 * d0 + gx2 * d2
+        gyd = gy1 * d1 + gy2 * d2
+        tp = 1.0
+        for k in range(4):
+            gxs[(3 + e) * 4 + k] = gxd * tp
+            gys[(3 + e) * 4 + k] = gyd * tp
+            tp *= ta
+    if oa:
+        # state (S0, u) or pass x0: through S(t) and the orbital frame R_orbit(S, V)
+        dds = _state_directions(kind, kc, da_dr, tau, s, sdot, a_att, mm, v)
+        for q in range(6):
+            idx = (q % 3) * 4 + (0 if q < 3 else 1)
+            gxs[idx] = gx0 * dds[q, 0] + gx2 * dds[q, 2]
+            gys[idx] = gy1 * dds[q, 1] + gy2 * dds[q, 2]
+        return gxs, gys
+    # position: dd/dS_lgs = -M
+    wx = np.empty(3)
+    wy = np.empty(3)
+    for j in range(3):
+        wx[j] = -(gx0 * mm[0, j] + gx2 * mm[2, j])
+        wy[j] = -(gy1 * mm[1, j] + gy2 * mm[2, j])
+    if kind == KIND_POLYNOMIAL:
+        tp = 1.0
+        for k in range(4):
+            for e in range(3):
+                gxs[e * 4 + k] = wx[e] * tp
+                gys[e * 4 + k] = wy[e] * tp
+            tp *= tau
+        return gxs, gys
+    # Kepler: S_lgs = R (S0 + u tau + a h - O); dS_ecef/dS0 = I + h da/dr, dS_ecef/du = tau I + h da/du
+    h = 0.5 * tau * tau
+    om2 = 2.0 * kc[13] * h
+    ex = np.empty(3)  # row vectors wx^T R and wy^T R (ECEF)
+    ey = np.empty(3)
+    for j in range(3):
+        ex[j] = wx[0] * kc[j] + wx[1] * kc[3 + j] + wx[2] * kc[6 + j]
+        ey[j] = wy[0] * kc[j] + wy[1] * kc[3 + j] + wy[2] * kc[6 + j]
+    for j in range(3):
+        gxj = ex[j]
+        gyj = ey[j]
+        for i in range(3):
+            gxj += ex[i] * h * da_dr[i, j]
+            gyj += ey[i] * h * da_dr[i, j]
+        gxs[j * 4] = gxj
+        gys[j * 4] = gyj
+    # d/du: tau I + h * [[0, 2W, 0], [-2W, 0, 0], [0, 0, 0]]
+    gxs[1] = ex[0] * tau - ex[1] * om2
+    gys[1] = ey[0] * tau - ey[1] * om2
+    gxs[5] = ex[1] * tau + ex[0] * om2
+    gys[5] = ey[1] * tau + ey[0] * om2
+    gxs[9] = ex[2] * tau
+    gys[9] = ey[2] * tau
+    return gxs, gys
+
+
+@njit(**_JIT)
+def _kepler_terms_for(kind, coef, kc):
+    """The Kepler acceleration terms a projection of this kind needs (zeros where none)."""
+    if kind == KIND_KEPLER or kind == KIND_ORBIT_ATTITUDE:
+        return _kepler_terms(coef, kc)
+    return np.zeros(3), np.zeros((3, 3))
+
+
+@njit(**_JIT)
+def object_to_camera(kind, coef, kc, tau: float):
+    """The rotation M (object LGS -> camera) at scaled time tau, for every kind."""
+    if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
+        rot = np.empty((4, 3, 3))
+        acc = _kepler_terms(coef, kc)[0] if kind == KIND_ORBIT_ATTITUDE else np.zeros(3)
+        return _oa_pose(kind, coef, kc, acc, tau, rot)[2]
+    ang = platform_state(kind, coef, kc, tau)[3]
+    return rotation_and_derivatives(ang[0], ang[1], ang[2])[0]
+
+
+@njit(**_JIT)
+def assemble(base, free_idx, p):
+    """Full coefficient vector: ``base`` with the free entries replaced by ``p``."""
+    coef = base.copy()
+    for j in range(free_idx.shape[0]):
+        coef[free_idx[j]] = p[j]
+    return coef

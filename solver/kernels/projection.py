@@ -1,0 +1,316 @@
+"""Projection (numba): ground point -> (line, column) of a pushbroom image by Newton's method on
+the line, with or without interior orientation, its inverse (the ray of a pixel) and the
+intersection of rays. :func:`project_observation` is the one entry point the observation blocks
+call; it dispatches the camera-less RPC kind to :mod:`solver.kernels.rpc`."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+from solver.kernels.layout import JIT as _JIT
+from solver.kernels.layout import KIND_RPC, N_COEF, N_IOP
+from solver.kernels.platform import _camera_state, _coef_gradients, _kepler_terms_for, object_to_camera, platform_state
+from solver.kernels.rpc import rpc_project, rpc_ray
+
+
+@njit(**_JIT)
+def _line_newton_step(d, ddt, f: float, xo: float, tpl: float) -> float:
+    """Newton step (lines) on the along-track condition ``-f d_x/d_z = xo``; NaN if singular."""
+    g = -f * d[0] / d[2] - xo
+    dg_dl = -f * (ddt[0] * d[2] - d[0] * ddt[2]) / (d[2] * d[2]) * tpl
+    if dg_dl == 0.0 or not np.isfinite(dg_dl):
+        return np.nan
+    return g / dg_dl
+
+
+@njit(**_JIT)
+def project(kind, coef, kc, p, oc, want_jac: bool):
+    """Exact pushbroom projection of ground point ``p`` (LGS, m) with its observation constants.
+
+    Solves ``-f d_x(tau(L))/d_z = xo`` for the line L by Newton's method starting at the
+    observed line, then evaluates the column. Returns (ok, line, column, dL_dcoef[24],
+    dL_dp[3], dC_dcoef[24], dC_dp[3]); derivatives by the implicit function theorem (for
+    KIND_PASS the pass-state derivatives are in the coefficient slots PASS_COEF_INDEX).
+    """
+    if kind == KIND_RPC:
+        return rpc_project(coef, kc, p, oc, want_jac)
+    f = oc[3]
+    px = oc[4]
+    xo = oc[5]
+    yo = oc[6]
+    cc = oc[7]
+    tpl = oc[8]
+    line = oc[0]
+    ok = False
+    acc, da_dr = _kepler_terms_for(kind, coef, kc)
+    rot = np.empty((4, 3, 3))
+    fac = np.empty((4, 3, 3))  # M, then the orbit-attitude factors A, Ry(mount), R_orbit
+    mm, a_att, mnt, ro = fac[0], fac[1], fac[2], fac[3]
+    s = np.empty(3)
+    sdot = np.empty(3)
+    ang = np.empty(3)
+    angdot = np.empty(3)
+    d = np.empty(3)
+    ddt = np.empty(3)
+    v = np.empty(3)
+    for it in range(31):
+        tau = line * tpl
+        _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, ang, angdot, v, d, ddt, mm, a_att, mnt, ro)
+        if it == 30 or ok:
+            break
+        step = _line_newton_step(d, ddt, f, xo, tpl)
+        if not np.isfinite(step):
+            break
+        line -= step
+        if abs(step) < 1e-8:
+            ok = True
+    iz = 1.0 / d[2]
+    y = -f * d[1] * iz
+    col = cc + (y - yo) / px
+    dl_dc = np.zeros(N_COEF)
+    dl_dp = np.zeros(3)
+    dc_dc = np.zeros(N_COEF)
+    dc_dp = np.zeros(3)
+    if not want_jac:
+        return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
+    tau = line * tpl
+    # gradients of x and y (mm) wrt d
+    gx0, gx2 = -f * iz, f * d[0] * iz * iz
+    gy1, gy2 = -f * iz, f * d[1] * iz * iz
+    dx_dl = (gx0 * ddt[0] + gx2 * ddt[2]) * tpl
+    dy_dl = (gy1 * ddt[1] + gy2 * ddt[2]) * tpl
+    # wrt P: dd/dP = M
+    for j in range(3):
+        dxp = gx0 * mm[0, j] + gx2 * mm[2, j]
+        dyp = gy1 * mm[1, j] + gy2 * mm[2, j]
+        dl_dp[j] = -dxp / dx_dl
+        dc_dp[j] = (dyp + dy_dl * dl_dp[j]) / px
+    gxs, gys = _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, gx0, gx2, gy1, gy2)
+    for idx in range(N_COEF):
+        dl_dc[idx] = -gxs[idx] / dx_dl
+        dc_dc[idx] = (gys[idx] + dy_dl * dl_dc[idx]) / px
+    return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
+
+
+@njit(**_JIT)
+def camera_model(oc, iop, chip: int, chip_len: float, col: float, want: bool):
+    """Ideal focal-plane coordinates (x_i, y_i) of column ``col`` on chip ``chip`` (mm) and the
+    effective focal length; with derivatives wrt the column and the IOP vector.
+
+    Returns (xi, yi, F, dxi_dc, dyi_dc, dxi_diop[N_IOP], dyi_diop[N_IOP]).
+    """
+    px = oc[4]
+    xo = oc[5]
+    yo = oc[6]
+    ys = (col - oc[7]) * px
+    b = 6 + 5 * chip
+    a0, b0, a1, b1, de = iop[b], iop[b + 1], iop[b + 2], iop[b + 3], iop[b + 4]
+    x0, y0, df, k1, k2, sy = iop[0], iop[1], iop[2], iop[3], iop[4], iop[5]
+    xb = xo + a0 + b1 * ys + de * ys * ys / (2.0 * chip_len) - x0
+    yb = ys + yo + b0 + (a1 + sy) * ys - y0
+    r2 = xb * xb + yb * yb
+    dfac = 1.0 - k1 * r2 - k2 * r2 * r2
+    xi = xb * dfac
+    yi = yb * dfac
+    dxi_diop = np.zeros(N_IOP)
+    dyi_diop = np.zeros(N_IOP)
+    # d dfac / d xb, d yb
+    dd_dr2 = -k1 - 2.0 * k2 * r2
+    dxi_dxb = dfac + xb * dd_dr2 * 2.0 * xb
+    dxi_dyb = xb * dd_dr2 * 2.0 * yb
+    dyi_dxb = yb * dd_dr2 * 2.0 * xb
+    dyi_dyb = dfac + yb * dd_dr2 * 2.0 * yb
+    dxb_dc = (b1 + de * ys / chip_len) * px
+    dyb_dc = (1.0 + a1 + sy) * px
+    dxi_dc = dxi_dxb * dxb_dc + dxi_dyb * dyb_dc
+    dyi_dc = dyi_dxb * dxb_dc + dyi_dyb * dyb_dc
+    if want:
+        # xb depends on x0, a0, b1, delta; yb on y0, b0, a1, sy
+        for idx, gx, gy in (
+            (0, -1.0, 0.0),
+            (b, 1.0, 0.0),
+            (b + 3, ys, 0.0),
+            (b + 4, ys * ys / (2.0 * chip_len), 0.0),
+            (1, 0.0, -1.0),
+            (b + 1, 0.0, 1.0),
+            (b + 2, 0.0, ys),
+            (5, 0.0, ys),
+        ):
+            dxi_diop[idx] += dxi_dxb * gx + dxi_dyb * gy
+            dyi_diop[idx] += dyi_dxb * gx + dyi_dyb * gy
+        dxi_diop[3] = -xb * r2
+        dyi_diop[3] = -yb * r2
+        dxi_diop[4] = -xb * r2 * r2
+        dyi_diop[4] = -yb * r2 * r2
+    return xi, yi, oc[3] + df, dxi_dc, dyi_dc, dxi_diop, dyi_diop
+
+
+@njit(**_JIT)
+def project_cam(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac: bool):
+    """Exact projection with interior orientation: solve both collinearity conditions
+    ``x_i(C) = -F d_x/d_z``, ``y_i(C) = -F d_y/d_z`` for (L, C) by 2D Newton from the observed
+    values. Returns (ok, L, C, dL_dcoef[24], dL_dp[3], dC_dcoef[24], dC_dp[3], dL_diop, dC_diop).
+    """
+    tpl = oc[8]
+    line = oc[0]
+    col = oc[1]
+    ok = False
+    rot = np.empty((4, 3, 3))
+    s = np.empty(3)
+    sdot = np.empty(3)
+    ang = np.empty(3)
+    angdot = np.empty(3)
+    d = np.empty(3)
+    ddt = np.empty(3)
+    v = np.empty(3)
+    acc, da_dr = _kepler_terms_for(kind, coef, kc)
+    fac = np.empty((4, 3, 3))  # M, then the orbit-attitude factors A, Ry(mount), R_orbit
+    mm, a_att, mnt, ro = fac[0], fac[1], fac[2], fac[3]
+    xi = yi = big_f = dxi_dc = dyi_dc = 0.0
+    dxi_diop = np.zeros(N_IOP)
+    dyi_diop = np.zeros(N_IOP)
+    j11 = j12 = j21 = j22 = 0.0
+    for it in range(31):
+        tau = line * tpl
+        _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, ang, angdot, v, d, ddt, mm, a_att, mnt, ro)
+        xi, yi, big_f, dxi_dc, dyi_dc, dxi_diop, dyi_diop = camera_model(oc, iop, chip, chip_len, col, it == 30 or ok)
+        if it == 30 or ok:
+            break
+        g1 = xi + big_f * d[0] / d[2]
+        g2 = yi + big_f * d[1] / d[2]
+        j11 = big_f * (ddt[0] * d[2] - d[0] * ddt[2]) / (d[2] * d[2]) * tpl
+        j21 = big_f * (ddt[1] * d[2] - d[1] * ddt[2]) / (d[2] * d[2]) * tpl
+        j12 = dxi_dc
+        j22 = dyi_dc
+        det = j11 * j22 - j12 * j21
+        if det == 0.0 or not np.isfinite(det):
+            break
+        dl = (j22 * g1 - j12 * g2) / det
+        dc = (-j21 * g1 + j11 * g2) / det
+        line -= dl
+        col -= dc
+        if abs(dl) < 1e-8 and abs(dc) < 1e-8:
+            ok = True
+    dl_dc = np.zeros(N_COEF)
+    dl_dp = np.zeros(3)
+    dc_dc = np.zeros(N_COEF)
+    dc_dp = np.zeros(3)
+    dl_di = np.zeros(N_IOP)
+    dc_di = np.zeros(N_IOP)
+    if not want_jac:
+        return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di
+    tau = line * tpl
+    iz = 1.0 / d[2]
+    # g = (x_i + F d_x/d_z, y_i + F d_y/d_z); its derivatives wrt d
+    hx0, hx2 = big_f * iz, -big_f * d[0] * iz * iz
+    hy1, hy2 = big_f * iz, -big_f * d[1] * iz * iz
+    j11 = (hx0 * ddt[0] + hx2 * ddt[2]) * tpl
+    j21 = (hy1 * ddt[1] + hy2 * ddt[2]) * tpl
+    j12 = dxi_dc
+    j22 = dyi_dc
+    det = j11 * j22 - j12 * j21
+    # inverse of [[j11, j12], [j21, j22]]
+    i11, i12, i21, i22 = j22 / det, -j12 / det, -j21 / det, j11 / det
+
+    def _solve(gx, gy):
+        return -(i11 * gx + i12 * gy), -(i21 * gx + i22 * gy)
+
+    for j in range(3):
+        gx = hx0 * mm[0, j] + hx2 * mm[2, j]
+        gy = hy1 * mm[1, j] + hy2 * mm[2, j]
+        dl_dp[j], dc_dp[j] = _solve(gx, gy)
+    gxs, gys = _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, hx0, hx2, hy1, hy2)
+    for idx in range(N_COEF):
+        dl_dc[idx], dc_dc[idx] = _solve(gxs[idx], gys[idx])
+    # interior orientation: dg/diop = (dx_i/diop, dy_i/diop) + (d_x/d_z, d_y/d_z) for df
+    for q in range(N_IOP):
+        gx = dxi_diop[q]
+        gy = dyi_diop[q]
+        if q == 2:
+            gx += d[0] * iz
+            gy += d[1] * iz
+        if gx != 0.0 or gy != 0.0:
+            dl_di[q], dc_di[q] = _solve(gx, gy)
+    return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di
+
+
+@njit(**_JIT)
+def ideal_direction(oc, iop, chip: int, chip_len: float):
+    """Camera-frame direction (x_i, y_i, -F) of the observed pixel (unnormalised)."""
+    xi, yi, big_f, _a, _b, _c, _d = camera_model(oc, iop, chip, chip_len, oc[1], False)
+    out = np.empty(3)
+    out[0] = xi
+    out[1] = yi
+    out[2] = -big_f
+    return out
+
+
+@njit(**_JIT)
+def ray(kind, coef, kc, oc):
+    """Perspective centre S (LGS) and unit viewing direction (LGS) of an observation's pixel."""
+    if kind == KIND_RPC:
+        return rpc_ray(coef, kc, oc)
+    tau = oc[0] * oc[8]
+    s, ds_dc, ds_dt, ang, da_dc, da_dt = platform_state(kind, coef, kc, tau)
+    m = object_to_camera(kind, coef, kc, tau)
+    f = oc[3]
+    y = (oc[1] - oc[7]) * oc[4] + oc[6]
+    cam = np.array([oc[5], y, -f])
+    dvec = m.T @ cam
+    dvec /= np.sqrt(dvec @ dvec)
+    return s, dvec
+
+
+@njit(**_JIT)
+def ray_cam(kind, coef, kc, oc, iop, chip: int, chip_len: float):
+    """Perspective centre S and unit viewing direction (LGS) of an observed pixel, with IOP."""
+    tau = oc[0] * oc[8]
+    s, ds_dc, ds_dt, ang, da_dc, da_dt = platform_state(kind, coef, kc, tau)
+    m = object_to_camera(kind, coef, kc, tau)
+    dvec = m.T @ ideal_direction(oc, iop, chip, chip_len)
+    dvec /= np.sqrt(dvec @ dvec)
+    return s, dvec
+
+
+@njit(**_JIT)
+def intersect_all(kinds, coefs, kcs, obs_img, ocs, order, bounds, which):
+    """Least-squares intersection of the rays of each selected point (midpoint in 3D).
+
+    ``order``/``bounds`` group the observations by point (observations of point q are
+    order[bounds[q]:bounds[q+1]]); ``which`` lists the points to compute. Returns (len(which), 3);
+    NaN where fewer than two independent rays exist.
+    """
+    out = np.full((which.shape[0], 3), np.nan)
+    for w in range(which.shape[0]):
+        q = which[w]
+        a = np.zeros((3, 3))
+        b = np.zeros(3)
+        n = 0
+        for t in range(bounds[q], bounds[q + 1]):
+            k = order[t]
+            im = obs_img[k]
+            s, d = ray(kinds[im], coefs[im], kcs[im], ocs[k])
+            for i in range(3):
+                for j in range(3):
+                    qij = (1.0 if i == j else 0.0) - d[i] * d[j]
+                    a[i, j] += qij
+                    b[i] += qij * s[j]
+            n += 1
+        if n >= 2 and abs(np.linalg.det(a)) > 1e-18:
+            out[w] = np.linalg.solve(a, b)
+    return out
+
+
+@njit(**_JIT)
+def project_observation(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac: bool):
+    """The projection entry point of the observation blocks: with interior orientation when
+    ``iop`` (the camera's full IOP vector) is given, without when it is empty or the kind has no
+    camera (RPC). Returns (ok, L, C, dL_dcoef[24], dL_dp[3], dC_dcoef[24], dC_dp[3], dL_diop,
+    dC_diop); the IOP derivatives are empty without interior orientation."""
+    if iop.shape[0] > 0 and kind != KIND_RPC:
+        return project_cam(kind, coef, kc, p, oc, iop, chip, chip_len, want_jac)
+    ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp = project(kind, coef, kc, p, oc, want_jac)
+    empty = np.empty(0)
+    return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp, empty, empty

@@ -1,0 +1,166 @@
+"""Rotations and frames (numba): M = Rx(omega) Ry(phi) Rz(kappa) and its angle derivatives, the
+camera mounting Ry(pitch), and the orbital frame (along track, cross track, radial) of a state
+with its derivatives. Conventions: :mod:`solver.kernels` and docs/models.md."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+from solver.kernels.layout import JIT as _JIT
+
+
+@njit(**_JIT)
+def rotation_and_derivatives(om: float, ph: float, ka: float):
+    """Return M, dM/domega, dM/dphi, dM/dkappa for M = Rx(om) Ry(ph) Rz(ka) (each 3x3)."""
+    out = np.empty((4, 3, 3))
+    _rotation_into(om, ph, ka, out)
+    return out[0], out[1], out[2], out[3]
+
+
+@njit(**_JIT)
+def _rotation_into(om: float, ph: float, ka: float, out):
+    """Fill out[0] = M, out[1..3] = dM/d(omega, phi, kappa) for M = Rx(om) Ry(ph) Rz(ka)."""
+    co, so = np.cos(om), np.sin(om)
+    cp, sp = np.cos(ph), np.sin(ph)
+    ck, sk = np.cos(ka), np.sin(ka)
+    # M = Rx Ry Rz written out; rows: see docs/models.md
+    out[0, 0, 0] = cp * ck
+    out[0, 0, 1] = -cp * sk
+    out[0, 0, 2] = sp
+    out[0, 1, 0] = co * sk + so * sp * ck
+    out[0, 1, 1] = co * ck - so * sp * sk
+    out[0, 1, 2] = -so * cp
+    out[0, 2, 0] = so * sk - co * sp * ck
+    out[0, 2, 1] = so * ck + co * sp * sk
+    out[0, 2, 2] = co * cp
+    # d/d omega: row 0 constant, rows 1, 2 rotate
+    out[1, 0, 0] = 0.0
+    out[1, 0, 1] = 0.0
+    out[1, 0, 2] = 0.0
+    out[1, 1, 0] = -so * sk + co * sp * ck
+    out[1, 1, 1] = -so * ck - co * sp * sk
+    out[1, 1, 2] = -co * cp
+    out[1, 2, 0] = co * sk + so * sp * ck
+    out[1, 2, 1] = co * ck - so * sp * sk
+    out[1, 2, 2] = -so * cp
+    # d/d phi
+    out[2, 0, 0] = -sp * ck
+    out[2, 0, 1] = sp * sk
+    out[2, 0, 2] = cp
+    out[2, 1, 0] = so * cp * ck
+    out[2, 1, 1] = -so * cp * sk
+    out[2, 1, 2] = so * sp
+    out[2, 2, 0] = -co * cp * ck
+    out[2, 2, 1] = co * cp * sk
+    out[2, 2, 2] = -co * sp
+    # d/d kappa
+    out[3, 0, 0] = -cp * sk
+    out[3, 0, 1] = -cp * ck
+    out[3, 0, 2] = 0.0
+    out[3, 1, 0] = co * ck - so * sp * sk
+    out[3, 1, 1] = -co * sk - so * sp * ck
+    out[3, 1, 2] = 0.0
+    out[3, 2, 0] = so * ck + co * sp * sk
+    out[3, 2, 1] = -so * sk + co * sp * ck
+    out[3, 2, 2] = 0.0
+
+
+@njit(**_JIT)
+def _mount(angle: float):
+    c, s = np.cos(angle), np.sin(angle)
+    m = np.zeros((3, 3))
+    m[0, 0] = c
+    m[0, 2] = s
+    m[1, 1] = 1.0
+    m[2, 0] = -s
+    m[2, 2] = c
+    return m
+
+
+@njit(**_JIT)
+def _orbital_frame(s, v, c):
+    """Orbital frame from the LGS position ``s`` and Earth-fixed velocity ``v`` (LGS axes);
+    ``c`` = R_ecef->lgs @ origin, so ``s + c`` is the geocentric position in LGS axes.
+
+    Rows: x along track (velocity without its radial part: follows the ground track, i.e. yaw
+    steering), y = z x x, z radial (away from the Earth). Returns (R, dR/ds, dR/dv) with
+    dR[row, col, var].
+    """
+    g = s + c
+    gn = np.sqrt(g @ g)
+    z = g / gn
+    dz = (np.eye(3) - np.outer(z, z)) / gn  # dz/ds
+    vz = v @ z
+    h = v - vz * z
+    hn = np.sqrt(h @ h)
+    x = h / hn
+    px = (np.eye(3) - np.outer(x, x)) / hn
+    # dh/ds = -(z v^T + vz I) dz/ds ; dh/dv = I - z z^T
+    dh_ds = -(np.outer(z, v) + vz * np.eye(3)) @ dz
+    dh_dv = np.eye(3) - np.outer(z, z)
+    dx_ds = px @ dh_ds
+    dx_dv = px @ dh_dv
+    y = np.cross(z, x)
+    r = np.empty((3, 3))
+    r[0] = x
+    r[1] = y
+    r[2] = z
+    d_s = np.zeros((3, 3, 3))
+    d_v = np.zeros((3, 3, 3))
+    for k in range(3):
+        dzk = dz[:, k]
+        dxk = dx_ds[:, k]
+        dyk = np.cross(dzk, x) + np.cross(z, dxk)
+        dxv = dx_dv[:, k]
+        dyv = np.cross(z, dxv)
+        for col in range(3):
+            d_s[0, col, k] = dxk[col]
+            d_s[1, col, k] = dyk[col]
+            d_s[2, col, k] = dzk[col]
+            d_v[0, col, k] = dxv[col]
+            d_v[1, col, k] = dyv[col]
+    return r, d_s, d_v
+
+
+@njit(**_JIT)
+def _orbital_frame_rate(s, v, c, sdot, vdot):
+    """Orbital frame (as :func:`_orbital_frame`) and its time derivative along the trajectory
+    (position rate ``sdot``, velocity rate ``vdot``), without the state derivatives: the cheap
+    form for the Newton iterations on the line."""
+    g0, g1, g2 = s[0] + c[0], s[1] + c[1], s[2] + c[2]
+    gn = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+    z = np.array([g0 / gn, g1 / gn, g2 / gn])
+    zs = z[0] * sdot[0] + z[1] * sdot[1] + z[2] * sdot[2]
+    dz = (sdot - zs * z) / gn
+    vz = v[0] * z[0] + v[1] * z[1] + v[2] * z[2]
+    h = v - vz * z
+    hn = np.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
+    x = h / hn
+    dvz = vdot[0] * z[0] + vdot[1] * z[1] + vdot[2] * z[2] + v[0] * dz[0] + v[1] * dz[1] + v[2] * dz[2]
+    dh = vdot - dvz * z - vz * dz
+    xd = x[0] * dh[0] + x[1] * dh[1] + x[2] * dh[2]
+    dx = (dh - xd * x) / hn
+    r = np.empty((3, 3))
+    dr = np.empty((3, 3))
+    for i in range(3):
+        r[0, i] = x[i]
+        r[2, i] = z[i]
+        dr[0, i] = dx[i]
+        dr[2, i] = dz[i]
+    # y = z x x
+    r[1, 0] = z[1] * x[2] - z[2] * x[1]
+    r[1, 1] = z[2] * x[0] - z[0] * x[2]
+    r[1, 2] = z[0] * x[1] - z[1] * x[0]
+    dr[1, 0] = dz[1] * x[2] - dz[2] * x[1] + z[1] * dx[2] - z[2] * dx[1]
+    dr[1, 1] = dz[2] * x[0] - dz[0] * x[2] + z[2] * dx[0] - z[0] * dx[2]
+    dr[1, 2] = dz[0] * x[1] - dz[1] * x[0] + z[0] * dx[1] - z[1] * dx[0]
+    return r, dr
+
+
+@njit(**_JIT)
+def ro_offset(kc):
+    """R_ecef->lgs @ LGS origin: added to an LGS position it gives the geocentric position in
+    LGS axes (the orbital frame's radial direction)."""
+    return kc[0:9].reshape(3, 3) @ kc[9:12]
