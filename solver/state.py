@@ -74,7 +74,7 @@ class Observations:
     oc: np.ndarray  # (n, 9) observation constants (see solver.kernels)
     chip: list[str]
     source_index: np.ndarray  # (n,) index in job.observations
-    cam: np.ndarray | None = None  # (n,) camera index (solver.observations.interior.CameraState order)
+    cam: np.ndarray | None = None  # (n,) camera index (solver.observations.cameras.CameraState order)
     chip_idx: np.ndarray | None = None  # (n,) chip position in the camera's chip list
 
 
@@ -89,7 +89,7 @@ class AdjustmentState:
     points: list[PointState]
     obs: Observations
     lines: Any = None  # solver.observations.lines.LineSet: straight-line observations (None without lines)
-    cameras: list = field(default_factory=list)  # solver.observations.interior.CameraState per job camera
+    cameras: list = field(default_factory=list)  # solver.observations.cameras.CameraState per job camera
     passes: list = field(default_factory=list)  # solver.observations.passes.PassState per pass
 
     @property

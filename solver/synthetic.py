@@ -286,7 +286,7 @@ def _project_true(img: SyntheticImage, cam: dict, p: np.ndarray, line_guess: flo
     """Projection with the true interior orientation (chips and IOP) of ``cam``."""
     from solver.geometry.sensor import camera_chip
     from solver.kernels import N_IOP, project_cam
-    from solver.observations.interior import iop_names
+    from solver.observations.cameras import iop_names
     from solver.schema.job import Camera
 
     if not iop and not cam.get("chips"):
@@ -309,6 +309,102 @@ def _project_true(img: SyntheticImage, cam: dict, p: np.ndarray, line_guess: flo
             return float(line_new), float(col_new)
         line, col = line_new, col_new
     return float(line_new), float(col_new)
+
+
+def _block_cameras(lines: int, columns: int, chips: int, line_time_s: float) -> dict[str, dict[str, Any]]:
+    """The three PRISM views of :func:`block_job` (job ``cameras`` entries without ids), each
+    focal plane split into ``chips`` equal contiguous chips ("1".."n") when ``chips > 1``."""
+    cams = {
+        name: {"focal_mm": PRISM_FOCAL_MM[name], "pixel_mm": 0.0071, "line_time_s": line_time_s, "lines": lines, "columns": columns}
+        for name in PRISM_FOCAL_MM
+    }
+    if chips > 1:
+        w = columns // chips
+        for cam in cams.values():
+            cam["chips"] = [
+                {"id": str(k + 1), "first_column": k * w, "columns": w if k < chips - 1 else columns - k * w, "dx_mm": 0.0,
+                 "dy_mm": (k * w + ((w if k < chips - 1 else columns - k * w) - 1) / 2.0 - (columns - 1) / 2.0) * 0.0071}
+                for k in range(chips)
+            ]
+    return cams
+
+
+def _triplet_states(rng: np.random.Generator, frame: LocalFrame, n_triplets: int, spacing_m: float, t_mid: float) -> list[tuple]:
+    """(image id, view, r0, v0, local frame, attitude angles in it) of every image: each triplet
+    has its own scene centre ``spacing_m`` further along the track, with its own local vertical."""
+    h = math.radians(190.0)
+    kappa0 = math.atan2(-math.cos(h), math.sin(h))
+    states = []
+    vdir0 = np.array([math.sin(h), math.cos(h), 0.0])
+    for t in range(n_triplets):
+        c_ecef = frame.to_ecef(vdir0 * (-t * spacing_m))
+        lon, lat, _ = ecef_to_geodetic(c_ecef[None, :])[0]
+        local = LocalFrame.at(geodetic_to_ecef(np.array([[lon, lat, 450.0]]))[0])
+        for name in ("backward", "nadir", "forward"):
+            pitch = PRISM_PITCH_DEG[name]
+            r0, v0 = _state_for_pass(local, t_mid, pitch, 692e3, 190.0)
+            angles_local = (math.radians(0.01 * rng.normal()), math.radians(pitch + 0.01 * rng.normal()), kappa0 + math.radians(0.1 * rng.normal()))
+            states.append((f"T{t:02d}-{name}", name, r0, v0, local, angles_local))
+    return states
+
+
+def _global_angles(local: LocalFrame, angles_local, glob: LocalFrame):
+    """Attitude angles in frame ``glob`` of a rotation given by ``angles_local`` in ``local``."""
+    from solver.engine.initialize import angles_from_matrix
+    from solver.kernels import rotation_and_derivatives
+
+    m_local = rotation_and_derivatives(*angles_local)[0]
+    r = local.rotation_ecef_to_lgs @ glob.rotation_ecef_to_lgs.T  # global LGS -> local LGS
+    return angles_from_matrix(m_local @ r)
+
+
+def _block_scene(model: str, frame: LocalFrame, states: list[tuple], cams: dict, pix: list, gcp: np.ndarray, line_time_s: float):
+    """The true images and ground points of the block, with the LGS moved to the centroid of the
+    control points (repeated until it stops moving: the images' coefficients depend on the
+    frame): (frame, images, model options per image, points (n, 3) LGS)."""
+    m = get_model(model)
+    rates = (math.radians(30 / 3600), math.radians(0.05 / 3600))
+    for _ in range(12):
+        imgs = []
+        mopts_all = []
+        for iid, cname, r0, v0, local, angles_local in states:
+            angles = _global_angles(local, angles_local, frame)
+            mopts = {}
+            for e in ANGLES:
+                if m.effective_orders({})[ELEMENTS.index(e)] == HELD:
+                    mopts[f"{e}_deg"] = math.degrees(angles[ANGLES.index(e)])
+            mopts_all.append(mopts)
+            coef = true_coefficients(model, frame, r0, v0, line_time_s, angles, rates, mopts, math.radians(PRISM_PITCH_DEG[cname]))
+            imgs.append(SyntheticImage(iid, model, PRISM_PITCH_DEG[cname], coef, kepler_constants(m, frame, PRISM_PITCH_DEG[cname]), m.tau_per_line(line_time_s), r0, v0))
+        pts = []
+        for t in range(len(pix)):
+            nadir = imgs[3 * t + 1]
+            for (l, c) in pix[t]:
+                pts.append(ground_point_of_pixel(nadir, cams["nadir"], l, c))
+        pts_lgs = np.array(pts)
+        ecef_pts = frame.to_ecef(pts_lgs)
+        new_origin = ecef_pts[gcp].mean(axis=0) if gcp.any() else ecef_pts.mean(axis=0)
+        if np.linalg.norm(new_origin - frame.origin_ecef_m) < 1e-7:
+            break
+        frame = LocalFrame.at(new_origin)
+    return frame, imgs, mopts_all, pts_lgs
+
+
+def _approx_state(nrng: np.random.Generator, r0, v0, approx_error_m: float, state_sigma: tuple[float, float] | None) -> dict[str, Any]:
+    """An image's header state: the true one with noise (as declared when ``state_sigma``)."""
+    if state_sigma is not None:  # the header state is an observation: noise as declared
+        r_err = nrng.normal(0, state_sigma[0], 3)
+        v_err = nrng.normal(0, state_sigma[1], 3)
+    else:
+        r_err = nrng.normal(0, approx_error_m / math.sqrt(3), 3)
+        v_err = nrng.normal(0, 0.05, 3)
+    approx: dict[str, Any] = {
+        "position_ecef_m": [float(x) for x in r0 + r_err],
+        "velocity_ecef_m_s": [float(x) for x in v0 + v_err],
+    }
+    if state_sigma is not None:
+        approx["sigma_position_m"], approx["sigma_velocity_m_s"] = state_sigma
+    return approx
 
 
 def block_job(
@@ -342,45 +438,9 @@ def block_job(
     nrng = np.random.default_rng(seed + 7919 if noise_seed is None else noise_seed)
     centre = geodetic_to_ecef(np.array([[-51.39, -22.12, 450.0]]))[0]
     frame = LocalFrame.at(centre)
-    m = get_model(model)
     lt = 0.00037
-    cams = {
-        name: {"focal_mm": PRISM_FOCAL_MM[name], "pixel_mm": 0.0071, "line_time_s": lt, "lines": lines, "columns": columns}
-        for name in PRISM_FOCAL_MM
-    }
-    if chips > 1:
-        w = columns // chips
-        for cam in cams.values():
-            cam["chips"] = [
-                {"id": str(k + 1), "first_column": k * w, "columns": w if k < chips - 1 else columns - k * w, "dx_mm": 0.0,
-                 "dy_mm": (k * w + ((w if k < chips - 1 else columns - k * w) - 1) / 2.0 - (columns - 1) / 2.0) * 0.0071}
-                for k in range(chips)
-            ]
-    t_mid = lt * (lines - 1) / 2.0
-    h = math.radians(190.0)
-    kappa0 = math.atan2(-math.cos(h), math.sin(h))
-    rates = (math.radians(30 / 3600), math.radians(0.05 / 3600))
-    # each triplet has its own scene centre along the track, with its own local vertical
-    states = []
-    vdir0 = np.array([math.sin(h), math.cos(h), 0.0])
-    for t in range(n_triplets):
-        c_ecef = frame.to_ecef(vdir0 * (-t * spacing_m))
-        lon, lat, _ = ecef_to_geodetic(c_ecef[None, :])[0]
-        local = LocalFrame.at(geodetic_to_ecef(np.array([[lon, lat, 450.0]]))[0])
-        for name in ("backward", "nadir", "forward"):
-            pitch = PRISM_PITCH_DEG[name]
-            r0, v0 = _state_for_pass(local, t_mid, pitch, 692e3, 190.0)
-            angles_local = (math.radians(0.01 * rng.normal()), math.radians(pitch + 0.01 * rng.normal()), kappa0 + math.radians(0.1 * rng.normal()))
-            states.append((f"T{t:02d}-{name}", name, r0, v0, local, angles_local))
-
-    def global_angles(local: LocalFrame, angles_local, glob: LocalFrame):
-        from solver.engine.initialize import angles_from_matrix
-        from solver.kernels import rotation_and_derivatives
-
-        m_local = rotation_and_derivatives(*angles_local)[0]
-        r = local.rotation_ecef_to_lgs @ glob.rotation_ecef_to_lgs.T  # global LGS -> local LGS
-        return angles_from_matrix(m_local @ r)
-
+    cams = _block_cameras(lines, columns, chips, lt)
+    states = _triplet_states(rng, frame, n_triplets, spacing_m, lt * (lines - 1) / 2.0)
     n_per = n_tie + n_gcp + n_check
     # pixels chosen in each nadir image (central 80% so that the other views see them)
     pix = []
@@ -389,30 +449,8 @@ def block_job(
         cs = rng.uniform(0.05, 0.95, n_per) * (columns - 1)
         pix.append(np.column_stack([ls, cs]))
     roles = (["tie"] * n_tie) + (["gcp"] * n_gcp) + (["check"] * n_check)
-    for _ in range(12):
-        imgs = []
-        mopts_all = []
-        for iid, cname, r0, v0, local, angles_local in states:
-            angles = global_angles(local, angles_local, frame)
-            mopts = {}
-            for e in ANGLES:
-                if m.effective_orders({})[ELEMENTS.index(e)] == HELD:
-                    mopts[f"{e}_deg"] = math.degrees(angles[ANGLES.index(e)])
-            mopts_all.append(mopts)
-            coef = true_coefficients(model, frame, r0, v0, lt, angles, rates, mopts, math.radians(PRISM_PITCH_DEG[cname]))
-            imgs.append(SyntheticImage(iid, model, PRISM_PITCH_DEG[cname], coef, kepler_constants(m, frame, PRISM_PITCH_DEG[cname]), m.tau_per_line(lt), r0, v0))
-        pts = []
-        for t in range(n_triplets):
-            nadir = imgs[3 * t + 1]
-            for (l, c) in pix[t]:
-                pts.append(ground_point_of_pixel(nadir, cams["nadir"], l, c))
-        pts_lgs = np.array(pts)
-        ecef_pts = frame.to_ecef(pts_lgs)
-        gmask = np.array([roles[k % n_per] == "gcp" for k in range(len(pts))])
-        new_origin = ecef_pts[gmask].mean(axis=0) if gmask.any() else ecef_pts.mean(axis=0)
-        if np.linalg.norm(new_origin - frame.origin_ecef_m) < 1e-7:
-            break
-        frame = LocalFrame.at(new_origin)
+    gcp = np.array([roles[k % n_per] == "gcp" for k in range(n_triplets * n_per)])
+    frame, imgs, mopts_all, pts_lgs = _block_scene(model, frame, states, cams, pix, gcp, lt)
     geo = ecef_to_geodetic(frame.to_ecef(pts_lgs))
     points = []
     observations = []
@@ -446,18 +484,7 @@ def block_job(
             )
     images = []
     for img, (iid, cname, r0, v0, _local, _angles), mopts in zip(imgs, states, mopts_all):
-        if state_sigma is not None:  # the header state is an observation: noise as declared
-            r_err = nrng.normal(0, state_sigma[0], 3)
-            v_err = nrng.normal(0, state_sigma[1], 3)
-        else:
-            r_err = nrng.normal(0, approx_error_m / math.sqrt(3), 3)
-            v_err = nrng.normal(0, 0.05, 3)
-        approx: dict[str, Any] = {
-            "position_ecef_m": [float(x) for x in r0 + r_err],
-            "velocity_ecef_m_s": [float(x) for x in v0 + v_err],
-        }
-        if state_sigma is not None:
-            approx["sigma_position_m"], approx["sigma_velocity_m_s"] = state_sigma
+        approx = _approx_state(nrng, r0, v0, approx_error_m, state_sigma)
         images.append({"id": iid, "camera": cname, "model": {"name": model, "options": mopts}, "approx_state": approx})
     job = {
         "schema_version": "1.0",

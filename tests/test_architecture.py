@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import ast
 import importlib
 import re
 import sys
@@ -115,3 +116,81 @@ def test_every_path_and_module_the_page_names_exists() -> None:
         if obj is None:
             missing.append(name)
     assert paths and modules and not missing, missing
+
+
+# ---- observation families: the stages walk the registry, they do not name families -----------
+
+STAGES = ("solver/engine", "solver/quality", "solver/report", "solver/procedures", "solver/adjust.py")
+# What a family module still defines besides its family: the passes' parameter blocks (grouping,
+# trajectory segments, initial states), used by assembly, initialisation, the tables and the
+# report's images. They belong with the pass platform kind; until they move, the stages may
+# import these names, and nothing else, from a family module.
+PASS_BLOCKS = {"build_passes", "parameter_names", "initialise_passes", "refresh_segments", "attitude_groups"}
+ALLOWED = {"solver.observations.passes": PASS_BLOCKS}
+
+
+def family_modules() -> set[str]:
+    from solver.observations import registry
+
+    return {type(f).__module__ for f in registry.FAMILIES}
+
+
+def imported_names(source: str) -> list[tuple[str, set[str]]]:
+    """(module, names taken from it) of every absolute import in ``source``, at any depth
+    (``import a.b`` takes the module as a whole: the name ``*``)."""
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.append((node.module, {a.name for a in node.names}))
+            for a in node.names:  # from solver.observations import lines
+                out.append((f"{node.module}.{a.name}", {"*"}))
+        elif isinstance(node, ast.Import):
+            out += [(a.name, {"*"}) for a in node.names]
+    return out
+
+
+def family_imports(source: str, families: set[str]) -> list[str]:
+    """The imports of ``source`` that name a family module beyond what :data:`ALLOWED` lets through."""
+    bad = []
+    for module, names in imported_names(source):
+        if module in families:
+            extra = names - ALLOWED.get(module, set())
+            if extra:
+                bad.append(f"{module}: {', '.join(sorted(extra))}")
+    return bad
+
+
+def test_no_stage_imports_an_observation_family_by_name() -> None:
+    families = family_modules()
+    assert {"solver.observations.lines", "solver.observations.attitude"} <= families
+    offenders = {}
+    for stage in STAGES:
+        path = ROOT / stage
+        for file in sorted(path.rglob("*.py")) if path.is_dir() else [path]:
+            bad = family_imports(file.read_text(), families)
+            if bad:
+                offenders[str(file.relative_to(ROOT))] = bad
+    assert offenders == {}
+
+
+def test_the_family_import_check_has_teeth() -> None:
+    families = {"solver.observations.lines", "solver.observations.passes"}
+    assert family_imports("from solver.observations.lines import LineTerm\n", families) == ["solver.observations.lines: LineTerm"]
+    assert family_imports("def f():\n    from solver.observations import lines\n", families) == ["solver.observations.lines: *"]
+    assert family_imports("import solver.observations.passes as p\n", families) == ["solver.observations.passes: *"]
+    assert family_imports("from solver.observations.passes import refresh_segments\n", families) == []
+    assert family_imports("from solver.observations import registry\n", families) == []
+
+
+def _documented_families() -> list[tuple[str, str]]:
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    block = re.search(r"<!-- families: begin -->\n(.*?)<!-- families: end -->", text, re.S)
+    assert block, "docs/architecture.md has lost its list of observation families"
+    return re.findall(r"^\d+\. `(\w+)` \(`(solver/observations/\w+\.py)`\)", block.group(1), re.M)
+
+
+def test_documented_families_are_the_registry() -> None:
+    from solver.observations import registry
+
+    want = [(f.name, type(f).__module__.replace(".", "/") + ".py") for f in registry.FAMILIES]
+    assert _documented_families() == want

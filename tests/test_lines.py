@@ -11,7 +11,7 @@ import pytest
 
 from solver.adjust import prepare
 from solver.api import run, validate
-from solver.engine.terms import image_terms
+from solver.engine.terms import family_terms
 from solver.errors import JobError
 from solver.kernels import project
 from solver.observations.lines import (
@@ -230,7 +230,7 @@ def test_line_term_jacobian_matches_finite_differences(line_model, fitted, sigma
     """The whitened terms handed to Ceres and the covariance (all three residual kinds)."""
     problem, _job, _truth = _problem("P1", n_lines=8, line_model=line_model, fitted=fitted, endpoint_sigma_m=sigma, seed=4)
     img = problem.images[0]
-    terms = [t for t in image_terms(problem) if isinstance(t, LineTerm)]
+    terms = [t.term for t in family_terms(problem) if isinstance(t.term, LineTerm)]
     assert len(terms) == 8
     p0 = img.params.copy()
     for term in terms:

@@ -1,88 +1,198 @@
-"""The observation-family registry (issue 14): the engine's stages loop over
-solver.observations.registry.FAMILIES instead of naming families, so a family added there is
-validated, counted and solved without touching the stages."""
+"""The observation-family registry (solver/observations/registry.py): every observation other
+than the core (image points, control points) belongs to a family there, and the stages walk
+``registry.FAMILIES`` instead of naming families.
+
+The done-when of that design: a new family is its module, its schema fields and one registry
+line. ``_Fixes`` below is such a family, written the way a new module would be (weighted direct
+observations of one platform parameter of an image, ``fixes[]`` in the job), with its schema
+fields in a ``Job`` subclass and its registry line put in by ``monkeypatch``; no stage is
+changed, and the fake is validated, counted, solved, tested by data snooping (a blunder among
+its observations is rejected and removed), reported and flagged.
+"""
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
+from pydantic import BaseModel, ConfigDict, Field
 
-import solver.engine.terms as terms
-import solver.engine.validate as validate
-from solver.errors import Problem as JobProblem
-from solver.observations import attitude
-from solver.observations.family import ObservationFamily
-from solver.observations.registry import FAMILIES
-from solver.schema.job import load_job
+from solver.adjust import adjust_job, prepare
+from solver.engine.linalg import linearise
+from solver.engine.validate import validate_job
+from solver.errors import Problem
+from solver.observations import registry
+from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled, ObservationFamily, ReportContext
+from solver.schema.job import Job, load_job
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+HOOKS = ("check", "terms", "refresh", "groups", "report", "without", "removal_details", "flag")
 
 
-def test_registry_lists_measured_attitude_with_the_whole_interface() -> None:
-    assert attitude.FAMILY in FAMILIES
-    names = [f.name for f in FAMILIES]
-    assert len(names) == len(set(names))  # one report section per family
-    for family in FAMILIES:
-        for hook in ("problems", "n_observations", "terms", "refresh", "report"):
+def test_registry_lists_every_family_with_the_whole_interface() -> None:
+    names = [f.name for f in registry.FAMILIES]
+    assert names == ["ephemeris", "attitude", "lines", "passes", "interior"]
+    for family in registry.FAMILIES:
+        for hook in HOOKS:
             assert callable(getattr(family, hook)), (family.name, hook)
-        assert isinstance(family.direct_datum, bool)
 
 
-class _Probe:
-    """A family that asks for nothing but is seen by every stage."""
-
-    name = "probe"
-    direct_datum = False
-
-    def __init__(self, problems: list[JobProblem], n: int) -> None:
-        self._problems, self._n = problems, n
-        self.seen_terms = 0
-
-    def problems(self, job: Any) -> list[JobProblem]:
-        return list(self._problems)
-
-    def n_observations(self, job: Any) -> int:
-        return self._n
-
-    def terms(self, problem: Any) -> list:
-        self.seen_terms += 1
-        return []
-
-    def refresh(self, problem: Any) -> float:
-        return 0.0
-
-    def report(self, problem: Any) -> dict:
-        return {}
+# ---- the fake family: "module", schema fields, registry line ----------------------------------
 
 
-def _job() -> Any:
-    return load_job(json.loads((EXAMPLES / "prism-nadir.json").read_text()))
+class Fix(BaseModel):
+    """A measured value of one parameter of an image's model (report units) with its sigma."""
+
+    model_config = ConfigDict(extra="forbid")
+    image: str
+    parameter: str
+    value: float
+    sigma: float = Field(gt=0)
 
 
-def test_validation_loops_over_the_registry(monkeypatch: pytest.MonkeyPatch) -> None:
-    before = validate.validate_job(_job())
-    probe: ObservationFamily = _Probe([], 5)
-    monkeypatch.setattr(validate, "FAMILIES", (*FAMILIES, probe))
-    counted = validate.validate_job(_job())
-    assert counted["n_observations"] == before["n_observations"] + 5
-    assert counted["dof"] == before["dof"] + 5
-    bad = _Probe([JobProblem("probe_problem", "refused", ("options",))], 5)
-    monkeypatch.setattr(validate, "FAMILIES", (*FAMILIES, bad))
-    refused = validate.validate_job(_job())
-    assert not refused["valid"]
-    assert [p for p in refused["problems"] if p["code"] == "probe_problem"][0]["location"] == ["options"]
-    assert refused["n_observations"] == before["n_observations"]  # a refused family adds nothing
+class FixJob(Job):
+    """The job with the fake family's schema fields."""
+
+    fixes: list[Fix] = Field(default_factory=list)
 
 
-def test_terms_loop_over_the_registry(monkeypatch: pytest.MonkeyPatch) -> None:
-    from solver.engine.assemble import build_problem
+class _FixTerm:
+    """r = (p[col] - value) / sigma (internal units), one row."""
 
-    probe = _Probe([], 0)
-    monkeypatch.setattr(terms, "FAMILIES", (*FAMILIES, probe))
-    problem = build_problem(_job())
-    terms.image_terms(problem)
-    assert probe.seen_terms == 1
-    assert terms.refresh_image_terms(problem) == 0.0
+    n_residuals = 1
+
+    def __init__(self, col: int, nfree: int, value: float, sigma: float) -> None:
+        self.col, self.value, self.sigma = col, value, sigma
+        self.jac = np.zeros((1, nfree))
+        self.jac[0, col] = 1.0 / sigma
+
+    def evaluate(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.array([(params[self.col] - self.value) / self.sigma]), self.jac
+
+
+def _spec(img: Any, name: str) -> tuple[int, Any]:
+    """(free column, parameter spec) of parameter ``name`` of image state ``img``."""
+    spec = next(s for s in img.model.parameters(img.options) if s.name == name)
+    return [int(j) for j in img.free_idx].index(spec.index), spec
+
+
+class _Fixes(FamilyDefaults):
+    name = "fixes"
+
+    def check(self, job: Any) -> tuple[list[Problem], Count]:
+        images = {im.id for im in job.images}
+        issues = [
+            Problem("fix_unknown_image", f"fix {k} refers to unknown image {f.image!r}", ("fixes", k, "image"))
+            for k, f in enumerate(getattr(job, "fixes", []))
+            if f.image not in images
+        ]
+        return issues, Count(n_observations=0 if issues else len(getattr(job, "fixes", [])))
+
+    def terms(self, problem: Any) -> list[Labelled]:
+        out = []
+        for k, f in enumerate(getattr(problem.job, "fixes", [])):
+            img = next(im for im in problem.images if im.id == f.image)
+            col, spec = _spec(img, f.parameter)
+            term = _FixTerm(col, img.nfree, f.value / spec.to_report, f.sigma / abs(spec.to_report))
+            out.append(Labelled(self, term, "image", img.index, k))
+        return out
+
+    def groups(self, problem: Any, labelled: Labelled) -> list[GroupSpec]:
+        f = problem.job.fixes[labelled.tag]
+        label = {"image": f.image, "parameter": f.parameter, "value": f.value}
+        return [GroupSpec("fix", np.arange(1), label, np.array([f.sigma]), "report units", ["value"], -1.0, ("fix", labelled.tag))]
+
+    def report(self, problem: Any, ctx: ReportContext) -> dict[str, Any]:
+        items = []
+        for lab in self.terms(problem):
+            r, _j = lab.term.evaluate(problem.images[lab.index].params)
+            f = problem.job.fixes[lab.tag]
+            items.append({"image": f.image, "parameter": f.parameter, "value": f.value, "residual": float(-r[0] * f.sigma)})
+        return {"fixes": {"items": items, "rejected": []}}
+
+    def without(self, job: Any, removals: list[tuple]) -> tuple[Any, list[dict[str, Any]]]:
+        gone = {r[1] for r in removals if r[0] == "fix"}
+        if not gone:
+            return job, []
+        return job.model_copy(update={"fixes": [f for k, f in enumerate(job.fixes) if k not in gone]}), []
+
+    def flag(self, report: dict[str, Any], removed: list[dict[str, Any]]) -> None:
+        section = report.get("fixes")
+        if section is not None:
+            section["rejected"] = [{"image": r["image"], "value": r["value"]} for r in removed if r["kind"] == "fix"]
+
+
+FAKE: ObservationFamily = _Fixes()
+
+
+@pytest.fixture
+def with_fake(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(registry, "FAMILIES", (*registry.FAMILIES, FAKE))  # the one registry line
+
+
+def _nadir() -> dict[str, Any]:
+    return json.loads((EXAMPLES / "prism-nadir.json").read_text())
+
+
+BLUNDER_SIGMAS = 40.0  # far beyond Baarda's 3.29 at alpha0 = 0.001 even at redundancy 0.3
+
+
+def _fix_job(doc: dict[str, Any], value: float, sigma: float, name: str, image: str) -> FixJob:
+    """Four fixes of ``name``: three within a sigma of ``value``, one ``BLUNDER_SIGMAS`` off."""
+    offsets = [0.3, -0.5, 0.2, BLUNDER_SIGMAS]
+    fixes = [{"image": image, "parameter": name, "value": value + o * sigma, "sigma": sigma} for o in offsets]
+    doc = {**doc, "fixes": fixes, "options": {**(doc.get("options") or {}), "blunder_detection": {"robust_start": "none"}}}
+    return FixJob.model_validate(doc)
+
+
+def test_a_fake_family_is_validated_counted_solved_snooped_and_reported(with_fake: None) -> None:
+    doc = _nadir()
+    plain = adjust_job(load_job(doc))
+    image = plain["images"][0]
+    param = next(p for p in image["parameters"] if p["estimated"] and p["sigma"])
+    name, value, sigma = param["name"], param["value"], param["sigma"]
+    job = _fix_job(doc, value, sigma, name, image["id"])
+
+    # validated and counted: four more observation equations, no more unknowns
+    before, after = validate_job(load_job(doc)), validate_job(job)
+    assert after["valid"] and after["n_observations"] == before["n_observations"] + 4
+    assert after["n_unknowns"] == before["n_unknowns"]
+    bad = validate_job(job.model_copy(update={"fixes": [Fix(image="nowhere", parameter=name, value=value, sigma=sigma)]}))
+    assert not bad["valid"] and [p["location"] for p in bad["problems"] if p["code"] == "fix_unknown_image"] == [["fixes", 0, "image"]]
+
+    # solved: the linearisation carries the family's rows, placed on the image's block
+    problem = prepare(job)
+    lin = linearise(problem)
+    assert sum(1 for t in lin.terms if t.family is FAKE) == 4
+    assert len(lin.residuals) == len(linearise(prepare(load_job(doc))).residuals) + 4
+
+    # snooped: the blunder is the one fix rejected and removed; the others stay
+    report = adjust_job(job)
+    rejected = [r for r in report["quality"]["rejected"] if r["kind"] == "fix"]
+    assert len(rejected) == 1 and rejected[0]["removed"]
+    assert math.isclose(rejected[0]["value"], value + BLUNDER_SIGMAS * sigma, rel_tol=1e-12)
+    assert rejected[0]["w"] > rejected[0]["critical"]
+    # the estimated error: about the blunder (the other fixes and the rays hold the parameter)
+    assert rejected[0]["estimated_error"][0] == pytest.approx(BLUNDER_SIGMAS * sigma, rel=0.3)
+    groups = [g for g in report["quality"]["reliability"]["groups"] if g["kind"] == "fix"]
+    assert len(groups) == 3  # the remaining fixes have their reliability numbers
+    assert all(0.0 < g["redundancy"][0] < 1.0 for g in groups)
+
+    # reported and flagged: its section has the three fixes left, small residuals, the flag
+    section = report["fixes"]
+    offsets = [(f["value"] - value) / sigma for f in section["items"]]
+    assert offsets == pytest.approx([0.3, -0.5, 0.2], abs=1e-6)  # the values as written (rounding of large values)
+    assert all(abs(f["residual"]) < 2 * sigma for f in section["items"])
+    assert section["rejected"] == [{"image": image["id"], "value": value + BLUNDER_SIGMAS * sigma}]
+    assert report["adjustment"]["n_observations"] == plain["adjustment"]["n_observations"] + 3
+
+
+def test_without_the_registry_line_the_fake_is_ignored() -> None:
+    """The same job with the family not registered: its fields are carried, nothing counts them."""
+    doc = _nadir()
+    job = _fix_job(doc, 0.0, 1.0, "X0", doc["images"][0]["id"])
+    assert validate_job(job)["n_observations"] == validate_job(load_job(doc))["n_observations"]

@@ -1,5 +1,5 @@
 """Reinstatement, lost control points and check-point blunders of data snooping
-(solver/adjust.py ``_snooping_adjustment``, solver/quality/removal.py, docs/quality.md), against
+(solver/procedures/snooping.py ``snooping_adjustment``, solver/quality/removal.py, docs/quality.md), against
 independent evidence: the w-test of the same observation inside the adjustment (the linear
 theory says the test of an observation outside the adjustment equals it), injected blunders."""
 

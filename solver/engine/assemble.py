@@ -16,8 +16,8 @@ from solver.geometry.rpc import RPC
 from solver.geometry.sensor import camera_chip
 from solver.kernels import N_COEF, N_KEPLER_CONST, N_OBS_CONST
 from solver.kernels.rpc import KC_A, KC_E2, RPC_LEN, RPC_START
-from solver.observations.interior import build_cameras, chip_ids
-from solver.observations.lines import build_lines, control_line_points_ecef, lines_ecef
+from solver.observations.cameras import build_cameras, chip_ids
+from solver.observations.line_data import build_lines, control_line_points_ecef, lines_ecef
 from solver.observations.passes import build_passes
 from solver.observations.passes import parameter_names as pass_names
 from solver.platforms import PlatformModel, get_model

@@ -26,11 +26,10 @@ import numpy as np
 import pyceres
 
 from solver.engine.packed_tables import camera_table, image_table, records
-from solver.engine.terms import image_terms
+from solver.engine.terms import block_owner, family_terms
 from solver.kernels import fixed_obs_block, point_obs_block
-from solver.observations.interior import camera_priors
-from solver.observations.passes import pass_terms, refresh_segments
-from solver.schema.job import SolverOptions
+from solver.observations.passes import refresh_segments
+from solver.schema.settings import SolveSettings
 from solver.state import AdjustmentState
 
 
@@ -246,7 +245,7 @@ class SolveOutcome:
         return reasons
 
 
-def _loss(options: SolverOptions) -> Any:
+def _loss(options: SolveSettings) -> Any:
     if options.loss == "huber":
         return pyceres.HuberLoss(options.loss_scale)
     if options.loss == "cauchy":
@@ -254,15 +253,22 @@ def _loss(options: SolverOptions) -> Any:
     return None
 
 
-def solve(problem: AdjustmentState, options: SolverOptions, control: SolveControl) -> SolveOutcome:
-    """Build the Ceres problem from ``problem`` (parameters updated in place) and solve it."""
-    t0 = time.perf_counter()
-    cp = pyceres.Problem()
-    keep: list[Any] = []  # cost functions must outlive the solve
-    tables = (image_table(problem), camera_table(problem))
+@dataclass
+class CeresProblem:
+    """A Ceres problem built from an :class:`AdjustmentState` and the cost functions it
+    references (they must outlive the solve); ``has_points``: estimated ground points (Schur)."""
+
+    problem: Any
+    keep: list[Any]
+    has_points: bool
+
+
+def _add_parameter_blocks(cp: Any, problem: AdjustmentState) -> None:
+    """The images' (a block shared by images is added once), the cameras' free interior
+    orientation and the passes' states."""
     added: set[int] = set()
     for img in problem.images:
-        if id(img.params) not in added:  # a block shared by images is added once
+        if id(img.params) not in added:
             added.add(id(img.params))
             cp.add_parameter_block(img.params, img.nfree)
     for cam in problem.cameras:
@@ -270,11 +276,12 @@ def solve(problem: AdjustmentState, options: SolverOptions, control: SolveContro
             cp.add_parameter_block(cam.params, cam.nfree)
     for ps in problem.passes:
         cp.add_parameter_block(ps.params, ps.nfree)
+
+
+def _add_fixed_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, control: SolveControl, tables) -> None:
+    """Observations of fixed ground points: one vectorised block per image."""
     mask = problem.adjusted_mask
     obs = problem.obs
-    loss = _loss(options)
-    has_points = False
-    # fixed ground points: one block per image
     fixed_obs = np.array(
         [k for k in range(len(obs.img)) if mask[k] and not problem.points[obs.pt[k]].estimated], dtype=np.int64
     )
@@ -282,9 +289,15 @@ def solve(problem: AdjustmentState, options: SolverOptions, control: SolveContro
         rows = fixed_obs[obs.img[fixed_obs] == img.index] if len(fixed_obs) else fixed_obs
         if len(rows):
             cf = ImageBatchCost(problem, img.index, rows, control, tables)
-            keep.append(cf)
-            cp.add_residual_block(cf, loss, cf.blocks)
-    # estimated points
+            out.keep.append(cf)
+            out.problem.add_residual_block(cf, loss, cf.blocks)
+
+
+def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, control: SolveControl, tables) -> None:
+    """Each estimated point: one block with all its observations, and the survey prior of a
+    weighted control point (Ceres' NormalPrior)."""
+    mask = problem.adjusted_mask
+    obs = problem.obs
     order = np.argsort(obs.pt, kind="stable")
     pts_sorted = obs.pt[order]
     bounds = np.searchsorted(pts_sorted, np.arange(len(problem.points) + 1))
@@ -295,31 +308,40 @@ def solve(problem: AdjustmentState, options: SolverOptions, control: SolveContro
         rows = rows[mask[rows]]
         if len(rows) == 0:
             continue
-        has_points = True
+        out.has_points = True
         cf = PointCost(problem, p.index, rows, control, tables)
-        keep.append(cf)
-        cp.add_residual_block(cf, loss, [p.xyz] + cf.blocks)
+        out.keep.append(cf)
+        out.problem.add_residual_block(cf, loss, [p.xyz] + cf.blocks)
         if p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
             prior = pyceres.factors.NormalPrior(p.known_lgs.copy(), np.diag(p.sigma_m**2))
-            keep.append(prior)
-            cp.add_residual_block(prior, None, [p.xyz])
+            out.keep.append(prior)
+            out.problem.add_residual_block(prior, None, [p.xyz])
 
-    for term in image_terms(problem):
-        img = problem.images[term.image_index]
-        cf = ImageTermCost(term, img.nfree, control)
-        keep.append(cf)
-        cp.add_residual_block(cf, None, [img.params])
-    for term in pass_terms(problem):
-        ps = problem.passes[term.pass_index]
-        cf = ImageTermCost(term, ps.nfree, control)
-        keep.append(cf)
-        cp.add_residual_block(cf, None, [ps.params])
-    for prior in camera_priors(problem.cameras):
-        cam = problem.cameras[prior.camera_index]
-        cf = ImageTermCost(prior, cam.nfree, control)
-        keep.append(cf)
-        cp.add_residual_block(cf, None, [cam.params])
 
+def _add_family_blocks(out: CeresProblem, problem: AdjustmentState, control: SolveControl) -> None:
+    """The observation families' terms (:mod:`solver.engine.terms`), each on its parameter block."""
+    for labelled in family_terms(problem):
+        owner = block_owner(problem, labelled)
+        cf = ImageTermCost(labelled.term, owner.nfree, control)
+        out.keep.append(cf)
+        out.problem.add_residual_block(cf, None, [owner.params])
+
+
+def build_ceres_problem(problem: AdjustmentState, options: SolveSettings, control: SolveControl) -> CeresProblem:
+    """The Ceres problem of ``problem``: parameter blocks, then residual blocks (module doc)."""
+    out = CeresProblem(pyceres.Problem(), [], False)
+    tables = (image_table(problem), camera_table(problem))
+    _add_parameter_blocks(out.problem, problem)
+    loss = _loss(options)
+    _add_fixed_point_blocks(out, problem, loss, control, tables)
+    _add_point_blocks(out, problem, loss, control, tables)
+    _add_family_blocks(out, problem, control)
+    return out
+
+
+def ceres_options(options: SolveSettings, built: CeresProblem, control: SolveControl) -> Any:
+    """A fresh ``pyceres.SolverOptions`` (assigning callbacks to a used one appends) for
+    ``options``; the iteration callback is kept alive with ``built``'s cost functions."""
     so = pyceres.SolverOptions()
     so.max_num_iterations = options.max_iterations
     so.function_tolerance = options.function_tolerance
@@ -333,16 +355,19 @@ def solve(problem: AdjustmentState, options: SolverOptions, control: SolveContro
     so.num_threads = 1
     so.logging_type = pyceres.LoggingType.SILENT
     so.minimizer_progress_to_stdout = False
-    if has_points:
+    if built.has_points:
         so.linear_solver_type = pyceres.LinearSolverType.SPARSE_SCHUR
     else:
         so.linear_solver_type = pyceres.LinearSolverType.DENSE_QR
     so.update_state_every_iteration = False
-    cb = _Callback(control)
-    so.callbacks = [cb]
-    summary = pyceres.SolverSummary()
-    pyceres.solve(so, cp, summary)
-    refresh_segments(problem)  # the images' trajectory segments for the final pass states
+    callback = _Callback(control)
+    built.keep.append(callback)
+    so.callbacks = [callback]
+    return so
+
+
+def summarise(summary: Any, control: SolveControl, time_s: float) -> SolveOutcome:
+    """The solve's outcome in the library's terms (:class:`SolveOutcome`) from Ceres' summary."""
     term = str(summary.termination_type).split(".")[-1]
     usable = bool(summary.IsSolutionUsable())
     converged = term == "CONVERGENCE" or (term == "USER_SUCCESS" and control.statistically_converged)
@@ -360,7 +385,7 @@ def solve(problem: AdjustmentState, options: SolverOptions, control: SolveContro
         message=message,
         initial_cost=float(summary.initial_cost),
         final_cost=float(summary.final_cost),
-        time_s=time.perf_counter() - t0,
+        time_s=time_s,
         linear_solver=str(summary.linear_solver_type_used).split(".")[-1],
         history=list(control.history),
         cancelled=control.cancelled,
@@ -372,3 +397,14 @@ def solve(problem: AdjustmentState, options: SolverOptions, control: SolveContro
         },
     )
 
+
+def solve(problem: AdjustmentState, options: SolveSettings, control: SolveControl) -> SolveOutcome:
+    """Build the Ceres problem from ``problem``, set the options, solve (parameters updated in
+    place), summarise."""
+    t0 = time.perf_counter()
+    built = build_ceres_problem(problem, options, control)
+    so = ceres_options(options, built, control)
+    summary = pyceres.SolverSummary()
+    pyceres.solve(so, built.problem, summary)
+    refresh_segments(problem)  # the images' trajectory segments for the final pass states
+    return summarise(summary, control, time.perf_counter() - t0)

@@ -1,8 +1,9 @@
 """Linearised problem: rank check, covariance and redundancy numbers (numba, independent of Ceres).
 
 The Jacobian is evaluated with the same kernels as the residual blocks, observation by
-observation as small dense blocks (2 x n_image_parameters and 2 x 3), plus the priors (survey
-coordinates of weighted control points, weighted platform states). Unknowns are ordered as all
+observation as small dense blocks (2 x n_image_parameters and 2 x 3), plus the survey priors
+of weighted control points and the terms of the observation families
+(:func:`solver.engine.terms.family_terms`, in the registry's order). Unknowns are ordered as all
 images' free parameters (image order, model order), the cameras' free interior orientation,
 the passes' states (6 each, ECEF), then the estimated points (3 each, LGS).
 
@@ -25,10 +26,9 @@ from scipy.linalg import solve_triangular
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.engine.packed_tables import current_tables, records
-from solver.engine.terms import image_terms
+from solver.engine.terms import block_owner, family_terms
 from solver.kernels import all_observation_blocks
-from solver.observations.interior import camera_priors
-from solver.observations.passes import pass_terms
+from solver.observations.family import Labelled
 from solver.state import AdjustmentState
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
@@ -73,6 +73,12 @@ def layout(problem: AdjustmentState) -> Layout:
     return Layout(img_col, pt_col, n_f, c, cam_col, pass_col)
 
 
+def first_column(lay: Layout, labelled: Labelled) -> int:
+    """The first column of the parameter block a family's term acts on."""
+    cols = {"image": lay.img_col, "pass": lay.pass_col, "camera": lay.cam_col}[labelled.block]
+    return int(cols[labelled.index])
+
+
 @dataclass
 class Linearisation:
     """Residuals and Jacobian blocks at the current parameters."""
@@ -85,7 +91,7 @@ class Linearisation:
     jpt: np.ndarray  # (n, 2, 3)
     ok: np.ndarray  # (n,)
     point_prior: dict[int, tuple[np.ndarray, np.ndarray]]  # point -> (whitened residual, 1/sigma)
-    terms: list  # image terms, then camera priors
+    terms: list[Labelled]  # the families' terms (solver.engine.terms.family_terms)
     term_eval: list[tuple[np.ndarray, np.ndarray]]  # (residuals, jacobian) of each term
     term_col: list[int]  # first column of each term's block
     obs_pt: np.ndarray
@@ -151,17 +157,9 @@ def linearise(problem: AdjustmentState) -> Linearisation:
     for p in problem.points:
         if p.estimated and p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
             point_prior[p.index] = ((p.xyz - p.known_lgs) / p.sigma_m, 1.0 / p.sigma_m)
-    terms = list(image_terms(problem))
-    term_col = [int(lay.img_col[t.image_index]) for t in terms]
-    term_eval = [t.evaluate(problem.images[t.image_index].params) for t in terms]
-    for pt in pass_terms(problem):
-        terms.append(pt)
-        term_col.append(int(lay.pass_col[pt.pass_index]))
-        term_eval.append(pt.evaluate(problem.passes[pt.pass_index].params))
-    for prior in camera_priors(problem.cameras):
-        terms.append(prior)
-        term_col.append(int(lay.cam_col[prior.camera_index]))
-        term_eval.append(prior.evaluate(problem.cameras[prior.camera_index].params))
+    terms = family_terms(problem)
+    term_col = [first_column(lay, t) for t in terms]
+    term_eval = [t.term.evaluate(block_owner(problem, t).params) for t in terms]
     return Linearisation(lay, sel, res, jf, fcol, jpt, ok, point_prior, terms, term_eval, term_col, op)
 
 

@@ -1,52 +1,54 @@
-"""Residual terms that involve one image's platform parameters only (no ground-point block).
-
-Each term family (weighted platform states, measured attitude, straight-line observations, ...)
-provides objects with the interface :class:`solver.observations.family.ImageTerm`; Ceres residual
-blocks (:mod:`solver.engine.backend`) and the covariance (:mod:`solver.engine.linalg`) both
-consume them. A family in the registry's shape is one module plus one line in
-:mod:`solver.observations.registry`; state priors and lines are still named here.
+"""The residual terms of the observation families (:mod:`solver.observations.registry`): each acts
+on one parameter block (an image, a pass or a camera) and has the interface
+:class:`solver.observations.family.Term`; Ceres residual blocks (:mod:`solver.engine.backend`)
+and the linearisation (:mod:`solver.engine.linalg`) both walk :func:`family_terms`, in the
+registry's order.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
-from solver.observations.family import ImageTerm
-from solver.observations.lines import MAX_REFRESHES, REFRESH_TOL, line_terms, refresh_lines
-from solver.observations.registry import FAMILIES
-from solver.observations.state_priors import all_state_priors
+from solver.observations import registry
+from solver.observations.family import MAX_REFRESHES, REFRESH_TOL, Labelled
 from solver.state import AdjustmentState
 
 
-def image_terms(problem: AdjustmentState) -> list[ImageTerm]:
-    """Every image-only term of the problem, in a fixed order."""
-    terms: list[ImageTerm] = []
-    terms += all_state_priors(problem)
-    for family in FAMILIES:
-        terms += family.terms(problem)
-    terms += line_terms(problem)
-    return terms
+def family_terms(problem: AdjustmentState) -> list[Labelled]:
+    """Every family's terms, families in the registry's order, each family's in its own order."""
+    out: list[Labelled] = []
+    for family in registry.FAMILIES:
+        out += family.terms(problem)
+    return out
 
 
-def refresh_image_terms(problem: AdjustmentState) -> float:
-    """Let term families that linearise around the solution (the pushbroom correction of the
+def block_owner(problem: AdjustmentState, labelled: Labelled) -> Any:
+    """The image, pass or camera state whose parameter block (``params``, ``nfree``) a term acts on."""
+    owners = {"image": problem.images, "pass": problem.passes, "camera": problem.cameras}[labelled.block]
+    return owners[labelled.index]
+
+
+def refresh_family_terms(problem: AdjustmentState) -> float:
+    """Let families that linearise around the solution (the pushbroom correction of the
     equivalent planes line model) recompute that state at the current parameters.
 
     Returns the largest change this makes to any whitened residual (0: nothing to redo).
     """
-    return max([refresh_lines(problem), *(family.refresh(problem) for family in FAMILIES)])
+    return max([0.0, *(family.refresh(problem) for family in registry.FAMILIES)])
 
 
 def solve_with_refreshes(problem: AdjustmentState, options, control, solve):
-    """``solve(problem, options, control)``, repeated while :func:`refresh_image_terms` changes
-    some residual by more than ``solver.observations.lines.REFRESH_TOL`` (at most ``MAX_REFRESHES`` times).
+    """``solve(problem, options, control)``, repeated while :func:`refresh_family_terms` changes
+    some residual by more than ``solver.observations.family.REFRESH_TOL`` (at most
+    ``MAX_REFRESHES`` times).
 
     The outcomes are merged: iterations, times and cost history add up, the initial cost is the
     first solve's, the rest is the last solve's.
     """
     outcome = solve(problem, options, control)
     for _ in range(MAX_REFRESHES):
-        if outcome.cancelled or not outcome.usable or refresh_image_terms(problem) <= REFRESH_TOL:
+        if outcome.cancelled or not outcome.usable or refresh_family_terms(problem) <= REFRESH_TOL:
             break
         # a new objective: the statistical convergence test starts again
         control.statistically_converged = False

@@ -17,11 +17,8 @@ from pyproj.exceptions import ProjError
 from solver.errors import JobError, Problem
 from solver.geometry.geodesy import UnknownCRSError, ecef_to_geodetic, parse_crs, to_ecef
 from solver.geometry.sensor import camera_chip, in_image_columns
-from solver.observations.ephemeris import ephemeris_problems, image_state
-from solver.observations.interior import n_iop_unknowns, validate_self_calibration
-from solver.observations.lines import collect_line_problems
-from solver.observations.passes import n_pass_state_observations, n_pass_unknowns, pass_problems
-from solver.observations.registry import FAMILIES
+from solver.observations import registry
+from solver.observations.ephemeris import image_state
 from solver.platforms import HELD, PlatformModel, get_model
 from solver.schema.job import MAX_COMPARED_MODELS, Camera, Image, ImageObservation, Job
 
@@ -243,14 +240,9 @@ def rpc_image_problems(job: Job, im: Image, i: int, model: PlatformModel) -> lis
     return out
 
 
-def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
-    """All problems of a job plus the counts (observations, unknowns, dof) when computable."""
+def _camera_problems(job: Job) -> list[Problem]:
+    """Cameras still naming a library camera, and duplicate chips."""
     problems: list[Problem] = []
-    problems += _duplicates(job.cameras, "camera", "cameras")
-    problems += _duplicates(job.images, "image", "images")
-    problems += _duplicates(job.points, "point", "points")
-
-    cameras = {c.id: c for c in job.cameras}
     for i, cam in enumerate(job.cameras):
         if cam.focal_mm is None:
             problems.append(
@@ -264,10 +256,14 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
             )
             continue
         problems += _duplicate_chips(cam, i)
+    return problems
 
+
+def _image_problems(job: Job, cameras: dict[str, Camera]) -> tuple[list[Problem], int, list[dict[str, Any]]]:
+    """Each image's model, options, initial values and initial position: (problems, unknowns
+    of the images' own parameters, the per-image summary of the counts)."""
+    problems: list[Problem] = []
     n_unknowns = 0
-    n_prior_obs = 0
-    weighted_states = 0  # images whose line-0 state (header or ephemeris) is a weighted observation
     image_info = []
     for i, im in enumerate(job.images):
         try:
@@ -280,14 +276,12 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
             problems += rpc_issues
             if not rpc_issues:
                 n_unknowns += len(model.parameters({}))
-                n_prior_obs += len(im.bias_prior)
                 image_info.append({"id": im.id, "model": model.name, "n_parameters": len(model.parameters({}))})
             continue
         if im.camera not in cameras:
             problems.append(
                 Problem("unknown_camera", f"image {im.id!r} uses unknown camera {im.camera!r}", ("images", i, "camera"))
             )
-        problems += ephemeris_problems(im, i)
         option_problems = model_option_problems(model, im.model.options, ("images", i, "model"))
         if option_problems:
             problems += option_problems
@@ -319,14 +313,13 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
                 )
             )
         n_unknowns += len(params)
-        weighted = state is not None and state.sigma_position_m is not None
-        weighted_states += weighted
-        if weighted and model.kind.position_from_image_state:  # pass states: orbit_pass.n_pass_state_observations
-            n_prior_obs += sum(1 for n in ("X0", "Y0", "Z0") if n in names)
-            if state.sigma_velocity_m_s is not None:
-                n_prior_obs += sum(1 for n in ("ux", "uy", "uz", "X1", "Y1", "Z1") if n in names)
         image_info.append({"id": im.id, "model": model.name, "n_parameters": len(params)})
+    return problems, n_unknowns, image_info
 
+
+def _crs_problems(job: Job) -> list[Problem]:
+    """Coordinate reference systems of the points that PROJ does not understand (once per CRS)."""
+    problems: list[Problem] = []
     crs_checked: dict[str, bool] = {}
     for j, p in enumerate(job.points):
         crs = p.crs or job.crs
@@ -337,11 +330,13 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
             except UnknownCRSError as exc:
                 crs_checked[crs] = False
                 problems.append(Problem("unknown_crs", str(exc), ("points", j, "crs") if p.crs else ("crs",)))
+    return problems
 
-    problems += coordinate_problems(job)
-    if job.options.models:
-        problems += comparison_problems(job.options.models, ("options", "models"))
 
+def _observation_problems(job: Job, cameras: dict[str, Camera]) -> tuple[list[Problem], dict[str, set[str]], Counter[str]]:
+    """References, duplicates and image bounds of the image points: (problems, the images
+    that see each point, the adjusted observations per image)."""
+    problems: list[Problem] = []
     images = {im.id: im for im in job.images}
     points = {p.id: p for p in job.points}
     seen_pairs: set[tuple[str, str]] = set()
@@ -383,35 +378,15 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
         images_of_point[o.point].add(o.image)
         if points[o.point].role != "check":
             obs_per_image[o.image] += 1
+    return problems, images_of_point, obs_per_image
 
-    line_problems, line_counts = collect_line_problems(job, cameras, images)
-    problems += line_problems
-    for image_id, n in line_counts["per_image"].items():
-        obs_per_image[image_id] += n
 
-    pass_issues = pass_problems(job)
-    problems += pass_issues
-    n_unknowns += n_pass_unknowns(job)
-    if not pass_issues:
-        n_prior_obs += n_pass_state_observations(job)
-
-    n_datum_obs = 0  # observations that, with weighted platform states, define the datum
-    for family in FAMILIES:
-        issues = family.problems(job)
-        problems += issues
-        n = 0 if issues else family.n_observations(job)
-        n_prior_obs += n
-        if family.direct_datum:
-            n_datum_obs += n
-
-    sc_problems = validate_self_calibration(job)
-    problems += [Problem(code, msg, loc) for code, msg, loc in sc_problems]
-    if not sc_problems:
-        iop_unk, iop_obs = n_iop_unknowns(job)
-        n_unknowns += iop_unk
-        n_prior_obs += iop_obs
+def _point_counts(job: Job, images_of_point: dict[str, set[str]]) -> tuple[list[Problem], int, int]:
+    """Tie points seen too rarely, and the observations and unknowns of the points:
+    (problems, observations, unknowns)."""
+    problems: list[Problem] = []
+    n_obs = n_unknowns = 0
     weighted = job.options.control == "weighted"
-    n_obs = n_prior_obs + line_counts["n_observations"]
     for j, p in enumerate(job.points):
         seen = images_of_point.get(p.id, set())
         if p.role != "check":
@@ -429,17 +404,48 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
         elif p.role == "gcp" and weighted and p.sigma_m is not None:
             n_unknowns += 3
             n_obs += 3
+    return problems, n_obs, n_unknowns
+
+
+def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
+    """All problems of a job plus the counts (observations, unknowns, dof) when computable."""
+    problems: list[Problem] = []
+    problems += _duplicates(job.cameras, "camera", "cameras")
+    problems += _duplicates(job.images, "image", "images")
+    problems += _duplicates(job.points, "point", "points")
+    cameras = {c.id: c for c in job.cameras}
+    problems += _camera_problems(job)
+    image_issues, n_unknowns, image_info = _image_problems(job, cameras)
+    problems += image_issues
+    problems += _crs_problems(job)
+    problems += coordinate_problems(job)
+    if job.options.models:
+        problems += comparison_problems(job.options.models, ("options", "models"))
+    obs_issues, images_of_point, obs_per_image = _observation_problems(job, cameras)
+    problems += obs_issues
+    n_obs = 0
+    datum: set[str] = set()  # how the families' observations define the datum (family.Count)
+    for family in registry.FAMILIES:
+        issues, count = family.check(job)
+        problems += issues
+        n_obs += count.n_observations
+        n_unknowns += count.n_unknowns
+        obs_per_image.update(count.per_image)
+        datum |= count.datum
+    point_issues, n_point_obs, n_point_unknowns = _point_counts(job, images_of_point)
+    problems += point_issues
+    n_obs += n_point_obs
+    n_unknowns += n_point_unknowns
     for i, im in enumerate(job.images):
         if obs_per_image[im.id] == 0:
             problems.append(
                 Problem("image_without_observations", f"image {im.id!r} has no control or tie observations", ("images", i))
             )
     # direct georeferencing: weighted platform states and measured attitude define the datum
-    # without ground control (whether they fix every parameter is the rank check's to say)
-    direct = weighted_states > 0 and n_datum_obs > 0
-    # RPC images carry their own ground reference: weighted a-priori bias values define the datum
-    direct = direct or any(im.bias_prior for im in job.images)
-    if not any(p.role == "gcp" for p in job.points) and line_counts["n_control"] == 0 and not direct:
+    # without ground control (whether they fix every parameter is the rank check's to say);
+    # observed control lines and RPC images' a-priori bias values define it on their own
+    direct = {"states", "attitude"} <= datum or "control" in datum
+    if not any(p.role == "gcp" for p in job.points) and not direct:
         problems.append(
             Problem(
                 "no_control",

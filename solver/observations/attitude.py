@@ -21,11 +21,12 @@ asked to extrapolate outside the time they describe.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from solver.errors import Problem
+from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled, ReportContext, per_row_groups
 from solver.observations.passes import attitude_blocks, image_attitude_blocks, pass_line_span
 from solver.observations.state_priors import StatePrior
 from solver.platforms import coef_index, get_model
@@ -154,27 +155,66 @@ def attitude_report(problem: "AdjustmentState") -> list[dict]:
     return out
 
 
-class MeasuredAttitude:
+def _without_samples(job: "Job", removals: list[tuple]) -> "Job":
+    """``job`` without the attitude samples ``("attitude_sample", image id, time_s)``: the sample
+    of that image at that epoch, and the same sample (epoch and angles) in the images sharing it."""
+    gone = [(r[1], r[2]) for r in removals if r[0] == "attitude_sample"]
+    if not gone:
+        return job
+    images = {im.id: im for im in job.images}
+    drop = set()
+    for image, t in gone:
+        for s in images[image].attitude:
+            if abs(s.time_s - t) < 1e-9:
+                drop.add((s.time_s, s.roll_deg, s.pitch_deg, s.yaw_deg))
+    new = [
+        im.model_copy(update={"attitude": [s for s in im.attitude if (s.time_s, s.roll_deg, s.pitch_deg, s.yaw_deg) not in drop]})
+        for im in job.images
+    ]
+    return job.model_copy(update={"images": new})
+
+
+class MeasuredAttitude(FamilyDefaults):
     """Measured attitude (``options.attitude`` and the images' ``attitude`` samples) as an
-    observation family (:class:`solver.observations.family.ObservationFamily`)."""
+    observation family (:class:`solver.observations.family.ObservationFamily`): one test per
+    sample (roll, pitch, yaw), removable; its report section ``attitude`` lists the removed
+    samples' epochs (``rejected_samples_s``)."""
 
     name = "attitude"
-    direct_datum = True  # with weighted platform states: direct georeferencing
 
-    def problems(self, job: "Job") -> list[Problem]:
-        return [Problem(code, msg, loc) for code, msg, loc in attitude_problems(job)]
+    def check(self, job: "Job") -> tuple[list[Problem], Count]:
+        issues = [Problem(code, msg, loc) for code, msg, loc in attitude_problems(job)]
+        n = 0 if issues else n_attitude_observations(job)
+        return issues, Count(n_observations=n, datum=frozenset({"attitude"}) if n else frozenset())
 
-    def n_observations(self, job: "Job") -> int:
-        return n_attitude_observations(job)
+    def terms(self, problem: "AdjustmentState") -> list[Labelled]:
+        return [Labelled(self, term, "image", term.image_index, block) for block, term in _block_terms(problem)]
 
-    def terms(self, problem: "AdjustmentState") -> list[StatePrior]:
-        return attitude_terms(problem)
+    def groups(self, problem: "AdjustmentState", labelled: Labelled) -> list[GroupSpec]:
+        block, term = labelled.tag, labelled.term
+        samples = block_samples(problem.job, block)
+        return per_row_groups(
+            "attitude_sample", term.n_residuals, 3, {"image": problem.images[block[0]].id},
+            [{"time_s": float(s.time_s)} for s in samples], np.degrees(1.0 / term.w), "deg", ["roll", "pitch", "yaw"],
+            -1.0, lambda lab: ("attitude_sample", lab["image"], lab["time_s"]),
+        )
 
-    def refresh(self, problem: "AdjustmentState") -> float:
-        return 0.0  # linear in the attitude: nothing to re-linearise
+    def report(self, problem: "AdjustmentState", ctx: ReportContext) -> dict[str, Any]:
+        return {"attitude": attitude_report(problem)}
 
-    def report(self, problem: "AdjustmentState") -> list[dict]:
-        return attitude_report(problem)
+    def without(self, job: "Job", removals: list[tuple]) -> tuple["Job", list[dict[str, Any]]]:
+        return _without_samples(job, removals), []
+
+    def flag(self, report: dict[str, Any], removed: list[dict[str, Any]]) -> None:
+        """``attitude[].rejected_samples_s``: the epochs (s, the job's time scale) of the samples
+        removed from that attitude block."""
+        block_of = {}
+        for block in report.get("attitude") or []:
+            block["rejected_samples_s"] = []
+            block_of.update({image: block for image in block.get("images") or []})
+        for r in removed:
+            if r["kind"] == "attitude_sample" and r.get("image") in block_of:
+                block_of[r["image"]]["rejected_samples_s"].append(r.get("time_s"))
 
 
 FAMILY = MeasuredAttitude()

@@ -13,114 +13,19 @@ covariance as a weighted observation of the same parameters.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from solver.kernels import IOP_CHIP, IOP_OPTICAL, MAX_CHIPS, N_IOP
-from solver.schema.iop_names import camera_iop_names
-from solver.schema.job import Camera, Job
+from solver.errors import Problem
+from solver.kernels import MAX_CHIPS
+from solver.observations.cameras import CameraState, build_cameras, chip_ids, default_master_chip, expand_estimate
+from solver.observations.family import Count, FamilyDefaults, Labelled, ReportContext
+from solver.schema.job import Job
 
 UNITS = {"x0": "mm", "y0": "mm", "df": "mm", "k1": "mm^-2", "k2": "mm^-4", "sy": "1",
          "a0": "mm", "b0": "mm", "a1": "1", "b1": "1", "delta": "rad"}
-DEFAULT_SIGMAS = {"a0": 1.5 * 0.0071, "b0": 1.5 * 0.0071, "a1": 300e-6, "b1": 300e-6}  # seed 001
-
-
-def chip_ids(camera: Camera) -> list[str]:
-    return [c.id for c in camera.chips] if camera.chips else ["1"]
-
-
-def iop_names(camera: Camera) -> list[str]:
-    """Names of the full IOP vector (padding slots of absent chips are unnamed)."""
-    return camera_iop_names(chip_ids(camera))
-
-
-def default_master_chip(camera: Camera) -> str:
-    """Seed 001 fixes chip 2: the chip with id "2", else the second chip, else the only one."""
-    ids = chip_ids(camera)
-    if "2" in ids:
-        return "2"
-    return ids[1] if len(ids) > 1 else ids[0]
-
-
-@dataclass
-class CameraState:
-    """One camera's interior orientation in the adjustment."""
-
-    id: str
-    index: int
-    camera: Camera
-    names: list[str]  # full vector names (len = 6 + 5 * nchips)
-    base: np.ndarray  # (N_IOP,) values (held and current free)
-    free_idx: np.ndarray  # (nfree,) int64 into the full vector
-    params: np.ndarray  # (nfree,) the Ceres block
-    sigma: np.ndarray  # (nfree,) weighted-constraint sigmas, nan = free
-    master_chip: str | None
-    reuse_cov: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (free positions, mean, cov)
-    chip_len_mm: list[float] = field(default_factory=list)
-
-    @property
-    def nfree(self) -> int:
-        return int(self.free_idx.shape[0])
-
-    @property
-    def has_iop(self) -> bool:
-        return self.nfree > 0 or bool(np.any(self.base != 0.0))
-
-    def values(self) -> np.ndarray:
-        v = self.base.copy()
-        v[self.free_idx] = self.params
-        return v
-
-
-def _expand(estimate: list[str], camera: Camera, master: str | None) -> list[str]:
-    """Names to estimate: optical names as such; a chip name without @ means every non-master
-    chip; ``a0@3`` one chip."""
-    out: list[str] = []
-    ids = chip_ids(camera)
-    for name in estimate:
-        if name in IOP_OPTICAL:
-            out.append(name)
-        elif name in IOP_CHIP:
-            out += [f"{name}@{cid}" for cid in ids if cid != master]
-        elif "@" in name and name.split("@")[0] in IOP_CHIP and name.split("@")[1] in ids:
-            out.append(name)
-        else:
-            raise ValueError(f"unknown interior-orientation parameter {name!r}")
-    return list(dict.fromkeys(out))
-
-
-def build_cameras(job: Job) -> list[CameraState]:
-    """The cameras' IOP states (every camera of the job, in order)."""
-    sc = job.options.self_calibration
-    states = []
-    for i, cam in enumerate(job.cameras):
-        names = iop_names(cam)
-        base = np.zeros(N_IOP)
-        for k, v in (cam.iop or {}).items():
-            if k in names:
-                base[names.index(k)] = float(v)
-        estimate: list[str] = []
-        master = None
-        sigma_of: dict[str, float | None] = {}
-        if sc is not None and (sc.cameras is None or cam.id in sc.cameras):
-            master = sc.master_chip.get(cam.id) or default_master_chip(cam)
-            estimate = [n for n in _expand(sc.estimate, cam, master) if f"{cam.id}/{n}" not in sc.exclude]
-            sigma_of = {**DEFAULT_SIGMAS, **sc.sigmas}
-        free = np.array([names.index(n) for n in estimate], dtype=np.int64)
-        sig = np.array([sigma_of.get(n.split("@")[0]) or math.nan for n in estimate], dtype=float)
-        reuse = None
-        if cam.iop_use == "weighted" and cam.iop_covariance is not None and len(free):
-            cn = list(cam.iop_covariance.names)
-            mat = np.array(cam.iop_covariance.matrix, dtype=float)
-            pos = [q for q, n in enumerate(estimate) if n in cn]
-            if pos:
-                idx = [cn.index(estimate[q]) for q in pos]
-                reuse = (np.array(pos), base[free[pos]].copy(), mat[np.ix_(idx, idx)])
-        lens = [c.columns * (cam.pixel_mm or 0.0) for c in cam.chips] if cam.chips else [(cam.columns or 0) * (cam.pixel_mm or 0.0)]
-        states.append(CameraState(cam.id, i, cam, names, base, free, base[free].copy(), sig, master, reuse, lens))
-    return states
 
 
 def validate_self_calibration(job: Job) -> list[tuple[str, str, tuple]]:
@@ -141,7 +46,7 @@ def validate_self_calibration(job: Job) -> list[tuple[str, str, tuple]]:
         if master is not None and master not in chip_ids(cam):
             out.append(("unknown_chip", f"master chip {master!r} is not a chip of camera {cam.id!r}", ("options", "self_calibration", "master_chip")))
         try:
-            _expand(sc.estimate, cam, master or default_master_chip(cam))
+            expand_estimate(sc.estimate, cam, master or default_master_chip(cam))
         except ValueError as exc:
             out.append(("unknown_iop", str(exc), ("options", "self_calibration", "estimate")))
     for k in sc.sigmas:
@@ -243,3 +148,30 @@ def camera_from_report(job: dict[str, Any], report: dict[str, Any], camera_id: s
     if entry.get("iop_covariance"):
         out["iop_covariance"] = entry["iop_covariance"]
     return out
+
+
+class InteriorFamily(FamilyDefaults):
+    """Interior orientation as an observation family: the cameras' estimated IOP (unknowns of
+    their own block) and their priors (weighted defaults, a reused camera's covariance), not
+    tested; report section ``cameras``."""
+
+    name = "interior"
+
+    def check(self, job: Job) -> tuple[list[Problem], Count]:
+        issues = [Problem(code, msg, loc) for code, msg, loc in validate_self_calibration(job)]
+        if issues:
+            return issues, Count()
+        n_unk, n_obs = n_iop_unknowns(job)
+        return [], Count(n_observations=n_obs, n_unknowns=n_unk)
+
+    def terms(self, problem) -> list[Labelled]:
+        return [Labelled(self, p, "camera", p.camera_index) for p in camera_priors(problem.cameras)]
+
+    def report(self, problem, ctx: ReportContext) -> dict[str, Any]:
+        def block(ci: int):
+            return ctx.block("camera", ci, problem.cameras[ci].nfree)
+
+        return {"cameras": cameras_report(problem.cameras, block, ctx.var_factor)}
+
+
+FAMILY = InteriorFamily()

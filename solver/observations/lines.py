@@ -53,7 +53,7 @@ frame projection at t_r) and (a2, b2) the line through the exact pushbroom proje
 and P2 in the pseudo-frame (eqs 5-6), both at the current orientation; the model then fits
 (a - da, b - db). ``options.line_correction``: ``iterated`` (default) recomputes da, db from
 the solution after each solve and solves again until no whitened residual changes by more than
-:data:`REFRESH_TOL` (at most :data:`MAX_REFRESHES` times); at that fixed point the model is
+:data:`solver.observations.family.REFRESH_TOL` (at most ``MAX_REFRESHES`` times); at that fixed point the model is
 exact (a = a2), the frame geometry only serving as the Jacobian. ``initial`` computes them once
 from the initial orientation (the paper's procedure, with ephemeris-based EOP); ``none`` omits
 them (seed 002 Table 6).
@@ -70,7 +70,6 @@ correlation it induces between the images is neglected. J_P is refreshed with th
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -78,18 +77,32 @@ from numba import njit
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.errors import JobError, Problem
-from solver.geometry.geodesy import UnknownCRSError, parse_crs, to_ecef
-from solver.geometry.sensor import camera_chip
-from solver.kernels import N_OBS_CONST, assemble, platform_state, project, rotation_and_derivatives
+from solver.geometry.geodesy import UnknownCRSError, parse_crs
+from solver.kernels import assemble, platform_state, project, rotation_and_derivatives
+from solver.observations.family import (
+    REFRESH_TOL,
+    Count,
+    FamilyDefaults,
+    GroupSpec,
+    Labelled,
+    ReportContext,
+    per_row_groups,
+)
+from solver.observations.line_data import (
+    FORM_NAMES,
+    FORM_X,
+    FORM_Y,
+    GroundLineState,
+    LineImage,
+    LineSet,
+    line_point_constants,
+    lines_ecef,
+    on_a_chip,
+)
 from solver.platforms import ANGLES, ELEMENTS, HELD
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
-FORM_Y = 0  # y = a x + b
-FORM_X = 1  # x = a' y + b'
-FORM_NAMES = ("y=ax+b", "x=a'y+b'")
-REFRESH_TOL = 0.01  # largest change of a whitened residual (in sigmas) that ends the refreshes
-MAX_REFRESHES = 20
 ANDERSON_MEMORY = 6  # refreshes remembered by the Anderson mixing of the corrections
 MIN_IMAGE_LENGTH_PX = 1.0  # a line whose image is shorter is edge-on / projects to a point
 MIN_ENDPOINT_DISTANCE_M = 0.01
@@ -332,157 +345,14 @@ def frame_xy(kind, coef, kc, tau: float, p, f: float):
     return -f * d[0] / d[2], -f * d[1] / d[2]
 
 
-# ---- problem-side data ------------------------------------------------------------------------
-
-
-@dataclass
-class GroundLineState:
-    """An object line in the LGS (metres)."""
-
-    id: str
-    index: int  # in job.lines
-    role: str  # control | check
-    p1: np.ndarray
-    p2: np.ndarray
-    sigma_m: np.ndarray | None  # (3,) east, north, up of each endpoint
-
-
-@dataclass
-class LineImage:
-    """One image of one object line (``job.lines[line].observations[k]``) and its model state."""
-
-    line: int  # index in LineSet.lines
-    k: int  # index in the job line's observations
-    image: int  # image index
-    points: np.ndarray  # (n, 2) measured (line, column) px; (0, 2) for fitted input
-    sigma_px: float
-    ocs: np.ndarray  # (n, 9) observation constants of the measured points
-    fitted: tuple[int, np.ndarray, np.ndarray] | None  # (form, ab, cov) in pixels
-    # fixed at start from the initial orientation
-    ref_line: float = 0.0
-    ref_oc: np.ndarray = field(default_factory=lambda: np.zeros(N_OBS_CONST))  # chip of the reference
-    end_ocs: np.ndarray = field(default_factory=lambda: np.zeros((2, N_OBS_CONST)))  # projections of P1, P2
-    form: int = FORM_Y  # equivalent planes form in the pseudo-frame
-    ab_obs: np.ndarray = field(default_factory=lambda: np.zeros(2))  # pseudo-frame (a, b)
-    ab_cov: np.ndarray = field(default_factory=lambda: np.eye(2))
-    # refreshed
-    correction: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    s: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    whiten: np.ndarray = field(default_factory=lambda: np.eye(0))
-
-    @property
-    def n_points(self) -> int:
-        return int(self.points.shape[0])
-
-
-@dataclass
-class LineSet:
-    """All lines of a problem, the model used and its refresh state."""
-
-    lines: list[GroundLineState]
-    images: list[LineImage]
-    model: str  # rigorous | equivalent_planes
-    correction: str  # iterated | initial | none
-    started: bool = False
-    refresh_changes: list[float] = field(default_factory=list)  # largest residual change per refresh
-    anderson: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # (used, computed)
-    k_mm: dict[int, float] = field(default_factory=dict)  # per image
-
-    def active(self) -> list[LineImage]:
-        """Observations of control lines (those that enter the adjustment)."""
-        return [li for li in self.images if self.lines[li.line].role == "control"]
-
-
-def lines_ecef(job) -> dict[str, np.ndarray]:
-    """ECEF endpoints (2, 3) of every line whose CRS is understood, by line id (one
-    transformation per CRS: building a PROJ transformer is the expensive part)."""
-    by_crs: dict[str, list] = {}
-    for gl in job.lines:
-        by_crs.setdefault(gl.crs or job.crs, []).append(gl)
-    out: dict[str, np.ndarray] = {}
-    for crs, group in by_crs.items():
-        try:
-            xyz = to_ecef(np.array([gl.endpoints for gl in group], dtype=float).reshape(-1, 3), crs)
-        except (UnknownCRSError, ValueError):
-            continue
-        for k, gl in enumerate(group):
-            out[gl.id] = xyz[2 * k : 2 * k + 2]
-    return out
-
-
-def control_line_points_ecef(job, ecef: dict[str, np.ndarray]) -> np.ndarray:
-    """Endpoints of the control lines (m, 3) (for the LGS when a job has no control points)."""
-    pts = [ecef[gl.id] for gl in job.lines if gl.role == "control" and gl.id in ecef]
-    return np.concatenate(pts) if pts else np.zeros((0, 3))
-
-
-def _on_a_chip(camera, column: float) -> bool:
-    """True if ``column`` is in the delivered image and on a CCD chip (:mod:`solver.geometry.sensor`)."""
-
-    try:
-        camera_chip(camera, column)
-    except KeyError:
-        return False
-    return True
-
-
-def _chip_constants(camera, column: float) -> tuple[float, float, float]:
-    """(xo, yo, centre column) of the chip of ``column`` (clamped into the image) by the rule of
-    :mod:`solver.geometry.sensor` (line points do not name their chip)."""
-
-    ncols = camera.columns or 1
-    col = min(max(column, 0.0), ncols - 1.0)
-    _chip, dx, dy, centre = camera_chip(camera, col)
-    x0, y0 = camera.principal_point_mm
-    return dx - x0, dy - y0, centre
-
-
-def _oc(img, line: float, column: float, sigma: float = 1.0) -> np.ndarray:
-    cam = img.camera
-    xo, yo, centre = _chip_constants(cam, column)
-    return np.array([line, column, sigma, cam.focal_mm, cam.pixel_mm, xo, yo, centre, img.tau_per_line])
-
-
-def build_lines(job, frame, images, ecef: dict[str, np.ndarray]) -> LineSet:
-    """Convert the job's lines (validated) into the LGS; the model state is set by :func:`start`."""
-    lines: list[GroundLineState] = []
-    obs: list[LineImage] = []
-    img_index = {im.id: im.index for im in images}
-    for j, gl in enumerate(job.lines):
-        p = frame.to_lgs(ecef[gl.id])
-        sig = np.array(gl.sigma_m, dtype=float) if gl.sigma_m is not None else None
-        lines.append(GroundLineState(gl.id, j, gl.role, np.ascontiguousarray(p[0]), np.ascontiguousarray(p[1]), sig))
-        for k, o in enumerate(gl.observations):
-            img = images[img_index[o.image]]
-            pts = np.array([[q.line, q.column] for q in o.points], dtype=float).reshape(-1, 2)
-            ocs = np.ascontiguousarray([_oc(img, q[0], q[1], o.sigma_px) for q in pts]).reshape(-1, N_OBS_CONST)
-            fitted = None
-            if o.fitted is not None:
-                ft = o.fitted
-                form = FORM_Y if ft.form == FORM_NAMES[0] else FORM_X
-                cov = np.array(
-                    [
-                        [ft.sigma_a**2, ft.correlation * ft.sigma_a * ft.sigma_b],
-                        [ft.correlation * ft.sigma_a * ft.sigma_b, ft.sigma_b**2],
-                    ]
-                )
-                fitted = (form, np.array([ft.a, ft.b]), cov)
-            obs.append(LineImage(len(lines) - 1, k, img.index, pts, o.sigma_px, ocs, fitted))
-    opts = job.options
-    return LineSet(lines, obs, opts.line_model, opts.line_correction)
-
-
-# ---- start: reference epochs, pseudo-frame observations -------------------------------------
-
-
 def _project_endpoint(img, coef, p: np.ndarray, line_guess: float) -> tuple[bool, float, float, np.ndarray]:
     """Exact projection of LGS point ``p`` with the chip it falls on (found by re-projecting)."""
     cam = img.camera
-    oc = _oc(img, line_guess, (cam.columns - 1) / 2.0)
+    oc = line_point_constants(img, line_guess, (cam.columns - 1) / 2.0)
     ok, line, col = False, line_guess, oc[1]
     for _ in range(3):
         ok, line, col, *_ = project(img.kind, coef, img.kc, p, oc, False)
-        new = _oc(img, line if np.isfinite(line) else line_guess, col if np.isfinite(col) else oc[1])
+        new = line_point_constants(img, line if np.isfinite(line) else line_guess, col if np.isfinite(col) else oc[1])
         if new[5] == oc[5] and new[6] == oc[6] and new[7] == oc[7]:
             oc = new
             break
@@ -560,7 +430,7 @@ def start(problem) -> None:
         if li.n_points:
             li.ref_line = float(li.points[:, 0].mean())
             mid = li.points[np.argmin(np.abs(li.points[:, 0] - li.ref_line))]
-            li.ref_oc = _oc(img, li.ref_line, float(mid[1]))
+            li.ref_oc = line_point_constants(img, li.ref_line, float(mid[1]))
             # pseudo-frame coordinates of the measured points, each with its own chip
             x = li.ocs[:, 5] + (li.points[:, 0] - li.ref_line) * k
             y = li.ocs[:, 6] + (li.points[:, 1] - li.ocs[:, 7]) * cam.pixel_mm
@@ -570,7 +440,7 @@ def start(problem) -> None:
             li.s = np.ascontiguousarray(((li.points - np.array([l1, c1])) @ d) / (d @ d))
         else:
             li.ref_line = 0.5 * (l1 + l2)
-            li.ref_oc = _oc(img, li.ref_line, 0.5 * (c1 + c2))
+            li.ref_oc = line_point_constants(img, li.ref_line, 0.5 * (c1 + c2))
             form, ab, cov = li.fitted  # type: ignore[misc]
             mp = np.array([li.ref_oc[5], li.ref_line, k, li.ref_oc[6], li.ref_oc[7], cam.pixel_mm])
             ab_m, cov_m = _to_pseudo_frame(form, ab, cov, mp)
@@ -886,7 +756,7 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[Proble
                     bad = True
                 if cam is not None and cam.lines is not None and cam.columns is not None:
                     for q, pt in enumerate(o.points):
-                        if not (-0.5 <= pt.line <= cam.lines - 0.5 and _on_a_chip(cam, pt.column)):
+                        if not (-0.5 <= pt.line <= cam.lines - 0.5 and on_a_chip(cam, pt.column)):
                             problems.append(
                                 Problem(
                                     "outside_image",
@@ -1051,3 +921,108 @@ def lines_report(problem, s_inv: np.ndarray | None, img_col: np.ndarray | None, 
         if vals:
             out["rmse_px"][role] = float(np.sqrt(np.mean(np.square(vals))))
     return out
+
+
+# ---- the family: validation, terms, tests, report, removal and flags -------------------------
+
+
+def without_line_points(job, removals: list[tuple]) -> tuple[Any, list[dict]]:
+    """``job`` without the line image points ``("line_point", line id, image id, k)`` (k: the
+    index in that image's ``points``; None: the fitted image line as a whole); a line image left
+    with fewer than two points goes as a whole (collateral)."""
+    drop: dict[tuple[str, str], set] = {}
+    for r in removals:
+        if r[0] == "line_point":
+            drop.setdefault((r[1], r[2]), set()).add(r[3])
+    if not drop:
+        return job, []
+    lines, collateral = [], []
+    for gl in job.lines:
+        obs = []
+        for lo in gl.observations:
+            gone = drop.get((gl.id, lo.image), set())
+            if None in gone:
+                continue
+            if gone:
+                pts = [q for k, q in enumerate(lo.points) if k not in gone]
+                if len(pts) < 2:
+                    collateral.append({"kind": "line_point", "line": gl.id, "image": lo.image, "point": None,
+                                       "units": "px", "components": ["distance"]})
+                    continue
+                lo = lo.model_copy(update={"points": pts})
+            obs.append(lo)
+        lines.append(gl.model_copy(update={"observations": obs}))
+    return job.model_copy(update={"lines": lines}), collateral
+
+
+def line_point_coordinates(job, line: str, image: str, k: int | None) -> dict[str, float | None]:
+    """The measured image coordinates (px) of point ``k`` of ``line`` in ``image`` in ``job``
+    (the job at the time of the removal, whose indices the removal used); ``None`` for a line
+    image removed whole."""
+    if k is not None:
+        for gl in job.lines:
+            if gl.id != line:
+                continue
+            for lo in gl.observations:
+                if lo.image == image and 0 <= k < len(lo.points):
+                    q = lo.points[k]
+                    return {"line": float(q.line), "column": float(q.column)}
+    return {"line": None, "column": None}
+
+
+class LineFamily(FamilyDefaults):
+    """Straight-line control as an observation family: a measured line image point (rigorous
+    model) or a fitted image line / an equivalent-planes line image is one test
+    (``line_point``), removable; report section ``lines`` (flag: ``items[].rejected``)."""
+
+    name = "lines"
+
+    def check(self, job) -> tuple[list[Problem], Count]:
+        problems, counts = collect_line_problems(job, {c.id: c for c in job.cameras}, {im.id: im for im in job.images})
+        datum = frozenset({"control"}) if counts["n_control"] else frozenset()
+        return problems, Count(n_observations=counts["n_observations"], per_image=counts["per_image"], datum=datum)
+
+    def terms(self, problem) -> list[Labelled]:
+        return [Labelled(self, t, "image", t.image_index) for t in line_terms(problem)]
+
+    def refresh(self, problem) -> float:
+        return refresh_lines(problem)
+
+    def groups(self, problem, labelled: Labelled) -> list[GroupSpec]:
+        term: LineTerm = labelled.term
+        label = {"image": problem.images[term.image_index].id, "line": term.gl.id}
+        removal = lambda lab: ("line_point", lab["line"], lab["image"], lab.get("point"))  # noqa: E731
+        m = term.n_residuals
+        if m == 2 and (term.model == "equivalent_planes" or not term.li.n_points):  # one (a, b) pair
+            return per_row_groups("line_point", m, 2, {**label, "point": None}, None, np.ones(m), "whitened", ["a", "b"],
+                                  1.0, removal)
+        return per_row_groups("line_point", m, 1, label, [{"point": j} for j in range(m)], np.full(m, float(term.li.sigma_px)),
+                              "px", ["distance"], 1.0, removal)
+
+    def report(self, problem, ctx: ReportContext) -> dict[str, Any]:
+        section = lines_report(problem, ctx.covariance, ctx.layout.img_col if ctx.layout is not None else None, ctx.sigma0_apriori)
+        ctx.warnings += section["warnings"]
+        return {"lines": section}
+
+    def without(self, job, removals: list[tuple]) -> tuple[Any, list[dict[str, Any]]]:
+        return without_line_points(job, removals)
+
+    def removal_details(self, job, removal: tuple) -> dict[str, Any]:
+        """The removed point's measured pixels (its index shifts with later removals)."""
+        return {"measured": line_point_coordinates(job, removal[1], removal[2], removal[3])}
+
+    def flag(self, report: dict[str, Any], removed: list[dict[str, Any]]) -> None:
+        """``lines.items[].rejected``: ``[{"image", "line", "column"}]`` for a measured line image
+        point (image coordinates in pixels, as measured), ``{"image", "line": null, "column":
+        null}`` for a line image removed whole (a fitted image line, or the last point of a line
+        image, ``collateral``)."""
+        items = {it["id"]: it for it in (report.get("lines") or {}).get("items") or []}
+        for it in items.values():
+            it["rejected"] = []
+        for r in removed:
+            if r["kind"] == "line_point" and r.get("line") in items:
+                where = r.get("measured") or {"line": None, "column": None}
+                items[r["line"]]["rejected"].append({"image": r.get("image"), **where})
+
+
+FAMILY = LineFamily()

@@ -33,6 +33,7 @@ from solver.kernels.propagation import (
     segment_length,
 )
 from solver.observations.ephemeris import image_state, usable
+from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled, ReportContext
 from solver.platforms import get_model
 from solver.platforms.registry import PASS_STATE
 
@@ -498,3 +499,71 @@ def passes_report(problem: "AdjustmentState", cov_block, var_factor: float) -> l
             }
         )
     return out
+
+
+def _without_samples(job: "Job", removals: list[tuple]) -> "Job":
+    """``job`` without the pass ephemeris samples ``("pass_sample", pass image ids, time_s)``:
+    the sample goes from every image of the pass that carries it."""
+    samples = [(set(r[1]), r[2]) for r in removals if r[0] == "pass_sample"]
+    if not samples:
+        return job
+    images = []
+    for im in job.images:
+        drop = [t for ids, t in samples if im.id in ids]
+        if drop:
+            im = im.model_copy(update={"ephemeris": [sv for sv in im.ephemeris if all(abs(sv.time_s - t) > 1e-6 for t in drop)]})
+        images.append(im)
+    return job.model_copy(update={"images": images})
+
+
+class PassFamily(FamilyDefaults):
+    """Weighted states of the pass-propagated models (ephemeris samples at their epochs, header
+    states at an image's first line) as an observation family: each is one test
+    (``ephemeris_sample``); an ephemeris sample is removable (from every image of the pass), a
+    header state is not. Report section ``passes`` (the estimated pass states); a removed
+    sample is flagged in ``ephemeris.images[].rejected_samples_s`` of the pass's images."""
+
+    name = "passes"
+
+    def check(self, job: "Job") -> tuple[list[Problem], Count]:
+        issues = pass_problems(job)
+        return issues, Count(n_observations=0 if issues else n_pass_state_observations(job), n_unknowns=n_pass_unknowns(job))
+
+    def terms(self, problem: "AdjustmentState") -> list[Labelled]:
+        return [Labelled(self, t, "pass", t.pass_index) for t in pass_terms(problem)]
+
+    def groups(self, problem: "AdjustmentState", labelled: Labelled) -> list[GroupSpec]:
+        term: PassStateTerm = labelled.term
+        ps = problem.passes[term.pass_index]
+        m = term.n_residuals
+        removal = None
+        if term.image_index >= 0:  # an image's header state: not removable
+            label = {"pass": ps.id, "image": problem.images[term.image_index].id, "time_s": None}
+        else:
+            t = float(term.kc[PASS_T_OFF] + ps.t_ref_s)
+            label = {"pass": ps.id, "time_s": t}
+            removal = ("pass_sample", tuple(problem.images[i].id for i in ps.images), t)
+        return [GroupSpec("ephemeris_sample", np.arange(m), label, 1.0 / term.w, "m, m/s",
+                          ["x", "y", "z", "vx", "vy", "vz"][:m], -1.0, removal)]
+
+    def report(self, problem: "AdjustmentState", ctx: ReportContext) -> dict[str, Any]:
+        return {"passes": passes_report(problem, lambda pi: ctx.block("pass", pi, 6), ctx.var_factor)}
+
+    def without(self, job: "Job", removals: list[tuple]) -> tuple["Job", list[dict[str, Any]]]:
+        return _without_samples(job, removals), []
+
+    def flag(self, report: dict[str, Any], removed: list[dict[str, Any]]) -> None:
+        """A removed pass ephemeris sample: its epoch in ``ephemeris.images[].rejected_samples_s``
+        of every image of the pass that has an ephemeris entry (the list the ephemeris family
+        started, earlier in the registry)."""
+        eph_images = {e["image"]: e for e in (report.get("ephemeris") or {}).get("images") or []}
+        pass_images = {p.get("id"): p.get("images") or [] for p in report.get("passes") or []}
+        for r in removed:
+            if r["kind"] != "ephemeris_sample" or r.get("time_s") is None:
+                continue
+            for image in pass_images.get(r.get("pass"), [r.get("image")]):
+                if image in eph_images:
+                    eph_images[image].setdefault("rejected_samples_s", []).append(r["time_s"])
+
+
+FAMILY = PassFamily()

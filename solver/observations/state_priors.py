@@ -13,12 +13,20 @@ observed state ``b`` expressed in the model's frame, and ``W`` = diag(1/sigma). 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from solver.observations.ephemeris import image_state
-from solver.platforms import coef_index
+from solver.errors import Problem
+from solver.observations.ephemeris import ephemeris_problems, ephemeris_report, image_state
+from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled, ReportContext
+from solver.platforms import coef_index, get_model
 from solver.state import AdjustmentState, ImageState, is_kepler
+
+if TYPE_CHECKING:
+    from solver.schema.job import Job
+
+STATE_COMPONENTS = ["x", "y", "z", "vx", "vy", "vz"]
 
 
 @dataclass
@@ -102,3 +110,100 @@ def all_state_priors(problem: AdjustmentState) -> list[StatePrior]:
             if p is not None:
                 out.append(p)
     return out
+
+
+def _count(job: "Job") -> tuple[list[Problem], Count]:
+    """Ephemeris problems and the weighted states and RPC bias priors validation counts (an
+    image whose model is unknown or whose options are refused is left to validation)."""
+    problems: list[Problem] = []
+    n = 0
+    datum: set[str] = set()
+    if any(im.bias_prior for im in job.images):
+        datum.add("control")  # an RPC image's a-priori bias values: its own ground reference
+    for i, im in enumerate(job.images):
+        try:
+            model = get_model(im.model.name)
+        except KeyError:
+            continue
+        if not model.kind.has_camera or im.rpc is not None:
+            n += len(im.bias_prior)
+            continue
+        problems += ephemeris_problems(im, i)
+        try:
+            names = {p.name for p in model.parameters(im.model.options)}
+        except (ValueError, TypeError, KeyError):
+            continue
+        state = image_state(im, job.options)  # approx_state or the interpolated ephemeris
+        if state is None or state.sigma_position_m is None:
+            continue
+        datum.add("states")
+        if model.kind.position_from_image_state:  # pass states: solver.observations.passes
+            n += sum(1 for name in ("X0", "Y0", "Z0") if name in names)
+            if state.sigma_velocity_m_s is not None:
+                n += sum(1 for name in ("ux", "uy", "uz", "X1", "Y1", "Z1") if name in names)
+    return problems, Count(n_observations=n, datum=frozenset(datum))
+
+
+def _without_states(job: "Job", removals: list[tuple]) -> "Job":
+    """``job`` without the weighted line-0 state of the images ``("state_prior", image id)``: the
+    state the solver used (header or interpolated ephemeris) stays as the image's unweighted
+    ``approx_state`` (it still initialises the model), its ephemeris goes."""
+    gone = {r[1] for r in removals if r[0] == "state_prior"}
+    if not gone:
+        return job
+    images = []
+    for im in job.images:
+        if im.id in gone:
+            state = image_state(im, job.options)
+            state = state.model_copy(update={"sigma_position_m": None, "sigma_velocity_m_s": None})
+            im = im.model_copy(update={"approx_state": state, "ephemeris": []})
+        images.append(im)
+    return job.model_copy(update={"images": images})
+
+
+class EphemerisFamily(FamilyDefaults):
+    """Weighted line-0 states (header ``approx_state`` sigmas or the interpolated ephemeris with
+    ``options.ephemeris`` sigmas) and RPC bias priors, as an observation family: a weighted state
+    is one test (``ephemeris_sample``, removable: the state stays unweighted), a bias prior is not
+    tested; report section ``ephemeris`` (flags: ``images[].rejected_samples_s``, filled by the
+    passes family, and ``rejected_states``)."""
+
+    name = "ephemeris"
+
+    def check(self, job: "Job") -> tuple[list[Problem], Count]:
+        return _count(job)
+
+    def terms(self, problem: AdjustmentState) -> list[Labelled]:
+        return [Labelled(self, p, "image", p.image_index) for p in all_state_priors(problem)]
+
+    def groups(self, problem: AdjustmentState, labelled: Labelled) -> list[GroupSpec]:
+        term = labelled.term
+        if isinstance(term, BiasPrior):  # a-priori RPC bias values: not tested, like IOP priors
+            return []
+        m = term.n_residuals
+        image = problem.images[term.image_index].id
+        return [GroupSpec("ephemeris_sample", np.arange(m), {"image": image, "time_s": None}, 1.0 / term.w, "m, m/s",
+                          STATE_COMPONENTS[:m], -1.0, ("state_prior", image))]
+
+    def report(self, problem: AdjustmentState, ctx: ReportContext) -> dict[str, Any]:
+        return {"ephemeris": ephemeris_report(problem)}
+
+    def without(self, job: "Job", removals: list[tuple]) -> tuple["Job", list[dict[str, Any]]]:
+        return _without_states(job, removals), []
+
+    def flag(self, report: dict[str, Any], removed: list[dict[str, Any]]) -> None:
+        """``ephemeris.rejected_states``: the images whose weighted line-0 state was removed (the
+        state stays as the image's unweighted approximate state and its ephemeris goes, so the
+        image has no entry in ``ephemeris.images`` any more); ``ephemeris.images[].rejected_samples_s``
+        starts empty (a pass's removed samples: :mod:`solver.observations.passes`)."""
+        ephemeris = report.get("ephemeris")
+        if not isinstance(ephemeris, dict):
+            return
+        for e in ephemeris.get("images") or []:
+            e["rejected_samples_s"] = []
+        ephemeris["rejected_states"] = [
+            r.get("image") for r in removed if r["kind"] == "ephemeris_sample" and r.get("time_s") is None
+        ]
+
+
+FAMILY = EphemerisFamily()

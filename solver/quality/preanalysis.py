@@ -30,7 +30,7 @@ from solver.geometry.geodesy import ecef_to_geodetic, enu_rotation
 from solver.geometry.rpc import RPC
 from solver.kernels import all_observation_blocks
 from solver.observations.ephemeris import image_state
-from solver.observations.lines import lines_ecef
+from solver.observations.line_data import lines_ecef
 from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
 from solver.quality.parsimony import high_correlations
 from solver.quality.precision import (

@@ -6,7 +6,8 @@ All quantities are for the *whitened* residuals of :class:`solver.engine.linalg.
 ``H = J N^-1 J^T``. The diagonal of ``Q_vv`` holds the redundancy numbers (they sum to the
 degrees of freedom). ``Q_vv`` is never formed whole: it is computed block by block, one block
 per set of rows that share a ground point (the rays of an estimated point and its survey prior;
-the rays of a fixed control point) or one image-only term (ephemeris, attitude, line), with the
+the rays of a fixed control point) or one term of an observation family (ephemeris, attitude,
+line, ...: its tests labelled by the family, :meth:`ObservationFamily.groups`), with the
 points eliminated as in :mod:`solver.engine.linalg`:
 
     H_block = U S^-1 U^T + J_p C_p^-1 J_p^T,   U = J_img - J_p C_p^-1 B_p^T
@@ -58,7 +59,7 @@ class Block:
 class Group:
     """One observation's rows (a test) inside a block."""
 
-    kind: str  # image_point | control_point | line_point | ephemeris_sample | attitude_sample
+    kind: str  # image_point | control_point, or a family's (line_point, ephemeris_sample, attitude_sample, ...)
     label: dict  # image, point, line, pass, time_s, ... (report fields)
     block: int
     local: np.ndarray  # row positions inside the block
@@ -66,6 +67,8 @@ class Group:
     units: str  # px | m | deg | m, m/s
     components: list[str]
     removal: tuple | None = None  # how to remove it from the job (None: cannot be removed)
+    sign: float = 1.0  # residual = sign (observed - model): +1 image points, -1 priors
+    family: Any = None  # the observation family of a term's group (None: image and control points)
 
     @property
     def dim(self) -> int:
@@ -105,49 +108,6 @@ def _obs_rows(lin: Linearisation, idx: np.ndarray) -> tuple[np.ndarray, np.ndarr
     rows[0::2] = 2 * idx
     rows[1::2] = 2 * idx + 1
     return rows, cols, jimg
-
-
-def _term_kinds(problem: AdjustmentState, lin: Linearisation) -> list[tuple[str, int, dict, list]]:
-    """(kind, rows per group, label, per-group labels) of each image-only term, in order."""
-    from solver.kernels.propagation import PASS_T_OFF
-    from solver.observations.attitude import _block_terms, block_samples
-    from solver.observations.lines import LineTerm
-    from solver.observations.passes import PassStateTerm
-    from solver.observations.state_priors import BiasPrior, StatePrior, all_state_priors
-
-    # solver.engine.terms.image_terms order: state priors, then the families (attitude), then
-    # lines, passes; the attitude terms are StatePriors too, so they are told apart by position
-    n_state = len(all_state_priors(problem))
-    att_blocks = [block for block, _term in _block_terms(problem)]
-    out = []
-    for k, term in enumerate(lin.terms):
-        if isinstance(term, LineTerm):
-            line = term.gl.id
-            img = problem.images[term.image_index].id
-            if term.n_residuals == 2 and (term.model == "equivalent_planes" or not term.li.n_points):
-                out.append(("line_point", 2, {"image": img, "line": line, "point": None}, None))
-            else:
-                out.append(("line_point", 1, {"image": img, "line": line}, [{"point": j} for j in range(term.n_residuals)]))
-        elif isinstance(term, PassStateTerm):
-            ps = problem.passes[term.pass_index]
-            if term.image_index >= 0:
-                label = {"pass": ps.id, "image": problem.images[term.image_index].id, "time_s": None}
-            else:
-                label = {"pass": ps.id, "time_s": float(term.kc[PASS_T_OFF] + ps.t_ref_s)}
-            out.append(("ephemeris_sample", term.n_residuals, label, None))
-        elif isinstance(term, BiasPrior):
-            out.append(("", 0, {}, None))  # a-priori RPC bias values: not tested, like IOP priors
-        elif isinstance(term, StatePrior) and n_state <= k < n_state + len(att_blocks):
-            block = att_blocks[k - n_state]
-            samples = block_samples(problem.job, block)
-            out.append(
-                ("attitude_sample", 3, {"image": problem.images[block[0]].id}, [{"time_s": float(s.time_s)} for s in samples])
-            )
-        elif isinstance(term, StatePrior):
-            out.append(("ephemeris_sample", term.n_residuals, {"image": problem.images[term.image_index].id, "time_s": None}, None))
-        else:
-            out.append(("", 0, {}, None))  # interior orientation priors: not tested
-    return out
 
 
 def structure(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, s_inv: np.ndarray) -> Structure:
@@ -209,40 +169,25 @@ def structure(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, s
                     "m",
                     ["e", "n", "u"],
                     ("control", p),
+                    -1.0,
                 )
             )
-    # image-only terms: one block each
+    # the families' terms: one block each, their tests as the family labels them
     row = n_obs_rows + 3 * len(lin.point_prior)
-    for term, (c0, (res, jac)), (kind, per, label, each) in zip(
-        lin.terms, zip(lin.term_col, lin.term_eval), _term_kinds(problem, lin)
-    ):
-        m = len(res)
-        rows = row + np.arange(m)
-        row += m
-        if not kind or per <= 0:
+    for labelled, c0, (res, jac) in zip(lin.terms, lin.term_col, lin.term_eval):
+        rows = row + np.arange(len(res))
+        row += len(res)
+        specs = labelled.family.groups(problem, labelled)
+        if not specs:
             continue
         cols = c0 + np.arange(jac.shape[1])
         q, u, _bt = _hat_block(jac, None, None, s_inv[np.ix_(cols, cols)])
         b = len(st.blocks)
         st.blocks.append(Block(rows, q, cols, u, None, None, None))
-        w = np.asarray(getattr(term, "w", np.ones(m)), dtype=float)
-        n_groups = m // per
-        for g in range(n_groups):
-            loc = g * per + np.arange(per)
-            lab = dict(label)
-            if each is not None and g < len(each):
-                lab.update(each[g])
-            sigma = 1.0 / w[loc] if w.ndim == 1 and len(w) == m else np.ones(per)
-            units, comps = {
-                "attitude_sample": ("deg", ["roll", "pitch", "yaw"]),
-                "line_point": ("px", ["distance"]) if per == 1 else ("whitened", ["a", "b"]),
-                "ephemeris_sample": ("m, m/s", ["x", "y", "z", "vx", "vy", "vz"][:per]),
-            }[kind]
-            if kind == "attitude_sample":
-                sigma = np.degrees(sigma)
-            if kind == "line_point":
-                sigma = np.full(per, float(term.li.sigma_px)) if per == 1 else np.ones(per)
-            st.groups.append(Group(kind, lab, b, loc, sigma, units, comps, None))
+        for g in specs:
+            st.groups.append(
+                Group(g.kind, g.label, b, g.rows, np.asarray(g.sigma, dtype=float), g.units, g.components, g.removal, g.sign, labelled.family)
+            )
     return st
 
 

@@ -45,7 +45,6 @@ from solver.quality.reliability import (
 from solver.state import AdjustmentState
 
 EIGEN_TOL = REDUNDANCY_NEAR_ZERO  # eigenvalues of Q_gg below this (redundancy ~0) carry no test
-SIGN = {"image_point": 1.0, "line_point": 1.0, "control_point": -1.0, "ephemeris_sample": -1.0, "attitude_sample": -1.0}
 
 
 @dataclass
@@ -128,26 +127,9 @@ def _fixed_control_groups(problem: AdjustmentState, lin, st: Structure) -> None:
         st.groups.append(
             FixedControlGroup(
                 "control_point", {"point": point.id, "fixed": True}, b, np.arange(len(blk.rows)), np.ones(3), "m",
-                ["e", "n", "u"], ("control", blk.point), basis=u[:, keep], to_metres=vt[keep].T / sv[keep],
+                ["e", "n", "u"], ("control", blk.point), -1.0, basis=u[:, keep], to_metres=vt[keep].T / sv[keep],
             )
         )
-
-
-def _term_removals(problem: AdjustmentState, st: Structure) -> None:
-    """How to remove a line image point (rigorous: one measured point; fitted: the image line),
-    an attitude sample and an image's weighted line-0 state (header or interpolated ephemeris)
-    from the job (``solver.quality.removal.remove``), a pass's ephemeris sample (from every
-    image of the pass); the header states of a pass's images stay not removable."""
-    for g in st.groups:
-        if g.kind == "line_point":
-            g.removal = ("line_point", g.label["line"], g.label["image"], g.label.get("point"))
-        elif g.kind == "attitude_sample":
-            g.removal = ("attitude_sample", g.label["image"], g.label["time_s"])
-        elif g.kind == "ephemeris_sample" and "pass" not in g.label:
-            g.removal = ("state_prior", g.label["image"])
-        elif g.kind == "ephemeris_sample" and g.label.get("time_s") is not None:
-            ps = next(ps for ps in problem.passes if ps.id == g.label["pass"])
-            g.removal = ("pass_sample", tuple(problem.images[i].id for i in ps.images), g.label["time_s"])
 
 
 def _pinv(q: np.ndarray) -> tuple[np.ndarray, int]:
@@ -174,7 +156,6 @@ def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
     s_inv = positive_definite_inverse(parts.s)  # LinAlgError: no tests without a covariance
     st = structure(problem, lin, parts, s_inv)
     _fixed_control_groups(problem, lin, st)
-    _term_removals(problem, st)
     res = lin.residuals
     dof = len(res) - lin.layout.n_params
     vtpv = float(res @ res)
@@ -199,7 +180,7 @@ def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
         if basis is not None:
             v = basis.T @ v
         q_inv, d = _pinv(_cofactor(st, g))
-        err_w = SIGN[g.kind] * (q_inv @ v)
+        err_w = g.sign * (q_inv @ v)
         t_stat = float(v @ q_inv @ v)
         w = crit = None
         if d > 0:
@@ -415,5 +396,5 @@ def predicted_test(sn: Snoop, t: Test, inflate: float, s2: tuple[float, int] | N
     else:
         w = math.sqrt(t_stat / s2[0])
         crit = float(math.sqrt(d * stats.f.ppf(1.0 - sn.alpha0, d, max(s2[1], 1))))
-    err = SIGN[g.kind] * e * (g.sigma / inflate)
+    err = g.sign * e * (g.sigma / inflate)
     return {"w": w, "critical": crit, "dof": d, "estimated_error": [float(x) for x in err], "passed": w <= crit}

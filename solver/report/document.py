@@ -1,7 +1,7 @@
 """The adjustment report (docs/report-contract.md), built at the solution by :func:`assess`:
-the adjustment's statistics, then one section per part of the problem (images, correlations,
-cameras, passes, observations, points, check points, lines, ephemeris and the families of
-:mod:`solver.observations.registry`).
+the adjustment's statistics, then one section per part of the problem's core (images,
+correlations, observations, points, check points) and the sections of the observation families
+of :mod:`solver.observations.registry` (ephemeris, attitude, lines, passes, cameras, ...).
 """
 
 from __future__ import annotations
@@ -16,25 +16,32 @@ from solver.engine.linalg import Covariance, covariance, linearise, schur
 from solver.geometry.geodesy import ecef_to_geodetic
 from solver.kernels import platform_state
 from solver.kernels.rpc import RPC_START, rpc_image_to_ground
-from solver.observations.ephemeris import ephemeris_report, line0_state_ecef
-from solver.observations.interior import cameras_report
-from solver.observations.lines import lines_report
-from solver.observations.passes import attitude_groups, passes_report
-from solver.observations.registry import FAMILIES
+from solver.observations import registry
+from solver.observations.ephemeris import line0_state_ecef
+from solver.observations.family import ReportContext
+from solver.observations.passes import attitude_groups
 from solver.quality.leave_one_out import leave_one_out
 from solver.quality.parsimony import high_correlations, implausible_sigmas
 from solver.quality.precision import checkpoint_precision, error_ellipse
 from solver.report.checkpoints import compute_checkpoints
 from solver.report.statistics import chi2_test
+from solver.schema.settings import Settings
 from solver.state import AdjustmentState
 
 REPORT_SCHEMA_VERSION = "1.0"
+# The order of the report's sections (docs/report-contract.md): the core's and the families'
+# (ephemeris, attitude, lines, passes, cameras) as published; a new family's sections follow
+# them, then quality and warnings.
+SECTION_ORDER = (
+    "schema_version", "kind", "job_name", "frames", "adjustment", "images", "correlations", "cameras", "passes",
+    "observations", "tie_points", "control_points", "checkpoints", "lines", "ephemeris", "attitude",
+)
 
 
 def assess(problem: AdjustmentState, outcome) -> dict[str, Any]:
     """Statistics, covariance, check points and the report, at the current parameters."""
     job = problem.job
-    opts = job.options
+    stats = Settings.from_options(job.options).statistics
     lin = linearise(problem)
     n_obs = len(lin.residuals)
     n_unk = lin.layout.n_params
@@ -44,9 +51,9 @@ def assess(problem: AdjustmentState, outcome) -> dict[str, Any]:
     warnings: list[str] = []
     if dof == 0:
         warnings.append("zero degrees of freedom: no a-posteriori variance; sigmas use sigma0 a priori")
-    var_factor = (sigma0**2) if sigma0 is not None else opts.sigma0_apriori**2
+    var_factor = (sigma0**2) if sigma0 is not None else stats.sigma0_apriori**2
     cov: Covariance | None = None
-    if opts.covariance and outcome.usable:
+    if stats.covariance and outcome.usable:
         parts = schur(lin, problem)
         try:
             cov = covariance(lin, parts, problem)
@@ -72,51 +79,49 @@ def assess(problem: AdjustmentState, outcome) -> dict[str, Any]:
         "termination": outcome.termination,
         "message": outcome.message,
         "linear_solver": outcome.linear_solver,
-        "sigma0_apriori": opts.sigma0_apriori,
+        "sigma0_apriori": stats.sigma0_apriori,
         "sigma0_aposteriori": sigma0,
-        "chi2": chi2_test(vtpv, dof, opts.alpha, opts.sigma0_apriori),
+        "chi2": chi2_test(vtpv, dof, stats.alpha, stats.sigma0_apriori),
         "solve_time_s": outcome.time_s,
         "initial_cost": outcome.initial_cost,
         "final_cost": outcome.final_cost,
         "cost_history": outcome.history,
     }
     images, gsds = _images_report(problem, lin, cov, var_factor)
-    lines = lines_report(problem, cov.images if cov is not None else None, lin.layout.img_col, opts.sigma0_apriori)
-    warnings += lines["warnings"]
+    ctx = ReportContext(cov.images if cov is not None else None, lin.layout, var_factor, stats.sigma0_apriori, warnings)
+    family_sections: dict[str, Any] = {}
+    for family in registry.FAMILIES:  # their warnings join the report's (ctx.warnings)
+        family_sections.update(family.report(problem, ctx))
     gsd = float(np.mean(gsds)) if gsds else None
     q_ff = cov.images if cov is not None else None
-    checkpoints = compute_checkpoints(problem, opts.alpha, gsd)
-    checkpoint_precision(checkpoints, problem, lin.layout, q_ff, var_factor, opts.alpha)
-    quality_warnings = implausible_sigmas(problem, images, opts.quality_warnings.attitude_sigma_deg)
-    quality_warnings += high_correlations(q_ff, parameter_names(problem), opts.quality_warnings.correlation)
+    checkpoints = compute_checkpoints(problem, stats.alpha, gsd)
+    checkpoint_precision(checkpoints, problem, lin.layout, q_ff, var_factor, stats.alpha)
+    quality_warnings = implausible_sigmas(problem, images, stats.quality_warnings.attitude_sigma_deg)
+    quality_warnings += high_correlations(q_ff, parameter_names(problem), stats.quality_warnings.correlation)
     warnings += [w["message"] for w in quality_warnings[:10]]
     if len(quality_warnings) > 10:
         warnings.append(f"{len(quality_warnings) - 10} more parameter warnings in quality.warnings")
     quality = {
-        "leave_one_out": leave_one_out(problem, lin.layout, q_ff, var_factor, opts.alpha) if opts.leave_one_out else None,
+        "leave_one_out": leave_one_out(problem, lin.layout, q_ff, var_factor, stats.alpha) if stats.leave_one_out else None,
         "parsimony": None,
         "warnings": quality_warnings,
     }
-    return {
+    report = {
         "schema_version": REPORT_SCHEMA_VERSION,
         "kind": "adjustment",
         "job_name": job.name,
         "frames": {"lgs": problem.frame.to_dict(), "ecef": "EPSG:4978"},
         "adjustment": adjustment,
         "images": images,
-        "correlations": _correlations(problem, cov, opts.correlation_threshold),
-        "cameras": _cameras_report(problem, lin, cov, var_factor),
-        "passes": _passes_report(problem, lin, cov, var_factor),
+        "correlations": _correlations(problem, cov, stats.correlation_threshold),
         "observations": _observations_report(problem, lin, cov),
         "tie_points": _points_report(problem, cov, var_factor, role="tie"),
         "control_points": _points_report(problem, cov, var_factor, role="gcp"),
         "checkpoints": checkpoints,
-        "lines": lines,
-        "ephemeris": ephemeris_report(problem),
-        **{family.name: family.report(problem) for family in FAMILIES},
-        "quality": quality,
-        "warnings": warnings,
+        **family_sections,
     }
+    ordered = {k: report.pop(k) for k in SECTION_ORDER if k in report}
+    return {**ordered, **report, "quality": quality, "warnings": warnings}
 
 
 def _state_line0(problem: AdjustmentState, index: int) -> dict[str, list[float]]:
@@ -208,27 +213,6 @@ def _images_report(problem: AdjustmentState, lin, cov: Covariance | None, var_fa
             }
         )
     return out, gsds
-
-
-def _passes_report(problem: AdjustmentState, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
-    def block(pi: int):
-        if cov is None:
-            return None
-        c0 = lin.layout.pass_col[pi]
-        return cov.images[c0 : c0 + 6, c0 : c0 + 6]
-
-    return passes_report(problem, block, var_factor)
-
-
-def _cameras_report(problem: AdjustmentState, lin, cov: Covariance | None, var_factor: float) -> list[dict[str, Any]]:
-    def block(ci: int):
-        cam = problem.cameras[ci]
-        if cov is None or not cam.nfree:
-            return None
-        c0 = lin.layout.cam_col[ci]
-        return cov.images[c0 : c0 + cam.nfree, c0 : c0 + cam.nfree]
-
-    return cameras_report(problem.cameras, block, var_factor)
 
 
 def _correlation_pairs(cov: Covariance) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:

@@ -625,6 +625,8 @@ class PreanalysisOptions(_Strict):
     )
 
 
+# The solver reads these as four objects (how to solve, which blocks, which statistics, which
+# procedures): solver.schema.settings.Settings.from_options; the wire format stays this one.
 class SolverOptions(_Strict):
     """How to solve and what to report."""
 
@@ -638,7 +640,12 @@ class SolverOptions(_Strict):
     covariance: Bool = True
     loss: Literal["none", "huber", "cauchy"] = "none"
     loss_scale: _num(ge=1e-6, le=1e6) = 3.0
-    kernel: Literal["auto", "python"] = "auto"
+    kernel: Literal["auto", "python"] = Field(
+        default="auto",
+        deprecated=True,
+        description="deprecated and ignored: the solver chooses its residual kernels itself; still "
+        "accepted so that existing job documents stay valid, to be removed in the next schema version",
+    )
     self_calibration: SelfCalibration | None = None
     models: list[str] = Field(
         default_factory=list,

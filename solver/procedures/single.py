@@ -1,0 +1,144 @@
+"""One adjustment of a job: validate, build, initialise, check rank, solve, assess.
+
+Small verbs, one per step (as Ceres' bundle_adjuster.cc); pyceres is used only through
+:mod:`solver.engine.backend`, imported when a solve runs (the server process never loads it).
+The procedures that adjust more than once (:mod:`solver.procedures.snooping`,
+:mod:`solver.procedures.parsimony`, :mod:`solver.procedures.significance`) are built on
+:func:`adjust_once`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from solver.engine.assemble import build_problem, parameter_names
+from solver.engine.initialize import initialise
+from solver.engine.linalg import check_rank, linearise, schur
+from solver.engine.validate import require_valid
+from solver.errors import Cancelled, Problem, RankDeficientError, UnusableSolution
+from solver.report.document import assess
+from solver.schema.job import Job
+from solver.schema.settings import Settings
+from solver.state import AdjustmentState
+
+Adjust = Callable[[Job, tuple[float, float]], dict[str, Any]]
+"""``adjust(job, fraction_range) -> report``: the adjustment a procedure repeats (the progress
+of that run mapped into ``fraction_range`` of the whole)."""
+
+
+def _progress(progress, fraction: float, message: str, info: dict | None = None) -> None:
+    if progress is not None:
+        progress(fraction, message, info or {})
+
+
+def prepare(job: Job, models: dict[str, str] | None = None) -> AdjustmentState:
+    """Validated, assembled and initialised problem (raises JobError on bad input)."""
+    require_valid(job)
+    problem = build_problem(job, models)
+    initialise(problem)
+    return problem
+
+
+def assert_full_rank(problem: AdjustmentState) -> None:
+    """Raise RankDeficientError naming the parameters the control geometry does not fix."""
+    lin = linearise(problem)
+    parts = schur(lin, problem)
+    issues = []
+    for q in np.flatnonzero(parts.point_singular):
+        p = problem.points[parts.est_points[q]]
+        issues.append(
+            Problem(
+                "point_geometry_singular",
+                f"point {p.id!r}: its rays are (nearly) parallel, its coordinates cannot be determined",
+                ("points", p.index),
+            )
+        )
+    rank = check_rank(parts, parameter_names(problem))
+    if rank.deficient:
+        names = ", ".join(n for n, _ in rank.null_parameters) or "(spread over many parameters)"
+        issues.append(
+            Problem(
+                "rank_deficient",
+                "the control geometry leaves these parameters undetermined (the normal matrix is "
+                f"singular, condition {rank.condition:.3g}): {names}. Add or spread control points, "
+                "or choose a model with fewer parameters.",
+                ("images",),
+                {
+                    "parameters": [n for n, _ in rank.null_parameters],
+                    # JSON has no infinity: an exactly singular matrix has no finite condition
+                    "condition": rank.condition if np.isfinite(rank.condition) else None,
+                },
+            )
+        )
+    if issues:
+        raise RankDeficientError(issues)
+
+
+def solve_problem(problem: AdjustmentState, control):
+    """The bundle solve from the initial values.
+
+    A per-image resection on the control before the bundle was tried and removed: it moves each
+    image along its weakly determined pitch / along-track-position direction, and the bundle then
+    needs 3-4x more iterations (triplet: 21 instead of 6) than from the header state.
+    """
+    from solver.engine.backend import solve
+    from solver.engine.terms import solve_with_refreshes
+
+    # terms that linearise around the solution (line corrections) are refreshed between solves
+    return solve_with_refreshes(problem, Settings.from_options(problem.job.options).solve, control, solve)
+
+
+def adjust_once(
+    job: Job,
+    progress: Callable[..., None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+    models: dict[str, str] | None = None,
+    fraction_range: tuple[float, float] = (0.0, 1.0),
+) -> tuple[AdjustmentState, dict[str, Any]]:
+    """One adjustment of ``job``: the problem at its solution and the report."""
+    from solver.engine.backend import SolveControl  # imports pyceres: workers only
+
+    f0, f1 = fraction_range
+
+    def frac(x: float) -> float:
+        return f0 + (f1 - f0) * x
+
+    t_start = time.perf_counter()
+    _progress(progress, frac(0.01), "validating")
+    problem = prepare(job, models)
+    _progress(progress, frac(0.05), "initial values computed")
+    assert_full_rank(problem)
+    if cancel is not None and cancel():
+        raise Cancelled("cancelled before the solve")
+    control = SolveControl(progress, cancel, Settings.from_options(job.options).solve.max_iterations, (frac(0.08), frac(0.9)))
+    outcome = solve_problem(problem, control)
+    if outcome.cancelled:
+        raise Cancelled(f"cancelled after {outcome.iterations} iterations")
+    reasons = outcome.unusable_reasons()
+    if reasons:
+        raise UnusableSolution.from_outcome(reasons, _outcome_detail(outcome))
+    _progress(progress, frac(0.92), "assessing the solution")
+    report = assess(problem, outcome)
+    report["adjustment"]["total_time_s"] = time.perf_counter() - t_start
+    _progress(progress, frac(1.0), "done", {"sigma0": report["adjustment"]["sigma0_aposteriori"]})
+    return problem, report
+
+
+def _outcome_detail(outcome) -> dict[str, Any]:
+    """The solver's own account of a solve, JSON-ready (a non-finite cost is null)."""
+
+    def finite(x: float) -> float | None:
+        return float(x) if math.isfinite(x) else None
+
+    return {
+        "termination": outcome.termination,
+        "message": outcome.message,
+        "iterations": outcome.iterations,
+        "successful_iterations": outcome.successful_steps,
+        "initial_cost": finite(outcome.initial_cost),
+        "final_cost": finite(outcome.final_cost),
+    }
