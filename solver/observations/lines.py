@@ -655,6 +655,101 @@ def _viewing_check(gl_ecef: np.ndarray, im, cam) -> tuple[float, float] | None:
     return angle, length * sin_a / rng * cam.focal_mm / cam.pixel_mm
 
 
+def _line_endpoints(job, gl, loc: tuple, converted: dict[str, np.ndarray]) -> tuple[list[Problem], np.ndarray | None]:
+    """The line's CRS and endpoints: (problems, ECEF endpoints or None when unusable)."""
+    problems: list[Problem] = []
+    ecef = None
+    try:
+        parse_crs(gl.crs or job.crs)
+        ecef = converted.get(gl.id)
+    except UnknownCRSError as exc:
+        problems.append(_crs_problem(exc, loc, gl.crs is not None))
+    if ecef is not None and float(np.linalg.norm(ecef[1] - ecef[0])) < MIN_ENDPOINT_DISTANCE_M:
+        problems.append(
+            Problem(
+                "line_endpoints_coincide",
+                f"line {gl.id!r}: its two points coincide (less than {MIN_ENDPOINT_DISTANCE_M} m apart), "
+                "so they do not define a line",
+                loc + ("endpoints",),
+            )
+        )
+        ecef = None
+    return problems, ecef
+
+
+def _line_form_problem(gl, o, oloc: tuple) -> Problem | None:
+    """An image of a line gives either two or more image points or fitted parameters."""
+    npts = len(o.points)
+    if o.fitted is not None and npts:
+        return Problem(
+            "line_observation_ambiguous",
+            f"line {gl.id!r} in image {o.image!r}: give either image points or fitted parameters, not both",
+            oloc,
+        )
+    if o.fitted is None and npts == 0:
+        return Problem(
+            "line_observation_empty",
+            f"line {gl.id!r} in image {o.image!r}: no image points and no fitted parameters",
+            oloc + ("points",),
+        )
+    if o.fitted is None and npts == 1:
+        return Problem(
+            "line_single_point",
+            f"line {gl.id!r} in image {o.image!r} has a single image point: a line needs at least two",
+            oloc + ("points",),
+        )
+    return None
+
+
+def _line_point_problems(gl, o, oloc: tuple, cam) -> list[Problem]:
+    """Measured image points that do not define a line or lie outside the image (or on no chip)."""
+    problems: list[Problem] = []
+    pts = np.array([[q.line, q.column] for q in o.points], dtype=float)
+    span = float(np.max(np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2)))
+    if span < MIN_POINT_SPAN_PX:
+        problems.append(
+            Problem(
+                "line_image_points_coincide",
+                f"line {gl.id!r} in image {o.image!r}: its image points span {span:.2g} px, "
+                f"less than {MIN_POINT_SPAN_PX} px, so they do not define a line",
+                oloc + ("points",),
+            )
+        )
+    if cam is not None and cam.lines is not None and cam.columns is not None:
+        for q, pt in enumerate(o.points):
+            if not (-0.5 <= pt.line <= cam.lines - 0.5 and on_a_chip(cam, pt.column)):
+                problems.append(
+                    Problem(
+                        "outside_image",
+                        f"line {gl.id!r} in image {o.image!r}: point {q} ({pt.line}, {pt.column}) is "
+                        f"outside the image (0..{cam.lines - 1}, 0..{cam.columns - 1}) or on no CCD chip",
+                        oloc + ("points", q),
+                    )
+                )
+                break
+    return problems
+
+
+def _edge_on_problem(gl, o, oloc: tuple, image, cam, ecef: np.ndarray) -> Problem | None:
+    """A line the image sees (nearly) edge-on: it would project to less than MIN_IMAGE_LENGTH_PX."""
+    view = _viewing_check(ecef, image, cam)
+    if view is None or view[1] >= MIN_IMAGE_LENGTH_PX:
+        return None
+    angle, length_px = view
+    why = (
+        f"it is within {angle:.2g} deg of the viewing direction"
+        if angle < 10.0
+        else "its two points are too close together to be told apart"
+    )
+    return Problem(
+        "line_edge_on",
+        f"line {gl.id!r} is seen edge-on in image {o.image!r}: it would project to about "
+        f"{length_px:.2g} px ({why}), so it cannot constrain the orientation",
+        oloc,
+        {"angle_deg": angle, "image_length_px": length_px},
+    )
+
+
 def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[Problem], dict[str, Any]]:
     """Problems of the job's lines, and counts: ``n_observations`` (control line equations for
     the chosen model), ``per_image`` (control line observations per image id), ``n_control``."""
@@ -680,23 +775,8 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[Proble
         if gl.id in seen_ids:
             problems.append(Problem("duplicate_id", f"line id {gl.id!r} is used more than once", loc + ("id",)))
         seen_ids[gl.id] = j
-        crs = gl.crs or job.crs
-        ecef = None
-        try:
-            parse_crs(crs)
-            ecef = converted.get(gl.id)
-        except UnknownCRSError as exc:
-            problems.append(_crs_problem(exc, loc, gl.crs is not None))
-        if ecef is not None and float(np.linalg.norm(ecef[1] - ecef[0])) < MIN_ENDPOINT_DISTANCE_M:
-            problems.append(
-                Problem(
-                    "line_endpoints_coincide",
-                    f"line {gl.id!r}: its two points coincide (less than {MIN_ENDPOINT_DISTANCE_M} m apart), "
-                    "so they do not define a line",
-                    loc + ("endpoints",),
-                )
-            )
-            ecef = None
+        endpoint_issues, ecef = _line_endpoints(job, gl, loc, converted)
+        problems += endpoint_issues
         used_images: set[str] = set()
         for k, o in enumerate(gl.observations):
             oloc = loc + ("observations", k)
@@ -711,83 +791,18 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[Proble
                 )
                 continue
             used_images.add(o.image)
-            npts = len(o.points)
-            if o.fitted is not None and npts:
-                problems.append(
-                    Problem(
-                        "line_observation_ambiguous",
-                        f"line {gl.id!r} in image {o.image!r}: give either image points or fitted parameters, not both",
-                        oloc,
-                    )
-                )
-                continue
-            if o.fitted is None and npts == 0:
-                problems.append(
-                    Problem(
-                        "line_observation_empty",
-                        f"line {gl.id!r} in image {o.image!r}: no image points and no fitted parameters",
-                        oloc + ("points",),
-                    )
-                )
-                continue
-            if o.fitted is None and npts == 1:
-                problems.append(
-                    Problem(
-                        "line_single_point",
-                        f"line {gl.id!r} in image {o.image!r} has a single image point: a line needs at least two",
-                        oloc + ("points",),
-                    )
-                )
+            form = _line_form_problem(gl, o, oloc)
+            if form is not None:
+                problems.append(form)
                 continue
             cam = cameras.get(images[o.image].camera)
-            bad = False
-            if npts:
-                pts = np.array([[q.line, q.column] for q in o.points], dtype=float)
-                span = float(np.max(np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2)))
-                if span < MIN_POINT_SPAN_PX:
-                    problems.append(
-                        Problem(
-                            "line_image_points_coincide",
-                            f"line {gl.id!r} in image {o.image!r}: its image points span {span:.2g} px, "
-                            f"less than {MIN_POINT_SPAN_PX} px, so they do not define a line",
-                            oloc + ("points",),
-                        )
-                    )
-                    bad = True
-                if cam is not None and cam.lines is not None and cam.columns is not None:
-                    for q, pt in enumerate(o.points):
-                        if not (-0.5 <= pt.line <= cam.lines - 0.5 and on_a_chip(cam, pt.column)):
-                            problems.append(
-                                Problem(
-                                    "outside_image",
-                                    f"line {gl.id!r} in image {o.image!r}: point {q} ({pt.line}, {pt.column}) is "
-                                    f"outside the image (0..{cam.lines - 1}, 0..{cam.columns - 1}) or on no CCD chip",
-                                    oloc + ("points", q),
-                                )
-                            )
-                            bad = True
-                            break
-            if ecef is not None:
-                view = _viewing_check(ecef, images[o.image], cam)
-                if view is not None and view[1] < MIN_IMAGE_LENGTH_PX:
-                    angle, length_px = view
-                    why = (
-                        f"it is within {angle:.2g} deg of the viewing direction"
-                        if angle < 10.0
-                        else "its two points are too close together to be told apart"
-                    )
-                    problems.append(
-                        Problem(
-                            "line_edge_on",
-                            f"line {gl.id!r} is seen edge-on in image {o.image!r}: it would project to about "
-                            f"{length_px:.2g} px ({why}), so it cannot constrain the orientation",
-                            oloc,
-                            {"angle_deg": angle, "image_length_px": length_px},
-                        )
-                    )
-                    bad = True
-            if bad or gl.role != "control":
+            issues = _line_point_problems(gl, o, oloc, cam) if o.points else []
+            edge = _edge_on_problem(gl, o, oloc, images[o.image], cam, ecef) if ecef is not None else None
+            issues += [edge] if edge is not None else []
+            problems += issues
+            if issues or gl.role != "control":
                 continue
+            npts = len(o.points)
             counts["n_observations"] += npts if (rigorous and npts) else 2
             counts["per_image"][o.image] = counts["per_image"].get(o.image, 0) + 1
             counts["n_control"] += 1
