@@ -15,7 +15,7 @@ from solver.simulate import presets
 from solver.simulate.camera import simple_camera
 from solver.simulate.scene import Group, Scene, Settings
 
-# one model name per kind of the kernels (solver.kernels.KIND_*)
+# one model name per platform kind (solver.platforms.kinds)
 MODEL_KINDS = {"polynomial": "P2", "kepler": "J2-2", "orbit-attitude": "OA-J2", "pass": "PASS-J2"}
 VIEWS = {"nadir": 0.0, "tilted": 20.0}
 

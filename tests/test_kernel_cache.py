@@ -1,7 +1,7 @@
 """The compiled-kernel disk cache is keyed on every kernel source (solver/kernels/cache.py).
 
 numba alone invalidates a cached function only when its own file changes: after an edit of
-solver/kernels/propagation.py the J2 term reached through solver/kernels/__init__.py came from the cache
+solver/kernels/propagation.py the J2 term reached through solver/kernels/platform.py came from the cache
 unchanged (0.0079 m/s^2 off). These tests edit a dependency in a scratch copy of the package
 and require the new value.
 """
@@ -22,7 +22,7 @@ from solver.kernels import cache as kernel_cache
 
 SOLVER = Path(kernel_cache.__file__).resolve().parents[1]
 
-# _kepler_terms (solver/kernels/__init__.py) inlines gravity_and_gradient (solver/kernels/propagation.py)
+# _kepler_terms (solver/kernels/platform.py) inlines gravity_and_gradient (solver/kernels/propagation.py)
 _PROBE = """
 import json, numpy as np
 from solver.kernels import _kepler_terms
@@ -60,7 +60,7 @@ def test_edit_of_a_dependency_module_is_not_served_from_the_cache(tmp_path: Path
     assert np.linalg.norm(j2_part) > 1e-3  # the edit below changes the answer by this much
 
     first = _probe(root, cache)
-    assert list(cache.rglob("__init__._kepler_terms*.nbi")), "the probe must have written the cache"
+    assert list(cache.rglob("platform._kepler_terms*.nbi")), "the probe must have written the cache"
     again = _probe(root, cache)  # loaded from the cache: same value (1e-12 m/s^2: same machine code)
     np.testing.assert_allclose(again, first, rtol=0, atol=1e-12)
 
@@ -96,7 +96,10 @@ def test_processes_compiling_into_one_empty_cache_at_once_agree(tmp_path: Path) 
 
 def test_every_kernel_module_registers_the_locator_before_its_first_kernel() -> None:
     modules = [p for p in SOLVER.rglob("*.py") if kernel_cache.defines_kernels(ast.parse(p.read_text()))]
-    assert {p.relative_to(SOLVER).as_posix() for p in modules} >= {"kernels/__init__.py", "kernels/propagation.py", "observations/lines.py", "engine/linalg.py"}
+    assert {p.relative_to(SOLVER).as_posix() for p in modules} >= {
+        "kernels/rotation.py", "kernels/platform.py", "kernels/projection.py", "kernels/blocks.py",
+        "kernels/propagation.py", "observations/lines.py", "engine/linalg.py",
+    }
     for path in modules:
         lines = path.read_text().splitlines()
         hook = [i for i, s in enumerate(lines) if s.startswith("import solver.kernels.cache")]
@@ -106,8 +109,9 @@ def test_every_kernel_module_registers_the_locator_before_its_first_kernel() -> 
 
 def test_digest_covers_the_kernel_modules_and_the_constants_they_read() -> None:
     names = {p.relative_to(SOLVER).as_posix() for p in kernel_cache.kernel_sources()}
-    # kernels/propagation.py holds kernels that kernels/__init__.py inlines, and the PASS_* layout constants
-    assert {"kernels/__init__.py", "kernels/propagation.py", "engine/linalg.py", "observations/lines.py"} <= names
+    # kernels/propagation.py holds kernels that kernels/platform.py inlines, and the PASS_* layout
+    # constants; kernels/layout.py the KIND_* codes and table offsets frozen into the compiled code
+    assert {"kernels/platform.py", "kernels/propagation.py", "kernels/layout.py", "engine/linalg.py", "observations/lines.py"} <= names
     # modules that cannot reach compiled code keep the cache when edited
     assert not names & {"engine/assemble.py", "adjust.py", "report/statistics.py", "report/checkpoints.py", "kernels/cache.py"}
     assert not any(n.startswith("simulate/") for n in names)
