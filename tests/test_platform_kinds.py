@@ -109,7 +109,7 @@ def test_a_new_kind_by_its_module_is_validated_solved_and_reported(fake_kind):
     job, truth = single_image_job("FAKE-S2", seed=6)
     checked = validate(job)
     assert checked["valid"], checked["problems"]
-    assert checked["images"][0]["model"] == "FAKE-S2" and checked["images"][0]["n_parameters"] == 12
+    assert checked["images"][0]["model"] == "FAKE-S2" and checked["images"][0]["n_parameters"] == 13
     rep = run(job)
     a = rep["adjustment"]
     assert a["converged"], a["message"]

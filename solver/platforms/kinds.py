@@ -29,15 +29,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from solver.kernels.layout import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL, KIND_RPC
 from solver.kernels.propagation import PASS_ATT_OFF
-
-if TYPE_CHECKING:
-    from solver.platforms.registry import PlatformModel
 
 ELEMENTS = ("X", "Y", "Z", "omega", "phi", "kappa")
 ANGLES = ("omega", "phi", "kappa")
@@ -48,6 +45,14 @@ _DEG = 180.0 / math.pi
 def coef_index(element: str, power: int) -> int:
     """Index of coefficient (element, power) in the flattened full vector."""
     return ELEMENTS.index(element) * 4 + power
+
+
+class PlatformModel(Protocol):
+    """What a kind reads of its model (:class:`solver.platforms.registry.PlatformModel`; the
+    registry imports this module, not the other way round)."""
+
+    angle_names: tuple[str, str, str]
+    bias: tuple[tuple[str, str, int], ...]
 
 
 @dataclass(frozen=True)
