@@ -269,15 +269,17 @@ def intersect_height(origin: np.ndarray, direction: np.ndarray, height_m: np.nda
 class AdjustedModel:
     """Every image of a finished job with its adjusted orientation (see the module docstring)."""
 
-    def __init__(self, job: Job | dict[str, Any] | str | bytes, report: dict[str, Any]):
+    def __init__(self, job: Job | dict[str, Any] | str | bytes, report: dict[str, Any] | None):
+        """``report`` None: the job's initial orientation (as the adjustment starts from it)."""
         from solver.adjust import prepare
         from solver.engine.packed_tables import camera_table, image_table
 
         self.job = job if isinstance(job, Job) else load_job(job)
         self.report = report
         self.problem = prepare(self.job)
-        _apply_report(self.problem, report)
-        frame = report.get("frames", {}).get("lgs", {})
+        if report is not None:
+            _apply_report(self.problem, report)
+        frame = (report or {}).get("frames", {}).get("lgs", {})
         if frame.get("origin_ecef_m") is not None:
             gap = float(np.linalg.norm(np.asarray(frame["origin_ecef_m"]) - self.problem.frame.origin_ecef_m))
             if gap > 1e-3:
@@ -287,7 +289,7 @@ class AdjustedModel:
         self.refresh_tables = lambda: setattr(self, "tables", (image_table(self.problem), camera_table(self.problem)))
         self.no_params = np.zeros((1, 1))
         rpc_entries = rpc_image_entries(self.job)
-        reported = {e["id"]: e for e in report.get("images", [])}
+        reported = {e["id"]: e for e in (report or {}).get("images", [])}
         self._images: dict[str, AdjustedImage | RpcImage] = {
             im.id: rpc_image(rpc_entries[im.id], reported.get(im.id)) if im.id in rpc_entries else AdjustedImage(self, im)
             for im in self.problem.images

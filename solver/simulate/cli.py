@@ -80,6 +80,13 @@ def _common(p: argparse.ArgumentParser) -> None:
         help="also write each image's synthetic raster (textured ground, a bright target at every "
         "control and check point): <output stem>.<image id>.tif, raw image geometry",
     )
+    p.add_argument(
+        "--raster-texture",
+        choices=("smooth", "rich"),
+        default="smooth",
+        help="smooth (default: sines, 8-bit) or rich: a fine random ground texture and per-image gain, offset "
+        "and noise, 16-bit (for image matching, pba match)",
+    )
 
 
 def _chip_layout(p: argparse.ArgumentParser) -> None:
@@ -209,7 +216,7 @@ def run(args: argparse.Namespace) -> int:
     if args.raster:
         from solver.simulate.raster import write_rasters
 
-        for path in write_rasters(scene, job_path):
+        for path in write_rasters(scene, job_path, texture=args.raster_texture, seed=args.seed):
             print(f"{path}: synthetic raster")
     n_obs = len(scene.noisy_observations())
     print(

@@ -1,0 +1,126 @@
+"""``pba match IMAGE... (--job JOB.json [--report REPORT.json] | images with RPCs) -o ties.csv``:
+tie points found in the rasters, guided by the orientation (docs/matching.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``match`` to the ``pba`` command line."""
+    from solver.matching.features import MatchSettings
+
+    d = MatchSettings()
+    p = sub.add_parser(
+        "match",
+        help="tie points from the images themselves, guided by the orientation (measurement CSV)",
+        description="Find tie points in overlapping rasters: SIFT features on a grid of tiles, matched inside the band "
+        "the orientation predicts, checked (ratio, mutual, RANSAC, epipolar), refined by correlation, linked into "
+        "multi-image points and thinned; writes image,point,line,column,sigma_px.",
+    )
+    p.add_argument("images", nargs="+", metavar="IMAGE", help="rasters (GDAL), as PATH or ID=PATH (ID: the job's image id)")
+    p.add_argument("--job", type=Path, help="job document orienting the images (default: each raster's own RPC)")
+    p.add_argument("--report", type=Path, help="the job's report (adjusted orientation; default: the job's initial one)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="measurement CSV to write (image,point,line,column,sigma_px)")
+    p.add_argument("--summary", type=Path, help="JSON summary to write (pairs, matches per pair, spread, precision)")
+    p.add_argument("--heights", help="terrain height range MIN,MAX (ellipsoidal m; default: the job's points +- 100 m, or the RPCs' range)")
+    p.add_argument("--search-px", type=float, default=d.search_px, help=f"half-width of the search band: the orientation's uncertainty in pixels (default {d.search_px:g})")
+    p.add_argument("--grid", type=int, default=d.grid, help=f"tiles / thinning cells per image side (default {d.grid})")
+    p.add_argument("--per-cell", type=int, default=d.per_cell, help=f"tie points kept per cell of each image (default {d.per_cell})")
+    p.add_argument("--min-ncc", type=float, default=d.min_ncc, help=f"lowest accepted correlation peak (default {d.min_ncc:g})")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_match)
+
+
+def _fail(message: str) -> int:
+    print(f"pba match: {message}", file=sys.stderr)
+    return 2
+
+
+def _bar(enabled: bool):
+    t0 = time.perf_counter()
+    shown = [-1.0]
+
+    def show(fraction: float, message: str) -> None:
+        if not enabled or (fraction - shown[0] < 0.002 and fraction < 1.0):
+            return
+        shown[0] = fraction
+        n = int(round(fraction * 30))
+        sys.stderr.write(f"\r[{'#' * n}{'-' * (30 - n)}] {fraction * 100:5.1f}% {time.perf_counter() - t0:6.1f}s {message[:30]:<30}")
+        if fraction >= 1.0:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    return show
+
+
+def settings_from_args(args: argparse.Namespace):
+    from solver.matching.features import MatchSettings
+
+    if args.search_px <= 0 or args.grid < 1 or args.per_cell < 1 or not (0 < args.min_ncc < 1):
+        raise ValueError("--search-px must be positive, --grid and --per-cell at least 1, --min-ncc between 0 and 1")
+    if args.grid > 200:
+        raise ValueError("--grid is at most 200")
+    return MatchSettings(grid=args.grid, per_cell=args.per_cell, search_px=args.search_px, min_ncc=args.min_ncc)
+
+
+def load_images(args: argparse.Namespace):
+    """(images, height range) from the job (and report) or the rasters' RPCs; raises the
+    matching's errors with located messages."""
+    from solver.matching.orientation import OrientationError, height_range_arg, images_from_job, images_from_rpcs
+
+    if args.report and not args.job:
+        raise OrientationError("--report needs --job")
+    if args.job:
+        try:
+            job = json.loads(args.job.read_text())
+            report = json.loads(args.report.read_text()) if args.report else None
+        except (OSError, ValueError) as exc:
+            raise OrientationError(f"cannot read the job or report: {exc}") from None
+        images, heights = images_from_job(job, report, args.images)
+    else:
+        images, heights = images_from_rpcs(args.images)
+    if args.heights:
+        heights = height_range_arg(args.heights)
+    return images, heights
+
+
+def cmd_match(args: argparse.Namespace) -> int:
+    from pydantic import ValidationError
+
+    from solver.errors import JobError
+    from solver.gis.model import ModelMismatch
+    from solver.matching.orientation import OrientationError
+    from solver.matching.pipeline import MatchError, match_images, measurements_csv
+    from solver.matching.raster import RasterError
+
+    images = []
+    try:
+        settings = settings_from_args(args)
+        images, heights = load_images(args)
+        result = match_images(images, heights, settings, _bar(not args.quiet))
+    except (RasterError, OrientationError, MatchError, ModelMismatch, ValueError) as exc:
+        return _fail(str(exc))
+    except ValidationError as exc:
+        return _fail(f"{args.job}: invalid job document: " + "; ".join(f"{'/'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors()[:5]))
+    except JobError as exc:
+        return _fail(f"{args.job}: " + "; ".join(f"[{p.code}] {p.message}" for p in exc.problems[:5]))
+    finally:
+        for im in images:
+            im.raster.close()
+    if not result.measurements:
+        return _fail("no tie point survived the checks (see --summary for the counts per pair)")
+    args.output.write_text(measurements_csv(result.measurements))
+    if args.summary:
+        args.summary.write_text(json.dumps(result.summary, indent=1))
+    s = result.summary
+    print(f"{args.output}: {s['tie_points']} tie points, {s['measurements']} measurements in {len(s['images'])} images "
+          f"({len(s['pairs'])} overlapping pairs; median sigma {s['median_sigma_px']} px)")
+    for row in s["pairs"]:
+        print(f"  {row['images'][0]}-{row['images'][1]}: {row.get('matched', 0)} matches, {row['removed_epipolar']} removed by the epipolar check, "
+              f"{row['tie_points']} tie points, sigma {row['sigma_px']} px")
+    return 0

@@ -1,0 +1,172 @@
+"""Pairwise matching of SIFT features inside the band the orientation predicts.
+
+For a pair (a, b), a is cut into the cells of a ``grid`` x ``grid`` layout; in every cell whose
+centre lies in the overlap, a window of ``tile_px`` pixels around the centre is read at full
+resolution and SIFT features (OpenCV) are detected in it (the strongest ``max_features``), so
+the features spread over the whole overlap. Each feature's epipolar segment in b (its position
+at the lowest and the highest terrain height, :class:`PairMapping`) gives the window of b to
+read, and a b feature is a candidate only within ``search_px`` of that segment (the band's
+half-width: the orientation's uncertainty, pixels of b). Among candidates:
+
+- ratio test (Lowe): the best descriptor distance below ``ratio`` times the second best;
+- mutual consistency: the b feature's best a feature (among those whose band holds it) is the
+  same;
+- RANSAC (OpenCV ``estimateAffine2D``, fixed seed) of a local affine model a -> b over the
+  cell's matches, threshold ``ransac_px``: the terrain is smooth over a tile, a false match
+  is not.
+
+Positions are (line, column) in our convention (pixel centres, top-left at (0, 0)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver.matching.orientation import MatchImage, PairMapping, distance_to_segment
+
+MIN_TILE_MATCHES = 5  # fewer matches in a tile cannot be checked by a local affine RANSAC
+RANSAC_SEED = 12345
+
+
+@dataclass(frozen=True)
+class MatchSettings:
+    """How to match (defaults suit 8-16 bit optical images of 1-30 m GSD)."""
+
+    grid: int = 16  # cells per image side: detection tiles and thinning cells
+    tile_px: int = 256  # side of the detection window in each cell (pixels of a)
+    max_features: int = 300  # strongest SIFT features kept per tile of a
+    ratio: float = 0.8  # Lowe's ratio test
+    search_px: float = 30.0  # half-width of the search band around the epipolar segment (px of b)
+    ransac_px: float = 2.0  # RANSAC threshold of the tile's affine model (px of b)
+    template_half_px: int = 12  # correlation template: (2 h + 1) pixels square
+    min_ncc: float = 0.7  # lowest accepted normalised cross-correlation peak
+    per_cell: int = 4  # tie points kept per thinning cell of each image
+    max_window_px: int = 2048  # a predicted b window larger than this is skipped (orientation far off)
+
+
+@dataclass
+class PairMatches:
+    """The accepted SIFT matches of a pair and their counts at each stage."""
+
+    a: int
+    b: int
+    pa: np.ndarray  # (n, 2) line, column in a
+    pb: np.ndarray  # (n, 2) line, column in b
+    counts: dict[str, int] = field(default_factory=dict)
+
+
+def _sift(image8: np.ndarray, n: int):
+    import cv2
+
+    sift = cv2.SIFT_create(nfeatures=n)
+    kps, desc = sift.detectAndCompute(image8, None)
+    if desc is None or not kps:
+        return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
+    xy = np.array([k.pt for k in kps], float)  # OpenCV: x = column, y = line, pixel centres at integers
+    order = np.lexsort((xy[:, 0], xy[:, 1]))  # deterministic order
+    return xy[order][:, ::-1].copy(), desc[order].astype(np.float32)
+
+
+def _distances(da: np.ndarray, db: np.ndarray) -> np.ndarray:
+    d2 = (da * da).sum(1)[:, None] + (db * db).sum(1)[None, :] - 2.0 * da @ db.T
+    return np.sqrt(np.maximum(d2, 0.0))
+
+
+def _ransac(pa: np.ndarray, pb: np.ndarray, threshold: float) -> np.ndarray:
+    import cv2
+
+    cv2.setRNGSeed(RANSAC_SEED)
+    _m, inliers = cv2.estimateAffine2D(
+        pa[:, ::-1].astype(np.float32), pb[:, ::-1].astype(np.float32), method=cv2.RANSAC,
+        ransacReprojThreshold=threshold, maxIters=2000, confidence=0.995, refineIters=10,
+    )
+    if inliers is None:
+        return np.zeros(len(pa), dtype=bool)
+    return inliers.ravel().astype(bool)
+
+
+def tile_centres(image: MatchImage, grid: int) -> np.ndarray:
+    """(grid^2, 2) centres (line, column) of the image's cells, row by row."""
+    lc = (np.arange(grid) + 0.5) * image.lines / grid
+    cc = (np.arange(grid) + 0.5) * image.columns / grid
+    ll, cc2 = np.meshgrid(lc, cc, indexing="ij")
+    return np.column_stack([ll.ravel(), cc2.ravel()])
+
+
+def match_tile(a: MatchImage, b: MatchImage, mapping: PairMapping, centre: np.ndarray, s: MatchSettings, counts: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
+    """SIFT matches (pa, pb) of one tile of a centred at ``centre`` (module docstring)."""
+    half = s.tile_px // 2
+    r0, c0 = int(round(centre[0])) - half, int(round(centre[1])) - half
+    win = a.raster.window(r0, c0, s.tile_px, s.tile_px)
+    empty = (np.zeros((0, 2)), np.zeros((0, 2)))
+    if win.size == 0:
+        return empty
+    ka, da = _sift(a.raster.to_8bit(win), s.max_features)
+    if not len(ka):
+        return empty
+    ka += (max(r0, 0), max(c0, 0))
+    s0, s1 = mapping.segment(ka[:, 0], ka[:, 1])
+    ends = np.vstack([s0, s1])
+    if not np.all(np.isfinite(ends)):
+        good = np.all(np.isfinite(s0), 1) & np.all(np.isfinite(s1), 1)
+        ka, da, s0, s1 = ka[good], da[good], s0[good], s1[good]
+        if not len(ka):
+            return empty
+        ends = np.vstack([s0, s1])
+    pad = s.search_px + 16
+    lo, hi = np.floor(ends.min(0) - pad).astype(int), np.ceil(ends.max(0) + pad).astype(int)
+    if np.any(hi - lo > s.max_window_px):
+        counts["tiles_skipped"] = counts.get("tiles_skipped", 0) + 1
+        return empty
+    wb = b.raster.window(lo[0], lo[1], hi[0] - lo[0], hi[1] - lo[1])
+    if wb.size == 0:
+        return empty
+    kb, db = _sift(b.raster.to_8bit(wb), 0)
+    if not len(kb):
+        return empty
+    kb += (max(lo[0], 0), max(lo[1], 0))
+    counts["features"] = counts.get("features", 0) + len(ka)
+    perp, beyond = distance_to_segment(kb[None, :, :], s0[:, None, :], s1[:, None, :])
+    band = np.hypot(perp, beyond) <= s.search_px
+    dist = np.where(band, _distances(da, db), np.inf)
+    if dist.shape[1] == 0:
+        return empty
+    order = np.argsort(dist, axis=1)
+    best = order[:, 0]
+    d1 = dist[np.arange(len(ka)), best]
+    d2 = dist[np.arange(len(ka)), order[:, 1]] if dist.shape[1] > 1 else np.full(len(ka), np.inf)
+    ok = np.isfinite(d1) & (d1 < s.ratio * d2)
+    counts["candidates"] = counts.get("candidates", 0) + int(np.isfinite(d1).sum())
+    counts["ratio"] = counts.get("ratio", 0) + int(ok.sum())
+    back = np.argmin(dist, axis=0)
+    ok &= back[best] == np.arange(len(ka))
+    counts["mutual"] = counts.get("mutual", 0) + int(ok.sum())
+    pa, pb = ka[ok], kb[best[ok]]
+    if len(pa) < MIN_TILE_MATCHES:
+        return empty
+    keep = _ransac(pa, pb, s.ransac_px)
+    counts["ransac"] = counts.get("ransac", 0) + int(keep.sum())
+    return pa[keep], pb[keep]
+
+
+def match_pair(a: MatchImage, b: MatchImage, ia: int, ib: int, mapping: PairMapping, s: MatchSettings, progress=None) -> PairMatches:
+    """Every tile of a inside the overlap with b, matched (module docstring)."""
+    counts: dict[str, int] = {"tiles": 0}
+    centres = tile_centres(a, s.grid)
+    bl, bc = mapping.at_heights(centres[:, 0], centres[:, 1])
+    inside = np.all((bl >= 0) & (bl <= b.lines - 1) & (bc >= 0) & (bc <= b.columns - 1), axis=0)
+    pas, pbs = [], []
+    todo = np.flatnonzero(inside)
+    for n, k in enumerate(todo):
+        counts["tiles"] += 1
+        pa, pb = match_tile(a, b, mapping, centres[k], s, counts)
+        pas.append(pa)
+        pbs.append(pb)
+        if progress is not None:
+            progress((n + 1) / len(todo))
+    pa = np.vstack(pas) if pas else np.zeros((0, 2))
+    pb = np.vstack(pbs) if pbs else np.zeros((0, 2))
+    counts["matched"] = len(pa)
+    return PairMatches(ia, ib, pa, pb, counts)

@@ -1,0 +1,228 @@
+"""The orientation that guides matching: each image's ground <-> image model, and the
+prediction of where a pixel of one image lies in another.
+
+Sources:
+
+- a job (``--job``), with its report (the adjusted orientation) or without (the job's
+  initial orientation, as the adjustment starts from it): :class:`solver.gis.model.AdjustedModel`,
+  whose images (rigorous or RPC) have ``ground_to_image`` / ``image_to_ground`` (ECEF metres,
+  ellipsoidal heights);
+- rasters carrying RPCs (GeoTIFF RPC tags or a sidecar GDAL reads: ``NAME_RPC.TXT``, ``.RPB``):
+  :class:`solver.gis.rpc_image.RpcImage` with no bias.
+
+:class:`PairMapping` predicts image b's (line, column) of image a's pixels on a grid of a at a
+few ellipsoidal heights spanning the terrain (bilinear between grid nodes, linear between
+heights): the segment between the lowest and the highest height is the epipolar segment the
+match must lie on.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from solver.matching.raster import Raster, RasterError
+
+GRID_NODES = 17  # nodes of the prediction grid along each image axis
+N_HEIGHTS = 3  # heights of the prediction grid (lowest, middle, highest)
+
+
+class ImageModel(Protocol):
+    def ground_to_image(self, ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+    def image_to_ground(self, line: np.ndarray, column: np.ndarray, height_m: Any = None) -> np.ndarray: ...
+
+
+@dataclass
+class MatchImage:
+    """One image to match: its id (the job's), raster and ground <-> image model."""
+
+    id: str
+    raster: Raster
+    model: ImageModel
+
+    @property
+    def lines(self) -> int:
+        return self.raster.lines
+
+    @property
+    def columns(self) -> int:
+        return self.raster.columns
+
+
+class OrientationError(ValueError):
+    """The images cannot be oriented (no job and no RPC, unknown ids, sizes that disagree)."""
+
+
+def _split_arg(arg: str) -> tuple[str | None, Path]:
+    """``ID=PATH`` or ``PATH``."""
+    if "=" in arg and not Path(arg).exists():
+        name, path = arg.split("=", 1)
+        return name, Path(path)
+    return None, Path(arg)
+
+
+def _id_of(path: Path, ids: list[str]) -> str | None:
+    """The job's image id a raster's name designates: the stem itself, or the stem ending with
+    ``.ID``, ``_ID`` or ``-ID`` (``pba simulate --raster`` writes ``<job>.<id>.tif``); the
+    longest such id wins."""
+    stem = re.sub(r"\.(tiff?|jp2|ntf|img)$", "", path.name, flags=re.I)
+    found = [i for i in ids if stem == i or any(stem.endswith(sep + i) for sep in "._-")]
+    return max(found, key=len) if found else None
+
+
+def images_from_rpcs(args: list[str]) -> tuple[list[MatchImage], tuple[float, float]]:
+    """Images oriented by their own RPCs, and the height range their RPCs span (the RPC's
+    height offset +- its scale, at most +- 1000 m)."""
+    from solver.geometry.rpc import RPC, RpcBias
+    from solver.gis.rpc_image import RpcImage
+
+    out: list[MatchImage] = []
+    lows, highs = [], []
+    for arg in args:
+        name, path = _split_arg(arg)
+        raster = Raster.open(path)
+        if raster.rpcs is None:
+            raise OrientationError(f"{path}: the raster has no RPC (no RPC tags, no _RPC.TXT or .RPB beside it): give --job JOB.json")
+        try:
+            rpc = RPC.from_gdal(raster.rpcs)
+        except (KeyError, ValueError) as exc:
+            raise OrientationError(f"{path}: incomplete RPC: {exc}") from None
+        image_id = name or re.sub(r"\.(tiff?|jp2|ntf|img)$", "", path.name, flags=re.I)
+        model = RpcImage(image_id, rpc, RpcBias(), "RPC").with_size(raster.lines, raster.columns)
+        out.append(MatchImage(image_id, raster, model))
+        half = min(rpc.height_scale, 1000.0)
+        lows.append(rpc.height_off - half)
+        highs.append(rpc.height_off + half)
+    _unique_ids(out)
+    return out, (float(min(lows)), float(max(highs)))
+
+
+def images_from_job(job: dict[str, Any], report: dict[str, Any] | None, args: list[str]) -> tuple[list[MatchImage], tuple[float, float]]:
+    """Images oriented by a job (and its report), and the height range of its points +- 100 m."""
+    from solver.gis.model import load_model
+    from solver.gis.rpc_image import RpcImage
+
+    model = load_model(job, report)
+    ids = model.image_ids
+    out: list[MatchImage] = []
+    for arg in args:
+        name, path = _split_arg(arg)
+        image_id = name or _id_of(path, ids)
+        if image_id is None or image_id not in ids:
+            raise OrientationError(
+                f"{path}: which image of the job is it? Name it ID={path} (the job's images: {', '.join(ids)})"
+            )
+        raster = Raster.open(path)
+        img = model.image(image_id)
+        if isinstance(img, RpcImage):
+            img = img.with_size(raster.lines, raster.columns)
+        elif (img.lines, img.columns) != (raster.lines, raster.columns):
+            raise OrientationError(
+                f"{path}: the raster has {raster.lines} lines x {raster.columns} columns, image {image_id!r} of the job {img.lines} x {img.columns}"
+            )
+        out.append(MatchImage(image_id, raster, img))
+    _unique_ids(out)
+    return out, model.height_range_m()
+
+
+def _unique_ids(images: list[MatchImage]) -> None:
+    seen: set[str] = set()
+    for im in images:
+        if im.id in seen:
+            raise OrientationError(f"image {im.id!r} is given twice")
+        seen.add(im.id)
+
+
+def _axis(n: int) -> np.ndarray:
+    return np.linspace(0.0, n - 1.0, GRID_NODES)
+
+
+class PairMapping:
+    """Where image a's pixels lie in image b (module docstring): b's (line, column) on a grid
+    of a's pixels at the heights :attr:`heights` (ellipsoidal metres)."""
+
+    def __init__(self, a: MatchImage, b: MatchImage, heights: tuple[float, float]):
+        self.a, self.b = a, b
+        self.heights = np.linspace(heights[0], heights[1], N_HEIGHTS)
+        self.ls, self.cs = _axis(a.lines), _axis(a.columns)
+        ll, cc = np.meshgrid(self.ls, self.cs, indexing="ij")
+        bl = np.full((N_HEIGHTS,) + ll.shape, np.nan)
+        bc = np.full_like(bl, np.nan)
+        with np.errstate(all="ignore"):
+            for k, h in enumerate(self.heights):
+                ground = a.model.image_to_ground(ll.ravel(), cc.ravel(), height_m=float(h))
+                line, col, _chip = b.model.ground_to_image(ground)
+                bl[k] = np.asarray(line, float).reshape(ll.shape)
+                bc[k] = np.asarray(col, float).reshape(ll.shape)
+        self.bl, self.bc = bl, bc
+
+    def _bilinear(self, grid: np.ndarray, line: np.ndarray, column: np.ndarray) -> np.ndarray:
+        ls, cs = self.ls, self.cs
+        i = np.clip(np.searchsorted(ls, line, side="right") - 1, 0, len(ls) - 2)
+        j = np.clip(np.searchsorted(cs, column, side="right") - 1, 0, len(cs) - 2)
+        fr = (line - ls[i]) / (ls[i + 1] - ls[i])
+        fc = (column - cs[j]) / (cs[j + 1] - cs[j])
+        return (grid[..., i, j] * (1 - fr) * (1 - fc) + grid[..., i, j + 1] * (1 - fr) * fc
+                + grid[..., i + 1, j] * fr * (1 - fc) + grid[..., i + 1, j + 1] * fr * fc)
+
+    def at_heights(self, line: np.ndarray, column: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """b's (line, column), each (N_HEIGHTS, n), of a's points at every grid height."""
+        line = np.atleast_1d(np.asarray(line, float))
+        column = np.atleast_1d(np.asarray(column, float))
+        return self._bilinear(self.bl, line, column), self._bilinear(self.bc, line, column)
+
+    def segment(self, line: np.ndarray, column: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The epipolar segments of a's points in b: (n, 2) ends at the lowest and highest height."""
+        bl, bc = self.at_heights(line, column)
+        return np.column_stack([bl[0], bc[0]]), np.column_stack([bl[-1], bc[-1]])
+
+    def jacobian(self, line: float, column: float, step: float = 4.0) -> np.ndarray:
+        """2 x 2 d(b line, b column) / d(a line, a column) at the middle height."""
+        k = N_HEIGHTS // 2
+        lv = np.array([line - step, line + step, line, line])
+        cv = np.array([column, column, column - step, column + step])
+        bl = self._bilinear(self.bl[k], lv, cv)
+        bc = self._bilinear(self.bc[k], lv, cv)
+        return np.array([[bl[1] - bl[0], bl[3] - bl[2]], [bc[1] - bc[0], bc[3] - bc[2]]]) / (2 * step)
+
+    def overlap_fraction(self, margin_px: float = 0.0) -> float:
+        """Fraction of a's grid nodes that fall inside b at every grid height."""
+        inside = np.ones(self.bl.shape[1:], dtype=bool)
+        for k in range(N_HEIGHTS):
+            inside &= (self.bl[k] >= margin_px) & (self.bl[k] <= self.b.lines - 1 - margin_px)
+            inside &= (self.bc[k] >= margin_px) & (self.bc[k] <= self.b.columns - 1 - margin_px)
+        return float(inside.mean())
+
+
+def distance_to_segment(p: np.ndarray, s0: np.ndarray, s1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(perpendicular signed distance, along-segment distance beyond its ends) of points p (n, 2)
+    from segments s0-s1 (n, 2) or (2,) each; pixels. A zero-length segment's direction is the
+    line axis."""
+    d = s1 - s0
+    length = np.linalg.norm(d, axis=-1, keepdims=True)
+    u = np.where(length > 1e-9, d / np.maximum(length, 1e-9), np.array([1.0, 0.0]))
+    v = p - s0
+    t = np.sum(v * u, axis=-1)
+    perp = v[..., 0] * u[..., 1] - v[..., 1] * u[..., 0]
+    beyond = np.maximum(np.maximum(-t, t - length[..., 0]), 0.0)
+    return perp, beyond
+
+
+def height_range_arg(text: str) -> tuple[float, float]:
+    """``MIN,MAX`` ellipsoidal metres."""
+    try:
+        lo, hi = (float(x) for x in text.split(","))
+    except ValueError:
+        raise OrientationError(f"--heights {text!r}: give MIN,MAX in ellipsoidal metres") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise OrientationError(f"--heights {text!r}: MIN must be below MAX")
+    return lo, hi
+
+
+__all__ = ["MatchImage", "OrientationError", "PairMapping", "RasterError", "distance_to_segment", "images_from_job", "images_from_rpcs"]

@@ -1,0 +1,206 @@
+"""Tie points of a set of oriented images: the steps of matching and their summary.
+
+1. pairs: images whose footprints at the middle height intersect, then the fraction of the
+   first image's prediction grid that falls in the second at every terrain height;
+2. SIFT matches in the predicted band of every pair (:mod:`solver.matching.features`);
+3. tracks linked over pairs, thinned to ``per_cell`` per image cell (:mod:`solver.matching.tracks`);
+4. sub-pixel positions by correlation against the track's reference image and the epipolar
+   check of every pair, with each pair's precision (:mod:`solver.matching.refine`);
+5. the measurements (``image, point, line, column, sigma_px``), sorted by point then image order.
+
+Deterministic: no randomness but OpenCV's RANSAC with a fixed seed; images in the order given,
+pairs (i < j) in order, tracks in their reference position's order.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from solver.matching.features import MatchSettings, PairMatches, match_pair
+from solver.matching.orientation import MatchImage, PairMapping
+from solver.matching.refine import SIGMA_FLOOR_PX, epipolar_check, refine_track
+from solver.matching.tracks import cell_of, link, thin
+
+Progress = Callable[[float, str], None]
+FOOTPRINT_NODES = 9  # points per image edge for the footprint pre-selection of pairs
+MIN_OVERLAP = 0.004  # fraction of the prediction grid (at least ~1 node of 17 x 17)
+
+
+class MatchError(ValueError):
+    """Matching cannot start or found nothing (the message says why)."""
+
+
+@dataclass
+class MatchResult:
+    measurements: list[dict[str, Any]]
+    summary: dict[str, Any]
+
+
+def _footprint_box(image: MatchImage, height: float) -> np.ndarray | None:
+    """(lon min, lat min, lon max, lat max) of the image's border on the ground at ``height``."""
+    from solver.geometry.geodesy import ecef_to_geodetic
+
+    t = np.linspace(0, 1, FOOTPRINT_NODES)
+    L, C = image.lines - 1.0, image.columns - 1.0
+    line = np.concatenate([t * L, t * L, np.zeros_like(t), np.full_like(t, L)])
+    col = np.concatenate([np.zeros_like(t), np.full_like(t, C), t * C, t * C])
+    with np.errstate(all="ignore"):
+        llh = ecef_to_geodetic(image.model.image_to_ground(line, col, height_m=height))
+    ok = np.all(np.isfinite(llh), axis=1)
+    if not ok.any():
+        return None
+    return np.array([llh[ok, 0].min(), llh[ok, 1].min(), llh[ok, 0].max(), llh[ok, 1].max()])
+
+
+def candidate_pairs(images: list[MatchImage], heights: tuple[float, float]) -> list[tuple[int, int]]:
+    """Pairs (i < j) whose footprint boxes at the middle height intersect."""
+    mid = 0.5 * (heights[0] + heights[1])
+    boxes = [_footprint_box(im, mid) for im in images]
+    out = []
+    for i in range(len(images)):
+        for j in range(i + 1, len(images)):
+            a, b = boxes[i], boxes[j]
+            if a is not None and b is not None and a[0] <= b[2] and b[0] <= a[2] and a[1] <= b[3] and b[1] <= a[3]:
+                out.append((i, j))
+    return out
+
+
+def match_images(images: list[MatchImage], heights: tuple[float, float], settings: MatchSettings = MatchSettings(), progress: Progress | None = None) -> MatchResult:
+    """Tie-point measurements and the summary of ``images`` (module docstring); raises
+    :class:`MatchError` when no pair overlaps."""
+    import cv2
+
+    cv2.setNumThreads(1)  # the same result whatever the machine; the server runs several jobs
+    say = progress or (lambda f, m: None)
+    if len(images) < 2:
+        raise MatchError("matching needs at least two images")
+    say(0.0, "pairs")
+    mappings: dict[tuple[int, int], PairMapping] = {}
+
+    def mapping(a: int, b: int) -> PairMapping:
+        if (a, b) not in mappings:
+            mappings[(a, b)] = PairMapping(images[a], images[b], heights)
+        return mappings[(a, b)]
+
+    pairs = []
+    overlaps = {}
+    for i, j in candidate_pairs(images, heights):
+        f = mapping(i, j).overlap_fraction()
+        if f >= MIN_OVERLAP:
+            pairs.append((i, j))
+            overlaps[(i, j)] = f
+    if not pairs:
+        raise MatchError(
+            f"no two images overlap at terrain heights {heights[0]:.0f} to {heights[1]:.0f} m "
+            f"(images: {', '.join(im.id for im in images)})"
+        )
+    say(0.05, "features")
+    matches: list[PairMatches] = []
+    for n, (i, j) in enumerate(pairs):
+        def tile_progress(f: float, n=n, i=i, j=j) -> None:
+            say(0.05 + 0.75 * (n + f) / len(pairs), f"{images[i].id}-{images[j].id}")
+
+        matches.append(match_pair(images[i], images[j], i, j, mapping(i, j), settings, tile_progress))
+    tracks, inconsistent = link(matches, len(images))
+    sizes = [(im.lines, im.columns) for im in images]
+    kept = thin(tracks, sizes, settings.grid, settings.per_cell)
+    say(0.8, "correlation")
+    refined = []
+    for n, t in enumerate(kept):
+        r = refine_track(t.members, images, mapping, settings.template_half_px, settings.min_ncc)
+        if r:
+            refined.append(r)
+        if n % 50 == 0:
+            say(0.8 + 0.15 * n / max(len(kept), 1), "correlation")
+    say(0.95, "epipolar check")
+    sigmas, removed = _check(refined, images, mapping, settings)
+    measurements = _measurements(refined, images, sigmas)
+    summary = _summary(images, heights, settings, pairs, overlaps, matches, tracks, inconsistent, kept, refined, sigmas, removed, measurements)
+    say(1.0, "done")
+    return MatchResult(measurements, summary)
+
+
+def _check(refined: list[dict], images, mapping, s: MatchSettings) -> tuple[dict[tuple[int, int], float], dict[tuple[int, int], int]]:
+    """Epipolar check of every (reference, other) pair (in place: removed members deleted)."""
+    by_pair: dict[tuple[int, int], list[int]] = {}
+    for k, r in enumerate(refined):
+        ref = min(r)
+        for m in r:
+            if m != ref:
+                by_pair.setdefault((ref, m), []).append(k)
+    sigmas, removed = {}, {}
+    for (ref, m), ks in sorted(by_pair.items()):
+        rp = np.array([refined[k][ref][0] for k in ks])
+        mp = np.array([refined[k][m][0] for k in ks])
+        keep, sigma, _ = epipolar_check(rp, mp, mapping(ref, m), s.search_px)
+        sigmas[(ref, m)] = sigma
+        removed[(ref, m)] = int((~keep).sum())
+        for k, ok in zip(ks, keep, strict=True):
+            if not ok:
+                del refined[k][m]
+    for k, r in enumerate(refined):
+        if len(r) < 2:
+            refined[k] = {}
+    refined[:] = [r for r in refined if r]
+    return sigmas, removed
+
+
+def _measurements(refined: list[dict], images: list[MatchImage], sigmas: dict[tuple[int, int], float]) -> list[dict[str, Any]]:
+    width = max(5, len(str(len(refined))))
+    out = []
+    for n, r in enumerate(refined):
+        ref = min(r)
+        point = f"M{n + 1:0{width}d}"
+        for m in sorted(r):
+            pos, _ncc = r[m]
+            sigma = SIGMA_FLOOR_PX if m == ref else sigmas[(ref, m)]
+            out.append({"image": images[m].id, "point": point, "line": round(float(pos[0]), 3), "column": round(float(pos[1]), 3), "sigma_px": round(sigma, 3)})
+    return out
+
+
+def measurements_csv(measurements: list[dict[str, Any]]) -> str:
+    """The measurement table the importers read (:mod:`solver.importers.measurements_csv`):
+    ``image,point,line,column,sigma_px``, pixels in our convention."""
+    rows = ["image,point,line,column,sigma_px"]
+    rows += [f"{m['image']},{m['point']},{m['line']:.3f},{m['column']:.3f},{m['sigma_px']:.3f}" for m in measurements]
+    return "\n".join(rows) + "\n"
+
+
+def _summary(images, heights, settings, pairs, overlaps, matches, tracks, inconsistent, kept, refined, sigmas, removed, measurements) -> dict[str, Any]:
+    pair_rows = []
+    for (i, j), pm in zip(pairs, matches, strict=True):
+        both = sum(1 for r in refined if i in r and j in r)
+        row = {"images": [images[i].id, images[j].id], "overlap_fraction": round(overlaps[(i, j)], 3)}
+        row.update({k: int(v) for k, v in pm.counts.items()})
+        row["removed_epipolar"] = removed.get((i, j), 0)
+        row["tie_points"] = both
+        row["sigma_px"] = round(sigmas[(i, j)], 3) if (i, j) in sigmas else None
+        pair_rows.append(row)
+    image_rows = []
+    for k, im in enumerate(images):
+        cells = {cell_of(r[k][0], im.lines, im.columns, settings.grid) for r in refined if k in r}
+        image_rows.append({"id": im.id, "lines": im.lines, "columns": im.columns, "tie_points": sum(1 for r in refined if k in r),
+                           "cells_covered": round(len(cells) / settings.grid**2, 3)})
+    lengths: dict[str, int] = {}
+    for r in refined:
+        lengths[str(len(r))] = lengths.get(str(len(r)), 0) + 1
+    ncc = [v[1] for r in refined for m, v in r.items() if m != min(r)]
+    sig = [m["sigma_px"] for m in measurements]
+    return {
+        "images": image_rows,
+        "height_range_m": [float(heights[0]), float(heights[1])],
+        "pairs": pair_rows,
+        "tracks_linked": len(tracks),
+        "tracks_inconsistent": inconsistent,
+        "tracks_after_thinning": len(kept),
+        "tie_points": len(refined),
+        "measurements": len(measurements),
+        "images_per_tie_point": dict(sorted(lengths.items())),
+        "median_ncc": round(float(np.median(ncc)), 3) if ncc else None,
+        "median_sigma_px": round(float(np.median(sig)), 3) if sig else None,
+        "settings": asdict(settings),
+    }

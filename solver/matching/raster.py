@@ -1,0 +1,110 @@
+"""Raster access for matching: windows and decimated reads through GDAL (rasterio), never the
+whole image.
+
+Pixel convention: our image coordinates (line, column) are those of pixel centres with the
+top-left pixel's centre at (0, 0) (:mod:`solver.schema.job`), so the array index of a window
+read at (row_off, col_off) is ``line - row_off``, ``column - col_off`` exactly.
+
+Radiometry: band 1, 8 to 16 bits (integers) or floats. For feature detection a window is
+stretched to 8 bits between the 0.5 and 99.5 percentiles of a decimated read of the whole
+image (at most :data:`STATS_SIZE` pixels on its long side; GDAL takes an overview level when
+the file has one); correlation works on the raw values (NCC is gain and offset invariant).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+MAX_SIDE_PX = 1_000_000  # an image side beyond this is refused (no sensor delivers it)
+STATS_SIZE = 1024  # long side of the decimated read for the 8-bit stretch
+DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
+
+
+class RasterError(ValueError):
+    """An unusable raster (the message names the file and what is wrong with it)."""
+
+
+@dataclass
+class Raster:
+    """One image's raster opened for windowed reads (band 1)."""
+
+    path: Path
+    lines: int
+    columns: int
+    dtype: str
+    rpcs: dict[str, str] | None
+    _dataset: object = field(repr=False)
+    stretch: tuple[float, float] = (0.0, 255.0)
+    nodata: float | None = None
+
+    @classmethod
+    def open(cls, path: str | Path) -> "Raster":
+        """Open ``path`` (anything GDAL reads) and compute its 8-bit stretch; raises
+        :class:`RasterError` for a missing, unreadable, truncated or absurd file."""
+        import rasterio
+        from rasterio.errors import RasterioError
+
+        path = Path(path)
+        if not path.is_file():
+            raise RasterError(f"{path}: no such file")
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # NotGeoreferencedWarning: raw image geometry
+                ds = rasterio.open(path)
+        except RasterioError as exc:
+            raise RasterError(f"{path}: GDAL cannot open it as a raster: {exc}") from None
+        if ds.count < 1:
+            raise RasterError(f"{path}: the raster has no band")
+        if not (0 < ds.width <= MAX_SIDE_PX and 0 < ds.height <= MAX_SIDE_PX):
+            raise RasterError(f"{path}: absurd size {ds.width} x {ds.height} pixels (1 to {MAX_SIDE_PX} per side)")
+        dtype = ds.dtypes[0]
+        if dtype not in DTYPES:
+            raise RasterError(f"{path}: pixel type {dtype} is not supported (8 to 32-bit integers or floats)")
+        rpcs = ds.rpcs.to_gdal() if ds.rpcs is not None else None
+        r = cls(path, ds.height, ds.width, dtype, rpcs, ds, nodata=ds.nodata)
+        r.stretch = r._percentiles()
+        return r
+
+    def close(self) -> None:
+        self._dataset.close()
+
+    def _read(self, **kw) -> np.ndarray:
+        from rasterio.errors import RasterioError
+
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                return self._dataset.read(1, **kw)
+        except (RasterioError, OSError, ValueError) as exc:
+            raise RasterError(f"{self.path}: cannot read its pixels (truncated or corrupt file?): {exc}") from None
+
+    def _percentiles(self) -> tuple[float, float]:
+        k = max(1, int(np.ceil(max(self.lines, self.columns) / STATS_SIZE)))
+        small = self._read(out_shape=(max(1, self.lines // k), max(1, self.columns // k))).astype(np.float64)
+        valid = np.isfinite(small)
+        if self.nodata is not None:
+            valid &= small != self.nodata
+        if not valid.any():
+            raise RasterError(f"{self.path}: no valid pixel (all nodata)")
+        lo, hi = np.percentile(small[valid], [0.5, 99.5])
+        return float(lo), float(max(hi, lo + 1e-6))
+
+    def window(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
+        """Raw values (float32) of ``rows`` x ``cols`` pixels from (row0, col0), clipped to the
+        image (the array is smaller where the window leaves it)."""
+        from rasterio.windows import Window
+
+        r0, c0 = max(int(row0), 0), max(int(col0), 0)
+        r1, c1 = min(int(row0) + int(rows), self.lines), min(int(col0) + int(cols), self.columns)
+        if r1 <= r0 or c1 <= c0:
+            return np.zeros((0, 0), np.float32)
+        return self._read(window=Window(c0, r0, c1 - c0, r1 - r0)).astype(np.float32)
+
+    def to_8bit(self, values: np.ndarray) -> np.ndarray:
+        """``values`` stretched to 0..255 (uint8) with the image's percentiles."""
+        lo, hi = self.stretch
+        return np.clip((values - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
