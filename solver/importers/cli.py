@@ -73,6 +73,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--match-tolerance", type=float, default=1.0,
                    help=".points rows are matched to survey points within this distance (m)")
     p.add_argument("--map-crs", help="CRS of .points files without a #CRS: line")
+    p.add_argument("--match", action="append", default=[], metavar="ID=RASTER",
+                   help="add tie points matched in these rasters (pba match, guided by the composed job's initial "
+                   "orientation; at least two images); see docs/matching.md")
+    p.add_argument("--match-summary", type=Path, metavar="FILE", help="with --match: the matching's summary (JSON)")
     p.add_argument("-o", "--output", type=Path, help="job document (JSON); default stdout")
     p.set_defaults(func=cmd_job)
 
@@ -182,6 +186,17 @@ def cmd_job(args: argparse.Namespace) -> int:
         return 2
     for note in composed.notes:
         print(f"note: {note}", file=sys.stderr)
+    if args.match:
+        try:
+            summary = add_matched_ties(composed.job, args.match)
+        except ValueError as exc:
+            print(f"--match: {exc}", file=sys.stderr)
+            return 2
+        if args.match_summary:
+            args.match_summary.write_text(json.dumps(summary, indent=1))
+        for row in summary["pairs"]:
+            print(f"matched {row['images'][0]}-{row['images'][1]}: {row.get('matched', 0)} matches, "
+                  f"{row['removed_epipolar']} removed by the epipolar check, {row['tie_points']} tie points", file=sys.stderr)
     text = json.dumps(composed.job, indent=1) + "\n"
     if args.output:
         args.output.write_text(text)
@@ -203,6 +218,34 @@ def cmd_job(args: argparse.Namespace) -> int:
               f"{result.get('dof')} degrees of freedom", file=sys.stderr)
         return 0
     return 1
+
+
+def add_matched_ties(job: dict[str, Any], rasters: list[str]) -> dict[str, Any]:
+    """Tie points matched in ``rasters`` (``ID=PATH``) added to the composed ``job`` (in place),
+    oriented by the job's initial orientation; the matching's summary. Raises ValueError
+    (the matching's located errors) when matching cannot run."""
+    from solver.errors import JobError
+    from solver.matching.orientation import images_from_job
+    from solver.matching.pipeline import match_images
+
+    images = []
+    try:
+        images, heights = images_from_job(job, None, rasters)
+        result = match_images(images, heights)
+    except JobError as exc:
+        raise ValueError("the composed job cannot orient the images: " + "; ".join(p.message for p in exc.problems[:3])) from None
+    finally:
+        for im in images:
+            im.raster.close()
+    taken = {p["id"] for p in job.get("points", [])}
+    prefix = "M"
+    while any(m["point"].replace("M", prefix, 1) in taken for m in result.measurements):
+        prefix += "M"
+    for m in result.measurements:
+        m["point"] = m["point"].replace("M", prefix, 1)
+    job.setdefault("points", []).extend({"id": pid, "role": "tie"} for pid in dict.fromkeys(m["point"] for m in result.measurements))
+    job.setdefault("observations", []).extend(result.measurements)
+    return result.summary
 
 
 def cmd_job_sources(args: argparse.Namespace) -> int:

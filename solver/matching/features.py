@@ -3,7 +3,9 @@
 For a pair (a, b), a is cut into the cells of a ``grid`` x ``grid`` layout; in every cell whose
 centre lies in the overlap, a window of ``tile_px`` pixels around the centre is read at full
 resolution and SIFT features (OpenCV) are detected in it (the strongest ``max_features``), so
-the features spread over the whole overlap. Each feature's epipolar segment in b (its position
+the features spread over the whole overlap. Windows are read decimated by ``decimation`` (2 by
+default: OpenCV's SIFT doubles its input first, so the finest scale is still the full
+resolution's, at a quarter of the cost; positions are refined by correlation later). Each feature's epipolar segment in b (its position
 at the lowest and the highest terrain height, :class:`PairMapping`) gives the window of b to
 read, and a b feature is a candidate only within ``search_px`` of that segment (the band's
 half-width: the orientation's uncertainty, pixels of b). Among candidates:
@@ -24,9 +26,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.matching.orientation import MatchImage, PairMapping, distance_to_segment
+from solver.matching.orientation import MatchImage, PairMapping
 
 MIN_TILE_MATCHES = 5  # fewer matches in a tile cannot be checked by a local affine RANSAC
+MIN_TILE_PX = 128
 RANSAC_SEED = 12345
 
 
@@ -35,7 +38,7 @@ class MatchSettings:
     """How to match (defaults suit 8-16 bit optical images of 1-30 m GSD)."""
 
     grid: int = 16  # cells per image side: detection tiles and thinning cells
-    tile_px: int = 256  # side of the detection window in each cell (pixels of a)
+    tile_px: int = 256  # side of the detection window in each cell (pixels of a; at most the cell, at least 128)
     max_features: int = 300  # strongest SIFT features kept per tile of a
     ratio: float = 0.8  # Lowe's ratio test
     search_px: float = 30.0  # half-width of the search band around the epipolar segment (px of b)
@@ -44,6 +47,7 @@ class MatchSettings:
     min_ncc: float = 0.7  # lowest accepted normalised cross-correlation peak
     per_cell: int = 4  # tie points kept per thinning cell of each image
     max_window_px: int = 2048  # a predicted b window larger than this is skipped (orientation far off)
+    decimation: int = 2  # features are detected on windows read decimated by this factor (SIFT doubles them first)
 
 
 @dataclass
@@ -95,58 +99,73 @@ def tile_centres(image: MatchImage, grid: int) -> np.ndarray:
     return np.column_stack([ll.ravel(), cc2.ravel()])
 
 
+def _detect(image: MatchImage, row0: int, col0: int, rows: int, cols: int, k: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """SIFT features (full-resolution line, column; descriptors) of a window read decimated by k."""
+    values, r0, c0 = image.raster.decimated(row0, col0, rows, cols, k)
+    if values.size == 0:
+        return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
+    pos, desc = _sift(image.raster.to_8bit(values), n)
+    return pos * k + (r0 + (k - 1) / 2.0, c0 + (k - 1) / 2.0), desc
+
+
+def _band(kb: np.ndarray, s0: np.ndarray, s1: np.ndarray, search_px: float) -> np.ndarray:
+    """(na, nb) mask: b feature j within ``search_px`` of a feature i's epipolar segment. The
+    segments of one tile share their direction to well under a degree: the tile's mean
+    direction is used for all, which turns the test into outer differences of 1-D arrays."""
+    d = (s1 - s0).mean(axis=0)
+    length = float(np.hypot(*d))
+    u = d / length if length > 1e-9 else np.array([1.0, 0.0])
+    cross = lambda p: p[:, 0] * u[1] - p[:, 1] * u[0]  # noqa: E731
+    along = np.sum((s1 - s0) * u, axis=1)
+    perp = cross(kb)[None, :] - cross(s0)[:, None]
+    t = (kb @ u)[None, :] - (s0 @ u)[:, None]
+    beyond = np.maximum(np.maximum(-t, t - along[:, None]), 0.0)
+    return perp * perp + beyond * beyond <= search_px * search_px
+
+
 def match_tile(a: MatchImage, b: MatchImage, mapping: PairMapping, centre: np.ndarray, s: MatchSettings, counts: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
     """SIFT matches (pa, pb) of one tile of a centred at ``centre`` (module docstring)."""
-    half = s.tile_px // 2
-    r0, c0 = int(round(centre[0])) - half, int(round(centre[1])) - half
-    win = a.raster.window(r0, c0, s.tile_px, s.tile_px)
+    cell = min(a.lines, a.columns) / s.grid
+    tile = int(min(s.tile_px, max(cell, MIN_TILE_PX)))  # tiles of small images do not overlap much
+    half = tile // 2
+    k = s.decimation
     empty = (np.zeros((0, 2)), np.zeros((0, 2)))
-    if win.size == 0:
-        return empty
-    ka, da = _sift(a.raster.to_8bit(win), s.max_features)
+    ka, da = _detect(a, int(round(centre[0])) - half, int(round(centre[1])) - half, tile, tile, k, s.max_features)
     if not len(ka):
         return empty
-    ka += (max(r0, 0), max(c0, 0))
     s0, s1 = mapping.segment(ka[:, 0], ka[:, 1])
+    good = np.all(np.isfinite(s0), 1) & np.all(np.isfinite(s1), 1)
+    ka, da, s0, s1 = ka[good], da[good], s0[good], s1[good]
+    if not len(ka):
+        return empty
     ends = np.vstack([s0, s1])
-    if not np.all(np.isfinite(ends)):
-        good = np.all(np.isfinite(s0), 1) & np.all(np.isfinite(s1), 1)
-        ka, da, s0, s1 = ka[good], da[good], s0[good], s1[good]
-        if not len(ka):
-            return empty
-        ends = np.vstack([s0, s1])
-    pad = s.search_px + 16
+    pad = s.search_px + 16 * k
     lo, hi = np.floor(ends.min(0) - pad).astype(int), np.ceil(ends.max(0) + pad).astype(int)
     if np.any(hi - lo > s.max_window_px):
         counts["tiles_skipped"] = counts.get("tiles_skipped", 0) + 1
         return empty
-    wb = b.raster.window(lo[0], lo[1], hi[0] - lo[0], hi[1] - lo[1])
-    if wb.size == 0:
-        return empty
-    kb, db = _sift(b.raster.to_8bit(wb), 0)
+    kb, db = _detect(b, lo[0], lo[1], hi[0] - lo[0], hi[1] - lo[1], k, 0)
     if not len(kb):
         return empty
-    kb += (max(lo[0], 0), max(lo[1], 0))
     counts["features"] = counts.get("features", 0) + len(ka)
-    perp, beyond = distance_to_segment(kb[None, :, :], s0[:, None, :], s1[:, None, :])
-    band = np.hypot(perp, beyond) <= s.search_px
-    dist = np.where(band, _distances(da, db), np.inf)
-    if dist.shape[1] == 0:
-        return empty
-    order = np.argsort(dist, axis=1)
-    best = order[:, 0]
-    d1 = dist[np.arange(len(ka)), best]
-    d2 = dist[np.arange(len(ka)), order[:, 1]] if dist.shape[1] > 1 else np.full(len(ka), np.inf)
+    dist = np.where(_band(kb, s0, s1, s.search_px), _distances(da, db), np.inf)
+    rows = np.arange(len(ka))
+    best = np.argmin(dist, axis=1)
+    d1 = dist[rows, best]
+    if dist.shape[1] > 1:
+        d2 = np.partition(dist, 1, axis=1)[:, 1]
+    else:
+        d2 = np.full(len(ka), np.inf)
     ok = np.isfinite(d1) & (d1 < s.ratio * d2)
     counts["candidates"] = counts.get("candidates", 0) + int(np.isfinite(d1).sum())
     counts["ratio"] = counts.get("ratio", 0) + int(ok.sum())
     back = np.argmin(dist, axis=0)
-    ok &= back[best] == np.arange(len(ka))
+    ok &= back[best] == rows
     counts["mutual"] = counts.get("mutual", 0) + int(ok.sum())
     pa, pb = ka[ok], kb[best[ok]]
     if len(pa) < MIN_TILE_MATCHES:
         return empty
-    keep = _ransac(pa, pb, s.ransac_px)
+    keep = _ransac(pa, pb, s.ransac_px * k)
     counts["ransac"] = counts.get("ransac", 0) + int(keep.sum())
     return pa[keep], pb[keep]
 

@@ -105,7 +105,7 @@ def match_images(images: list[MatchImage], heights: tuple[float, float], setting
             say(0.05 + 0.75 * (n + f) / len(pairs), f"{images[i].id}-{images[j].id}")
 
         matches.append(match_pair(images[i], images[j], i, j, mapping(i, j), settings, tile_progress))
-    tracks, inconsistent = link(matches, len(images))
+    tracks, inconsistent = link(matches, len(images), settings.decimation)
     sizes = [(im.lines, im.columns) for im in images]
     kept = thin(tracks, sizes, settings.grid, settings.per_cell)
     say(0.8, "correlation")

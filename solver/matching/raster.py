@@ -104,6 +104,26 @@ class Raster:
             return np.zeros((0, 0), np.float32)
         return self._read(window=Window(c0, r0, c1 - c0, r1 - r0)).astype(np.float32)
 
+    def decimated(self, row0: int, col0: int, rows: int, cols: int, k: int) -> tuple[np.ndarray, int, int]:
+        """Raw values (float32) of the window decimated by ``k`` (the mean of k x k blocks; GDAL
+        reads an overview level when the file has a suitable one), with the window's origin
+        moved down to a multiple of ``k`` so that every window of an image shares one decimated
+        grid. Returns (values, row origin, column origin): the decimated pixel (i, j) is centred
+        on full-resolution (origin + k i + (k - 1) / 2, origin + k j + (k - 1) / 2)."""
+        from rasterio.enums import Resampling
+        from rasterio.windows import Window
+
+        if k == 1:
+            r0, c0 = max(int(row0), 0), max(int(col0), 0)
+            return self.window(row0, col0, rows, cols), r0, c0
+        r0, c0 = max(int(row0), 0) // k * k, max(int(col0), 0) // k * k
+        r1 = min(int(row0) + int(rows), self.lines) // k * k
+        c1 = min(int(col0) + int(cols), self.columns) // k * k
+        if r1 <= r0 or c1 <= c0:
+            return np.zeros((0, 0), np.float32), r0, c0
+        out = self._read(window=Window(c0, r0, c1 - c0, r1 - r0), out_shape=((r1 - r0) // k, (c1 - c0) // k), resampling=Resampling.average)
+        return out.astype(np.float32), r0, c0
+
     def to_8bit(self, values: np.ndarray) -> np.ndarray:
         """``values`` stretched to 0..255 (uint8) with the image's percentiles."""
         lo, hi = self.stretch

@@ -1,8 +1,8 @@
 """Multi-image tie points from pairwise matches, and their thinning to an even spread.
 
 Linking: every end of a pairwise match is a node (image, line, column); nodes are joined by
-their match and by proximity (two nodes of one image within ``LINK_RADIUS_PX`` are the same
-feature seen from two pairs). A connected component is a track. A track whose nodes in one
+their match and by proximity (two nodes of one image within ``LINK_RADIUS_PX`` times the
+detection's decimation are the same feature seen from two pairs). A connected component is a track. A track whose nodes in one
 image lie further than ``MAX_SPREAD_PX`` apart links two different features (a chain of matches
 that went astray somewhere): it is dropped whole, never split by guessing.
 
@@ -35,9 +35,10 @@ class Track:
         return (ref, round(float(p[0]), 3), round(float(p[1]), 3))
 
 
-def link(pairs, n_images: int) -> tuple[list[Track], int]:
+def link(pairs, n_images: int, scale: float = 1.0) -> tuple[list[Track], int]:
     """Tracks from the pairwise matches (``PairMatches`` a, b, pa, pb), sorted by
-    :meth:`Track.key`, and the number of inconsistent components dropped."""
+    :meth:`Track.key`, and the number of inconsistent components dropped; ``scale`` multiplies
+    the link radius and the largest spread (the decimation features were detected at)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
@@ -62,7 +63,7 @@ def link(pairs, n_images: int) -> tuple[list[Track], int]:
     for i in range(n_images):
         sel = np.flatnonzero(img == i)
         if len(sel) > 1:
-            pairs_i = cKDTree(pos[sel]).query_pairs(LINK_RADIUS_PX, output_type="ndarray")
+            pairs_i = cKDTree(pos[sel]).query_pairs(LINK_RADIUS_PX * scale, output_type="ndarray")
             if len(pairs_i):
                 near.append(sel[pairs_i])
     e = np.vstack(near)
@@ -78,7 +79,7 @@ def link(pairs, n_images: int) -> tuple[list[Track], int]:
         for i in np.unique(img[group]):
             p = pos[group[img[group] == i]]
             centre = np.median(p, axis=0)
-            if np.max(np.linalg.norm(p - centre, axis=1)) > MAX_SPREAD_PX:
+            if np.max(np.linalg.norm(p - centre, axis=1)) > MAX_SPREAD_PX * scale:
                 consistent = False
                 break
             members[int(i)] = p.mean(axis=0)
