@@ -222,3 +222,24 @@ def test_bad_rasters_exit_2(triplet, rpc_pair, tmp_path, capsys):
             side = "\n".join(lines) + "\n"
         (far / (p.stem + "_RPC.TXT")).write_text(side)
     _fails(["match", str(far / "back.tif"), str(far / "fwd.tif"), "-o", out, "-q", "--heights", "100,1300"], capsys, "no two images overlap")
+
+
+def test_job_match_adds_tie_points(triplet):
+    """``pba job ... --match`` (its helper on a composed job): the matched tie points join the
+    job as tie points with their measurements, ids clear of the job's own, and the job is valid."""
+    from solver.api import validate
+    from solver.importers.cli import add_matched_ties
+    from solver.matching.features import MatchSettings
+    from solver.schema.job import load_job
+
+    _scene, job, d, paths = triplet
+    composed = _with_ties(job, [], False)
+    composed["points"].append({"id": "M00001", "role": "tie"})  # an id the matching would take
+    composed["observations"] += [{"image": "back", "point": "M00001", "line": 10.0, "column": 10.0},
+                                 {"image": "fwd", "point": "M00001", "line": 12.0, "column": 11.0}]
+    summary = add_matched_ties(composed, [f"{p.name.split('.')[1]}={p}" for p in paths], MatchSettings(grid=5))
+    ids = [p["id"] for p in composed["points"]]
+    assert len(ids) == len(set(ids))
+    matched = [o for o in composed["observations"] if o["point"].startswith("MM")]
+    assert len(matched) == summary["measurements"] and summary["tie_points"] >= 60
+    assert validate(load_job(composed))["valid"]

@@ -220,18 +220,20 @@ def cmd_job(args: argparse.Namespace) -> int:
     return 1
 
 
-def add_matched_ties(job: dict[str, Any], rasters: list[str]) -> dict[str, Any]:
+def add_matched_ties(job: dict[str, Any], rasters: list[str], settings=None) -> dict[str, Any]:
     """Tie points matched in ``rasters`` (``ID=PATH``) added to the composed ``job`` (in place),
     oriented by the job's initial orientation; the matching's summary. Raises ValueError
-    (the matching's located errors) when matching cannot run."""
+    (the matching's located errors) when matching cannot run. ``settings``: a
+    :class:`solver.matching.features.MatchSettings` (default: the defaults of ``pba match``)."""
     from solver.errors import JobError
+    from solver.matching.features import MatchSettings
     from solver.matching.orientation import images_from_job
     from solver.matching.pipeline import match_images
 
     images = []
     try:
         images, heights = images_from_job(job, None, rasters)
-        result = match_images(images, heights)
+        result = match_images(images, heights, settings or MatchSettings())
     except JobError as exc:
         raise ValueError("the composed job cannot orient the images: " + "; ".join(p.message for p in exc.problems[:3])) from None
     finally:
