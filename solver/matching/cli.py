@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
+
+GDAL_CACHE_MB = "256"  # GDAL's block cache (default 5% of RAM): windows are read once or twice each
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -98,6 +101,7 @@ def cmd_match(args: argparse.Namespace) -> int:
     from solver.matching.pipeline import MatchError, match_images, measurements_csv
     from solver.matching.raster import RasterError
 
+    os.environ.setdefault("GDAL_CACHEMAX", GDAL_CACHE_MB)  # before GDAL's first read allocates its cache
     images = []
     try:
         settings = settings_from_args(args)
