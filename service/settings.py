@@ -116,6 +116,11 @@ class Settings(BaseSettings):
         300.0, gt=0, description="Redis gives an unacknowledged job message to another worker after"
     )
     celery_queue: str = Field("pba", min_length=1, description="Celery queue name of the jobs")
+    celery_small_queue: str = Field(
+        "pba-small",
+        min_length=1,
+        description="Celery queue of the small-job lane (read by pba worker --small-lane)",
+    )
     worker_concurrency: int = Field(
         0, ge=0, le=256, description="solves at once per pba worker (0: one per CPU core)"
     )

@@ -83,3 +83,31 @@ def test_a_small_sync_job_is_answered_while_a_big_one_holds_the_worker(
             ca.delete(f"/jobs/{big}")
     finally:
         srv.stop()
+
+
+def test_a_small_lane_message_claims_only_small_jobs(store: Store) -> None:  # noqa: F811
+    from service.store.leases import claim_for_message
+
+    big = add(store, "a", 1)[0]
+    small = add(store, "b", 1, small=True)[0]
+    got = claim_for_message(store, small, "h:1:x", 30.0, 2, small_only=True)  # type: ignore[arg-type]
+    assert (got.outcome, got.job and got.job.id) == ("claimed", small)
+    # nothing small is left: the lane's message is dropped, the big job waits for a general one
+    dropped = claim_for_message(store, small, "h:2:y", 30.0, 2, small_only=True)  # type: ignore[arg-type]
+    assert dropped.outcome == "held" and store.get_job(big).status.value == "accepted"  # type: ignore[union-attr]
+
+
+def test_small_jobs_are_published_to_both_queues(monkeypatch: Any) -> None:
+    from service.queue.celery_app import publish
+    from service.settings import Settings
+
+    sent: list[str] = []
+
+    class App:
+        def send_task(self, name: str, args: list[str], queue: str, **_: Any) -> None:
+            sent.append(queue)
+
+    settings = Settings(celery_queue="q", celery_small_queue="q-small")
+    publish(App(), settings, "j1", small=True)  # type: ignore[arg-type]
+    publish(App(), settings, "j2")  # type: ignore[arg-type]
+    assert sent == ["q", "q-small", "q"]
