@@ -113,10 +113,13 @@ def main() -> int:
                 body = multipart(spec, files)
                 row = measure(proc.pid, lambda: c.post("/jobs/compose", content=body, headers=content_type))
                 rows.append({"request": label, **row})
+                print(json.dumps(rows[-1]), flush=True)
             if args.workers:
                 job = json.loads((ROOT / "examples" / "prism-nadir.json").read_text())
                 r = c.post("/processes/bundle-adjustment/execution", json={"inputs": {"job": job}})
                 job_url = r.headers["location"].split(url, 1)[-1]
+                while c.get(job_url).json()["status"] in ("accepted", "running"):
+                    time.sleep(1)
                 row = measure(proc.pid, lambda: c.get(f"{job_url}/results/rpc/prism-nadir", params={"chip": "99"}))
                 rows.append({"request": "RPC download of chip 99", **row})
                 row = measure(proc.pid, lambda: c.get("/cameras/shared/prism-nadir/versions", params={"limit": 1000}))
