@@ -70,7 +70,7 @@ def cases() -> list[tuple[str, str, list[tuple[bytes, bytes]]]]:
             json.dumps({"images": [{"id": f"I{k}", "camera": "prism-nadir", "measurements": [f"m{j}.csv" for j in range(200)]} for k in range(64)]}),
             [(f"m{j}.csv".encode(), small) for j in range(200)],
         ),
-        ("tie CSV at the row limit (99,990 rows): composed", json.dumps({"images": [image(["m.csv"])]}), [(b"m.csv", b"\n".join(tie_rows.split(b"\n")[:99_991]) + b"\n")]),
+        ("tie CSV at the row limit (19,990 rows): composed", json.dumps({"images": [image(["m.csv"])]}), [(b"m.csv", b"\n".join(tie_rows.split(b"\n")[:19_991]) + b"\n")]),
         (f"tie CSV of a million rows ({len(tie_rows) / 1e6:.0f} MB)", json.dumps({"images": [image(["m.csv"])]}), [(b"m.csv", tie_rows)]),
         (f"survey of a million rows ({len(survey) / 1e6:.0f} MB)", json.dumps({"images": [image(["m.csv"])], "points": ["s.csv"]}), [(b"s.csv", survey), (b"m.csv", small)]),
     ]

@@ -65,7 +65,7 @@ class Settings(BaseSettings):
         2_000_000, gt=0, description="default per-user limit on observations in one job"
     )
     compose_max_rows: int = Field(
-        100_000,
+        20_000,
         gt=0,
         description="POST /jobs/compose: lines of the uploads (once per file name in the spec), at most",
     )
