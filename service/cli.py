@@ -34,6 +34,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     worker.add_argument("--name", default=None, help="Celery node name (default pba-PID@host)")
     worker.add_argument(
+        "--small-lane",
+        action="store_true",
+        help="serve the small-job lane only (queue PBA_CELERY_SMALL_QUEUE): capacity kept for small jobs",
+    )
+    worker.add_argument(
         "--ping", action="store_true", help="health check: exit 0 if a worker of this host answers"
     )
     worker.set_defaults(func=cmd_worker)
@@ -229,7 +234,7 @@ def cmd_worker(args: argparse.Namespace) -> int:
         nodes = ping_local_workers(_settings(args))
         print(", ".join(nodes) or "no worker of this host answered", file=sys.stderr)
         return 0 if nodes else 1
-    return worker_main(_settings(args), args.concurrency, args.name)
+    return worker_main(_settings(args), args.concurrency, args.name, args.small_lane)
 
 
 def cmd_db_upgrade(args: argparse.Namespace) -> int:

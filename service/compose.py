@@ -14,13 +14,15 @@ page shows them beside the inputs.
 
 from __future__ import annotations
 
+import ctypes
 import json
-from typing import Any
+from collections import Counter
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from service.cameras import find_camera, qualified_name, resolve_camera_refs
-from service.errors import InvalidInput, ServiceError
+from service.errors import InvalidInput, JobTooLarge, ServiceError
 from service.problems import job_error_entries, json_pointer, problem_entries, pydantic_errors
 from service.store import Store, UserRecord
 from solver.errors import JobError
@@ -35,7 +37,10 @@ from solver.importers.errors import SourceError
 from solver.schema.job import load_job
 
 MAX_FILES = 200
-Name = Field(min_length=1, max_length=255)
+MAX_REFERENCES = 256  # file names in one spec (a file shared by several images counts once per image)
+MAX_NAME_BYTES = 255  # a file name, UTF-8 (NAME_MAX of the usual file systems)
+MAX_JSON_DEPTH = 32  # nesting of the spec (the job document is far flatter)
+FileName = Annotated[str, Field(min_length=1, max_length=MAX_NAME_BYTES)]
 
 
 class _Spec(BaseModel):
@@ -48,11 +53,11 @@ class ImageSpec(_Spec):
 
     id: str = Field(min_length=1, max_length=64)
     camera: str | None = Field(default=None, min_length=1, max_length=128)
-    measurements: list[str] = Field(default_factory=list, max_length=MAX_FILES)
-    ephemeris: str | None = None
-    attitude: str | None = None
-    state: str | None = None
-    rpc: str | None = Field(default=None, description="an RPC image: its NAME_RPC.TXT, NAME.RPB or DIMAP RPC_*.XML (no raster)")
+    measurements: list[FileName] = Field(default_factory=list, max_length=MAX_FILES)
+    ephemeris: FileName | None = None
+    attitude: FileName | None = None
+    state: FileName | None = None
+    rpc: FileName | None = Field(default=None, description="an RPC image: its NAME_RPC.TXT, NAME.RPB or DIMAP RPC_*.XML (no raster)")
     rpc_model: str | None = Field(default=None, max_length=32, description="its bias model (default: the spec's rpc_model)")
 
 
@@ -61,11 +66,11 @@ class ComposeSpec(_Spec):
     of :class:`solver.importers.compose.ComposeRequest` (see ``pba job --help``)."""
 
     images: list[ImageSpec] = Field(min_length=1, max_length=64)
-    gcps: list[str] = Field(default_factory=list)
-    checks: list[str] = Field(default_factory=list)
-    points: list[str] = Field(default_factory=list, description="point tables with a role column")
-    asp_gcp: list[str] = Field(default_factory=list, description="ASP GCP files naming their images")
-    camera_files: list[str] = Field(default_factory=list)
+    gcps: list[FileName] = Field(default_factory=list, max_length=MAX_FILES)
+    checks: list[FileName] = Field(default_factory=list, max_length=MAX_FILES)
+    points: list[FileName] = Field(default_factory=list, max_length=MAX_FILES, description="point tables with a role column")
+    asp_gcp: list[FileName] = Field(default_factory=list, max_length=MAX_FILES, description="ASP GCP files naming their images")
+    camera_files: list[FileName] = Field(default_factory=list, max_length=MAX_FILES)
     camera: str | None = Field(default=None, description="camera of images without their own")
     crs: str | None = Field(default=None, max_length=4096, description="CRS of the point tables")
     models: list[str] = Field(default_factory=lambda: ["K2"], min_length=1, max_length=16)
@@ -101,10 +106,101 @@ def parse_spec(text: str) -> ComposeSpec:
         raise InvalidInput(
             "the spec is not JSON", [{"pointer": "/spec", "code": "invalid_json", "message": str(exc)}]
         ) from None
+    except RecursionError:
+        obj = None
+    if obj is None or json_depth(obj) > MAX_JSON_DEPTH:
+        raise InvalidInput(
+            "the spec is nested too deeply",
+            [{"pointer": "/spec", "code": "nesting_too_deep", "message": f"at most {MAX_JSON_DEPTH} levels of nesting"}],
+        )
     try:
         return ComposeSpec.model_validate(obj)
     except ValidationError as exc:
         raise InvalidInput("the spec does not match the schema", pydantic_errors(exc.errors(), ("spec",))) from None
+
+
+def json_depth(obj: Any) -> int:
+    """Nesting depth of a parsed JSON value (a scalar: 0, ``{}``: 1), without recursion."""
+    depth, level = 0, [obj]
+    while True:
+        containers = [n for n in level if isinstance(n, (dict, list))]
+        if not containers:
+            return depth
+        depth += 1
+        level = [v for n in containers for v in (n.values() if isinstance(n, dict) else n)]
+
+
+def check_file_name(name: str | None, index: int) -> str:
+    """The name of the ``index``-th uploaded file, or InvalidInput (empty, control characters,
+    more than :data:`MAX_NAME_BYTES` bytes of UTF-8, not encodable): the spec names files by
+    these names, and an RPC file is written to disk under its kind (solver.importers.rpc)."""
+    message = None
+    if not name:
+        message, code = "an uploaded file has no name (the spec names the files by their names)", "empty_file_name"
+    elif any(ord(c) < 32 or ord(c) == 127 for c in name):
+        message, code = "the file name holds a control character", "invalid_file_name"
+    else:
+        try:
+            size = len(name.encode("utf-8"))
+        except UnicodeEncodeError:
+            message, code = "the file name is not valid Unicode", "invalid_file_name"
+        else:
+            if size > MAX_NAME_BYTES:
+                message, code = f"the file name has {size} bytes; at most {MAX_NAME_BYTES}", "file_name_too_long"
+    if message is not None:
+        raise InvalidInput(message, [{"pointer": f"/files/{index}", "code": code, "message": message}])
+    assert name is not None
+    return name
+
+
+def references(spec: ComposeSpec) -> list[tuple[tuple[str | int, ...], str]]:
+    """(where in the spec, file name) of every file the spec names."""
+    refs: list[tuple[tuple[str | int, ...], str]] = []
+    for k, im in enumerate(spec.images):
+        refs += [(("images", k, "measurements", j), n) for j, n in enumerate(im.measurements)]
+        refs += [(("images", k, a), n) for a in ("ephemeris", "attitude", "state", "rpc") if (n := getattr(im, a))]
+    for attr in ("gcps", "checks", "points", "asp_gcp", "camera_files"):
+        refs += [((attr, j), n) for j, n in enumerate(getattr(spec, attr))]
+    return refs
+
+
+def check_sizes(spec: ComposeSpec, uploads: dict[str, bytes], max_rows: int, max_observations: int) -> None:
+    """Refuse, before any file is parsed, a spec naming more than :data:`MAX_REFERENCES` files
+    or one file twice in one image (422), or uploads whose lines, counted once per reference,
+    exceed ``max_rows`` (``PBA_COMPOSE_MAX_ROWS``) or whose measurement lines exceed the user's
+    ``max_observations`` (413): the work of a composition is bounded by these counts."""
+    refs = references(spec)
+    if len(refs) > MAX_REFERENCES:
+        raise InvalidInput(
+            f"the spec names {len(refs)} files; at most {MAX_REFERENCES}",
+            [{"pointer": "/spec", "code": "too_many_references", "message": f"at most {MAX_REFERENCES} file names"}],
+        )
+    for k, im in enumerate(spec.images):
+        twice = [n for n, c in Counter(im.measurements).items() if c > 1]
+        if twice:
+            raise InvalidInput(
+                f"image {im.id!r} names {twice[0]!r} twice",
+                [{"pointer": json_pointer(("spec", "images", k, "measurements")), "code": "duplicate_reference", "message": f"{twice[0]!r} is named twice"}],
+            )
+    lines = {name: data.count(b"\n") + 1 for name, data in uploads.items()}
+    rows = sum(lines.get(name, 0) for _, name in refs)
+    measured = sum(lines.get(name, 0) for where, name in refs if where[0] == "asp_gcp" or where[-2:-1] == ("measurements",))
+    if rows > max_rows:
+        raise JobTooLarge(
+            f"the uploads hold {rows} lines (counted once per file name in the spec); a composition on the server "
+            f"takes at most {max_rows}: compose bigger jobs with pba job on your machine"
+        )
+    if measured > max_observations:
+        raise JobTooLarge(f"the measurement files hold {measured} lines; your limit is {max_observations} observations per job")
+
+
+def release_memory() -> None:
+    """Give freed heap pages back to the system (glibc ``malloc_trim``; nothing elsewhere):
+    a composition's transient objects would otherwise keep the API process's RSS high."""
+    try:
+        ctypes.CDLL(None).malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 def _request(spec: ComposeSpec, uploads: dict[str, bytes]) -> ComposeRequest:
@@ -172,8 +268,19 @@ def source_error_entries(exc: SourceError, uploads: dict[str, bytes]) -> list[di
     ]
 
 
-def compose_uploads(spec: ComposeSpec, uploads: dict[str, bytes], store: Store, user: UserRecord) -> ComposeResult:
-    """Compose, resolve library cameras for the checks, summarize and validate."""
+def compose_uploads(
+    spec: ComposeSpec, uploads: dict[str, bytes], store: Store, user: UserRecord, max_rows: int, max_observations: int
+) -> ComposeResult:
+    """Check the sizes (:func:`check_sizes`), compose, resolve library cameras for the checks,
+    summarize and validate; the heap is trimmed afterwards (:func:`release_memory`)."""
+    try:
+        check_sizes(spec, uploads, max_rows, max_observations)
+        return _compose(spec, uploads, store, user)
+    finally:
+        release_memory()
+
+
+def _compose(spec: ComposeSpec, uploads: dict[str, bytes], store: Store, user: UserRecord) -> ComposeResult:
     import solver.api
 
     def lookup(name: str) -> dict[str, Any] | None:

@@ -27,7 +27,7 @@ from service.errors import NotReady, Unauthorized, UnsupportedMediaType
 from service.jobs import JobService
 from service.metrics import Metrics
 from service.queue import QueueBackend
-from service.settings import Settings
+from service.settings import Settings, is_loopback
 from service.store import JobRecord, Store, UserRecord
 
 
@@ -124,9 +124,17 @@ VisibleJob = Annotated[JobRecord, Depends(visible_job)]
 
 
 def base_url(request: Request) -> str:
-    """Base URL for links, ending with ``/`` (``PBA_PUBLIC_URL`` or the request's)."""
-    public = request.app.state.settings.public_url
-    return (public.rstrip("/") + "/") if public else str(request.base_url)
+    """Base URL for links, ending with ``/``: ``PBA_PUBLIC_URL``; else the request's when its
+    host is trusted (loopback, the bound address or ``PBA_TRUSTED_HOSTS``), else the bound
+    address: a client's ``Host`` header never chooses where links point."""
+    settings = request.app.state.settings
+    if settings.public_url:
+        return settings.public_url.rstrip("/") + "/"
+    host = request.url.hostname or ""
+    if is_loopback(host) or host == settings.host or host in settings.trusted_hosts:
+        return str(request.base_url)
+    bound = f"[{settings.host}]" if ":" in settings.host else settings.host
+    return f"http://{bound}:{settings.port}/"
 
 
 BaseUrl = Annotated[str, Depends(base_url)]

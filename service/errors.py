@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from typing import Any, Sequence
 
 from fastapi import FastAPI, Request
@@ -110,6 +111,10 @@ class ResultNotReady(NotFound):
         super().__init__(detail, type_uri=OGC_EXC + "result-not-ready")
 
 
+class JobDismissed(NotFound):
+    code, title = "job-dismissed", "The job was dismissed"
+
+
 class InvalidInput(ServiceError):
     """The request is well-formed JSON but not an acceptable job."""
 
@@ -166,6 +171,10 @@ class JobTooLarge(ServiceError):
     status, code, title = 413, "job-too-large", "Job too large"
 
 
+class CameraTooLarge(ServiceError):
+    status, code, title = 413, "camera-too-large", "Camera definition too large"
+
+
 class StorageQuotaExceeded(ServiceError):
     status, code, title = 413, "storage-quota-exceeded", "Storage quota exceeded"
 
@@ -210,6 +219,18 @@ def problem_response(
     # nosniff here too: a 500 is sent by Starlette's outermost middleware, past ours
     headers = {"X-Content-Type-Options": "nosniff", **(headers or {})}
     return JSONResponse(body, status_code=status, media_type=PROBLEM_MEDIA_TYPE, headers=headers)
+
+
+def allowed_methods(request: Request) -> list[str]:
+    """Every method the OpenAPI document offers on this path (Starlette's 405 named only the
+    first matching route's: ``GET /jobs/{id}`` hid ``DELETE /jobs/{id}``)."""
+    methods: set[str] = set()
+    for template, operations in request.app.openapi().get("paths", {}).items():
+        if re.fullmatch(re.sub(r"\\\{[^/]+?\\\}", "[^/]+", re.escape(template)), request.url.path):
+            methods |= {m.upper() for m in operations}
+    if "GET" in methods:
+        methods.add("HEAD")
+    return sorted(methods)
 
 
 def install_error_handlers(app: FastAPI) -> None:
@@ -268,13 +289,16 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         titles = {404: "Not found", 405: "Method not allowed", 413: "Body too large"}
+        headers = dict(getattr(exc, "headers", None) or {})
+        if exc.status_code == 405:
+            headers["Allow"] = ", ".join(allowed_methods(request))
         return problem_response(
             request,
             exc.status_code,
             titles.get(exc.status_code, "HTTP error"),
             str(exc.detail),
             problem_type(f"http-{exc.status_code}"),
-            headers=getattr(exc, "headers", None),
+            headers=headers,
         )
 
     @app.exception_handler(Exception)

@@ -3,7 +3,9 @@ finished job (solver.gis, rebuilt from the stored job document and report) and w
 RPC files, GeoJSON, ground <-> image transforms. No mathematics here: every number comes from
 :mod:`solver.gis`.
 
-The adjusted model of a job is kept in a small per-process cache (a report never changes).
+The adjusted model of a job and its fitted RPCs are kept in small per-process caches (a report
+never changes): an RPC is fitted once per job, image and kind (whole image or per chip), and
+concurrent requests for the same one wait for that one fit.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from solver.geometry.geodesy import UnknownCRSError
 from solver.gis.model import AdjustedImage, AdjustedModel, ModelMismatch, load_model
 
 CACHED_MODELS = 8
+CACHED_RPCS = 64  # (job, image, per chip) entries
 
 
 class NotAnAdjustment(Conflict):
@@ -32,6 +35,8 @@ class NoSuchImage(NotFound):
 
 _lock = threading.Lock()
 _models: OrderedDict[str, AdjustedModel] = OrderedDict()
+_rpcs: OrderedDict[tuple[str, str, bool], list[Any]] = OrderedDict()
+_fitting: dict[tuple[str, str, bool], threading.Lock] = {}
 
 
 def adjusted_model(rec: JobRecord) -> AdjustedModel:
@@ -67,19 +72,46 @@ def image_of(model: AdjustedModel, image_id: str) -> AdjustedImage:
         raise NoSuchImage(str(exc.args[0])) from exc
 
 
-def rpc_document(rec: JobRecord, image_id: str, fmt: str, chip: str | None) -> tuple[str, dict[str, Any]]:
-    """(file text, fit record) of the image's RPC (one chip's with ``chip``)."""
+def chip_ids(image: Any) -> list[str]:
+    """The chip ids of an adjusted image (``["1"]`` for a single-array camera or an RPC image)."""
+    camera = getattr(getattr(image, "image", None), "camera", None)
+    return [c.id for c in getattr(camera, "chips", None) or []] or ["1"]
+
+
+def fitted_rpcs(rec: JobRecord, model: AdjustedModel, image: Any, per_chip: bool) -> list[Any]:
+    """The RPCs of ``image`` (one, or one per chip), fitted once per job and cached."""
     from solver.gis.rpc_export import image_rpcs
+
+    key = (rec.id, image.id, per_chip)
+    with _lock:
+        lock = _fitting.setdefault(key, threading.Lock())
+    with lock:  # one fit per key; the others wait for it and read the cache
+        with _lock:
+            found = _rpcs.get(key)
+            if found is not None:
+                _rpcs.move_to_end(key)
+                return found
+        rpcs = image_rpcs(model, image, per_chip=per_chip)
+        with _lock:
+            _rpcs[key] = rpcs
+            _fitting.pop(key, None)
+            while len(_rpcs) > CACHED_RPCS:
+                _rpcs.popitem(last=False)
+    return rpcs
+
+
+def rpc_document(rec: JobRecord, image_id: str, fmt: str, chip: str | None) -> tuple[str, dict[str, Any]]:
+    """(file text, fit record) of the image's RPC (one chip's with ``chip``: an unknown chip is
+    a 404 before anything is fitted)."""
     from solver.gis.rpc_io import render
 
     model = adjusted_model(rec)
     image = image_of(model, image_id)
-    rpcs = image_rpcs(model, image, per_chip=chip is not None)
+    if chip is not None and chip not in (ids := chip_ids(image)):
+        raise NoSuchImage(f"image {image_id!r} has no chip {chip!r} (chips: {', '.join(ids)})")
+    rpcs = fitted_rpcs(rec, model, image, chip is not None)
     if chip is not None:
         rpcs = [r for r in rpcs if r.fit["chip"] == chip]
-        if not rpcs:
-            ids = ([c.id for c in image.image.camera.chips] if hasattr(image, "image") else []) or ["1"]
-            raise NoSuchImage(f"image {image_id!r} has no chip {chip!r} (chips: {', '.join(ids)})")
     return render(rpcs[0], fmt), rpcs[0].fit
 
 

@@ -24,11 +24,11 @@ from service.problems import job_error_entries, problem_entries, pydantic_errors
 from service.processes import MODEL_COMPARISON, PREANALYSIS, PROCESSES
 from service.queue import QueueBackend
 from service.queue_view import Placement, placement
-from service.retention import check_quota
+from service.retention import quota_bytes, quota_error
 from service.schemas import ExecuteInputs, Link, StatusInfo
 from service.settings import Settings
 from service.states import JobStatus
-from service.store import JobRecord, Store, UserRecord
+from service.store import JobRecord, QuotaExceeded, Store, UserRecord
 from solver.errors import JobError
 from solver.schema.job import Job
 
@@ -150,7 +150,6 @@ class JobService:
         if n_obs > max_obs:
             raise JobTooLarge(f"the job has {n_obs} observations; your limit is {max_obs}")
         document, _ = validate_inputs(process_id, inputs, self.store, user)
-        check_quota(self.store, user, document, self.settings.user_storage_quota_mb)
         if self.store.count_queued(user.id) >= max_queued:
             raise TooManyJobs(
                 f"you already have {max_queued} jobs queued or running; wait for some to finish",
@@ -158,7 +157,13 @@ class JobService:
             )
         job: Job = inputs.job
         small = sync or n_obs <= self.settings.small_job_observations
-        rec = self.store.create_job(user.id, process_id, document, n_obs, job.name, small)
+        quota_mb = self.settings.user_storage_quota_mb
+        try:
+            rec = self.store.create_job(
+                user.id, process_id, document, n_obs, job.name, small, quota_bytes(quota_mb)
+            )
+        except QuotaExceeded as exc:
+            raise quota_error(exc, quota_mb) from None
         self.backend.submit(rec.id)
         return rec
 

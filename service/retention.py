@@ -5,22 +5,21 @@ storage quota (``PBA_USER_STORAGE_QUOTA_MB``); README "Retention".
   given number of days ago, with their inputs and reports; accepted and running jobs are
   never deleted. The server runs it every ``PBA_RETENTION_INTERVAL_S`` (:class:`RetentionLoop`)
   and ``pba db prune`` runs it by hand.
-* :func:`check_quota` refuses a submission (413 ``storage-quota-exceeded``) when the user's
-  stored jobs plus this job's inputs would exceed the quota; nothing is deleted on the user's
-  behalf (deleting a finished job, ``DELETE /jobs/{id}``, frees its space).
+* the quota: the store refuses a job or camera version (:class:`service.store.QuotaExceeded`,
+  checked in the inserting transaction, :func:`quota_bytes`) when the user's stored jobs and
+  camera versions plus the new one would exceed it; :func:`quota_error` is the 413
+  ``storage-quota-exceeded`` problem. Nothing is deleted on the user's behalf (deleting a
+  finished job, ``DELETE /jobs/{id}``, frees its space).
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 from datetime import datetime, timedelta, timezone
-from typing import Any
 
 from service.errors import StorageQuotaExceeded
-from service.store import PrunedJob, Store, UserRecord
-from service.store.payloads import pack
+from service.store import PrunedJob, QuotaExceeded, Store
 
 log = logging.getLogger("pba.service")
 
@@ -38,19 +37,18 @@ def prune(
     return store.prune_jobs(cutoff, dry_run=dry_run)
 
 
-def check_quota(store: Store, user: UserRecord, document: dict[str, Any], quota_mb: float) -> None:
-    """StorageQuotaExceeded when storing ``document`` would take ``user`` over ``quota_mb``
-    (0: no quota). The measure is the compressed size the store keeps."""
-    if quota_mb <= 0:
-        return
-    used = store.storage_used(user.id)
-    need = len(pack(json.dumps(document)))
-    if used + need > quota_mb * MB:
-        raise StorageQuotaExceeded(
-            f"your jobs store {used / MB:.1f} MB and this job's inputs {need / MB:.1f} MB; "
-            f"the quota is {quota_mb:g} MB per user. Delete finished jobs you no longer need "
-            "(DELETE /jobs/{jobId}) or ask an admin"
-        )
+def quota_bytes(quota_mb: float) -> int:
+    """The quota in bytes for the store (0: no quota)."""
+    return int(quota_mb * MB) if quota_mb > 0 else 0
+
+
+def quota_error(exc: QuotaExceeded, quota_mb: float) -> StorageQuotaExceeded:
+    """The 413 problem of a write the quota refused."""
+    return StorageQuotaExceeded(
+        f"your jobs and cameras store {exc.used / MB:.1f} MB and this one {exc.need / MB:.1f} MB; "
+        f"the quota is {quota_mb:g} MB per user. Delete finished jobs you no longer need "
+        "(DELETE /jobs/{jobId}) or ask an admin"
+    )
 
 
 class RetentionLoop:

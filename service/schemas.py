@@ -235,7 +235,7 @@ class CameraShare(BaseModel):
     """Body of ``POST /cameras/{name}/share``: publish one of your versions to the shared
     namespace (as its next version there)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)  # "1" or true is not a version
 
     version: int | None = Field(
         default=None, ge=1, le=2_000_000_000, description="your version to share (latest if absent)"
@@ -312,7 +312,7 @@ class Accounting(BaseModel):
 class UserSettingsUpdate(BaseModel):
     """``PATCH /admin/users/{name}``: the fields given are changed, the others kept."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)  # "2" is not a weight
 
     weight: float | None = Field(default=None, gt=0, le=1000, description="fair-share weight")
     max_running_jobs: int | None = Field(

@@ -41,6 +41,10 @@ class Settings(BaseSettings):
     public_url: str | None = Field(
         None, description="base URL used in links (default: taken from each request)"
     )
+    trusted_hosts: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="comma-separated host names whose Host header links may use (without PBA_PUBLIC_URL)",
+    )
     queue: Literal["local", "celery"] = Field("local", description="queue backend")
     workers: int = Field(2, ge=0, le=64, description="local worker processes (0: API only)")
     job_time_limit_s: float = Field(3600.0, gt=0, description="wall-clock limit of one solve")
@@ -59,6 +63,11 @@ class Settings(BaseSettings):
     max_body_bytes: int = Field(64 * 1024 * 1024, gt=0, description="request body size limit")
     max_job_observations: int = Field(
         2_000_000, gt=0, description="default per-user limit on observations in one job"
+    )
+    compose_max_rows: int = Field(
+        20_000,
+        gt=0,
+        description="POST /jobs/compose: lines of the uploads (once per file name in the spec), at most",
     )
     max_queued_jobs: int = Field(
         1000, gt=0, description="default per-user limit on accepted + running jobs"
@@ -90,6 +99,12 @@ class Settings(BaseSettings):
         ge=0,
         description="jobs with at most this many observations take the small-job lane",
     )
+    small_job_workers: int = Field(
+        1,
+        ge=0,
+        le=16,
+        description="local workers beside PBA_WORKERS that only take small-lane jobs (none when PBA_WORKERS=0)",
+    )
     # -- distributed queue (PBA_QUEUE=celery; docs: README "Scaling out") -----------------
     broker_url: str = Field(
         "redis://127.0.0.1:6379/0", description="Celery broker URL (PBA_QUEUE=celery)"
@@ -101,6 +116,11 @@ class Settings(BaseSettings):
         300.0, gt=0, description="Redis gives an unacknowledged job message to another worker after"
     )
     celery_queue: str = Field("pba", min_length=1, description="Celery queue name of the jobs")
+    celery_small_queue: str = Field(
+        "pba-small",
+        min_length=1,
+        description="Celery queue of the small-job lane (read by pba worker --small-lane)",
+    )
     worker_concurrency: int = Field(
         0, ge=0, le=256, description="solves at once per pba worker (0: one per CPU core)"
     )
@@ -125,10 +145,13 @@ class Settings(BaseSettings):
         ge=0,
         description="per-user limit on stored job inputs and reports, MB (0: no limit)",
     )
+    camera_max_bytes: int = Field(
+        256_000, gt=0, description="a camera definition's JSON, at most (bytes)"
+    )
     log_level: str = Field("INFO", description="logging level")
     log_format: Literal["json", "text"] = Field("json", description="log line format")
 
-    @field_validator("cors_origins", mode="before")
+    @field_validator("cors_origins", "trusted_hosts", mode="before")
     @classmethod
     def _split_origins(cls, v: object) -> object:
         if isinstance(v, str):

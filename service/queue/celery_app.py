@@ -109,15 +109,19 @@ def create_celery(settings: Settings) -> Celery:
     return app
 
 
-def publish(app: Celery, settings: Settings, job_id: str) -> None:
-    """Send a job's message to the queue (raises when the broker cannot be reached)."""
-    app.send_task(
-        TASK_NAME,
-        args=[job_id],
-        queue=settings.celery_queue,
-        retry=True,
-        retry_policy={"max_retries": 3, "interval_start": 0.2, "interval_step": 0.5},
-    )
+def publish(app: Celery, settings: Settings, job_id: str, small: bool = False) -> None:
+    """Send a job's message to the queue, and a small-lane job's also to the small-job lane's
+    queue (``PBA_CELERY_SMALL_QUEUE``, read by ``pba worker --small-lane``): messages are wake-up
+    tokens, so every accepted job keeps one in the general queue whichever worker runs it.
+    Raises when the broker cannot be reached."""
+    for queue in (settings.celery_queue, settings.celery_small_queue) if small else (settings.celery_queue,):
+        app.send_task(
+            TASK_NAME,
+            args=[job_id],
+            queue=queue,
+            retry=True,
+            retry_policy={"max_retries": 3, "interval_start": 0.2, "interval_step": 0.5},
+        )
 
 
 # -- worker side ------------------------------------------------------------------------------
@@ -129,6 +133,7 @@ class _Runtime:
     shutdown: Any = None  # multiprocessing Event, created before the pool forks
     main_pid: int = 0
     store: Any = None
+    small_only: bool = False  # pba worker --small-lane: claims only small-lane jobs
 
 
 RT = _Runtime()
@@ -191,6 +196,7 @@ def execute_job(job_id: str) -> str:
             settings.lease_s,
             settings.max_attempts,
             settings.max_running_per_user,
+            small_only=RT.small_only,
         )
     except Exception as exc:
         log.warning("could not claim the job: %s", exc, extra=extra)
@@ -331,14 +337,19 @@ def open_main_store(url: str) -> Any:
     return store
 
 
-def worker_main(settings: Settings, concurrency: int | None = None, node: str | None = None) -> int:
-    """``pba worker``: run a Celery worker (prefork pool) until SIGTERM/SIGINT."""
+def worker_main(
+    settings: Settings, concurrency: int | None = None, node: str | None = None, small_lane: bool = False
+) -> int:
+    """``pba worker``: run a Celery worker (prefork pool) until SIGTERM/SIGINT; with
+    ``small_lane`` it reads the small-job lane's queue and claims only small-lane jobs."""
     from service.logs import configure_logging
 
     configure_logging(settings.log_level, settings.log_format)
     concurrency = concurrency or settings.worker_concurrency or (os.cpu_count() or 1)
     RT.settings = settings
     RT.main_pid = os.getpid()
+    RT.small_only = small_lane
+    queue = settings.celery_small_queue if small_lane else settings.celery_queue
     RT.shutdown = mp.get_context("fork").Event()
     for attempt in range(30):  # the database may still be starting (docker compose up)
         try:
@@ -355,7 +366,7 @@ def worker_main(settings: Settings, concurrency: int | None = None, node: str | 
     def on_ready(**_: Any) -> None:
         sweeper.start()
         log.info(
-            "pba worker ready: queue %s, %d pool processes", settings.celery_queue, concurrency
+            "pba worker ready: queue %s, %d pool processes", queue, concurrency
         )
 
     def on_shutdown(**_: Any) -> None:
@@ -370,7 +381,7 @@ def worker_main(settings: Settings, concurrency: int | None = None, node: str | 
         "worker",
         "--pool=prefork",
         f"--concurrency={concurrency}",
-        f"--queues={settings.celery_queue}",
+        f"--queues={queue}",
         f"--hostname={node}",
         f"--loglevel={settings.log_level.upper()}",
         "--without-mingle",

@@ -81,8 +81,9 @@ class CeleryBackend:
         """Publish the job's message (kept for a later try when the broker is unreachable)."""
         from service.queue.celery_app import publish
 
+        rec = self.store.get_job(job_id)
         try:
-            publish(self.app, self.settings, job_id)
+            publish(self.app, self.settings, job_id, small=bool(rec and rec.small))
         except Exception as exc:
             with self._lock:
                 self._unsent.add(job_id)

@@ -10,6 +10,10 @@ only starts them, wakes them on submission, and supervises them from a thread of
 * at start-up, jobs left running by a previous server are re-queued, or failed once they have
   been interrupted ``max_attempts`` times;
 * at shutdown, workers are asked to stop; a job being solved goes back to the queue.
+
+Besides the ``PBA_WORKERS`` general workers, ``PBA_SMALL_JOB_WORKERS`` workers (when there are
+general workers at all) take only jobs of the small-job lane, in the fair order: a small
+synchronous job then starts at once even while big jobs occupy every general worker.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import os
 import signal
 import threading
 import time
+from dataclasses import replace
 from datetime import datetime, timezone
 
 from service.execution import RunLimits
@@ -50,8 +55,9 @@ def describe_exit(exitcode: int | None) -> str:
 class _Slot:
     """One worker position in the pool."""
 
-    def __init__(self, index: int) -> None:
+    def __init__(self, index: int, small_only: bool = False) -> None:
         self.index = index
+        self.small_only = small_only
         self.process: mp.process.BaseProcess | None = None
         self.started = 0.0
         self.quick_deaths = 0
@@ -70,7 +76,10 @@ class LocalPoolBackend:
         self.ctx = mp.get_context("spawn")
         self.stop_event = self.ctx.Event()
         self.wake = self.ctx.Event()
-        self.slots = [_Slot(i) for i in range(settings.workers)]
+        reserved = settings.small_job_workers if settings.workers > 0 else 0
+        self.slots = [_Slot(i) for i in range(settings.workers)] + [
+            _Slot(settings.workers + i, small_only=True) for i in range(reserved)
+        ]
         self.restarts = 0
         self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
@@ -140,11 +149,13 @@ class LocalPoolBackend:
         if not self.slots:
             return True, "no local workers configured (PBA_WORKERS=0)"
         alive = self.worker_count()
-        return alive > 0, f"{alive} of {len(self.slots)} workers alive"
+        general = sum(1 for s in self.slots if not s.small_only)
+        return alive > 0, f"{alive} of {general} workers alive"
 
     def worker_count(self) -> int:
-        """Workers alive now."""
-        return sum(1 for s in self.slots if s.process is not None and s.process.is_alive())
+        """General workers alive now (the small-lane workers are not counted: they take no
+        job of the ordinary lane, which is what queue placements estimate)."""
+        return sum(1 for s in self.slots if not s.small_only and s.process is not None and s.process.is_alive())
 
     def worker_pids(self) -> list[int]:
         """PIDs of the live workers."""
@@ -156,10 +167,11 @@ class LocalPoolBackend:
 
     # -- supervision -----------------------------------------------------------------------
     def _spawn(self, slot: _Slot) -> None:
+        config = replace(self.config, small_only=True) if slot.small_only else self.config
         p = self.ctx.Process(
             target=worker_main,
-            args=(self.config, self.stop_event, self.wake),
-            name=f"pba-worker-{slot.index}",
+            args=(config, self.stop_event, self.wake),
+            name=f"pba-{'small-' if slot.small_only else ''}worker-{slot.index}",
             daemon=True,
         )
         p.start()

@@ -30,6 +30,7 @@ class WorkerConfig:
     log_level: str = "INFO"
     log_format: str = "json"
     max_running_per_user: int = 0  # PBA_MAX_RUNNING_PER_USER (service.store.fair)
+    small_only: bool = False  # a worker reserved for the small-job lane (PBA_SMALL_JOB_WORKERS)
 
 
 def worker_id(pid: int | None = None) -> str:
@@ -67,7 +68,7 @@ def worker_main(cfg: WorkerConfig, stop: Any, wake: Any) -> None:
     try:
         while stop_reason() is None:
             try:
-                job = store.claim_next(me, cfg.max_running_per_user)
+                job = store.claim_next(me, cfg.max_running_per_user, small_only=cfg.small_only)
             except Exception:
                 log.exception("could not claim a job", extra={"worker": me})
                 stop.wait(1.0)

@@ -24,8 +24,9 @@ from service.cameras import (
     namespace_of,
 )
 from service.deps import JSON_BODY, BaseUrl, CurrentUser, Services, ServicesDep
-from service.errors import Conflict, NotFound, problem_responses
+from service.errors import CameraTooLarge, Conflict, NotFound, problem_responses
 from service.jobs import results_text
+from service.retention import quota_bytes, quota_error
 from service.routes import StrictJSONRoute
 from service.schemas import (
     CameraCreate,
@@ -37,17 +38,19 @@ from service.schemas import (
     Link,
 )
 from service.states import JobStatus
-from service.store import SHARED, CameraRecord, Store, UserRecord
+from service.store import SHARED, CameraRecord, QuotaExceeded, Store, UserRecord
 
 router = APIRouter(prefix="/cameras", tags=["cameras"], route_class=StrictJSONRoute)
 
 Name = Annotated[str, Path(min_length=1, max_length=128, description="camera name")]
 Version = Annotated[int, Path(ge=1, le=2_000_000_000, description="version number")]
 Limit = Annotated[int, Query(ge=1, le=1000)]
+VersionLimit = Annotated[int, Query(ge=1, le=100, description="versions per page (each holds a whole definition)")]
 Offset = Annotated[int, Query(ge=0, le=10_000_000)]
 
 
-def _public(rec: CameraRecord, base: str) -> CameraPublic:
+def _public(rec: CameraRecord, base: str, viewer: UserRecord) -> CameraPublic:
+    """The public view; the job a shared version came from only for its publisher or an admin."""
     return CameraPublic(
         name=rec.name,
         version=rec.version,
@@ -55,18 +58,32 @@ def _public(rec: CameraRecord, base: str) -> CameraPublic:
         description=rec.description,
         definition=rec.definition,
         created=rec.created,
-        source_job=rec.source_job,
+        source_job=rec.source_job if not rec.shared or rec.created_by == viewer.id or viewer.is_admin else None,
         links=[Link(**link) for link in camera_links(rec, base)],
     )
 
 
-def _created(rec: CameraRecord, base: str) -> JSONResponse:
-    body = _public(rec, base).model_dump(mode="json", exclude_none=True)
+def _created(rec: CameraRecord, base: str, viewer: UserRecord) -> JSONResponse:
+    body = _public(rec, base, viewer).model_dump(mode="json", exclude_none=True)
     return JSONResponse(body, 201, headers={"Location": camera_links(rec, base)[0]["href"]})
 
 
 def _definition(defn: CameraDefinition) -> dict:
     return defn.model_dump(mode="json", exclude={"id", "ref"}, exclude_none=True)
+
+
+def _store_camera(services: Services, user: UserRecord, name: str, description: str, definition: dict, **where: str | None) -> CameraRecord:
+    """A new camera version, its size bounded (``PBA_CAMERA_MAX_BYTES``) and counted in the
+    creator's storage quota (413 either way)."""
+    size = len(json.dumps(definition))
+    limit = services.settings.camera_max_bytes
+    if size > limit:
+        raise CameraTooLarge(f"the camera definition has {size} bytes of JSON; at most {limit}")
+    quota_mb = services.settings.user_storage_quota_mb
+    try:
+        return services.store.add_camera(name, description, definition, user.id, quota_bytes=quota_bytes(quota_mb), **where)
+    except QuotaExceeded as exc:
+        raise quota_error(exc, quota_mb) from None
 
 
 def _owner_for_write(user: UserRecord, shared: bool, name: str, store: Store) -> str:
@@ -94,7 +111,7 @@ def list_cameras(
     """The latest version of every camera you own and of every shared camera."""
     records, total = services.store.list_cameras(None, limit, offset, owners=[user.id, SHARED])
     return CameraList(
-        cameras=[_public(r, base) for r in records],
+        cameras=[_public(r, base, user) for r in records],
         numberMatched=total,
         links=[Link(href=f"{base}cameras", rel="self", type="application/json")],
     )
@@ -113,10 +130,8 @@ def create_camera(
     """Store a camera definition as the next version of its name in your namespace (or, with
     ``shared``, in the shared namespace)."""
     owner = _owner_for_write(user, body.shared, body.name, services.store)
-    rec = services.store.add_camera(
-        body.name, body.description, _definition(body.definition), user.id, owner=owner
-    )
-    return _created(rec, base)
+    rec = _store_camera(services, user, body.name, body.description, _definition(body.definition), owner=owner)
+    return _created(rec, base, user)
 
 
 @router.post(
@@ -141,10 +156,8 @@ def camera_from_job(
     document = job.document or {}
     definition = camera_from_report(document, report, body.camera)
     CameraDefinition.model_validate(definition)
-    rec = services.store.add_camera(
-        body.name, body.description, definition, user.id, source_job=job.id
-    )
-    return _created(rec, base)
+    rec = _store_camera(services, user, body.name, body.description, definition, source_job=job.id)
+    return _created(rec, base, user)
 
 
 @router.post(
@@ -169,22 +182,15 @@ def share_camera(
         which = f" version {version}" if version else ""
         raise NotFound(f"you have no camera {name!r}{which}")
     check_may_publish(services.store, user, name)
-    shared = services.store.add_camera(
-        name,
-        rec.description,
-        rec.definition,
-        user.id,
-        source_job=rec.source_job,
-        owner=SHARED,
-    )
-    return _created(shared, base)
+    shared = _store_camera(services, user, name, rec.description, rec.definition, source_job=rec.source_job, owner=SHARED)
+    return _created(shared, base, user)
 
 
 def _get(services: Services, user: UserRecord, name: str, base: str) -> CameraPublic:
     rec = find_camera(services.store, user.id, name)
     if rec is None:
         raise NotFound(f"the camera library has no {name!r}")
-    return _public(rec, base)
+    return _public(rec, base, user)
 
 
 def _versions(
@@ -195,7 +201,7 @@ def _versions(
     if total == 0:
         raise NotFound(f"the camera library has no {name!r}")
     return CameraList(
-        cameras=[_public(r, base) for r in records],
+        cameras=[_public(r, base, user) for r in records],
         numberMatched=total,
         links=[Link(href=f"{base}cameras/{name}/versions", rel="self", type="application/json")],
     )
@@ -207,7 +213,7 @@ def _version(
     rec = find_camera(services.store, user.id, name, version)
     if rec is None:
         raise NotFound(f"the camera library has no {name!r} version {version}")
-    return _public(rec, base)
+    return _public(rec, base, user)
 
 
 # the shared namespace's paths come first: "shared" is not a valid camera name
@@ -235,10 +241,10 @@ def list_shared_versions(
     user: CurrentUser,
     services: ServicesDep,
     base: BaseUrl,
-    limit: Limit = 100,
+    limit: VersionLimit = 10,
     offset: Offset = 0,
 ) -> CameraList:
-    """Every version of a shared camera, newest first."""
+    """Every version of a shared camera, newest first (paginated)."""
     return _versions(services, user, SHARED_PREFIX + name, base, limit, offset)
 
 
@@ -277,10 +283,10 @@ def list_versions(
     user: CurrentUser,
     services: ServicesDep,
     base: BaseUrl,
-    limit: Limit = 100,
+    limit: VersionLimit = 10,
     offset: Offset = 0,
 ) -> CameraList:
-    """Every version of your camera ``name`` (else of the shared one), newest first."""
+    """Every version of your camera ``name`` (else of the shared one), newest first (paginated)."""
     return _versions(services, user, name, base, limit, offset)
 
 

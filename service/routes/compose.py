@@ -9,7 +9,7 @@ from typing import Annotated
 from fastapi import APIRouter, File, Form, UploadFile
 from fastapi.concurrency import run_in_threadpool
 
-from service.compose import MAX_FILES, ComposeResult, compose_uploads, parse_spec
+from service.compose import MAX_FILES, ComposeResult, check_file_name, compose_uploads, parse_spec
 from service.deps import CurrentUser, ServicesDep
 from service.errors import InvalidInput, problem_responses
 
@@ -34,12 +34,15 @@ async def compose_job(
     if len(files) > MAX_FILES:
         raise InvalidInput(f"at most {MAX_FILES} files", [{"pointer": "/files", "code": "too_many", "message": "too many files"}])
     uploads: dict[str, bytes] = {}
-    for f in files:
-        name = f.filename or "file"
+    for i, f in enumerate(files):
+        name = check_file_name(f.filename, i)
         if name in uploads:
             raise InvalidInput(
                 f"two files named {name!r}",
                 [{"pointer": f"/files/{name}", "code": "duplicate_file", "message": "file names must be distinct"}],
             )
         uploads[name] = await f.read()
-    return await run_in_threadpool(compose_uploads, parsed, uploads, services.store, user)
+    _, max_observations = services.jobs.limits_of(user)
+    return await run_in_threadpool(
+        compose_uploads, parsed, uploads, services.store, user, services.settings.compose_max_rows, max_observations
+    )

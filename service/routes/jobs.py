@@ -6,19 +6,20 @@ import asyncio
 from collections.abc import AsyncIterable
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from fastapi.sse import EventSourceResponse, ServerSentEvent
 
 from service.deps import JSON_BODY, BaseUrl, CurrentUser, ServicesDep, VisibleJob
-from service.errors import problem_responses
+from service.errors import JobDismissed, problem_responses
 from service.jobs import results_text, status_info, validate_inputs
 from service.processes import BUNDLE_ADJUSTMENT
 from service.report_csv import table_rows, to_csv
 from service.routes import StrictJSONRoute
 from service.schemas import Execute, JobList, Link, StatusInfo, ValidationReport
 from service.states import FINISHED, JobStatus
+from service.store import JobRecord
 
 router = APIRouter(prefix="/jobs", tags=["jobs"], route_class=StrictJSONRoute)
 
@@ -148,12 +149,20 @@ def get_results_table(
     return Response(to_csv(table_rows(report, table)), media_type="text/csv; charset=utf-8")
 
 
+def _job_with_events(job: VisibleJob) -> JobRecord:
+    """The path's job unless dismissed (before the stream starts: a 404, not a broken stream)."""
+    if job.status == JobStatus.dismissed:
+        raise JobDismissed(f"job {job.id} was dismissed: it has no events")
+    return job
+
+
 @router.get("/{jobId}/events", response_class=EventSourceResponse, responses=NOT_FOUND)
 async def job_events(
-    job: VisibleJob, request: Request, services: ServicesDep, base: BaseUrl
+    job: Annotated[JobRecord, Depends(_job_with_events)], request: Request, services: ServicesDep, base: BaseUrl
 ) -> AsyncIterable[ServerSentEvent]:
     """Server-Sent Events: a ``status`` event (the status document) whenever the status,
-    progress or message changes; the stream ends after the job finishes."""
+    progress or message changes; the stream ends after the job finishes. A dismissed job has
+    no events (404)."""
     last: tuple[str, int, str] | None = None
     n = 0
     rec = job

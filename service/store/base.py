@@ -149,6 +149,15 @@ class FinishedRun:
     finished: datetime
 
 
+class QuotaExceeded(Exception):
+    """A write refused by the storage quota: ``used`` bytes stored, ``need`` more asked."""
+
+    def __init__(self, used: int, need: int) -> None:
+        super().__init__(f"{used} bytes stored, {need} more asked")
+        self.used = used
+        self.need = need
+
+
 class Store(Protocol):
     """What the API, the queue backends and the CLI need from persistence."""
 
@@ -173,8 +182,11 @@ class Store(Protocol):
         n_observations: int,
         name: str,
         small: bool = False,
+        quota_bytes: int = 0,
     ) -> JobRecord:
-        """Insert an ``accepted`` job (``small``: the small-job lane)."""
+        """Insert an ``accepted`` job (``small``: the small-job lane). With ``quota_bytes`` > 0
+        the owner's storage is checked in the inserting transaction, writers of one owner
+        serialised (QuotaExceeded when the job would take it over)."""
 
     def get_job(self, job_id: str) -> JobRecord | None:
         """One job or None."""
@@ -197,9 +209,10 @@ class Store(Protocol):
 
     # -- jobs: worker side -----------------------------------------------------------------
     def claim_next(
-        self, worker: str, max_running_per_user: int = 0, **extra: Any
+        self, worker: str, max_running_per_user: int = 0, small_only: bool = False, **extra: Any
     ) -> JobRecord | None:
-        """The accepted job the fair-share policy picks (service.store.fair) -> running."""
+        """The accepted job the fair-share policy picks (service.store.fair) -> running
+        (``small_only``: among the small-job lane's jobs only)."""
 
     def claim(self, job_id: str, worker: str) -> JobRecord | None:
         """This job -> running."""
@@ -262,7 +275,8 @@ class Store(Protocol):
 
     # -- retention -------------------------------------------------------------------------
     def storage_used(self, owner: str) -> int:
-        """Bytes of stored payloads of a user's jobs (the quota's measure)."""
+        """Bytes of stored payloads of a user's jobs plus the definitions of the camera versions
+        they created (the quota's measure)."""
 
     def prune_jobs(self, finished_before: datetime, dry_run: bool = False) -> list[PrunedJob]:
         """Delete successful/failed/dismissed jobs finished before the cutoff (never accepted
@@ -321,8 +335,10 @@ class Store(Protocol):
         created_by: str,
         source_job: str | None = None,
         owner: str | None = None,
+        quota_bytes: int = 0,
     ) -> CameraRecord:
-        """Store the next version of ``name`` in namespace ``owner`` (default ``created_by``)."""
+        """Store the next version of ``name`` in namespace ``owner`` (default ``created_by``);
+        ``quota_bytes`` as in :meth:`create_job`, for the creator."""
 
     def add_camera_version(
         self,
@@ -333,6 +349,7 @@ class Store(Protocol):
         created_by: str,
         owner: str,
         source_job: str | None = None,
+        quota_bytes: int = 0,
     ) -> CameraRecord | None:
         """Store exactly ``version`` of ``name`` in namespace ``owner``; None when that version
         exists already (another writer stored it first: no duplicate, no renumbering)."""

@@ -244,6 +244,7 @@ def claim_for_message(
     max_attempts: int,
     max_running_per_user: int = 0,
     holder_dead: Callable[[str | None], bool] = holder_is_dead_here,
+    small_only: bool = False,
 ) -> Claim:
     """What the run ``worker`` holding the message of ``job_id`` does: the message is a
     wake-up token, not an assignment (README "Fair sharing").
@@ -258,16 +259,18 @@ def claim_for_message(
     becomes accepted; a message claims at most one job and is only dropped when none is
     accepted), so a job whose message was used for another job is run by a later message.
     ``contended``: accepted jobs remain but every claim lost a race; keep the message.
+    ``small_only`` (a small-lane worker's message): only small-lane jobs are claimed and no
+    orphan is taken over (the general queue's messages do that).
     """
     # The common case in one transaction: no orphan, so claim what the policy picks.
     with store.engine.begin() as conn:
         heads, running = store.heads_and_running(conn)
-        orphans = _orphans(running, job_id, worker, lease_s, holder_dead)
+        orphans = [] if small_only else _orphans(running, job_id, worker, lease_s, holder_dead)
         first = (
             None
             if orphans
             else store.claim_next_in(
-                conn, worker, max_running_per_user, heads=heads, heartbeat=utcnow()
+                conn, worker, max_running_per_user, heads=heads, small_only=small_only, heartbeat=utcnow()
             )
         )
     if isinstance(first, JobRecord):
@@ -277,14 +280,14 @@ def claim_for_message(
         if claim.runnable:
             return claim
     job = (
-        store.claim_next(worker, max_running_per_user, heartbeat=utcnow())
+        store.claim_next(worker, max_running_per_user, small_only=small_only, heartbeat=utcnow())
         if orphans or first is LOST_RACE
         else None
     )
     if job is not None:
         return Claim("claimed", job)
     named = store.get_job(job_id)
-    if accepted_job_ids(store, limit=1):
+    if (not small_only or first is LOST_RACE) and accepted_job_ids(store, limit=1):
         return Claim("contended", named)
     if named is None:
         return Claim("missing", None)

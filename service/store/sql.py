@@ -41,6 +41,7 @@ from service.store.base import (
     FinishedRun,
     JobRecord,
     PrunedJob,
+    QuotaExceeded,
     UsageRecord,
     UserRecord,
 )
@@ -242,12 +243,15 @@ class SqlStore:
         n_observations: int,
         name: str,
         small: bool = False,
+        quota_bytes: int = 0,
     ) -> JobRecord:
-        """Insert an ``accepted`` job with its execute inputs (``small``: the small-job lane)."""
+        """Insert an ``accepted`` job with its execute inputs (``small``: the small-job lane;
+        ``quota_bytes``: see :meth:`_reserve`)."""
         now = utcnow()
         job_id = str(uuid.uuid4())
         packed = pack(json.dumps(document))
         with self.engine.begin() as conn:
+            self._reserve(conn, owner, len(packed), quota_bytes)
             conn.execute(
                 insert(JobRow).values(
                     id=job_id,
@@ -433,15 +437,16 @@ class SqlStore:
         return found_heads, found_running
 
     def claim_next(
-        self, worker: str, max_running_per_user: int = 0, **extra: Any
+        self, worker: str, max_running_per_user: int = 0, small_only: bool = False, **extra: Any
     ) -> JobRecord | None:
         """Move the accepted job the fair-share policy picks (service.store.fair) to running
         for ``worker`` (atomic), or None when no job is accepted. ``max_running_per_user``:
-        the cap of users without one of their own (0: none); ``extra``: more columns to set
-        (a distributed run's ``heartbeat``)."""
+        the cap of users without one of their own (0: none); ``small_only``: only jobs of the
+        small-job lane (a worker reserved for it), in the same order; ``extra``: more columns
+        to set (a distributed run's ``heartbeat``)."""
         for _ in range(20):
             with self.engine.begin() as conn:
-                got = self.claim_next_in(conn, worker, max_running_per_user, **extra)
+                got = self.claim_next_in(conn, worker, max_running_per_user, small_only=small_only, **extra)
             if got is not LOST_RACE:
                 return got
         return None
@@ -452,6 +457,7 @@ class SqlStore:
         worker: str,
         max_running_per_user: int = 0,
         heads: list[Head] | None = None,
+        small_only: bool = False,
         **extra: Any,
     ) -> JobRecord | None | LostRace:
         """One attempt of :meth:`claim_next` in the caller's transaction ``conn``: the claimed
@@ -461,6 +467,8 @@ class SqlStore:
         _status_change(JobStatus.running, [JobStatus.accepted])
         if heads is None:
             heads = self._heads(conn)
+        if small_only:
+            heads = [h for h in heads if h.small]
         if not heads:
             return None
         owners = sorted({h.owner for h in heads})
@@ -798,14 +806,37 @@ class SqlStore:
 
     # -- retention -------------------------------------------------------------------------
     def storage_used(self, owner: str) -> int:
-        """Bytes of stored payloads of a user's jobs."""
+        """Bytes of stored payloads of a user's jobs and of the camera versions they created."""
         with self.engine.connect() as conn:
-            total = conn.execute(
-                select(func.coalesce(func.sum(JobRow.stored_bytes), 0)).where(
-                    JobRow.owner == owner
-                )
-            ).scalar_one()
-        return int(total)
+            return self._storage_used(conn, owner)
+
+    @staticmethod
+    def _storage_used(conn: Connection, owner: str) -> int:
+        jobs = conn.execute(
+            select(func.coalesce(func.sum(JobRow.stored_bytes), 0)).where(JobRow.owner == owner)
+        ).scalar_one()
+        cameras = conn.execute(
+            select(func.coalesce(func.sum(func.length(CameraRow.definition)), 0)).where(
+                CameraRow.created_by == owner
+            )
+        ).scalar_one()
+        return int(jobs) + int(cameras)
+
+    def _reserve(self, conn: Connection, owner: str, need: int, quota_bytes: int) -> None:
+        """In the caller's writing transaction: with ``quota_bytes`` > 0, serialise the writers
+        of ``owner`` (PostgreSQL: a transaction-scoped advisory lock on the owner; SQLite: the
+        database's write lock, taken by a first write) and raise QuotaExceeded when ``need``
+        more bytes would take the owner's storage over the quota. Check and insert are then one
+        transaction: concurrent submissions cannot both pass."""
+        if quota_bytes <= 0:
+            return
+        if conn.dialect.name == "postgresql":
+            conn.execute(text("SELECT pg_advisory_xact_lock(hashtext(:k))"), {"k": f"pba-quota:{owner}"})
+        else:
+            conn.execute(update(UserRow).where(UserRow.id == owner).values(name=UserRow.name))
+        used = self._storage_used(conn, owner)
+        if used + need > quota_bytes:
+            raise QuotaExceeded(used, need)
 
     def prune_jobs(self, finished_before: datetime, dry_run: bool = False) -> list[PrunedJob]:
         """Delete finished jobs (successful, failed, dismissed) that finished before
@@ -1038,6 +1069,7 @@ class SqlStore:
         created_by: str,
         source_job: str | None = None,
         owner: str | None = None,
+        quota_bytes: int = 0,
     ) -> CameraRecord:
         """Store the next version of ``name`` in the namespace ``owner`` (default: the
         creator's own); retries when two writers race."""
@@ -1050,7 +1082,7 @@ class SqlStore:
                     )
                 ).scalar_one_or_none()
             rec = self.add_camera_version(
-                name, (latest or 0) + 1, description, definition, created_by, owner, source_job
+                name, (latest or 0) + 1, description, definition, created_by, owner, source_job, quota_bytes
             )
             if rec is not None:
                 return rec  # else another writer took that version: read the latest again
@@ -1065,18 +1097,22 @@ class SqlStore:
         created_by: str,
         owner: str,
         source_job: str | None = None,
+        quota_bytes: int = 0,
     ) -> CameraRecord | None:
         """Store exactly ``version`` of ``name`` in namespace ``owner``; None when that version
-        exists already (the unique key decides between writers racing for it)."""
+        exists already (the unique key decides between writers racing for it). ``quota_bytes``:
+        the creator's quota (:meth:`_reserve`)."""
+        text_definition = json.dumps(definition)
         try:
             with self.engine.begin() as conn:
+                self._reserve(conn, created_by, len(text_definition), quota_bytes)
                 conn.execute(
                     insert(CameraRow).values(
                         owner=owner,
                         name=name,
                         version=version,
                         description=description,
-                        definition=json.dumps(definition),
+                        definition=text_definition,
                         created=utcnow(),
                         created_by=created_by,
                         source_job=source_job,

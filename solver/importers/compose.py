@@ -296,6 +296,9 @@ def _cameras(req: ComposeRequest, lookup: CameraLookup, problems: list[SourcePro
         except (ValueError, UnicodeDecodeError) as exc:
             problems.append(SourceProblem(f.name, getattr(exc, "lineno", 0), str(getattr(exc, "colno", "")), f"not JSON: {exc}"))
             continue
+        except RecursionError:
+            problems.append(SourceProblem(f.name, 0, "", "JSON nested too deeply", "nesting_too_deep"))
+            continue
         items = doc if isinstance(doc, list) else doc.get("cameras", [doc]) if isinstance(doc, dict) else None
         if not isinstance(items, list) or not all(isinstance(c, dict) and isinstance(c.get("id"), str) for c in items):
             problems.append(SourceProblem(f.name, 0, "", "a camera file holds a camera object with an id, a list of them, or {\"cameras\": [...]}"))

@@ -65,6 +65,8 @@ def _gdal_rpcs(raster: Path, shown: str) -> RPC:
                 rpcs = src.rpcs
     except RasterioIOError as exc:
         raise fail(shown, 0, "", f"GDAL cannot open it: {exc}") from None
+    except (KeyError, ValueError) as exc:  # rasterio's RPC of a file GDAL half-reads (an XML without RPC fields)
+        raise fail(shown, 0, "", f"GDAL reads an incomplete RPC from it (missing or unreadable: {exc})", "incomplete_rpc") from None
     if rpcs is None:
         raise fail(shown, 0, "", "GDAL finds no RPC in it (no RPC tags, no readable _RPC.TXT, .RPB or RPC XML)")
     try:
@@ -85,7 +87,8 @@ def read_rpc_bytes(data: bytes | str, name: str) -> RPC:
         raise fail(name, 0, "", "an uploaded RPC is a NAME_RPC.TXT, NAME.RPB or DIMAP RPC_*.XML file (by its name); "
                    "for a raster's RPC, send its sidecar or the output of pba import-rpc", "not_an_rpc_file")
     with tempfile.TemporaryDirectory(prefix="pba-rpc-upload-") as tmp:
-        path = Path(tmp) / base
+        # a fixed name of the same kind: an upload's own name may hold NUL or exceed NAME_MAX
+        path = Path(tmp) / ("upload" + PurePath(base).suffix.lower())
         path.write_bytes(data.encode() if isinstance(data, str) else data)
         return read_rpc(path, shown=name)
 

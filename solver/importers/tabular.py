@@ -25,6 +25,7 @@ from solver.importers.errors import SourceError, SourceProblem, fail
 
 DELIMITERS = (",", ";", "\t")
 MAX_ROWS = 1_000_000
+MAX_COLUMNS = 1000
 
 
 @dataclass
@@ -38,6 +39,10 @@ class Table:
     rows: list[tuple[int, list[str]]]
     metadata: dict[str, str] = field(default_factory=dict)
     header_line: int = 0
+    positions: dict[str, int] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.positions = {name: i for i, name in reversed(list(enumerate(self.header)))}
 
     def column_name(self, index: int) -> str:
         """The name the user wrote for column ``index`` (for messages)."""
@@ -109,11 +114,13 @@ def read_table(
             continue
         if header is None:
             delimiter = sniff_delimiter(line)
-            raw = [h.strip() for h in next(csv.reader([line], delimiter=delimiter))]
+            raw = [h.strip() for h in _fields(line, delimiter, file, n)]
+            if len(raw) > MAX_COLUMNS:
+                raise fail(file, n, "", f"{len(raw)} columns; at most {MAX_COLUMNS}", "too_many_columns")
             header = canonical_header(raw, aliases, columns or {}, file, n)
             header_line = n
             continue
-        fields = next(csv.reader([line], delimiter=delimiter))
+        fields = _fields(line, delimiter, file, n)
         rows.append((n, [f.strip() for f in fields]))
         if len(rows) > MAX_ROWS:
             raise fail(file, n, "", f"more than {MAX_ROWS} rows")
@@ -139,6 +146,14 @@ def read_table(
     return table
 
 
+def _fields(line: str, delimiter: str, file: str, n: int) -> list[str]:
+    """The fields of one line, or a located error (a field over the csv module's limit, a NUL)."""
+    try:
+        return next(csv.reader([line], delimiter=delimiter))
+    except csv.Error as exc:
+        raise fail(file, n, "", f"not a readable table line: {exc}", "unreadable_line") from None
+
+
 def canonical_header(
     raw: Sequence[str], aliases: Mapping[str, Sequence[str]], columns: Mapping[str, str], file: str, line: int
 ) -> list[str]:
@@ -146,11 +161,13 @@ def canonical_header(
     user = {k.strip().lower(): v for k, v in columns.items()}
     spelled = {s.lower(): name for name, spellings in aliases.items() for s in (name, *spellings)}
     out: list[str] = []
+    seen: set[str] = set()
     for i, name in enumerate(raw):
         key = name.lower()
         canon = user.get(key) or spelled.get(key) or key
-        if canon in out and canon:
+        if canon in seen and canon:
             raise fail(file, line, name or str(i + 1), f"a second column for {canon!r}")
+        seen.add(canon)
         out.append(canon)
     return out
 
@@ -158,11 +175,11 @@ def canonical_header(
 def number(table: Table, line: int, fields: list[str], name: str, *, default: float | None = None) -> float:
     """The finite number in column ``name`` of a row (``default`` when the column is absent
     or the field empty and a default is given), or a located error."""
-    if name not in table.header:
+    i = table.positions.get(name)
+    if i is None:
         if default is None:
             raise fail(table.file, line, name, "missing")
         return default
-    i = table.header.index(name)
     return parse_number(fields[i], table.file, line, table.column_name(i), default)
 
 
@@ -184,8 +201,9 @@ def parse_number(text: str, file: str, line: int, column: str, default: float | 
 
 def text_field(table: Table, line: int, fields: list[str], name: str, default: str | None = None) -> str:
     """The non-empty text in column ``name`` (``default`` when absent or empty, if given)."""
-    if name in table.header:
-        value = fields[table.header.index(name)]
+    i = table.positions.get(name)
+    if i is not None:
+        value = fields[i]
         if value:
             return value
     if default is not None:

@@ -188,6 +188,8 @@ def test_upgrade_from_0002_keeps_cameras_with_their_authors_and_old_payloads(
         assert store.add_camera("bcam", "", {}, "bob").version == 2  # per-namespace versions
         assert store.get_document("j1") == {"job": {}}
         assert store.get_results_text("j1") == '{"report": 1}'
-        assert store.storage_used("bob") == len('{"job": {}}') + len('{"report": 1}')
+        # his job's payloads and the JSON of the camera versions he created (v1 and the new one)
+        cameras = len('{"focal_mm": 1.0}') + len("{}")
+        assert store.storage_used("bob") == len('{"job": {}}') + len('{"report": 1}') + cameras
     finally:
         store.close()
