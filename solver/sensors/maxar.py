@@ -39,7 +39,6 @@ from typing import Any
 import numpy as np
 
 from solver.geometry.rpc import RPC
-from solver.sensors.errors import MetadataError
 from solver.sensors.linescan import LinescanModel, quaternion_matrices
 from solver.sensors.xmlsafe import Node, load
 
@@ -61,6 +60,7 @@ class MaxarProduct:
     avg_line_rate_hz: float
     first_line_time_s: float  # seconds from model.epoch_utc
     position_covariance_m2: np.ndarray  # (n, 6) upper triangles per ephemeris point
+    attitude_sigma_rad: float | None  # from the quaternion covariance: 2 sqrt(mean variance of q1..q3)
     image_descriptor: str
 
 
@@ -261,8 +261,20 @@ def read_maxar(path: str | Path, shown: str | None = None) -> MaxarProduct:
         pixel_mm=pitch, principal_distance_mm=pd, detector_origin_mm=(ox, oy), detector_rotation_rad=rot,
         camera_to_body_wxyz=qcs, avg_line_rate_hz=rate, first_line_time_s=seconds(first),
         position_covariance_m2=et[:, 7:13] if et.shape[1] >= 13 else np.zeros((et.shape[0], 0)),
+        attitude_sigma_rad=_attitude_sigma(at),
         image_descriptor=imd.text("IMAGEDESCRIPTOR") if imd.find("IMAGEDESCRIPTOR") is not None else "",
     )
+
+
+def _attitude_sigma(at: np.ndarray) -> float | None:
+    """2 sqrt(mean variance of q1, q2, q3) (small-angle sigma, rad) from the 10 upper-triangle
+    covariance terms of each ATT row (q1q1 q1q2 q1q3 q1q4 q2q2 q2q3 q2q4 q3q3 q3q4 q4q4)."""
+    if at.shape[1] < 15:
+        return None
+    var = at[:, [5, 9, 12]]
+    if np.any(var < 0):
+        return None
+    return float(2.0 * np.sqrt(np.mean(var)))
 
 
 def summary(p: MaxarProduct) -> dict[str, Any]:
