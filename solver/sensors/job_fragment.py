@@ -28,41 +28,23 @@ Mapping (docs/models.md sections 1, 9, 10):
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any
 
 import numpy as np
 
-from solver.sensors.linescan import LinescanModel, quaternion_matrices
+from solver.sensors.dimap_spot5 import Spot5Product
+from solver.sensors.linescan import LinescanModel, matrix_to_quaternion, quaternion_matrices
 from solver.sensors.maxar import MaxarProduct
 
 KABSCH_DETECTORS = 9
 DEFAULT_MODEL = "OA-J2"
-
-
-def matrix_to_quaternion(r: np.ndarray) -> np.ndarray:
-    """Scalar-first unit quaternions (n, 4) of rotation matrices (n, 3, 3) (Shepperd's method
-    through the largest diagonal term)."""
-    out = np.empty((r.shape[0], 4))
-    for k, m in enumerate(r):
-        tr = np.trace(m)
-        cands = np.array([tr, m[0, 0], m[1, 1], m[2, 2]])
-        i = int(np.argmax(cands))
-        if i == 0:
-            s = 2 * np.sqrt(1 + tr)
-            q = [s / 4, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-        elif i == 1:
-            s = 2 * np.sqrt(1 + m[0, 0] - m[1, 1] - m[2, 2])
-            q = [(m[2, 1] - m[1, 2]) / s, s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-        elif i == 2:
-            s = 2 * np.sqrt(1 + m[1, 1] - m[0, 0] - m[2, 2])
-            q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s]
-        else:
-            s = 2 * np.sqrt(1 + m[2, 2] - m[0, 0] - m[1, 1])
-            q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4]
-        q = np.array(q)
-        out[k] = q if q[0] >= 0 else -q
-    return out
+# Agile platforms turn during the image (WorldView-2: 0.1-0.2 deg/s in roll and pitch over a
+# 1-1.5 s image, 2 km on the ground): cubic attitude polynomials, not the constants of the
+# default orders (with them the adjustment is off by hundreds of metres).
+DEFAULT_ORDERS = {"omega": 3, "phi": 3, "kappa": 3}
+DEFAULT_SIGMA_VELOCITY_M_S = 0.01  # Maxar EPH carries no velocity covariance
 
 
 def orbital_rows(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
@@ -118,52 +100,104 @@ def effective_rotations(model: LinescanModel, times: np.ndarray, height_m: float
     return out
 
 
-def _axes_to_ours(product: MaxarProduct) -> np.ndarray:
-    """``P``: Maxar camera components to ours (module docstring), chosen by the flight direction."""
-    m = product.model
+@dataclass
+class SensorSource:
+    """What the fragment needs of one product, whatever its format."""
+
+    file: str
+    satellite: str
+    band: str
+    model: LinescanModel
+    ours_to_body: np.ndarray  # (3, 3): our camera-frame components to the model's body frame
+    camera: dict[str, Any]  # our camera without its id: focal_mm, pixel_mm, line_time_s, lines, columns, chips
+    mean_height_m: float  # height of the effective rotations' fit
+    sigma_position_m: float | None
+    sigma_attitude_rad: float | None
+
+
+def maxar_source(p: MaxarProduct) -> SensorSource:
+    """A Maxar product's camera (one chip, module docstring) and axes."""
+    m = p.model
     t = np.array([m.line_time(np.array([m.lines / 2.0]))[0]])
-    x_cam_ecef = m.rotation(t)[0] @ quaternion_matrices(product.camera_to_body_wxyz[None, :])[0] @ np.array([1.0, 0, 0])
+    cam_to_body = quaternion_matrices(p.camera_to_body_wxyz[None, :])[0]
+    x_cam_ecef = m.rotation(t)[0] @ cam_to_body @ np.array([1.0, 0, 0])
     forward = float(np.dot(x_cam_ecef, m.velocity(t)[0])) > 0
-    return np.diag([1.0, -1.0, -1.0]) if forward else np.diag([-1.0, 1.0, -1.0])
+    axes = np.diag([1.0, -1.0, -1.0]) if forward else np.diag([-1.0, 1.0, -1.0])  # Maxar camera -> ours
+    ox, oy = p.detector_origin_mm
+    camera = {
+        "focal_mm": p.principal_distance_mm, "pixel_mm": p.pixel_mm, "line_time_s": 1.0 / p.avg_line_rate_hz,
+        "lines": m.lines, "columns": m.columns,
+        "chips": [{"id": "1", "first_column": 0, "columns": m.columns, "dx_mm": axes[0, 0] * ox,
+                   "dy_mm": -axes[1, 1] * ((m.columns - 1) / 2.0 * p.pixel_mm) + axes[1, 1] * oy}],
+    }
+    cov = p.position_covariance_m2
+    sigma_p = float(np.sqrt(np.mean(cov[:, [0, 3, 5]].sum(axis=1) / 3.0))) if cov.shape[1] == 6 and np.all(cov[:, [0, 3, 5]] >= 0) else None
+    return SensorSource(p.file, p.satellite, p.band, m, cam_to_body @ axes.T, camera,
+                        p.rpc.height_off if p.rpc is not None else 0.0, sigma_p, p.attitude_sigma_rad)
 
 
-def _time_origin(products: list[MaxarProduct]) -> datetime:
-    first = min(datetime.fromisoformat(p.model.epoch_utc.replace("Z", "+00:00")) for p in products)
+SPOT5_PIXEL_MM = 0.0065  # HRG/HRS detector pitch: nominal; only its ratio to the focal length matters
+
+
+def spot5_source(p: Spot5Product) -> SensorSource:
+    """A SPOT 5 product's camera: the look-angle table as one straight chip. Our camera axes are
+    (Y, -X, Z) of the navigation frame O1 (Y along the flight), so a detector sits at
+    ``f (tan PSI_X, tan PSI_Y)``; ``tan PSI_Y`` is fitted by a line in the column (its slope
+    gives the focal length for the nominal pitch), ``tan PSI_X`` by its mean; what the line and
+    the mean leave out is in the difference."""
+    m = p.model
+    c = np.arange(m.columns, dtype=float)
+    look = m.look_body(c)
+    tan_x, tan_y = look[:, 1], -look[:, 0]
+    slope, intercept = np.polyfit(c, tan_y, 1)
+    focal = SPOT5_PIXEL_MM / abs(slope)
+    sign = 1.0 if slope > 0 else -1.0  # columns running against our y: turn the camera about z
+    body_from_ours = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # columns: ours x, y, z in O1
+    if sign < 0:
+        body_from_ours = body_from_ours @ np.diag([-1.0, -1.0, 1.0])
+        tan_x = -tan_x
+    camera = {
+        "focal_mm": float(focal), "pixel_mm": SPOT5_PIXEL_MM, "line_time_s": p.line_period_s, "lines": m.lines, "columns": m.columns,
+        "chips": [{"id": "1", "first_column": 0, "columns": m.columns, "dx_mm": float(focal * np.mean(tan_x)),
+                   "dy_mm": float(sign * focal * (intercept + slope * (m.columns - 1) / 2.0))}],
+    }
+    return SensorSource(p.file, p.mission, p.instrument, m, body_from_ours, camera, 0.0, None, None)
+
+
+def _time_origin(sources: list[SensorSource]) -> datetime:
+    first = min(datetime.fromisoformat(s.model.epoch_utc.replace("Z", "+00:00")) for s in sources)
     return datetime(first.year, first.month, first.day, tzinfo=timezone.utc)
 
 
-def fragment(products: list[MaxarProduct], image_ids: list[str]) -> dict[str, Any]:
+DEFAULT_SIGMA_POSITION_M = 5.0  # when the file states none
+DEFAULT_SIGMA_ATTITUDE_DEG = 0.002
+
+
+def fragment(products: list[MaxarProduct | Spot5Product | SensorSource], image_ids: list[str]) -> dict[str, Any]:
     """The job fragment of one or more products (``cameras``, ``images``, ``options``) and a
-    ``sensor_metadata`` block per image (what was read, the RPC agreement is not computed here)."""
-    origin = _time_origin(products)
+    ``sensor_metadata`` block per image (what was read, the job form's difference)."""
+    sources = [p if isinstance(p, SensorSource) else maxar_source(p) if isinstance(p, MaxarProduct) else spot5_source(p)
+               for p in products]
+    origin = _time_origin(sources)
     cameras, images, notes = [], [], []
-    sig_p, sig_a = [], []
-    for p, image_id in zip(products, image_ids):
-        m = p.model
+    for src, image_id in zip(sources, image_ids):
+        m = src.model
         shift = (datetime.fromisoformat(m.epoch_utc.replace("Z", "+00:00")) - origin).total_seconds()
-        axes = _axes_to_ours(p)
-        ox, oy = p.detector_origin_mm
-        along = axes[0, 0]  # +1: our x is Maxar's x
-        camera = {
-            "id": image_id, "focal_mm": p.principal_distance_mm, "pixel_mm": p.pixel_mm,
-            "line_time_s": 1.0 / p.avg_line_rate_hz, "lines": m.lines, "columns": m.columns,
-            "chips": [{"id": "1", "first_column": 0, "columns": m.columns, "dx_mm": along * ox,
-                       "dy_mm": -axes[1, 1] * ((m.columns - 1) / 2.0 * p.pixel_mm) + axes[1, 1] * oy}],
-        }
+        camera = {"id": image_id, **src.camera}
         t0 = float(m.line_time(np.array([0.0]))[0])
         t1 = float(m.line_time(np.array([m.lines - 1.0]))[0])
         lo, hi = min(t0, t1), max(t0, t1)
-        ke = (m.ephemeris_times_s >= lo - 0.2) & (m.ephemeris_times_s <= hi + 0.2)
-        ka = (m.attitude_times_s >= lo - 0.1) & (m.attitude_times_s <= hi + 0.1)
+        de = float(np.median(np.diff(m.ephemeris_times_s)))
+        ke = (m.ephemeris_times_s >= lo - max(0.2, 2 * de)) & (m.ephemeris_times_s <= hi + max(0.2, 2 * de))
+        da = float(np.median(np.diff(m.attitude_times_s)))
+        ka = (m.attitude_times_s >= lo - max(0.1, da)) & (m.attitude_times_s <= hi + max(0.1, da))
         at = m.attitude_times_s[ka]
-        height = p.rpc.height_off if p.rpc is not None else 0.0
-        rot = effective_rotations(m, at, height)  # body to ECEF
-        cam_to_body = quaternion_matrices(p.camera_to_body_wxyz[None, :])[0]
-        ecef_to_cam = np.einsum("ij,njk->nik", axes @ cam_to_body.T, np.transpose(rot, (0, 2, 1)))
-        a = ecef_to_cam @ np.transpose(orbital_rows(m.position(at), m.velocity(at)), (0, 2, 1))
-        ang = np.degrees(angles_xyz(a))
+        rot = effective_rotations(m, at, src.mean_height_m)  # body to ECEF
+        ecef_to_ours = np.einsum("ij,njk->nik", src.ours_to_body.T, np.transpose(rot, (0, 2, 1)))
+        a = ecef_to_ours @ np.transpose(orbital_rows(m.position(at), m.velocity(at)), (0, 2, 1))
+        ang = np.degrees(np.unwrap(angles_xyz(a), axis=0))  # yaw near 180 deg stays continuous
         image = {
-            "id": image_id, "camera": image_id, "model": {"name": DEFAULT_MODEL},
+            "id": image_id, "camera": image_id, "model": {"name": DEFAULT_MODEL, "options": {"orders": dict(DEFAULT_ORDERS)}},
             "first_line_time_s": t0 + shift,
             "ephemeris": [{"time_s": float(t + shift), "position_ecef_m": [float(v) for v in pos],
                            "velocity_ecef_m_s": [float(v) for v in vel]}
@@ -173,17 +207,16 @@ def fragment(products: list[MaxarProduct], image_ids: list[str]) -> dict[str, An
         }
         cameras.append(camera)
         images.append(image)
-        cov = p.position_covariance_m2
-        if cov.shape[1] == 6:
-            sig_p.append(float(np.sqrt(np.mean(cov[ke][:, [0, 3, 5]].sum(axis=1) / 3.0))))
-        sig_a.append(p.attitude_sigma_rad)
-        notes.append({"image": image_id, "file": p.file, "satellite": p.satellite, "band": p.band,
+        notes.append({"image": image_id, "file": src.file, "satellite": src.satellite, "band": src.band,
                       "first_line_utc": _utc(origin, t0 + shift), "time_origin_utc": origin.isoformat().replace("+00:00", "Z"),
-                      "difference_px": job_form_difference(p, camera, image, shift, axes)})
-    options: dict[str, Any] = {"ephemeris": {"sigma_position_m": max(max(sig_p), 0.01) if sig_p else 5.0}}
-    sa = [s for s in sig_a if s is not None]
-    sigma_deg = max(float(np.degrees(max(sa))), 1e-5) if sa else 0.002
-    options["attitude"] = {"sigma_deg": [sigma_deg] * 3}
+                      "difference_px": job_form_difference(src, camera, image, shift)})
+    sig_p = [s.sigma_position_m for s in sources if s.sigma_position_m is not None]
+    sig_a = [s.sigma_attitude_rad for s in sources if s.sigma_attitude_rad is not None]
+    options: dict[str, Any] = {
+        "ephemeris": {"sigma_position_m": max(max(sig_p), 0.01) if sig_p else DEFAULT_SIGMA_POSITION_M,
+                      "sigma_velocity_m_s": DEFAULT_SIGMA_VELOCITY_M_S},
+        "attitude": {"sigma_deg": [max(float(np.degrees(max(sig_a))), 1e-5) if sig_a else DEFAULT_SIGMA_ATTITUDE_DEG] * 3},
+    }
     return {"cameras": cameras, "images": images, "options": options, "sensor_metadata": notes}
 
 
@@ -191,17 +224,16 @@ def _utc(origin: datetime, seconds: float) -> str:
     return datetime.fromtimestamp(origin.timestamp() + seconds, timezone.utc).isoformat().replace("+00:00", "Z")
 
 
-def job_form_difference(p: MaxarProduct, camera: dict[str, Any], image: dict[str, Any], shift: float, axes: np.ndarray,
+def job_form_difference(src: SensorSource, camera: dict[str, Any], image: dict[str, Any], shift: float,
                         n: int = 7, k: int = 3) -> dict[str, float]:
     """How far the job form (our one-chip camera, constant line rate, the effective attitude
     samples slerped, straight rays, no corrections) is from the exact model with every
     correction: RMS and maximum px over ``n`` x ``n`` image positions times ``k`` heights (the
     RPC's height range, else 0 +- 500 m)."""
-    m = p.model
+    m = src.model
     chip = camera["chips"][0]
     f, pix, dx, dy, cols = camera["focal_mm"], camera["pixel_mm"], chip["dx_mm"], chip["dy_mm"], camera["columns"]
-    cam_to_body = quaternion_matrices(p.camera_to_body_wxyz[None, :])[0]
-    ours_to_body = cam_to_body @ axes.T
+    ours_to_body = src.ours_to_body
 
     def look_body(c: np.ndarray) -> np.ndarray:
         c = np.asarray(c, float)
@@ -212,7 +244,7 @@ def job_form_difference(p: MaxarProduct, camera: dict[str, Any], image: dict[str
     ang = np.radians([[s["roll_deg"], s["pitch_deg"], s["yaw_deg"]] for s in image["attitude"]])
     r_orbit = orbital_rows(m.position(at), m.velocity(at))
     ecef_to_ours = rotation_xyz(ang) @ r_orbit
-    body_to_ecef = np.transpose(ecef_to_ours, (0, 2, 1)) @ ours_to_body
+    body_to_ecef = np.transpose(ecef_to_ours, (0, 2, 1)) @ ours_to_body.T  # ecef_to_ours = B^T R^T
     t0 = image["first_line_time_s"] - shift
     job = LinescanModel(
         lines=m.lines, columns=m.columns, epoch_utc=m.epoch_utc,
@@ -221,10 +253,7 @@ def job_form_difference(p: MaxarProduct, camera: dict[str, Any], image: dict[str
         attitude_times_s=at, attitude_wxyz=matrix_to_quaternion(body_to_ecef), look_body=look_body,
         camera_offset_body_m=m.camera_offset_body_m,
     ).with_corrections(aberration=False, light_time=False, refraction=False)
-    if p.rpc is not None:
-        heights = p.rpc.height_off + p.rpc.height_scale * np.linspace(-1, 1, k)
-    else:
-        heights = np.linspace(-500, 500, k)
+    heights = src.mean_height_m + np.linspace(-500, 500, k)
     L, C, H = (a.ravel() for a in np.meshgrid(np.linspace(0, m.lines - 1, n), np.linspace(0, m.columns - 1, n), heights, indexing="ij"))
     g = job.image_to_ground(L, C, H)
     d = m.ground_to_image(g) - np.column_stack([L, C])

@@ -34,7 +34,9 @@ The model, for one image position (line L, column C):
    0.78 m at 17.6 degrees, 2.7 m at 30 degrees) from where the straight ray meets the ground.
 
 Ground-to-image inverts image-to-ground by Gauss-Newton in image space (finite-difference
-Jacobian, one pixel step), from the image centre, to 1e-6 px.
+Jacobian, one pixel step), from the nearest node of a 33 x 33 image grid, to 1e-6 px (1e-3 px
+accepted where the slerp's interval changes); points
+where it does not converge (far outside the image) get NaN.
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ REFRACTIVITY_SEA_LEVEL = 2.77e-4
 REFRACTIVITY_SCALE_HEIGHT_M = 8000.0
 OMEGA_EARTH_RAD_S = 7.2921151467e-5  # WGS 84 Earth rotation rate
 LAGRANGE_NODES = 8
+ACCEPT_PX = 1e-3  # ground-to-image: a last step larger than this marks the point as not converged
 
 
 @dataclass(frozen=True)
@@ -75,6 +78,31 @@ def quaternion_matrices(q_wxyz: np.ndarray) -> np.ndarray:
         np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
         np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
     ], -2)
+
+
+def matrix_to_quaternion(r: np.ndarray) -> np.ndarray:
+    """Scalar-first unit quaternions (n, 4) of rotation matrices (n, 3, 3) (Shepperd's method
+    through the largest diagonal term)."""
+    out = np.empty((r.shape[0], 4))
+    for k, m in enumerate(r):
+        tr = np.trace(m)
+        cands = np.array([tr, m[0, 0], m[1, 1], m[2, 2]])
+        i = int(np.argmax(cands))
+        if i == 0:
+            s = 2 * np.sqrt(1 + tr)
+            q = [s / 4, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+        elif i == 1:
+            s = 2 * np.sqrt(1 + m[0, 0] - m[1, 1] - m[2, 2])
+            q = [(m[2, 1] - m[1, 2]) / s, s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+        elif i == 2:
+            s = 2 * np.sqrt(1 + m[1, 1] - m[0, 0] - m[2, 2])
+            q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s]
+        else:
+            s = 2 * np.sqrt(1 + m[2, 2] - m[0, 0] - m[1, 1])
+            q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4]
+        q = np.array(q)
+        out[k] = q if q[0] >= 0 else -q
+    return out
 
 
 def lagrange(t: np.ndarray, times: np.ndarray, values: np.ndarray, nodes: int = LAGRANGE_NODES) -> np.ndarray:
@@ -234,19 +262,37 @@ class LinescanModel:
         x = geodetic_to_ecef(g)
         h = g[:, 2]
         n = g.shape[0]
-        lc = np.tile([(self.lines - 1) / 2.0, (self.columns - 1) / 2.0], (n, 1))
+        lc = self._coarse_start(x, h)
         step = 1.0
+        delta = np.full((n, 2), np.inf)
         for _ in range(max_iterations):
             p = self.image_to_ecef(lc[:, 0], lc[:, 1], h)
             pl = self.image_to_ecef(lc[:, 0] + step, lc[:, 1], h)
             pc = self.image_to_ecef(lc[:, 0], lc[:, 1] + step, h)
             j = np.stack([(pl - p) / step, (pc - p) / step], axis=2)  # (n, 3, 2)
             jt = np.transpose(j, (0, 2, 1))
-            delta = np.linalg.solve(jt @ j, (jt @ (x - p)[:, :, None]))[:, :, 0]
+            normal = jt @ j
+            ok = np.all(np.isfinite(normal), axis=(1, 2)) & (np.abs(np.linalg.det(np.where(np.isfinite(normal), normal, 1.0))) > 0)
+            delta = np.full((n, 2), np.nan)
+            if np.any(ok):
+                delta[ok] = np.linalg.solve(normal[ok], (jt[ok] @ (x[ok] - p[ok])[:, :, None]))[:, :, 0]
             lc = lc + delta
             if np.all(np.abs(delta) < tol_px):
                 break
-        else:
-            bad = np.any(np.abs(delta) >= tol_px, axis=1)
-            lc[bad] = np.nan
+        # the last step may hover at 1e-5 px where the attitude's slerp changes interval (its
+        # derivative jumps there): accepted up to ACCEPT_PX
+        bad = ~np.all(np.abs(delta) < max(tol_px, ACCEPT_PX), axis=1)
+        lc[bad] = np.nan
         return lc
+
+    def _coarse_start(self, x: np.ndarray, h: np.ndarray, k: int = 33) -> np.ndarray:
+        """Start of the ground-to-image iteration: the nearest node of a k x k image grid (at
+        each point's height) for each point, so that long strips converge too."""
+        lines = np.linspace(0, self.lines - 1, k)
+        cols = np.linspace(0, self.columns - 1, k)
+        gl, gc = (a.ravel() for a in np.meshgrid(lines, cols, indexing="ij"))
+        h0 = float(np.mean(h))
+        nodes = self.image_to_ecef(gl, gc, np.full(gl.size, h0))
+        d = np.linalg.norm(x[:, None, :] - nodes[None, :, :], axis=2)
+        best = np.nanargmin(np.where(np.isfinite(d), d, np.inf), axis=1)
+        return np.column_stack([gl[best], gc[best]])
