@@ -233,3 +233,36 @@ def test_the_fragment_adjusts_to_the_exact_model_through_the_solver(products) ->
     rmse = report["images"][0]["residual_rmse"]
     assert rmse["line_px"] < 0.2 and rmse["column_px"] < 0.2, rmse  # measured 0.017 / 0.014 px
     assert report["checkpoints"]["rmse_m"]["planimetric"] < 0.5  # m, mono check points (GSD 0.5 m); measured 0.18 m
+
+
+def test_pba_job_composes_a_pair_from_its_metadata(tmp_path, products, capsys) -> None:
+    """``pba job --sensor ID=FILE``: the metadata's cameras, ephemeris, attitude, model and
+    weights, with measurement and survey files, make a valid job (exit 0) on one time scale."""
+    a, b = products["wv_test1"], products["wv_test2"]
+    rng = np.random.default_rng(11)
+    r = a.rpc
+    ground = np.column_stack([r.long_off + 0.3 * r.long_scale * rng.uniform(-1, 1, 6),
+                              r.lat_off + 0.3 * r.lat_scale * rng.uniform(-1, 1, 6), np.full(6, r.height_off)])
+    (tmp_path / "gcps.csv").write_text("id,lon,lat,z\n" + "".join(f"G{k},{g[0]:.9f},{g[1]:.9f},{g[2]:.3f}\n" for k, g in enumerate(ground)))
+    for name, p in (("L", a), ("R", b)):
+        lc = np.column_stack(p.rpc.project(ground[:, 0], ground[:, 1], ground[:, 2]))
+        (tmp_path / f"{name}.csv").write_text("point,line,column\n" + "".join(f"G{k},{x[0]:.3f},{x[1]:.3f}\n" for k, x in enumerate(lc)))
+    out = tmp_path / "job.json"
+    rc = main(["job", "--sensor", f"L={DATA / 'wv_test1.xml'}", "--sensor", f"R={DATA / 'wv_test2.xml'}",
+               "--image", f"L={tmp_path / 'L.csv'}", "--image", f"R={tmp_path / 'R.csv'}",
+               "--gcps", str(tmp_path / "gcps.csv"), "-o", str(out)])
+    assert rc == 0, capsys.readouterr().err
+    job = json.loads(out.read_text())
+    assert [c["id"] for c in job["cameras"]] == ["L", "R"]
+    assert [i["model"]["name"] for i in job["images"]] == ["OA-J2", "OA-J2"]
+    assert {"ephemeris", "attitude"} <= set(job["options"])
+    assert job["images"][1]["first_line_time_s"] - job["images"][0]["first_line_time_s"] == pytest.approx(69.0178, abs=1e-6)
+
+
+def test_pba_job_names_a_bad_sensor_file(tmp_path, capsys) -> None:
+    bad = tmp_path / "L.xml"
+    bad.write_text(re.sub(r"<PD>[^<]*</PD>", "<PD>x</PD>", _original()))
+    (tmp_path / "L.csv").write_text("point,line,column\nG1,10,10\n")
+    assert main(["job", "--sensor", f"L={bad}", "--image", f"L={tmp_path / 'L.csv'}", "-o", str(tmp_path / "j.json")]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "PRINCIPAL_DISTANCE/PD" in err and "not a number" in err, err

@@ -86,11 +86,12 @@ def orbital_to_ecef(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z], axis=2)
 
 
-def read_spot5(path: str | Path, shown: str | None = None) -> Spot5Product:
-    """The exact model of a SPOT 5 DIMAP v1 metadata file (module docstring)."""
+def read_spot5(path: str | Path, shown: str | None = None, data: bytes | None = None) -> Spot5Product:
+    """The exact model of a SPOT 5 DIMAP v1 metadata file (module docstring); ``data`` as for
+    :func:`solver.sensors.maxar.read_maxar`."""
     path = Path(path)
     shown = str(path) if shown is None else shown
-    root = load(path, shown)
+    root = load(path, shown, data)
     if root.element.tag != "Dimap_Document":
         raise root.error("not a DIMAP document (root element Dimap_Document expected)")
     fmt = root.find("Metadata_Id")

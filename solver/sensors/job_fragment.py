@@ -20,6 +20,10 @@ Mapping (docs/models.md sections 1, 9, 10):
   meet the ground where the exact model, with every correction, puts them at the product's
   mean height. What this cannot absorb (their change across the swath and with height) is in
   ``difference_px``.
+- SPOT 5: the look-angle table as one straight chip (:func:`spot5_source`), our axes
+  ``(Y, -X, Z)`` of the navigation frame.
+- Model: OA-J2 for Maxar's short images, PASS-J2 for SPOT 5's long segments (it uses every
+  ephemeris sample), with cubic attitude polynomials.
 - Line times: a constant ``line_time_s = 1 / AVGLINERATE`` from the first line's time; a
   TLC table that departs from it is counted in the difference.
 - Times: seconds since 00:00 UTC of the product's first ephemeris date (``time_origin_utc``),
@@ -39,7 +43,11 @@ from solver.sensors.linescan import LinescanModel, matrix_to_quaternion, quatern
 from solver.sensors.maxar import MaxarProduct
 
 KABSCH_DETECTORS = 9
-DEFAULT_MODEL = "OA-J2"
+DEFAULT_MODEL = "OA-J2"  # Maxar: images of 1-2 s
+# SPOT 5 segments last tens of seconds (72 s for the public HRS one): OA-J2 propagates the
+# first line's state alone and ends 8 px (80 m) off along track; the pass model uses every
+# ephemeris sample (0.15 px).
+LONG_STRIP_MODEL = "PASS-J2"
 # Agile platforms turn during the image (WorldView-2: 0.1-0.2 deg/s in roll and pitch over a
 # 1-1.5 s image, 2 km on the ground): cubic attitude polynomials, not the constants of the
 # default orders (with them the adjustment is off by hundreds of metres).
@@ -113,6 +121,7 @@ class SensorSource:
     mean_height_m: float  # height of the effective rotations' fit
     sigma_position_m: float | None
     sigma_attitude_rad: float | None
+    default_model: str = DEFAULT_MODEL
 
 
 def maxar_source(p: MaxarProduct) -> SensorSource:
@@ -161,7 +170,7 @@ def spot5_source(p: Spot5Product) -> SensorSource:
         "chips": [{"id": "1", "first_column": 0, "columns": m.columns, "dx_mm": float(focal * np.mean(tan_x)),
                    "dy_mm": float(sign * focal * (intercept + slope * (m.columns - 1) / 2.0))}],
     }
-    return SensorSource(p.file, p.mission, p.instrument, m, body_from_ours, camera, 0.0, None, None)
+    return SensorSource(p.file, p.mission, p.instrument, m, body_from_ours, camera, 0.0, None, None, LONG_STRIP_MODEL)
 
 
 def _time_origin(sources: list[SensorSource]) -> datetime:
@@ -197,7 +206,7 @@ def fragment(products: list[MaxarProduct | Spot5Product | SensorSource], image_i
         a = ecef_to_ours @ np.transpose(orbital_rows(m.position(at), m.velocity(at)), (0, 2, 1))
         ang = np.degrees(np.unwrap(angles_xyz(a), axis=0))  # yaw near 180 deg stays continuous
         image = {
-            "id": image_id, "camera": image_id, "model": {"name": DEFAULT_MODEL, "options": {"orders": dict(DEFAULT_ORDERS)}},
+            "id": image_id, "camera": image_id, "model": {"name": src.default_model, "options": {"orders": dict(DEFAULT_ORDERS)}},
             "first_line_time_s": t0 + shift,
             "ephemeris": [{"time_s": float(t + shift), "position_ecef_m": [float(v) for v in pos],
                            "velocity_ecef_m_s": [float(v) for v in vel]}

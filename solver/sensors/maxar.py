@@ -154,11 +154,12 @@ def read_maxar_rpc(path: str | Path, shown: str | None = None) -> RPC:
     return read_rpb(root.child("RPB"))
 
 
-def read_maxar(path: str | Path, shown: str | None = None) -> MaxarProduct:
-    """The exact model and RPC of a Maxar support-data XML (module docstring)."""
+def read_maxar(path: str | Path, shown: str | None = None, data: bytes | None = None) -> MaxarProduct:
+    """The exact model and RPC of a Maxar support-data XML (module docstring); ``data``: the
+    file's bytes when they are at hand (an upload), else the file at ``path`` is read."""
     path = Path(path)
     shown = str(path) if shown is None else shown
-    root = load(path, shown)
+    root = load(path, shown, data)
     if root.element.tag != "isd":
         raise root.error("not a Maxar support-data XML (root element isd expected)")
     imd, eph, att, geo = (root.child(t) for t in ("IMD", "EPH", "ATT", "GEO"))

@@ -98,7 +98,9 @@ class Node:
         return vals
 
 
-def load(path: Path, shown: str) -> Node:
-    """The parsed root of an XML file as a :class:`Node`."""
-    root = parse(read_bytes(path, shown), shown)
+def load(path: Path, shown: str, data: bytes | None = None) -> Node:
+    """The parsed root of an XML file (or of its ``data``) as a :class:`Node`."""
+    if data is not None and len(data) > MAX_BYTES:
+        raise MetadataError(shown, "", f"{len(data)} bytes: larger than a metadata file ({MAX_BYTES} bytes at most)")
+    root = parse(read_bytes(path, shown) if data is None else data, shown)
     return Node(root, root.tag, shown)
