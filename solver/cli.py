@@ -18,6 +18,7 @@ from solver import commands
 from solver.gis import cli as gis_cli
 from solver.importers import cli as importers_cli
 from solver.importers import rpc_cli as import_rpc_cli
+from solver.importers import sensor_cli as import_sensor_cli
 from solver.matching import cli as matching_cli
 from solver.simulate import cli as simulate_cli
 
@@ -34,6 +35,7 @@ def build_parser(extra: Sequence[Registrar] = ()) -> argparse.ArgumentParser:
     simulate_cli.register(sub)  # simulate
     importers_cli.register(sub)  # job, job-sources
     import_rpc_cli.register(sub)  # import-rpc
+    import_sensor_cli.register(sub)  # import-sensor
     gis_cli.register(sub)  # ground-to-image, image-to-ground, export-rpc, export-geojson, ortho, resample
     matching_cli.register(sub)  # match
     for register in extra:

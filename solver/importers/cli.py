@@ -6,6 +6,8 @@ Example::
     pba job --camera prism-nadir --image N=N_points.csv --gcps survey.csv --crs EPSG:31982 \\
         --model K2 -o job.json
     pba job --rpc N=N.tif --rpc-model RPC-SHIFT --image N=N_points.csv --gcps survey.csv -o job.json
+    pba job --sensor L=L.XML --sensor R=R.XML --image L=L_points.csv --image R=R_points.csv \\
+        --gcps survey.csv -o job.json
 
 Flags taking ``ID=VALUE`` are per image (``--camera N=prism-nadir``); ``--camera NAME`` alone
 is the default of every image. A measurement file's type follows its extension: ``.csv``
@@ -57,6 +59,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--attitude", action="append", default=[], metavar="ID=FILE", help="attitude samples of image ID")
     p.add_argument("--state", action="append", default=[], metavar="ID=FILE",
                    help="header state of image ID: one row, the state at the first line and its time")
+    p.add_argument("--sensor", action="append", default=[], metavar="ID=FILE",
+                   help="vendor sensor metadata of image ID (Maxar XML, SPOT 5 DIMAP): its camera, ephemeris, "
+                   "attitude, line times, model and weights (pba import-sensor)")
     p.add_argument("--rpc", action="append", default=[], metavar="ID=FILE",
                    help="image ID is an RPC image: its raster (RPC tags or a sidecar beside it), NAME_RPC.TXT, "
                    "NAME.RPB or DIMAP RPC XML, read by GDAL (no camera or time files for it)")
@@ -144,6 +149,8 @@ def request_from_args(args: argparse.Namespace) -> ComposeRequest:
             setattr(image(iid), attr, _file(path, columns))
     for iid, path in _pairs(args.rpc, "--rpc"):  # read by GDAL from its place (sidecars beside a raster)
         image(iid).rpc = SourceFile(path, b"", path=path)
+    for iid, path in _pairs(args.sensor, "--sensor"):  # vendor metadata, read where it is
+        image(iid).sensor = SourceFile(path, b"", path=path)
     rpc_model = per_image(args.rpc_model, "rpc_model", "RPC-DRIFT")
     options: dict[str, Any] = {}
     if args.options:

@@ -77,6 +77,7 @@ class ImageSources:
     first_line_time_s: float | None = None
     rpc: SourceFile | None = None
     rpc_model: str | None = None
+    sensor: SourceFile | None = None  # vendor metadata: camera, ephemeris, attitude, times, model
 
 
 @dataclass
@@ -148,6 +149,7 @@ def compose_job(req: ComposeRequest, camera_lookup: CameraLookup = preset_lookup
                 problems += exc.source_problems
     surveyed = list(points.values())
 
+    sensors = _sensor_fragment(req, problems)
     observations: list[dict[str, Any]] = []
     images: list[dict[str, Any]] = []
     image_ids = [im.id for im in req.images]
@@ -159,6 +161,10 @@ def compose_job(req: ComposeRequest, camera_lookup: CameraLookup = preset_lookup
                 observations += _measurements(f, im.id, req, surveyed, crs, points, origin, notes, problems)
             except SourceError as exc:
                 problems += exc.source_problems
+        if im.sensor is not None:
+            if im.id in sensors["images"]:
+                images.append(sensors["images"][im.id])
+            continue
         try:
             images.append(_image(im, req))
         except SourceError as exc:
@@ -169,7 +175,7 @@ def compose_job(req: ComposeRequest, camera_lookup: CameraLookup = preset_lookup
                 SourceProblem("asp_gcp", 0, "image", f"image {o['image']!r} is not one of the images given ({', '.join(image_ids)})")
             )
             break
-    cameras = _cameras(req, camera_lookup, problems)
+    cameras = _cameras(req, camera_lookup, problems) + sensors["cameras"]
     if problems:
         raise SourceError(problems)
 
@@ -183,7 +189,7 @@ def compose_job(req: ComposeRequest, camera_lookup: CameraLookup = preset_lookup
     for p in points.values():
         if p.get("crs") == crs:
             p.pop("crs")
-    options = dict(req.options)
+    options = {**sensors["options"], **req.options}  # the metadata's weights unless given
     if len(req.models) > 1:
         options["models"] = list(req.models)
     job: dict[str, Any] = {
@@ -255,6 +261,30 @@ def _rpc_image(im: ImageSources, req: ComposeRequest) -> dict[str, Any]:
     return {"id": im.id, "rpc": rpc.to_job(), "model": {"name": im.rpc_model or req.rpc_model}}
 
 
+def _sensor_fragment(req: ComposeRequest, problems: list[SourceProblem]) -> dict[str, Any]:
+    """The job fragment of the images given by vendor metadata (:mod:`solver.sensors`), read
+    together so that they share one time scale: ``{"images": {id: image}, "cameras": [...],
+    "options": {...}}``. Problems go into ``problems`` as ``file, element: message``."""
+    given = [im for im in req.images if im.sensor is not None]
+    if not given:
+        return {"images": {}, "cameras": [], "options": {}}
+    from solver.sensors.errors import MetadataError
+    from solver.sensors.formats import read_product
+    from solver.sensors.job_fragment import fragment
+
+    products = []
+    for im in given:
+        f = im.sensor
+        try:
+            products.append(read_product(f.path or f.name, f.name, None if f.path else f.data))
+        except MetadataError as exc:
+            problems.append(SourceProblem(exc.file, 0, exc.element, exc.reason, "bad_sensor_metadata"))
+    if len(products) < len(given):
+        return {"images": {}, "cameras": [], "options": {}}
+    doc = fragment(products, [im.id for im in given])
+    return {"images": {i["id"]: i for i in doc["images"]}, "cameras": doc["cameras"], "options": doc["options"]}
+
+
 def _image(im: ImageSources, req: ComposeRequest) -> dict[str, Any]:
     if im.rpc is not None:
         image = _rpc_image(im, req)
@@ -309,6 +339,8 @@ def _cameras(req: ComposeRequest, lookup: CameraLookup, problems: list[SourcePro
     done: set[str] = set()
     for im in req.images:
         if im.rpc is not None and not im.camera:  # an RPC image needs no camera
+            continue
+        if im.sensor is not None:  # its metadata brings its camera
             continue
         name = im.camera or req.camera or im.id
         if name in done:

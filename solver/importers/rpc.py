@@ -1,12 +1,15 @@
 """``pba import-rpc``: an RPC00B that GDAL reads, as the job's ``images[].rpc`` object.
 
-Sources (all read by GDAL through rasterio, never by our own parsers):
+Sources (read by GDAL through rasterio, never by our own parsers, except the RPB element of a
+Maxar support-data XML, which GDAL reads only beside its raster):
 
 - a raster (``IMAGE.tif`` and anything else GDAL opens): its RPC metadata domain, i.e. GeoTIFF
   RPC tags, or the sidecar GDAL finds beside it (``IMAGE_RPC.TXT``, ``IMAGE.RPB``, a DIMAP
   product's ``RPC_*.XML``), or a format's own (NITF RPC00B, a DIMAP ``DIM_*.XML``);
 - a bare sidecar: ``NAME_RPC.TXT`` (GDAL's RPC text), ``NAME.RPB`` (DigitalGlobe style) or a
-  DIMAP RPC XML (``RPC_*.XML``, Pleiades/SPOT 6-7 ``Rational_Function_Model``). GDAL reads
+  DIMAP RPC XML (``RPC_*.XML``, Pleiades/SPOT 6-7 ``Rational_Function_Model``), or a Maxar
+  support-data XML (root ``isd``: its ``RPB`` element, read by :mod:`solver.sensors.maxar`
+  since GDAL reads it only beside the raster). GDAL reads
   those only beside a raster, so the file is copied into a temporary directory beside a 1 x 1
   GeoTIFF under the names GDAL looks for, and GDAL reads that raster's RPC.
 
@@ -28,6 +31,8 @@ from typing import Any
 
 from solver.geometry.rpc import RPC
 from solver.importers.errors import fail
+from solver.sensors.errors import MetadataError
+from solver.sensors.maxar import is_maxar_xml, read_maxar_rpc
 
 SIDECAR_KINDS = ("txt", "rpb", "dimap")
 
@@ -104,6 +109,8 @@ def read_rpc(path: str | Path, shown: str | None = None) -> RPC:
     kind = sidecar_kind(path)
     if kind is None:
         return _gdal_rpcs(path, shown)
+    if kind == "dimap" and is_maxar_xml(path):  # GDAL reads a Maxar XML's RPB only beside its raster
+        return _maxar_rpc(path, shown)
     with tempfile.TemporaryDirectory(prefix="pba-rpc-") as tmp:
         d = Path(tmp)
         # the names GDAL's readers look for beside a raster (GDALMDReaderPleiades: IMG_<x>_R1C1
@@ -113,6 +120,14 @@ def read_rpc(path: str | Path, shown: str | None = None) -> RPC:
         _dummy_raster(raster)
         shutil.copyfile(path, sidecar)
         return _gdal_rpcs(raster, shown)
+
+
+def _maxar_rpc(path: Path, shown: str) -> RPC:
+    """The RPB element of a Maxar support-data XML (:mod:`solver.sensors.maxar`, parsed safely)."""
+    try:
+        return read_maxar_rpc(path, shown)
+    except MetadataError as exc:
+        raise fail(shown, 0, exc.element, exc.reason) from None
 
 
 def rpc_object(path: str | Path, pixel_convention: str = "center") -> dict[str, Any]:

@@ -1,0 +1,18 @@
+"""Vendors' sensor metadata: readers (one module per format) and the exact linescan model they
+build, independent of the adjustment (numpy only, :mod:`solver.geometry` for the ellipsoid and
+the RPC00B polynomials).
+
+- :mod:`solver.sensors.xmlsafe`: XML read without entity expansion or external entities, and
+  located errors (file and element);
+- :mod:`solver.sensors.linescan`: the exact pushbroom model (line times, Lagrange ephemeris,
+  slerp attitude, a look vector per detector, light-travel time and velocity aberration) with
+  image-to-ground and ground-to-image;
+- :mod:`solver.sensors.maxar`: Maxar/DigitalGlobe support-data XML;
+- :mod:`solver.sensors.dimap_spot5`: SPOT 5 DIMAP v1;
+- :mod:`solver.sensors.formats`: which reader a file needs (by its root element);
+- :mod:`solver.sensors.agreement`: the exact model against the vendor's RPC, stereo closure;
+- :mod:`solver.sensors.job_fragment`: a product as cameras, images and options of our job, and
+  how far that form is from the exact model.
+
+Documentation: docs/sensor-metadata.md.
+"""

@@ -1,0 +1,210 @@
+"""Airbus/CNES DIMAP v1 (SPOT 5 HRG/HRS level 1A/1B scene or segment metadata, ``METADATA.DIM``)
+read into the exact linescan model.
+
+What is read, and the conventions (SPOT 1-5 Geometry Handbook, GAEL-P135-DOC-001; the public
+SPOT 5 HRS segment of tests/data/vendor/stereopipeline):
+
+- ``Raster_Dimensions``: ``NCOLS``, ``NROWS``.
+- ``Data_Strip/Ephemeris/Points/Point``: ``Location`` and ``Velocity`` (``X Y Z``, ECEF m and
+  m/s, DORIS-determined, 30 s apart) and ``TIME`` (UTC, ISO 8601 without zone).
+- ``Data_Strip/Satellite_Attitudes/Corrected_Attitudes/Corrected_Attitude/Angles``: ``TIME``,
+  ``YAW``, ``PITCH``, ``ROLL`` (rad; star-tracker corrected, 8 Hz), samples flagged
+  ``OUT_OF_RANGE`` Y are refused. The angles turn the navigation frame O1 into the local
+  orbital frame O2: ``M = [[cr cy, -cr sy, -sr], [cp sy + sp sr cy, cp cy - sp sr sy, sp cr],
+  [-sp sy + cp sr cy, -sp cy - cp sr sy, cp cr]]`` (handbook eq. 11), and O2 into ECEF by the
+  columns ``X2 = normalize(V x Z2)``, ``Y2 = Z2 x X2``, ``Z2 = P / |P|`` (eq. 7); the attitude
+  turned into body-to-ECEF quaternions at the samples and slerped between them (the handbook
+  interpolates the angles linearly; at 8 Hz the two differ by far less than a pixel). Real
+  segments start and end a fraction of a second beyond the attitude samples: extrapolation by
+  up to two sample intervals is accepted.
+- ``Data_Strip/Sensor_Configuration/Time_Stamp``: ``LINE_PERIOD`` (s), ``SCENE_CENTER_TIME``
+  (UTC), ``SCENE_CENTER_LINE`` (1-based): line L (0-based, pixel centres) is at
+  ``SCENE_CENTER_TIME + (L + 1 - SCENE_CENTER_LINE) LINE_PERIOD``.
+- ``.../Instrument_Look_Angles/Look_Angles_List/Look_Angles``: ``DETECTOR_ID`` (1-based;
+  column C is detector C + 1), ``PSI_X`` (along track) and ``PSI_Y`` (across track), rad:
+  the detector looks along ``(-tan PSI_Y, tan PSI_X, -1)`` in O1 (z away from the ground).
+  There must be one per column.
+
+The file's corner tie points (``Geoposition/Geoposition_Points/Tie_Point``: ``TIE_POINT_CRS_X``
+longitude, ``_Y`` latitude, ``_Z`` height at ``TIE_POINT_DATA_X`` column, ``_Y`` line, 1-based)
+are kept for a check (:func:`tie_point_check`); DIMAP v1 carries no RPC. The corrections of
+:mod:`solver.sensors.linescan` are all switched off by default for SPOT 5: the vendor's location
+model has none (its tie points agree with the uncorrected model to centimetres, and the
+corrected attitude, estimated with that model, absorbs them); switch them on to see their size.
+
+Only SPOT 5 is read: SPOT 1-4 DIMAP (attitude as angular speeds, look angles of the first and
+last detector) and DIMAP v2 (SPOT 6/7, Pleiades) are refused with a message saying so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from solver.sensors.linescan import Corrections, LinescanModel, lagrange, matrix_to_quaternion
+from solver.sensors.xmlsafe import Node, load
+
+
+@dataclass
+class Spot5Product:
+    file: str
+    mission: str
+    instrument: str
+    model: LinescanModel
+    corners: np.ndarray  # (k, 5): tie points: line, column (0-based), lon_deg, lat_deg, h_m
+    line_period_s: float
+
+
+def _utc(node: Node, tag: str) -> datetime:
+    text = node.text(tag)
+    try:
+        t = datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError:
+        raise node.error(f"not an ISO 8601 time: {text[:40]!r}", tag) from None
+    return t if t.tzinfo else t.replace(tzinfo=timezone.utc)
+
+
+def look_rotation(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) navigation (O1) to local orbital frame (O2), SPOT handbook eq. 11."""
+    cp, sp, cr, sr, cy, sy = np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll), np.cos(yaw), np.sin(yaw)
+    return np.stack([
+        np.stack([cr * cy, -cr * sy, -sr], -1),
+        np.stack([cp * sy + sp * sr * cy, cp * cy - sp * sr * sy, sp * cr], -1),
+        np.stack([-sp * sy + cp * sr * cy, -sp * cy - cp * sr * sy, cp * cr], -1),
+    ], -2)
+
+
+def orbital_to_ecef(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) with columns X2, Y2, Z2 (SPOT handbook eq. 7)."""
+    z = position / np.linalg.norm(position, axis=1, keepdims=True)
+    x = np.cross(velocity, z)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    y = np.cross(z, x)
+    return np.stack([x, y, z], axis=2)
+
+
+def read_spot5(path: str | Path, shown: str | None = None, data: bytes | None = None) -> Spot5Product:
+    """The exact model of a SPOT 5 DIMAP v1 metadata file (module docstring); ``data`` as for
+    :func:`solver.sensors.maxar.read_maxar`."""
+    path = Path(path)
+    shown = str(path) if shown is None else shown
+    root = load(path, shown, data)
+    if root.element.tag != "Dimap_Document":
+        raise root.error("not a DIMAP document (root element Dimap_Document expected)")
+    fmt = root.find("Metadata_Id")
+    fmt = fmt.find("METADATA_FORMAT") if fmt is not None else None
+    version = fmt.element.get("version", "") if fmt is not None else ""
+    if not version.startswith("1."):
+        raise root.error(f"DIMAP version {version or 'unknown'}: only DIMAP v1 (SPOT 5) is read; DIMAP v2 "
+                         "(SPOT 6/7, Pleiades) is not read yet")
+    dims = root.child("Raster_Dimensions")
+    columns, lines = dims.integer("NCOLS"), dims.integer("NROWS")
+    if columns < 1 or lines < 1:
+        raise dims.error("NCOLS and NROWS must be positive")
+    strip = root.child("Data_Strip")
+    points = strip.child("Ephemeris").child("Points").children("Point")
+    if len(points) < 4:
+        raise strip.error(f"4 ephemeris points at least, {len(points)} found", "Ephemeris/Points")
+    times = [_utc(p, "TIME") for p in points]
+    epoch = times[0]
+
+    def seconds(t: datetime) -> float:
+        return (t - epoch).total_seconds()
+
+    eph_t = np.array([seconds(t) for t in times])
+    if np.any(np.diff(eph_t) <= 0):
+        raise strip.error("ephemeris times must increase (duplicated or unordered points)", "Ephemeris/Points")
+    pos = np.array([[p.child("Location").number(a) for a in "XYZ"] for p in points])
+    vel = np.array([[p.child("Velocity").number(a) for a in "XYZ"] for p in points])
+    r = np.linalg.norm(pos, axis=1)
+    if np.any((r < 6.4e6) | (r > 5e7)):
+        raise strip.error("positions are not ECEF metres of an orbit", "Ephemeris/Points")
+
+    att = strip.child("Satellite_Attitudes").child("Corrected_Attitudes").child("Corrected_Attitude")
+    samples = att.children("Angles")
+    if len(samples) < 2:
+        raise att.error(f"2 attitude samples at least, {len(samples)} found", "Angles")
+    for s in samples:
+        if s.find("OUT_OF_RANGE") is not None and s.text("OUT_OF_RANGE").upper() == "Y":
+            raise s.error("a sample flagged OUT_OF_RANGE", "OUT_OF_RANGE")
+    att_t = np.array([seconds(_utc(s, "TIME")) for s in samples])
+    if np.any(np.diff(att_t) <= 0):
+        raise att.error("attitude times must increase", "Angles")
+    ypr = np.array([[s.number("YAW"), s.number("PITCH"), s.number("ROLL")] for s in samples])
+
+    cfg = strip.child("Sensor_Configuration")
+    stamp = cfg.child("Time_Stamp")
+    period = stamp.number("LINE_PERIOD")
+    if not 0 < period < 1:
+        raise stamp.error(f"{period}: a line period in seconds expected", "LINE_PERIOD")
+    t_center = seconds(_utc(stamp, "SCENE_CENTER_TIME"))
+    center_line = stamp.number("SCENE_CENTER_LINE")
+    looks = cfg.child("Instrument_Look_Angles_List").child("Instrument_Look_Angles").child("Look_Angles_List")
+    cells = looks.children("Look_Angles")
+    table = np.array([[c.number("DETECTOR_ID"), c.number("PSI_X"), c.number("PSI_Y")] for c in cells]) if cells else np.zeros((0, 3))
+    if table.shape[0] != columns or not np.array_equal(table[:, 0], np.arange(1, columns + 1)):
+        raise looks.error(f"one look angle per column expected (detectors 1..{columns}), {table.shape[0]} found")
+    psi_x, psi_y = table[:, 1], table[:, 2]
+
+    detectors = np.arange(columns, dtype=float)
+
+    def table(c: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """Linear between detectors, extended with the end slopes beyond the first and last."""
+        if columns == 1:
+            return np.full(c.shape, values[0])
+        out = np.interp(c, detectors, values)
+        lo, hi = c < 0, c > columns - 1
+        out[lo] = values[0] + c[lo] * (values[1] - values[0])
+        out[hi] = values[-1] + (c[hi] - columns + 1) * (values[-1] - values[-2])
+        return out
+
+    def look_body(column: np.ndarray) -> np.ndarray:
+        c = np.atleast_1d(np.asarray(column, float))
+        return np.column_stack([-table(c, np.tan(psi_y)), table(c, np.tan(psi_x)), -np.ones_like(c)])
+
+    t0 = t_center + (0 + 1 - center_line) * period
+    t_end = t0 + (lines - 1) * period
+    for node, t in ((strip, eph_t), (att, att_t)):
+        margin = 2.0 * float(np.median(np.diff(t)))  # extrapolation by two sample intervals at most
+        if t0 < t[0] - margin or t_end > t[-1] + margin:
+            raise node.error("the samples do not cover the image's line times")
+    rot = orbital_to_ecef(lagrange(att_t, eph_t, pos), lagrange(att_t, eph_t, vel)) @ look_rotation(ypr[:, 0], ypr[:, 1], ypr[:, 2])
+    model = LinescanModel(
+        lines=lines, columns=columns, epoch_utc=epoch.isoformat().replace("+00:00", "Z"),
+        tlc_lines=np.array([0.0, 1.0]), tlc_times_s=np.array([t0, t0 + period]),
+        ephemeris_times_s=eph_t, positions_ecef_m=pos, velocities_ecef_m_s=vel,
+        attitude_times_s=att_t, attitude_wxyz=matrix_to_quaternion(rot), look_body=look_body,
+        corrections=Corrections(aberration=False, light_time=False, refraction=False),
+    )
+    corners = []
+    geo = root.find("Geoposition")
+    tie = geo.find("Geoposition_Points") if geo is not None else None
+    for v in tie.children("Tie_Point") if tie is not None else []:
+        corners.append([v.number("TIE_POINT_DATA_Y") - 1, v.number("TIE_POINT_DATA_X") - 1,
+                        v.number("TIE_POINT_CRS_X"), v.number("TIE_POINT_CRS_Y"), v.number("TIE_POINT_CRS_Z")])
+    src = root.find("Dataset_Sources")
+    scene = src.find("Source_Information") if src is not None else None
+    scene = scene.find("Scene_Source") if scene is not None else None
+    mission = f"{scene.text('MISSION')} {scene.text('MISSION_INDEX')}" if scene is not None and scene.find("MISSION") is not None else ""
+    if mission and mission != "SPOT 5":
+        raise scene.error(f"{mission}: only SPOT 5 is read (SPOT 1-4 give their attitude as angular speeds)", "MISSION_INDEX")
+    instrument = scene.text("INSTRUMENT") if scene is not None and scene.find("INSTRUMENT") is not None else ""
+    return Spot5Product(shown, mission, instrument, model, np.array(corners).reshape(-1, 5), period)
+
+
+def tie_point_check(p: Spot5Product) -> dict[str, object]:
+    """Distances (m) between the vendor's tie points and the exact model's ground points at the
+    same image positions and heights, for the tie points whose column has a look angle."""
+    from solver.geometry.geodesy import geodetic_to_ecef
+
+    c = p.corners
+    inside = (c[:, 1] >= 0) & (c[:, 1] <= p.model.columns - 1) & (c[:, 0] >= 0) & (c[:, 0] <= p.model.lines - 1)
+    c = c[inside]
+    if c.shape[0] == 0:
+        return {"points": 0, "distances_m": []}
+    g = p.model.image_to_ecef(c[:, 0], c[:, 1], c[:, 4])
+    d = np.linalg.norm(g - geodetic_to_ecef(c[:, 2:5]), axis=1)
+    return {"points": int(c.shape[0]), "distances_m": [float(x) for x in d], "outside_columns": int((~inside).sum())}

@@ -1,0 +1,31 @@
+"""Which reader a metadata file needs, by its root element: ``isd`` (Maxar support data,
+:mod:`solver.sensors.maxar`) or ``Dimap_Document`` (DIMAP v1, SPOT 5:
+:mod:`solver.sensors.dimap_spot5`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from solver.sensors.dimap_spot5 import Spot5Product, read_spot5
+from solver.sensors.errors import MetadataError
+from solver.sensors.maxar import MaxarProduct, read_maxar
+from solver.sensors.xmlsafe import read_bytes
+
+FORMATS = "Maxar/DigitalGlobe support-data XML (root isd) or SPOT 5 DIMAP v1 (root Dimap_Document)"
+
+
+def read_product(path: str | Path, shown: str | None = None, data: bytes | str | None = None) -> MaxarProduct | Spot5Product:
+    """The product of a metadata file (or of its bytes ``data``), by its root element
+    (MetadataError naming the file when neither)."""
+    path = Path(path)
+    shown = str(path) if shown is None else shown
+    if isinstance(data, str):
+        data = data.encode()
+    if data is None:
+        data = read_bytes(path, shown)
+    head = data[:4096]
+    if b"<isd>" in head or b"<isd " in head:
+        return read_maxar(path, shown, data)
+    if b"<Dimap_Document" in head:
+        return read_spot5(path, shown, data)
+    raise MetadataError(shown, "", f"not a sensor metadata file we read: {FORMATS} expected")

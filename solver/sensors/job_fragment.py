@@ -1,0 +1,270 @@
+"""A vendor product as a fragment of our job: a camera, an image with ephemeris, attitude samples
+and line times, a default model and the options that weight them, plus how far that job form
+is from the vendor's exact model (pixels).
+
+Mapping (docs/models.md sections 1, 9, 10):
+
+- Camera frame. Ours has ``x`` along track, ``z`` away from the scene; a detector sits at
+  ``(x_c, y_c)`` and looks along ``(x_c, y_c, -f)``. Maxar's camera frame has ``z`` towards the
+  ground and the detector array along ``-y``; the two differ by a half turn about ``x``
+  (``P = diag(1, -1, -1)``; when the Maxar ``x`` points against the flight direction, a half
+  turn about ``y`` is used instead, ``diag(-1, 1, -1)``). A straight array with
+  ``DETROTANGLE = 0`` is one chip of ours: ``dx_mm = DETORIGINX``, pixel pitch, and
+  ``dy_mm`` so that column C sits at ``C p - DETORIGINY``; a rotated array is approximated
+  (its along-track offset ``C p sin(rot)`` is left out and counted in the difference).
+- Attitude. The job's samples are roll, pitch, yaw of ``A = M R_orbit^T`` (``M`` object to
+  camera, ``R_orbit`` rows: along-track, cross-track, radial), ``A = Rx(roll) Ry(pitch)
+  Rz(yaw)``, mounting 0. The adjustment models neither velocity aberration nor light-travel
+  time nor refraction, so each sample's rotation is the *effective* one: the rotation (Kabsch
+  fit over 9 detectors across the array) that makes straight rays from the perspective centre
+  meet the ground where the exact model, with every correction, puts them at the product's
+  mean height. What this cannot absorb (their change across the swath and with height) is in
+  ``difference_px``.
+- SPOT 5: the look-angle table as one straight chip (:func:`spot5_source`), our axes
+  ``(Y, -X, Z)`` of the navigation frame.
+- Model: OA-J2 for Maxar's short images, PASS-J2 for SPOT 5's long segments (it uses every
+  ephemeris sample), with cubic attitude polynomials.
+- Line times: a constant ``line_time_s = 1 / AVGLINERATE`` from the first line's time; a
+  TLC table that departs from it is counted in the difference.
+- Times: seconds since 00:00 UTC of the product's first ephemeris date (``time_origin_utc``),
+  shared by every product of one import so that the images of a pass share one scale.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import Any
+
+import numpy as np
+
+from solver.sensors.dimap_spot5 import Spot5Product
+from solver.sensors.linescan import LinescanModel, matrix_to_quaternion, quaternion_matrices
+from solver.sensors.maxar import MaxarProduct
+
+KABSCH_DETECTORS = 9
+DEFAULT_MODEL = "OA-J2"  # Maxar: images of 1-2 s
+# SPOT 5 segments last tens of seconds (72 s for the public HRS one): OA-J2 propagates the
+# first line's state alone and ends 8 px (80 m) off along track; the pass model uses every
+# ephemeris sample (0.15 px).
+LONG_STRIP_MODEL = "PASS-J2"
+# Agile platforms turn during the image (WorldView-2: 0.1-0.2 deg/s in roll and pitch over a
+# 1-1.5 s image, 2 km on the ground): cubic attitude polynomials, not the constants of the
+# default orders (with them the adjustment is off by hundreds of metres).
+DEFAULT_ORDERS = {"omega": 3, "phi": 3, "kappa": 3}
+DEFAULT_SIGMA_VELOCITY_M_S = 0.01  # Maxar EPH carries no velocity covariance
+
+
+def orbital_rows(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) ``R_orbit``: rows along track (velocity without its radial part), cross track
+    (``z x x``), radial up (docs/models.md section 10)."""
+    z = position / np.linalg.norm(position, axis=1, keepdims=True)
+    x = velocity - np.sum(velocity * z, axis=1, keepdims=True) * z
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    y = np.cross(z, x)
+    return np.stack([x, y, z], axis=1)
+
+
+def angles_xyz(a: np.ndarray) -> np.ndarray:
+    """(roll, pitch, yaw) radians (n, 3) with ``a = Rx(roll) Ry(pitch) Rz(yaw)`` (active)."""
+    pitch = np.arcsin(np.clip(a[:, 0, 2], -1, 1))
+    roll = np.arctan2(-a[:, 1, 2], a[:, 2, 2])
+    yaw = np.arctan2(-a[:, 0, 1], a[:, 0, 0])
+    return np.column_stack([roll, pitch, yaw])
+
+
+def rotation_xyz(angles: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) ``Rx(roll) Ry(pitch) Rz(yaw)`` (active elementary rotations)."""
+    r, p, y = angles[:, 0], angles[:, 1], angles[:, 2]
+    o, z = np.ones_like(r), np.zeros_like(r)
+    rx = np.stack([np.stack([o, z, z], -1), np.stack([z, np.cos(r), -np.sin(r)], -1), np.stack([z, np.sin(r), np.cos(r)], -1)], -2)
+    ry = np.stack([np.stack([np.cos(p), z, np.sin(p)], -1), np.stack([z, o, z], -1), np.stack([-np.sin(p), z, np.cos(p)], -1)], -2)
+    rz = np.stack([np.stack([np.cos(y), -np.sin(y), z], -1), np.stack([np.sin(y), np.cos(y), z], -1), np.stack([z, z, o], -1)], -2)
+    return rx @ ry @ rz
+
+
+def _kabsch(body: np.ndarray, ecef: np.ndarray) -> np.ndarray:
+    """The rotation R (3, 3) minimising sum |R body_i - ecef_i|^2 (unit vectors, rows)."""
+    u, _, vt = np.linalg.svd(ecef.T @ body)
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
+def effective_rotations(model: LinescanModel, times: np.ndarray, height_m: float) -> np.ndarray:
+    """(n, 3, 3) body-to-ECEF rotations at ``times`` that absorb every correction at ``height_m``
+    (module docstring)."""
+    cols = np.linspace(0, model.columns - 1, KABSCH_DETECTORS)
+    tl, tt = model.tlc_lines, model.tlc_times_s
+    rate = (tl[-1] - tl[0]) / (tt[-1] - tt[0])
+    out = np.empty((times.size, 3, 3))
+    body = model.look_body(cols)
+    body /= np.linalg.norm(body, axis=1, keepdims=True)
+    for k, t in enumerate(times):
+        line = np.full(cols.size, tl[0] + (t - tt[0]) * rate)
+        ground = model.image_to_ecef(line, cols, np.full(cols.size, height_m))
+        s = model.position(np.array([t]))[0] + model.rotation(np.array([t]))[0] @ model.camera_offset_body_m
+        d = ground - s
+        out[k] = _kabsch(body, d / np.linalg.norm(d, axis=1, keepdims=True))
+    return out
+
+
+@dataclass
+class SensorSource:
+    """What the fragment needs of one product, whatever its format."""
+
+    file: str
+    satellite: str
+    band: str
+    model: LinescanModel
+    ours_to_body: np.ndarray  # (3, 3): our camera-frame components to the model's body frame
+    camera: dict[str, Any]  # our camera without its id: focal_mm, pixel_mm, line_time_s, lines, columns, chips
+    mean_height_m: float  # height of the effective rotations' fit
+    sigma_position_m: float | None
+    sigma_attitude_rad: float | None
+    default_model: str = DEFAULT_MODEL
+
+
+def maxar_source(p: MaxarProduct) -> SensorSource:
+    """A Maxar product's camera (one chip, module docstring) and axes."""
+    m = p.model
+    t = np.array([m.line_time(np.array([m.lines / 2.0]))[0]])
+    cam_to_body = quaternion_matrices(p.camera_to_body_wxyz[None, :])[0]
+    x_cam_ecef = m.rotation(t)[0] @ cam_to_body @ np.array([1.0, 0, 0])
+    forward = float(np.dot(x_cam_ecef, m.velocity(t)[0])) > 0
+    axes = np.diag([1.0, -1.0, -1.0]) if forward else np.diag([-1.0, 1.0, -1.0])  # Maxar camera -> ours
+    ox, oy = p.detector_origin_mm
+    camera = {
+        "focal_mm": p.principal_distance_mm, "pixel_mm": p.pixel_mm, "line_time_s": 1.0 / p.avg_line_rate_hz,
+        "lines": m.lines, "columns": m.columns,
+        "chips": [{"id": "1", "first_column": 0, "columns": m.columns, "dx_mm": axes[0, 0] * ox,
+                   "dy_mm": -axes[1, 1] * ((m.columns - 1) / 2.0 * p.pixel_mm) + axes[1, 1] * oy}],
+    }
+    cov = p.position_covariance_m2
+    sigma_p = float(np.sqrt(np.mean(cov[:, [0, 3, 5]].sum(axis=1) / 3.0))) if cov.shape[1] == 6 and np.all(cov[:, [0, 3, 5]] >= 0) else None
+    return SensorSource(p.file, p.satellite, p.band, m, cam_to_body @ axes.T, camera,
+                        p.rpc.height_off if p.rpc is not None else 0.0, sigma_p, p.attitude_sigma_rad)
+
+
+SPOT5_PIXEL_MM = 0.0065  # HRG/HRS detector pitch: nominal; only its ratio to the focal length matters
+
+
+def spot5_source(p: Spot5Product) -> SensorSource:
+    """A SPOT 5 product's camera: the look-angle table as one straight chip. Our camera axes are
+    (Y, -X, Z) of the navigation frame O1 (Y along the flight), so a detector sits at
+    ``f (tan PSI_X, tan PSI_Y)``; ``tan PSI_Y`` is fitted by a line in the column (its slope
+    gives the focal length for the nominal pitch), ``tan PSI_X`` by its mean; what the line and
+    the mean leave out is in the difference."""
+    m = p.model
+    c = np.arange(m.columns, dtype=float)
+    look = m.look_body(c)
+    tan_x, tan_y = look[:, 1], -look[:, 0]
+    slope, intercept = np.polyfit(c, tan_y, 1)
+    focal = SPOT5_PIXEL_MM / abs(slope)
+    sign = 1.0 if slope > 0 else -1.0  # columns running against our y: turn the camera about z
+    body_from_ours = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # columns: ours x, y, z in O1
+    if sign < 0:
+        body_from_ours = body_from_ours @ np.diag([-1.0, -1.0, 1.0])
+        tan_x = -tan_x
+    camera = {
+        "focal_mm": float(focal), "pixel_mm": SPOT5_PIXEL_MM, "line_time_s": p.line_period_s, "lines": m.lines, "columns": m.columns,
+        "chips": [{"id": "1", "first_column": 0, "columns": m.columns, "dx_mm": float(focal * np.mean(tan_x)),
+                   "dy_mm": float(sign * focal * (intercept + slope * (m.columns - 1) / 2.0))}],
+    }
+    return SensorSource(p.file, p.mission, p.instrument, m, body_from_ours, camera, 0.0, None, None, LONG_STRIP_MODEL)
+
+
+def _time_origin(sources: list[SensorSource]) -> datetime:
+    first = min(datetime.fromisoformat(s.model.epoch_utc.replace("Z", "+00:00")) for s in sources)
+    return datetime(first.year, first.month, first.day, tzinfo=timezone.utc)
+
+
+DEFAULT_SIGMA_POSITION_M = 5.0  # when the file states none
+DEFAULT_SIGMA_ATTITUDE_DEG = 0.002
+
+
+def fragment(products: list[MaxarProduct | Spot5Product | SensorSource], image_ids: list[str]) -> dict[str, Any]:
+    """The job fragment of one or more products (``cameras``, ``images``, ``options``) and a
+    ``sensor_metadata`` block per image (what was read, the job form's difference)."""
+    sources = [p if isinstance(p, SensorSource) else maxar_source(p) if isinstance(p, MaxarProduct) else spot5_source(p)
+               for p in products]
+    origin = _time_origin(sources)
+    cameras, images, notes = [], [], []
+    for src, image_id in zip(sources, image_ids):
+        m = src.model
+        shift = (datetime.fromisoformat(m.epoch_utc.replace("Z", "+00:00")) - origin).total_seconds()
+        camera = {"id": image_id, **src.camera}
+        t0 = float(m.line_time(np.array([0.0]))[0])
+        t1 = float(m.line_time(np.array([m.lines - 1.0]))[0])
+        lo, hi = min(t0, t1), max(t0, t1)
+        de = float(np.median(np.diff(m.ephemeris_times_s)))
+        ke = (m.ephemeris_times_s >= lo - max(0.2, 2 * de)) & (m.ephemeris_times_s <= hi + max(0.2, 2 * de))
+        da = float(np.median(np.diff(m.attitude_times_s)))
+        ka = (m.attitude_times_s >= lo - max(0.1, da)) & (m.attitude_times_s <= hi + max(0.1, da))
+        at = m.attitude_times_s[ka]
+        rot = effective_rotations(m, at, src.mean_height_m)  # body to ECEF
+        ecef_to_ours = np.einsum("ij,njk->nik", src.ours_to_body.T, np.transpose(rot, (0, 2, 1)))
+        a = ecef_to_ours @ np.transpose(orbital_rows(m.position(at), m.velocity(at)), (0, 2, 1))
+        ang = np.degrees(np.unwrap(angles_xyz(a), axis=0))  # yaw near 180 deg stays continuous
+        image = {
+            "id": image_id, "camera": image_id, "model": {"name": src.default_model, "options": {"orders": dict(DEFAULT_ORDERS)}},
+            "first_line_time_s": t0 + shift,
+            "ephemeris": [{"time_s": float(t + shift), "position_ecef_m": [float(v) for v in pos],
+                           "velocity_ecef_m_s": [float(v) for v in vel]}
+                          for t, pos, vel in zip(m.ephemeris_times_s[ke], m.positions_ecef_m[ke], m.velocities_ecef_m_s[ke])],
+            "attitude": [{"time_s": float(t + shift), "roll_deg": float(r[0]), "pitch_deg": float(r[1]), "yaw_deg": float(r[2])}
+                         for t, r in zip(at, ang)],
+        }
+        cameras.append(camera)
+        images.append(image)
+        notes.append({"image": image_id, "file": src.file, "satellite": src.satellite, "band": src.band,
+                      "first_line_utc": _utc(origin, t0 + shift), "time_origin_utc": origin.isoformat().replace("+00:00", "Z"),
+                      "difference_px": job_form_difference(src, camera, image, shift)})
+    sig_p = [s.sigma_position_m for s in sources if s.sigma_position_m is not None]
+    sig_a = [s.sigma_attitude_rad for s in sources if s.sigma_attitude_rad is not None]
+    options: dict[str, Any] = {
+        "ephemeris": {"sigma_position_m": max(max(sig_p), 0.01) if sig_p else DEFAULT_SIGMA_POSITION_M,
+                      "sigma_velocity_m_s": DEFAULT_SIGMA_VELOCITY_M_S},
+        "attitude": {"sigma_deg": [max(float(np.degrees(max(sig_a))), 1e-5) if sig_a else DEFAULT_SIGMA_ATTITUDE_DEG] * 3},
+    }
+    return {"cameras": cameras, "images": images, "options": options, "sensor_metadata": notes}
+
+
+def _utc(origin: datetime, seconds: float) -> str:
+    return datetime.fromtimestamp(origin.timestamp() + seconds, timezone.utc).isoformat().replace("+00:00", "Z")
+
+
+def job_form_difference(src: SensorSource, camera: dict[str, Any], image: dict[str, Any], shift: float,
+                        n: int = 7, k: int = 3) -> dict[str, float]:
+    """How far the job form (our one-chip camera, constant line rate, the effective attitude
+    samples slerped, straight rays, no corrections) is from the exact model with every
+    correction: RMS and maximum px over ``n`` x ``n`` image positions times ``k`` heights (the
+    RPC's height range, else 0 +- 500 m)."""
+    m = src.model
+    chip = camera["chips"][0]
+    f, pix, dx, dy, cols = camera["focal_mm"], camera["pixel_mm"], chip["dx_mm"], chip["dy_mm"], camera["columns"]
+    ours_to_body = src.ours_to_body
+
+    def look_body(c: np.ndarray) -> np.ndarray:
+        c = np.asarray(c, float)
+        v = np.column_stack([np.full(c.shape, dx), (c - (cols - 1) / 2.0) * pix + dy, np.full(c.shape, -f)])
+        return v @ ours_to_body.T
+
+    at = np.array([s["time_s"] - shift for s in image["attitude"]])
+    ang = np.radians([[s["roll_deg"], s["pitch_deg"], s["yaw_deg"]] for s in image["attitude"]])
+    r_orbit = orbital_rows(m.position(at), m.velocity(at))
+    ecef_to_ours = rotation_xyz(ang) @ r_orbit
+    body_to_ecef = np.transpose(ecef_to_ours, (0, 2, 1)) @ ours_to_body.T  # ecef_to_ours = B^T R^T
+    t0 = image["first_line_time_s"] - shift
+    job = LinescanModel(
+        lines=m.lines, columns=m.columns, epoch_utc=m.epoch_utc,
+        tlc_lines=np.array([0.0, 1.0]), tlc_times_s=np.array([t0, t0 + camera["line_time_s"]]),
+        ephemeris_times_s=m.ephemeris_times_s, positions_ecef_m=m.positions_ecef_m, velocities_ecef_m_s=m.velocities_ecef_m_s,
+        attitude_times_s=at, attitude_wxyz=matrix_to_quaternion(body_to_ecef), look_body=look_body,
+        camera_offset_body_m=m.camera_offset_body_m,
+    ).with_corrections(aberration=False, light_time=False, refraction=False)
+    heights = src.mean_height_m + np.linspace(-500, 500, k)
+    L, C, H = (a.ravel() for a in np.meshgrid(np.linspace(0, m.lines - 1, n), np.linspace(0, m.columns - 1, n), heights, indexing="ij"))
+    g = job.image_to_ground(L, C, H)
+    d = m.ground_to_image(g) - np.column_stack([L, C])
+    dist = np.hypot(d[:, 0], d[:, 1])
+    return {"rms": float(np.sqrt(np.nanmean(dist**2))), "max": float(np.nanmax(dist))}
