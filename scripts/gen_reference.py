@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -52,6 +53,12 @@ def _cell(text: Any) -> str:
     """Text fit for one Markdown table cell."""
     s = " ".join(str(text).split())
     return s.replace("|", "\\|")
+
+
+def _prose(text: str) -> str:
+    """A docstring as Markdown: reST roles and double backticks as code spans."""
+    text = re.sub(r":(?:mod|class|func|meth|attr|data):`~?([^`]+)`", r"`\1`", text)
+    return text.replace("``", "`")
 
 
 def _code(value: Any) -> str:
@@ -104,14 +111,14 @@ def _limits(prop: dict[str, Any]) -> str:
 def _model_section(name: str, schema: dict[str, Any]) -> list[str]:
     lines = [f"## {name}", ""]
     if schema.get("description"):
-        lines += [schema["description"].replace("``", "`"), ""]
+        lines += [_prose(schema["description"]), ""]
     required = set(schema.get("required", []))
     lines += ["| field | type | required / default | unit | limits | description |", "|---|---|---|---|---|---|"]
     for field, prop in schema.get("properties", {}).items():
         default = "required" if field in required else (_code(prop["default"]) if "default" in prop else "optional")
         lines.append(
             f"| `{field}` | {_schema_type(prop)} | {default} | {unit_of(field)} | {_cell(_limits(prop))} | "
-            f"{_cell(prop.get('description', ''))} |"
+            f"{_cell(_prose(prop.get('description', '')))} |"
         )
     return lines + [""]
 
@@ -261,7 +268,7 @@ def http_page() -> str:
             op = ops[method]
             lines += [f"## {method.upper()} {path}", ""]
             if op.get("description") or op.get("summary"):
-                lines += [op.get("description") or op["summary"], ""]
+                lines += [_prose(op.get("description") or op["summary"]), ""]
             body = _body(op)
             if body:
                 lines += [f"Request body: {body}.", ""]
@@ -277,12 +284,11 @@ def http_page() -> str:
                   "in [The job document](job.md).", ""]
         for name, schema in schemas.items():
             props = schema.get("properties", {})
-            lines += [f"### {name}", "", _cell(schema.get("description", "")), ""]
+            lines += [f"### {name}", "", _cell(_prose(schema.get("description", ""))), ""]
             if props:
                 lines += ["| field | type | description |", "|---|---|---|"]
-                lines += [f"| `{f}` | {_cell(_schema_type(p)).replace('](#', '](#')} | {_cell(p.get('description', ''))} |" for f, p in props.items()]
+                lines += [f"| `{f}` | {_cell(_schema_type(p))} | {_cell(_prose(p.get('description', '')))} |" for f, p in props.items()]
                 lines.append("")
-    # links to schemas point at headings of this page (### Name has the anchor name.lower())
     return "\n".join(lines)
 
 

@@ -16,6 +16,7 @@ import argparse
 import os
 import re
 import shutil
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -216,18 +217,22 @@ def tutorial_blocks(markdown: str) -> list[tuple[str, str]]:
     return blocks
 
 
-def run_tutorial(page: Path, workdir: Path, timeout_s: float, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+def run_tutorial(page: Path, workdir: Path, timeout_s: float, substitutions: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
     """One bash script of the page's blocks (python blocks through the venv's python), run in
-    ``workdir`` with ``pba`` and ``python`` of this environment first on the PATH."""
+    ``workdir`` with ``pba`` and ``python`` of this environment first on the PATH; each key of
+    ``substitutions`` (e.g. the page's port) replaced by its value."""
     shutil.copytree(ROOT / "examples", workdir / "examples")
     script = ["set -euo pipefail"]
-    for i, (lang, code) in enumerate(tutorial_blocks(page.read_text())):
+    text = page.read_text()
+    for old, new in (substitutions or {}).items():
+        text = text.replace(old, new)
+    for i, (lang, code) in enumerate(tutorial_blocks(text)):
         if lang == "sh":
             script.append(code)
         else:
             (workdir / f".block{i}.py").write_text(code)
             script.append(f'python "{workdir}/.block{i}.py"')
-    full_env = {**os.environ, **(env or {})}
+    full_env = {k: v for k, v in os.environ.items() if not k.startswith("PBA_")}
     full_env["PATH"] = f"{BIN}{os.pathsep}{full_env.get('PATH', '')}"
     full_env["PYTHONPATH"] = str(ROOT)
     return subprocess.run(["bash", "-c", "\n".join(script)], cwd=workdir, env=full_env, capture_output=True, text=True, timeout=timeout_s)
@@ -249,5 +254,15 @@ def test_tutorial_prism_triplet_runs(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_tutorial_lab_server_runs(tmp_path: Path) -> None:
-    proc = run_tutorial(ROOT / "docs" / "tutorials" / "lab-server.md", tmp_path, timeout_s=600)
+    with socket.socket() as s:  # a free port instead of the page's 8765
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = run_tutorial(ROOT / "docs" / "tutorials" / "lab-server.md", tmp_path, timeout_s=600, substitutions={"8765": str(port)})
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    out = proc.stdout
+    # no key: 401; Alice's job solved; her camera created (201) and shared; Bob reads the shared
+    # camera; the metrics count one successful job of hers and the worker; the admin lists users
+    assert out.splitlines().count("401") == 1, out
+    assert "sigma0 " in out and "lab-prism-nadir version 1 shared True" in out, out
+    assert 'pba_user_jobs_total{status="successful",user="alice"} 1.0' in out and "pba_workers 1.0" in out, out
+    assert "['alice', 'bob', 'maria']" in out and "would delete 0 finished jobs" in out + proc.stderr, out
