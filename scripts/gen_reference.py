@@ -7,7 +7,9 @@ Each page is built from the object the program itself uses, so it cannot drift f
 - ``reference/cli.md``: the ``pba`` command line, walking the argparse parsers of ``service.cli``;
 - ``reference/http-api.md``: the HTTP API, from ``openapi.yaml`` (kept in sync with the app by a test);
 - ``reference/settings.md``: the server's ``PBA_*`` settings, from ``service.settings.Settings``;
-- ``reference/platform-models.md``: the platform models of the registry (``pba models``).
+- ``reference/platform-models.md``: the platform models of the registry (``pba models``);
+- ``reference/report-keys.md``: every key of the example jobs' reports (the report contract itself,
+  docs/report-contract.md, is written by hand; a test checks it names every one of these keys).
 
 The MkDocs hook (scripts/mkdocs_hooks.py) adds these pages to every build; tests/test_docs.py
 generates them into a temporary folder and checks that every schema field, CLI flag, endpoint
@@ -369,6 +371,53 @@ def platform_model_names() -> list[str]:
     return [m.describe()["name"] for m in all_models()]
 
 
+# ---------------------------------------------------------------- report keys ---------------
+REPORT_FIXTURES = ROOT / "tests" / "fixtures" / "reports"
+
+
+def report_key_paths() -> dict[str, tuple[str, Any]]:
+    """Every key path of the pinned example reports (``a/b[]/c``) -> (JSON type, an example)."""
+    import gzip
+
+    found: dict[str, tuple[str, Any]] = {}
+
+    def walk(node: Any, path: str) -> None:
+        if isinstance(node, dict):
+            for key, value in node.items():
+                here = f"{path}/{key}" if path else key
+                if here not in found:
+                    found[here] = (type(value).__name__, value if isinstance(value, (int, float, str, bool)) or value is None else None)
+                walk(value, here)
+        elif isinstance(node, list):
+            for item in node:
+                walk(item, path + "[]")
+
+    for fixture in sorted(REPORT_FIXTURES.glob("*.report.json.gz")):
+        with gzip.open(fixture, "rt") as f:
+            walk(json.load(f), "")
+    return dict(sorted(found.items()))
+
+
+def report_keys_page() -> str:
+    names = {"dict": "object", "list": "list", "str": "string", "float": "number", "int": "integer", "bool": "boolean", "NoneType": "null"}
+    lines = [
+        "# Report keys",
+        "",
+        "Generated from the reports of the example jobs (`examples/*.json`, pinned in",
+        "`tests/fixtures/reports/`): every key path a report of these jobs holds, with its JSON type and",
+        "an example value. What each key means, and the keys of sections these examples do not",
+        "produce (self-calibration, lines, data snooping, comparisons): [The report](../report-contract.md),",
+        "which documents every key listed here (a test checks it).",
+        "",
+        "| key path | type | example |",
+        "|---|---|---|",
+    ]
+    for path, (kind, example) in report_key_paths().items():
+        shown = "" if example is None else _code(round(example, 6) if isinstance(example, float) else example)
+        lines.append(f"| `{path}` | {names.get(kind, kind)} | {_cell(shown)[:80]} |")
+    return "\n".join(lines) + "\n"
+
+
 # ---------------------------------------------------------------- all -----------------------
 def pages() -> dict[str, str]:
     """Every generated page: path under docs/ -> Markdown."""
@@ -378,6 +427,7 @@ def pages() -> dict[str, str]:
         "reference/http-api.md": http_page(),
         "reference/settings.md": settings_page(),
         "reference/platform-models.md": platform_models_page(),
+        "reference/report-keys.md": report_keys_page(),
     }
 
 

@@ -44,7 +44,7 @@ def test_the_site_builds_strictly(tmp_path: Path) -> None:
         cwd=ROOT, capture_output=True, text=True, timeout=600, env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    for page in ("index.html", "tutorials/prism-triplet.html", "reference/job.html", "reference/cli.html",
+    for page in ("index.html", "tutorials/prism-triplet.html", "reference/job.html", "reference/cli.html", "reference/report-keys.html",
                  "reference/http-api.html", "reference/settings.html", "reference/platform-models.html"):
         assert (out / page).is_file(), f"{page} not built"
     assert "PBA_QUEUE" in (out / "reference" / "settings.html").read_text()
@@ -174,6 +174,36 @@ def test_the_coverage_checks_have_teeth(generated: dict[str, str]) -> None:
     assert missing_settings(settings) == ["PBA_LEASE_S"]
     models = generated["reference/platform-models.md"].replace("## PASS-J2\n", "## pass\n")
     assert missing_models(models) == ["PASS-J2"]
+
+
+def test_every_report_key_is_listed_and_in_the_contract(generated: dict[str, str]) -> None:
+    """Every key of the pinned example reports has its row in the generated page, and the
+    hand-written contract (docs/report-contract.md) names it."""
+    import gzip
+    import json
+
+    keys: set[str] = set()
+    paths: set[str] = set()
+
+    def walk(node: object, path: str) -> None:
+        if isinstance(node, dict):
+            for key, value in node.items():
+                keys.add(key)
+                paths.add(f"{path}/{key}" if path else key)
+                walk(value, f"{path}/{key}" if path else key)
+        elif isinstance(node, list):
+            for item in node:
+                walk(item, path + "[]")
+
+    fixtures = sorted((ROOT / "tests" / "fixtures" / "reports").glob("*.report.json.gz"))
+    assert fixtures
+    for fixture in fixtures:
+        with gzip.open(fixture, "rt") as f:
+            walk(json.load(f), "")
+    page = generated["reference/report-keys.md"]
+    assert [p for p in sorted(paths) if f"| `{p}` |" not in page] == []
+    contract = (ROOT / "docs" / "report-contract.md").read_text()
+    assert sorted(k for k in keys if f'"{k}"' not in contract) == []
 
 
 def test_units_come_from_the_names() -> None:
