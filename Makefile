@@ -1,12 +1,14 @@
 # make serve  - local single-user server on http://127.0.0.1:8000 (SQLite, local worker pool)
 # make test   - bootstrap .venv (and the system pieces the tests need), lint (ruff), check the
 #               architecture contracts (lint-imports, docs/architecture.md) and run the whole suite
+#               (tests/test_docs.py builds the documentation site strictly and runs its tutorials)
+# make docs   - the documentation site (MkDocs, strict) into site/; `pba serve` serves it under /docs-site
 PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: serve test lint venv services system-deps bench clean openapi
+.PHONY: serve test lint venv services system-deps bench clean openapi docs
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -43,6 +45,10 @@ lint: $(STAMP)
 	$(BIN)/ruff check solver service tests bench scripts
 	$(BIN)/lint-imports
 
+# the documentation site: docs/ plus the reference pages generated from the code (scripts/gen_reference.py)
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict
+
 openapi: $(STAMP)
 	$(BIN)/python -m service.openapi_dump > openapi.yaml
 
@@ -50,4 +56,4 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_solver.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build site *.egg-info .pytest_cache

@@ -15,6 +15,7 @@ from types import ModuleType
 from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.routing import APIRoute
+from fastapi.staticfiles import StaticFiles
 
 from service.auth import local_user
 from service.cameras import ensure_presets
@@ -129,6 +130,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for module in ROUTER_MODULES:
         app.include_router(module.router)
         app.state.router_modules.append(module.__name__.rpartition(".")[2])
+    docs_site = settings.resolved_docs_site_dir
+    if docs_site is not None:  # the documentation site (make docs), static files as built
+        app.mount("/docs-site", StaticFiles(directory=docs_site, html=True), name="docs-site")
     # middlewares: the last added runs first
     app.add_middleware(ServicesContextMiddleware)
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)

@@ -97,7 +97,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     us.add_argument("--json", action="store_true", help="JSON instead of a table")
     us.set_defaults(func=cmd_usage)
     rk = admin_sub.add_parser("revoke-key", help="revoke a key by its prefix (pba_<prefix>_...)")
-    rk.add_argument("prefix")
+    rk.add_argument("prefix", help="the key's prefix (the part after pba_ up to the next _)")
     rk.set_defaults(func=cmd_revoke_key)
     admin.set_defaults(func=lambda args: admin.print_help() or 2)
 

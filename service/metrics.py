@@ -9,7 +9,7 @@ backend and agree between API processes and across restarts.
   shrinks when jobs are deleted from the store, which Prometheus reads as a counter reset);
 * ``pba_user_jobs_total{user,status}``, ``pba_user_cpu_seconds_total{user}``,
   ``pba_user_solve_seconds_total{user}``: the per-user accounting of finished runs
-  (``user_usage``, kept when jobs are pruned; README "Fair sharing");
+  (``user_usage``, kept when jobs are pruned; docs/how-to/lab-server.md "Fair sharing");
 * ``pba_user_active_jobs{user,status}``: each user's accepted and running jobs now.
 """
 

@@ -1,5 +1,5 @@
 """Retention: deleting finished jobs past ``PBA_JOB_RETENTION_DAYS`` and the per-user
-storage quota (``PBA_USER_STORAGE_QUOTA_MB``); README "Retention".
+storage quota (``PBA_USER_STORAGE_QUOTA_MB``); docs/how-to/lab-server.md "Retention".
 
 * :func:`prune` deletes successful, failed and dismissed jobs that finished more than the
   given number of days ago, with their inputs and reports; accepted and running jobs are

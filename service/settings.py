@@ -1,7 +1,8 @@
 """Server settings: one pydantic-settings object read from ``PBA_*`` environment variables.
 
-Every setting is documented in README's settings table (``make openapi`` does not touch it;
-keep the two in step). Units are in the names (``_s`` seconds, ``_bytes`` bytes).
+Every setting is documented by its ``description``, from which the documentation's settings
+reference is generated (scripts/gen_reference.py; tests/test_docs.py checks every setting has
+its entry). Units are in the names (``_s`` seconds, ``_bytes`` bytes).
 """
 
 from __future__ import annotations
@@ -88,7 +89,7 @@ class Settings(BaseSettings):
     cancel_poll_interval_s: float = Field(0.2, gt=0, description="cancel flag reads, at most every")
     sse_interval_s: float = Field(0.5, gt=0, description="SSE stream's status poll interval")
     shutdown_grace_s: float = Field(10.0, ge=0, description="stop: wait for workers this long")
-    # -- fair sharing (README "Fair sharing") -------------------------------------------
+    # -- fair sharing (docs/how-to/lab-server.md "Fair sharing") -------------------------------------------
     max_running_per_user: int = Field(
         0,
         ge=0,
@@ -105,7 +106,7 @@ class Settings(BaseSettings):
         le=16,
         description="local workers beside PBA_WORKERS that only take small-lane jobs (none when PBA_WORKERS=0)",
     )
-    # -- distributed queue (PBA_QUEUE=celery; docs: README "Scaling out") -----------------
+    # -- distributed queue (PBA_QUEUE=celery; docs/how-to/scale-out.md) -----------------
     broker_url: str = Field(
         "redis://127.0.0.1:6379/0", description="Celery broker URL (PBA_QUEUE=celery)"
     )
@@ -133,7 +134,7 @@ class Settings(BaseSettings):
     sweep_interval_s: float = Field(
         10.0, gt=0, description="how often expired leases are looked for (API and workers)"
     )
-    # -- retention (README "Retention") ----------------------------------------------------
+    # -- retention (docs/how-to/lab-server.md "Retention") ----------------------------------------------------
     job_retention_days: float = Field(
         0.0, ge=0, description="finished jobs older than this are deleted (0: keep forever)"
     )
@@ -150,6 +151,11 @@ class Settings(BaseSettings):
     )
     log_level: str = Field("INFO", description="logging level")
     log_format: Literal["json", "text"] = Field("json", description="log line format")
+    docs_site_dir: Path | None = Field(
+        None,
+        description="built documentation site served under /docs-site (make docs; default: the "
+        "site/ folder of a source checkout, when it has been built)",
+    )
 
     @field_validator("cors_origins", "trusted_hosts", mode="before")
     @classmethod
@@ -164,6 +170,12 @@ class Settings(BaseSettings):
         if self.database_url:
             return self.database_url
         return f"sqlite:///{(self.data_dir / 'pba.sqlite3').resolve()}"
+
+    @property
+    def resolved_docs_site_dir(self) -> Path | None:
+        """The built documentation site to serve, or None when there is none to serve."""
+        folder = self.docs_site_dir or Path(__file__).resolve().parents[1] / "site"
+        return folder if (folder / "index.html").is_file() else None
 
     @property
     def auth_required(self) -> bool:

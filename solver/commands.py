@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("validate", help="check a job document without solving it")
-    p.add_argument("job", type=Path)
+    p.add_argument("job", type=Path, help="job document (JSON)")
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("models", help="list the platform models and their parameters")
@@ -49,10 +49,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_preanalysis)
 
     p = sub.add_parser("compare", help="adjust one job with several platform models side by side")
-    p.add_argument("job", type=Path)
+    p.add_argument("job", type=Path, help="job document (JSON)")
     p.add_argument("--models", required=True, help="comma-separated, e.g. K1,K2,J2-1,J2-2,ON1,ON2,P1,P2")
     p.add_argument("-o", "--output", type=Path, help="comparison report (JSON)")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_compare)
 
 

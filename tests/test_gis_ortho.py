@@ -1,8 +1,8 @@
 """Orthorectification (``pba ortho``, solver/gis/ortho.py) of a synthetic raster
 (``pba simulate --raster``, solver/simulate/raster.py): every marked target is found in the
 orthoimage within 0.5 GSD of its ground coordinates, with the rigorous model and with the
-fitted RPC through GDAL's warper (rasterio's reproject with RPCs: the ``gdalwarp -rpc`` of the
-README); the two orthoimages agree."""
+fitted RPC through GDAL's warper (rasterio's reproject with RPCs: the ``gdalwarp -rpc`` of
+docs/how-to/export-gis.md); the two orthoimages agree."""
 
 from __future__ import annotations
 
@@ -98,7 +98,7 @@ def test_rigorous_and_rpc_orthoimages_agree(ortho_inputs):
 
 
 def test_the_readme_gdalwarp_with_the_exported_sidecar(ortho_inputs):
-    """What README's ``gdalwarp -rpc -to RPC_DEM=dem.tif -t_srs EPSG:32722 -tr 20 20 -r bilinear``
+    """What docs/how-to/export-gis.md's ``gdalwarp -rpc -to RPC_DEM=dem.tif -t_srs EPSG:32722 -tr 20 20 -r bilinear``
     does, through rasterio: GDAL reads the exported scene_RPC.TXT beside the raster itself; the
     result is the ``--method rpc`` orthoimage (same grid, same pixels)."""
     from rasterio.warp import Resampling, reproject

@@ -229,7 +229,7 @@ def _small_rpc_image(bias: dict[str, float]) -> RpcImage:
 def test_ortho_of_an_rpc_image_rigorous_path_against_gdal_warper(tmp_path) -> None:
     """``pba ortho`` of an RPC image: our path (the adjusted model, RPC + bias, sampled by the
     ortho kernel) and GDAL's warper on the refined RPC give the same orthoimage of a smooth
-    raster: mean |difference| under 0.5 grey levels over the common pixels (the README's
+    raster: mean |difference| under 0.5 grey levels over the common pixels (docs/how-to/export-gis.md's
     rigorous-vs-RPC figure for a 4-chip image); without the bias the orthoimage's footprint
     moves."""
     from solver.gis.ortho import orthorectify

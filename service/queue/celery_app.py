@@ -5,7 +5,7 @@ Messages carry only a job id; the store holds everything else (inputs, status, p
 cancel flag, report), so any worker that reaches the broker and the database can run any job.
 A message is a wake-up token: the run that receives it takes over an orphaned job if there is
 one, else claims the job the fair-share policy picks (:func:`service.store.leases.
-claim_for_message`; README "Fair sharing"), which need not be the job the message names.
+claim_for_message`; docs/how-to/lab-server.md "Fair sharing"), which need not be the job the message names.
 
 * **Delivery**: ``acks_late`` + ``reject_on_worker_lost``: a message is acknowledged when its
   run ends; if the pool process dies (``kill -9``, SIGSEGV, glog FATAL in a solve) Celery puts

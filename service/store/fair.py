@@ -1,4 +1,4 @@
-"""Which accepted job a free worker takes next: the fair-share policy (README "Fair sharing").
+"""Which accepted job a free worker takes next: the fair-share policy (docs/how-to/lab-server.md "Fair sharing").
 
 The claim order is a key per waiting (owner, lane) head, smallest first:
 

@@ -247,7 +247,7 @@ def claim_for_message(
     small_only: bool = False,
 ) -> Claim:
     """What the run ``worker`` holding the message of ``job_id`` does: the message is a
-    wake-up token, not an assignment (README "Fair sharing").
+    wake-up token, not an assignment (docs/how-to/lab-server.md "Fair sharing").
 
     1. the named job, or any running job whose holder is known dead, is taken over at once
        (:func:`claim_run`: the delivery guarantees of a redelivered message are unchanged);

@@ -1,7 +1,7 @@
 """How job payloads (execute inputs, reports) are stored: zlib-compressed UTF-8 JSON.
 
 A report is mostly per-observation rows of numbers in repeated keys, which deflate shrinks
-several-fold (README "Retention" gives a measured ratio). Rows written before revision 0003
+several-fold (docs/how-to/lab-server.md "Retention" gives a measured ratio). Rows written before revision 0003
 hold plain JSON text in the old columns; :func:`unpack` reads either form.
 """
 

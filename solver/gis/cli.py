@@ -1,5 +1,5 @@
 """``pba ground-to-image``, ``pba image-to-ground``, ``pba export-rpc``, ``pba export-geojson``:
-results of a finished job for GIS tools (README "Results for GIS tools")."""
+results of a finished job for GIS tools (docs/how-to/export-gis.md)."""
 
 from __future__ import annotations
 

@@ -8,13 +8,14 @@ from __future__ import annotations
 import csv
 import io
 import json
+import os
 import re
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
-from pba_service_harness import Server, load_example
+from pba_service_harness import ROOT, Server, load_example
 from playwright.sync_api import expect
 
 pytestmark = pytest.mark.browser
@@ -91,6 +92,24 @@ def wait_plots(page: Any, n: int) -> list[str]:
     page.wait_for_function(PLOTS_LOADED, arg=n, timeout=PLOTS_MS)
     expect(page.locator("#plots .plot-error")).to_have_count(0)
     return page.eval_on_selector_all("#plots img", LOADED_KINDS)
+
+
+# the picture of the web page on the README and the documentation's home page
+FRONT_PAGE_PICTURE = "web-page.jpg"
+
+
+def write_front_page_picture(page: Any, artifacts: Path) -> None:
+    """The result of the example triplet as the front page shows it: a JPEG of one screen from
+    the top of the result view (small enough to commit) in test-artifacts/browser/; with
+    ``PBA_DOCS_SCREENSHOT=1`` also into docs/img/, the committed copy (run this test so to
+    refresh it)."""
+    page.evaluate("document.getElementById('result').scrollIntoView()")
+    targets = [artifacts / FRONT_PAGE_PICTURE]
+    if os.environ.get("PBA_DOCS_SCREENSHOT") == "1":
+        targets.append(ROOT / "docs" / "img" / FRONT_PAGE_PICTURE)
+    for target in targets:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(target), type="jpeg", quality=70, scale="css")
 
 
 def test_submit_the_example_triplet_and_read_the_result(
@@ -170,6 +189,7 @@ def test_submit_the_example_triplet_and_read_the_result(
     page.screenshot(path=str(artifacts / "triplet-page.png"), full_page=True)
     page.locator("#result").screenshot(path=str(artifacts / "triplet-result.png"))
     page.locator("#adjustment").screenshot(path=str(artifacts / "triplet-tables.png"))
+    write_front_page_picture(page, artifacts)
 
 
 def test_cancel_a_running_job(

@@ -2,7 +2,7 @@
 redis and postgres, each with a health check and the volumes it needs. No Docker engine
 runs here, so the images are never built or started by the tests; the compose file is
 checked structurally, and with ``docker compose config`` wherever the compose plugin is
-installed (README, "Deploying with Docker Compose")."""
+installed (docs/how-to/scale-out.md, "Deploying with Docker Compose")."""
 
 from __future__ import annotations
 
