@@ -8,15 +8,16 @@ into the LGS inside the kernel (:mod:`solver.kernels`).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
 from solver.geometry.geodesy import A_WGS84_M, E2_WGS84, LocalFrame, to_ecef
 from solver.geometry.rpc import RPC
-from solver.geometry.sensor import camera_chip
+from solver.geometry.sensor import chip_indices, chip_of_index
 from solver.kernels import N_COEF, N_KEPLER_CONST, N_OBS_CONST
 from solver.kernels.rpc import KC_A, KC_E2, RPC_LEN, RPC_START
-from solver.observations.cameras import build_cameras, chip_ids
+from solver.observations.cameras import build_cameras
 from solver.observations.line_data import build_lines, control_line_points_ecef, lines_ecef
 from solver.observations.passes import build_passes
 from solver.observations.passes import parameter_names as pass_names
@@ -84,6 +85,23 @@ def ground_points_ecef(job: Job) -> dict[str, np.ndarray]:
     return out
 
 
+def _chip_indices(job: Job, images: list, img_index: dict[str, int]) -> np.ndarray:
+    """Chip index (in its camera's chips) of every observation, computed per camera in one
+    vectorised pass (validation guarantees every column is on a chip; RPC images: 0)."""
+    by_camera: dict[int, list[int]] = {}
+    cams: dict[int, Any] = {}
+    for k, o in enumerate(job.observations):
+        cam = images[img_index[o.image]].camera
+        if cam is not None:
+            by_camera.setdefault(id(cam), []).append(k)
+            cams[id(cam)] = cam
+    out = np.zeros(len(job.observations), dtype=np.int64)
+    for key, ks in by_camera.items():
+        obs = [job.observations[k] for k in ks]
+        out[ks] = chip_indices(cams[key], np.array([o.column for o in obs], dtype=float), [o.chip for o in obs])
+    return out
+
+
 def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentState:
     """Assemble arrays from a job that passed :func:`solver.engine.validate.validate_job`.
 
@@ -141,6 +159,7 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
     obs_pt = np.empty(n, dtype=np.int64)
     oc = np.empty((n, N_OBS_CONST))
     chips: list[str] = []
+    chip_of_obs = _chip_indices(job, images, img_index)
     for k, o in enumerate(job.observations):
         im = images[img_index[o.image]]
         cam = im.camera
@@ -150,7 +169,7 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
             oc[k] = (o.line, o.column, o.sigma_px, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             chips.append(RPC_CHIP)
             continue
-        chip_id, dx, dy, centre = camera_chip(cam, o.column, o.chip)
+        chip_id, dx, dy, centre = chip_of_index(cam, int(chip_of_obs[k]))
         x0, y0 = cam.principal_point_mm
         obs_img[k] = im.index
         obs_pt[k] = pt_index[o.point]
@@ -170,9 +189,7 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
     cam_index = {c.id: c.index for c in cams}
     # RPC images have no camera: index -1 (the kernels never read a camera for them)
     obs_cam = np.array([cam_index[images[i].camera.id] if images[i].camera else -1 for i in obs_img], dtype=np.int64)
-    obs_chip = np.array(
-        [chip_ids(images[i].camera).index(c) if images[i].camera else 0 for i, c in zip(obs_img, chips)], dtype=np.int64
-    )
+    obs_chip = chip_of_obs  # the index in chip_ids(camera) (chip ids are unique; RPC images: 0)
     obs = Observations(obs_img, obs_pt, oc, chips, np.arange(n), obs_cam, obs_chip)
     lines = build_lines(job, frame, images, line_ecef) if job.lines else None
     problem = AdjustmentState(job, frame, images, points, obs, lines)

@@ -57,6 +57,15 @@ def camera_table(problem: AdjustmentState) -> np.ndarray:
     return tab
 
 
+def chip_lengths(problem: AdjustmentState) -> np.ndarray:
+    """Chip lengths (mm) indexed [camera, chip]; the last row (camera -1: RPC images) is 0."""
+    width = max([1] + [len(c.chip_len_mm) for c in problem.cameras])
+    out = np.zeros((len(problem.cameras) + 1, width))
+    for c in problem.cameras:
+        out[c.index, : len(c.chip_len_mm)] = c.chip_len_mm
+    return out
+
+
 def records(
     problem: AdjustmentState,
     rows: np.ndarray,
@@ -72,8 +81,7 @@ def records(
     rec[:, REC_IMG_SLOT] = -1 if img_slot is None else img_slot
     rec[:, REC_CAM_SLOT] = -1 if cam_slot is None else cam_slot
     rec[:, REC_CHIP] = obs.chip_idx[rows]
-    lens = np.array([problem.cameras[c].chip_len_mm[k] if c >= 0 else 0.0 for c, k in zip(obs.cam[rows], obs.chip_idx[rows])])
-    rec[:, REC_CHIP_LEN] = lens
+    rec[:, REC_CHIP_LEN] = chip_lengths(problem)[obs.cam[rows], obs.chip_idx[rows]]
     rec[:, REC_OC:REC_PASS_SLOT] = obs.oc[rows]
     rec[:, REC_PASS_SLOT] = -1 if pass_slot is None else pass_slot
     return np.ascontiguousarray(rec)

@@ -16,7 +16,7 @@ from pyproj.exceptions import ProjError
 
 from solver.errors import JobError, Problem
 from solver.geometry.geodesy import UnknownCRSError, ecef_to_geodetic, parse_crs, to_ecef
-from solver.geometry.sensor import camera_chip, in_image_columns
+from solver.geometry.sensor import camera_chip, chip_indices, in_image_columns
 from solver.observations import registry
 from solver.observations.ephemeris import image_state
 from solver.platforms import HELD, PlatformModel, get_model
@@ -333,6 +333,23 @@ def _crs_problems(job: Job) -> list[Problem]:
     return problems
 
 
+def _columns_on_chips(job: Job, images: dict, cameras: dict) -> np.ndarray:
+    """Per observation: True where its column is on a chip of its image's camera (the rule of
+    :func:`solver.geometry.sensor.camera_chip`, all observations of a camera at once); only the
+    others go through :func:`_column_problems` for their located message."""
+    by_camera: dict[str, list[int]] = defaultdict(list)
+    for k, o in enumerate(job.observations):
+        im = images.get(o.image)
+        if im is not None and im.camera in cameras:
+            by_camera[im.camera].append(k)
+    on_chip = np.zeros(len(job.observations), dtype=bool)
+    for cam_id, ks in by_camera.items():
+        obs = [job.observations[k] for k in ks]
+        found = chip_indices(cameras[cam_id], np.array([o.column for o in obs], dtype=float), [o.chip for o in obs])
+        on_chip[ks] = found >= 0
+    return on_chip
+
+
 def _observation_problems(job: Job, cameras: dict[str, Camera]) -> tuple[list[Problem], dict[str, set[str]], Counter[str]]:
     """References, duplicates and image bounds of the image points: (problems, the images
     that see each point, the adjusted observations per image)."""
@@ -342,6 +359,7 @@ def _observation_problems(job: Job, cameras: dict[str, Camera]) -> tuple[list[Pr
     seen_pairs: set[tuple[str, str]] = set()
     images_of_point: dict[str, set[str]] = defaultdict(set)
     obs_per_image: Counter[str] = Counter()
+    on_chip = _columns_on_chips(job, images, cameras)
     for k, o in enumerate(job.observations):
         loc = ("observations", k)
         bad = False
@@ -371,7 +389,7 @@ def _observation_problems(job: Job, cameras: dict[str, Camera]) -> tuple[list[Pr
                     )
                 )
                 continue
-            column_issues = _column_problems(cam, o, k)
+            column_issues = [] if on_chip[k] else _column_problems(cam, o, k)
             if column_issues:
                 problems += column_issues
                 continue

@@ -85,3 +85,38 @@ def camera_chip(camera: Camera, column: float, chip: str | None = None) -> tuple
             raise KeyError(column)
     c = camera.chips[k]
     return c.id, c.dx_mm, c.dy_mm, c.first_column + (c.columns - 1) / 2.0
+
+
+def chip_indices(camera: Camera, columns: np.ndarray, chips: Sequence[str | None]) -> np.ndarray:
+    """:func:`camera_chip` for many observations of one camera at once: the index of each
+    observation's chip in ``camera.chips`` (0 for a camera without chips), -1 where
+    :func:`camera_chip` raises KeyError (column outside the delivered image, on no chip, not on
+    the named chip, or an unknown chip name). ``chips`` are the names given (None: the rule)."""
+    c = np.asarray(columns, dtype=float)
+    inside = (c >= -0.5) & (c <= (camera.columns or 0) - 0.5)
+    named = np.array([ch is not None for ch in chips], dtype=bool)
+    if not camera.chips:
+        known = np.array([ch in (None, "1") for ch in chips], dtype=bool)
+        return np.where(inside & known, 0, -1).astype(np.int64)
+    firsts = [ch.first_column for ch in camera.chips]
+    widths = [ch.columns for ch in camera.chips]
+    k = np.asarray(chip_index_of_column(firsts, widths, c), dtype=np.int64).reshape(c.shape)
+    if named.any():
+        ids = {ch.id: i for i, ch in enumerate(camera.chips)}
+        given = np.array([ids.get(ch, -1) if ch is not None else -1 for ch in chips], dtype=np.int64)
+        ok = given >= 0
+        on_chip = np.zeros(c.shape, dtype=bool)
+        if ok.any():
+            f = np.asarray(firsts, dtype=float)[given[ok]]
+            w = np.asarray(widths, dtype=float)[given[ok]]
+            on_chip[ok] = (c[ok] >= f - 0.5) & (c[ok] <= f + w - 0.5)
+        k = np.where(named, np.where(on_chip, given, -1), k)
+    return np.where(inside, k, -1).astype(np.int64)
+
+
+def chip_of_index(camera: Camera, k: int) -> tuple[str, float, float, float]:
+    """(chip id, dx_mm, dy_mm, centre column) of chip ``k`` of :func:`chip_indices`."""
+    if not camera.chips:
+        return "1", 0.0, 0.0, ((camera.columns or 0) - 1) / 2.0
+    c = camera.chips[k]
+    return c.id, c.dx_mm, c.dy_mm, c.first_column + (c.columns - 1) / 2.0
