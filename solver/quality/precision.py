@@ -101,14 +101,22 @@ def intersection_cofactor(blocks: RayBlocks, q_ff: np.ndarray | None, axes: tupl
 def error_ellipse(cov_en: np.ndarray) -> dict[str, float]:
     """Horizontal standard error ellipse of a 2 x 2 (east, north) covariance, m: semi-axes and
     the azimuth of the major axis (degrees clockwise from north)."""
-    w, v = np.linalg.eigh(0.5 * (cov_en + cov_en.T))
-    major = v[:, 1]
-    az = math.degrees(math.atan2(major[0], major[1])) % 180.0
-    return {
-        "semi_major_m": float(math.sqrt(max(w[1], 0.0))),
-        "semi_minor_m": float(math.sqrt(max(w[0], 0.0))),
-        "azimuth_deg": float(az),
-    }
+    return error_ellipses(np.asarray(cov_en)[None])[0]
+
+
+def error_ellipses(cov_en: np.ndarray) -> list[dict[str, float]]:
+    """:func:`error_ellipse` of a stack (n, 2, 2) of covariances in one LAPACK call."""
+    c = np.asarray(cov_en, dtype=float)
+    if len(c) == 0:
+        return []
+    w, v = np.linalg.eigh(0.5 * (c + np.swapaxes(c, 1, 2)))
+    az = np.degrees(np.arctan2(v[:, 0, 1], v[:, 1, 1])) % 180.0  # the major axis: column 1
+    major = np.sqrt(np.maximum(w[:, 1], 0.0))
+    minor = np.sqrt(np.maximum(w[:, 0], 0.0))
+    return [
+        {"semi_major_m": float(a), "semi_minor_m": float(b), "azimuth_deg": float(z)}
+        for a, b, z in zip(major, minor, az)
+    ]
 
 
 def sigmas_enu(cov: np.ndarray) -> dict[str, float]:

@@ -22,7 +22,7 @@ from solver.observations.family import ReportContext
 from solver.observations.passes import attitude_groups
 from solver.quality.leave_one_out import leave_one_out
 from solver.quality.parsimony import high_correlations, implausible_sigmas
-from solver.quality.precision import checkpoint_precision, error_ellipse
+from solver.quality.precision import checkpoint_precision, error_ellipses
 from solver.report.checkpoints import compute_checkpoints
 from solver.report.statistics import chi2_test
 from solver.schema.settings import Settings
@@ -305,12 +305,13 @@ def _points_report(problem: AdjustmentState, cov: Covariance | None, var_factor:
     ecef = problem.frame.to_ecef(np.array([p.xyz for p in pts]))
     geo = ecef_to_geodetic(ecef)
     out = []
+    with_cov = [p.index for p in pts if cov is not None and p.index in cov.points]
+    ellipses = dict(zip(with_cov, error_ellipses(np.array([cov.points[i][:2, :2] for i in with_cov]).reshape(-1, 2, 2) * var_factor)))
     for p, e, g in zip(pts, ecef, geo):
         sigma = None
-        ellipse = None
-        if cov is not None and p.index in cov.points:
+        ellipse = ellipses.get(p.index)
+        if ellipse is not None:
             sigma = [float(math.sqrt(max(v, 0.0) * var_factor)) for v in np.diag(cov.points[p.index])]
-            ellipse = error_ellipse(cov.points[p.index][:2, :2] * var_factor)
         item = {
             "id": p.id,
             "lgs_m": [float(x) for x in p.xyz],
