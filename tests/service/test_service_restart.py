@@ -30,7 +30,8 @@ def medium_doc(big_doc: dict[str, Any]) -> dict[str, Any]:
 def test_graceful_restart_with_queued_jobs(
     tmp_path: Path, medium_doc: dict[str, Any], small_doc: dict[str, Any]
 ) -> None:
-    first = Server(tmp_path, workers=1).start()
+    # no small-job lane: the queued jobs are small, and a reserved worker would run them at once
+    first = Server(tmp_path, workers=1, small_job_workers=0).start()
     try:
         with first.client() as c:  # local single-user mode: no key
             running = submit_async(c, medium_doc)
