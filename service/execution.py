@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from service.problems import problem_entries, pydantic_errors
-from service.processes import MODEL_COMPARISON, PREANALYSIS
+from service.processes import process
 from service.states import JobStatus
 from service.store import JobRecord, Store
 
@@ -121,17 +121,8 @@ class JobHooks:
 
 
 def solve(document: dict[str, Any], process_id: str, hooks: JobHooks) -> dict[str, Any]:
-    """Call the solver's entry point for a process."""
-    import solver.api
-
-    if process_id == MODEL_COMPARISON:
-        models = document.get("models") or document["job"].get("options", {}).get("models", [])
-        return solver.api.compare(
-            document["job"], models, progress=hooks.progress, cancel=hooks.cancel
-        )
-    if process_id == PREANALYSIS:
-        return solver.api.preanalyse(document["job"])
-    return solver.api.run(document["job"], progress=hooks.progress, cancel=hooks.cancel)
+    """Run the stored document as its process says (service.processes)."""
+    return process(process_id).run(document, hooks.progress, hooks.cancel)
 
 
 def run_claimed_job(
