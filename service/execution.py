@@ -21,7 +21,7 @@ from typing import Any, Callable
 
 from service.problems import problem_entries, pydantic_errors
 from service.processes import process
-from service.states import JobStatus
+from service.states import FailureCode, JobStatus
 from service.store import JobRecord, Store
 
 log = logging.getLogger("pba.worker")
@@ -163,7 +163,7 @@ def run_claimed_job(
             ok = store.fail(
                 job.id,
                 f"time limit of {limits.job_time_limit_s:g} s exceeded; the solve was stopped",
-                {"status": 500, "code": "time_limit"},
+                {"code": FailureCode.time_limit},
                 worker=worker,
                 usage=usage(),
             )
@@ -178,7 +178,7 @@ def run_claimed_job(
         ok = store.fail(
             job.id,
             str(exc) if isinstance(exc, UnusableSolution) else f"invalid job: {exc}",
-            {"status": 422, "code": exc.code, "errors": problem_entries(problems)},
+            {"code": exc.code, "errors": problem_entries(problems)},
             worker=worker,
             usage=usage(),
         )
@@ -189,7 +189,6 @@ def run_claimed_job(
             job.id,
             "invalid job document",
             {
-                "status": 422,
                 "code": "invalid-input",
                 "errors": pydantic_errors(exc.errors(), ("inputs", "job")),
             },
@@ -202,7 +201,7 @@ def run_claimed_job(
         ok = store.fail(
             job.id,
             f"internal solver error: {type(exc).__name__}: {exc}",
-            {"status": 500, "code": "internal"},
+            {"code": FailureCode.internal},
             worker=worker,
             usage=usage(),
         )
@@ -215,7 +214,7 @@ def run_claimed_job(
         ok = store.fail(
             job.id,
             f"the report could not be serialized: {exc}",
-            {"status": 500, "code": "internal"},
+            {"code": FailureCode.internal},
             worker=worker,
             usage=spent,
         )

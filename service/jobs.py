@@ -113,8 +113,7 @@ def results_text(rec: JobRecord) -> str:
             return text
         raise ResultNotReady("the job's results are missing")
     if rec.status == JobStatus.failed:
-        err = rec.error or {}
-        raise JobFailed(rec.message, int(err.get("status", 500)), err.get("errors", []))
+        raise JobFailed(rec.message, rec.error)
     if rec.status == JobStatus.dismissed:
         raise ResultNotReady("the job was dismissed; it has no results")
     raise ResultNotReady(f"the job is {rec.status.value}; results are not ready yet")

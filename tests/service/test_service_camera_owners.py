@@ -217,6 +217,6 @@ def test_camera_from_a_failed_job_is_a_conflict_not_the_jobs_error(
     job_id, cam_id = r.json()["jobID"], triplet_doc["cameras"][0]["id"]
     store = c.app.state.services.store  # type: ignore[attr-defined]
     assert store.claim(job_id, "w") is not None
-    assert store.fail(job_id, "the worker process running this job was killed by SIGKILL", {"status": 500})
+    assert store.fail(job_id, "the worker process running this job was killed by SIGKILL", {"code": "worker_died"})
     request = {"job_id": job_id, "camera": cam_id, "name": "calib"}
     assert_problem(c.post("/cameras/from-job", json=request, headers=h["bob"]), 409)
