@@ -20,6 +20,7 @@ from pydantic import ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from service.problems import job_error_entries, pydantic_errors
+from service.states import FailureCode
 from solver.errors import JobError
 
 log = logging.getLogger("pba.service")
@@ -121,14 +122,28 @@ class InvalidInput(ServiceError):
     status, code, title = 422, "invalid-input", "Invalid input"
 
 
+def failed_job_status(error: dict[str, Any] | None) -> int:
+    """HTTP status of a failed job's results, from the code its stored error keeps: 500 when
+    the server failed it (:class:`service.states.FailureCode`, or no code recorded), 422 when
+    its content did (a solver problem code, ``invalid-input``). Errors stored before codes
+    alone were kept carry their ``status``, which is honoured."""
+    error = error or {}
+    code = error.get("code")
+    if code is None:
+        legacy = error.get("status")
+        return legacy if isinstance(legacy, int) and 400 <= legacy <= 599 else 500
+    return 500 if code in set(FailureCode) else 422
+
+
 class JobFailed(ServiceError):
-    """Results asked of a failed job: the job's own error, with the status it recorded."""
+    """Results asked of a failed job: the job's own error and message, with the status
+    :func:`failed_job_status` gives it."""
 
     code, title = "job-failed", "The job failed"
 
-    def __init__(self, detail: str, status: int, errors: Sequence[dict[str, Any]] = ()) -> None:
-        super().__init__(detail, errors)
-        self.status = status
+    def __init__(self, detail: str, error: dict[str, Any] | None) -> None:
+        super().__init__(detail, (error or {}).get("errors", []))
+        self.status = failed_job_status(error)
 
 
 class Unauthorized(ServiceError):

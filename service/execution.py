@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from service.problems import problem_entries, pydantic_errors
-from service.processes import MODEL_COMPARISON, PREANALYSIS
-from service.states import JobStatus
+from service.processes import process
+from service.states import FailureCode, JobStatus
 from service.store import JobRecord, Store
 
 log = logging.getLogger("pba.worker")
@@ -121,17 +121,8 @@ class JobHooks:
 
 
 def solve(document: dict[str, Any], process_id: str, hooks: JobHooks) -> dict[str, Any]:
-    """Call the solver's entry point for a process."""
-    import solver.api
-
-    if process_id == MODEL_COMPARISON:
-        models = document.get("models") or document["job"].get("options", {}).get("models", [])
-        return solver.api.compare(
-            document["job"], models, progress=hooks.progress, cancel=hooks.cancel
-        )
-    if process_id == PREANALYSIS:
-        return solver.api.preanalyse(document["job"])
-    return solver.api.run(document["job"], progress=hooks.progress, cancel=hooks.cancel)
+    """Run the stored document as its process says (service.processes)."""
+    return process(process_id).run(document, hooks.progress, hooks.cancel)
 
 
 def run_claimed_job(
@@ -172,7 +163,7 @@ def run_claimed_job(
             ok = store.fail(
                 job.id,
                 f"time limit of {limits.job_time_limit_s:g} s exceeded; the solve was stopped",
-                {"status": 500, "code": "time_limit"},
+                {"code": FailureCode.time_limit},
                 worker=worker,
                 usage=usage(),
             )
@@ -187,7 +178,7 @@ def run_claimed_job(
         ok = store.fail(
             job.id,
             str(exc) if isinstance(exc, UnusableSolution) else f"invalid job: {exc}",
-            {"status": 422, "code": exc.code, "errors": problem_entries(problems)},
+            {"code": exc.code, "errors": problem_entries(problems)},
             worker=worker,
             usage=usage(),
         )
@@ -198,7 +189,6 @@ def run_claimed_job(
             job.id,
             "invalid job document",
             {
-                "status": 422,
                 "code": "invalid-input",
                 "errors": pydantic_errors(exc.errors(), ("inputs", "job")),
             },
@@ -211,7 +201,7 @@ def run_claimed_job(
         ok = store.fail(
             job.id,
             f"internal solver error: {type(exc).__name__}: {exc}",
-            {"status": 500, "code": "internal"},
+            {"code": FailureCode.internal},
             worker=worker,
             usage=usage(),
         )
@@ -224,7 +214,7 @@ def run_claimed_job(
         ok = store.fail(
             job.id,
             f"the report could not be serialized: {exc}",
-            {"status": 500, "code": "internal"},
+            {"code": FailureCode.internal},
             worker=worker,
             usage=spent,
         )

@@ -311,14 +311,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_export_camera(args: argparse.Namespace) -> int:
     """Write the job's camera with the estimated IOP and their covariance, ready to reuse in
     another job (``iop_use``: "fixed", or "weighted" with the same parameters estimated)."""
-    from solver.observations.interior import camera_from_report
+    from solver.observations.interior import NoEstimatedCamera, camera_from_report
 
     job = json.loads(args.job.read_text())
     report = json.loads(args.report.read_text())
     try:
         definition = camera_from_report(job, report, args.camera)
-    except StopIteration:
-        print(f"no estimated interior orientation for camera {args.camera!r} in {args.report}", file=sys.stderr)
+    except NoEstimatedCamera as exc:
+        print(f"{args.report}: {exc}", file=sys.stderr)
         return 2
     text = json.dumps(definition, indent=1)
     if args.output:

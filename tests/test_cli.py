@@ -73,3 +73,16 @@ def test_preanalysis_writes_report_and_prints_predicted_precision(tmp_path: Path
     jp.write_text(json.dumps(job))
     r = subprocess.run(PBA + ["preanalysis", str(jp)], capture_output=True, text=True)
     assert r.returncode == 2 and "planned_point_without_coordinates" in r.stderr
+
+
+def test_export_camera_without_an_estimate_exits_2_naming_the_report(tmp_path: Path):
+    job, _ = single_image_job("K2", seed=1)
+    jp, rp = tmp_path / "job.json", tmp_path / "report.json"
+    jp.write_text(json.dumps(job))
+    rp.write_text(json.dumps({"cameras": []}))  # not a self-calibration report
+    cam = job["cameras"][0]["id"]
+    r = subprocess.run(PBA + ["export-camera", str(jp), str(rp), "--camera", cam], capture_output=True, text=True)
+    assert r.returncode == 2 and str(rp) in r.stderr and "self-calibration" in r.stderr, r.stderr
+    rp.write_text(json.dumps({"cameras": [{"id": cam, "iop": {"df": 0.002}}]}))
+    r = subprocess.run(PBA + ["export-camera", str(jp), str(rp), "--camera", cam], capture_output=True, text=True, check=True)
+    assert json.loads(r.stdout)["iop"]["df"] == 0.002 and json.loads(r.stdout)["id"] == cam
