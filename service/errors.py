@@ -9,7 +9,6 @@ pointer (RFC 6901) to the offending field of the request body.
 from __future__ import annotations
 
 import logging
-import math
 import re
 from typing import Any, Sequence
 
@@ -22,6 +21,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from service.problems import job_error_entries, pydantic_errors
 from service.states import FailureCode
 from solver.errors import JobError
+from solver.report.json_text import json_ready
 
 log = logging.getLogger("pba.service")
 
@@ -198,18 +198,6 @@ class NotReady(ServiceError):
     status, code, title = 503, "not-ready", "Service not ready"
 
 
-def _json_safe(value: Any) -> Any:
-    """``value`` with non-finite floats replaced by None (JSON has no NaN or infinity; a
-    problem detail must never turn a 4xx into a 500)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    return value
-
-
 def problem_response(
     request: Request,
     status: int,
@@ -228,7 +216,7 @@ def problem_response(
         "instance": request.url.path,
     }
     if errors:
-        body["errors"] = [_json_safe(e) for e in list(errors)[:MAX_ERRORS]]
+        body["errors"] = [json_ready(e) for e in list(errors)[:MAX_ERRORS]]  # never NaN: a 4xx must not become a 500
         if len(errors) > MAX_ERRORS:
             body["detail"] += f" ({len(errors)} problems; the first {MAX_ERRORS} are listed)"
     # nosniff here too: a 500 is sent by Starlette's outermost middleware, past ours

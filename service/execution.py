@@ -11,7 +11,6 @@ This module imports the solver; it must only be imported in worker processes.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -23,6 +22,7 @@ from service.problems import problem_entries, pydantic_errors
 from service.processes import process
 from service.states import FailureCode, JobStatus
 from service.store import JobRecord, Store
+from solver.report.json_text import report_json
 
 log = logging.getLogger("pba.worker")
 
@@ -38,29 +38,6 @@ class RunLimits:
     job_time_limit_s: float
     progress_interval_s: float = 0.5
     cancel_poll_interval_s: float = 0.2
-
-
-def _json_safe(x: Any) -> Any:
-    """Plain JSON types: numpy scalars/arrays converted, non-finite floats as None."""
-    if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, bool) or x is None or isinstance(x, str):
-        return x
-    if isinstance(x, int):
-        return int(x)
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    tolist = getattr(x, "tolist", None)  # numpy scalars and arrays
-    if callable(tolist):
-        return _json_safe(tolist())
-    return str(x)
-
-
-def report_to_json(report: dict[str, Any]) -> str:
-    """Serialize a report as strict JSON (no NaN/Infinity)."""
-    return json.dumps(_json_safe(report), allow_nan=False, separators=(",", ":"))
 
 
 class JobHooks:
@@ -209,7 +186,7 @@ def run_claimed_job(
     spent = usage()
     elapsed = spent[1]
     try:
-        text = report_to_json(report)
+        text = report_json(report)
     except Exception as exc:
         ok = store.fail(
             job.id,

@@ -146,14 +146,19 @@ def _observations(job: Job) -> int:
 
 
 def _check_adjustment(job: Job, inputs: ExecuteInputs, _caller: Caller) -> Checked:
+    """The solver's dry run; its counts are stored with the document (``validation``) and
+    handed to the worker, which does not check the job again (solver.api.run)."""
+    import solver.api
+
     _refuse_models(inputs)
-    return Checked(_job_document(job), _adjustment_summary(job))
+    summary = _adjustment_summary(job)
+    return Checked({**_job_document(job), "validation": solver.api.validation_record(summary)}, summary)
 
 
 def _run_adjustment(document: dict[str, Any], progress: Progress, cancel: Cancel) -> dict[str, Any]:
     import solver.api
 
-    return solver.api.run(document["job"], progress=progress, cancel=cancel)
+    return solver.api.run(document["job"], progress=progress, cancel=cancel, validated=document.get("validation"))
 
 
 def _compared_models(job: Job, inputs: ExecuteInputs) -> list[str]:

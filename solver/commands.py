@@ -12,6 +12,7 @@ from typing import Any, TextIO
 from pydantic import ValidationError
 
 from solver.errors import Cancelled, JobError
+from solver.report.json_text import report_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -205,7 +206,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"cancelled: {exc}", file=sys.stderr)
         return 3
     if args.output:
-        args.output.write_text(json.dumps(report, indent=1))
+        args.output.write_text(report_json(report, indent=1))
     if report.get("kind") == "comparison":
         from solver.compare import comparison_table_text
 
@@ -250,7 +251,7 @@ def cmd_preanalysis(args: argparse.Namespace) -> int:
         _print_problems(exc)
         return 2
     if args.output:
-        args.output.write_text(json.dumps(report, indent=1))
+        args.output.write_text(report_json(report, indent=1))
     print(preanalysis_text(report))
     return 0
 
@@ -303,7 +304,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         _print_problems(exc)
         return 2
     if args.output:
-        args.output.write_text(json.dumps(report, indent=1))
+        args.output.write_text(report_json(report, indent=1))
     print(comparison_table_text(report))
     return 0
 

@@ -136,3 +136,27 @@ def test_no_service_module_but_the_table_branches_on_a_process_id() -> None:
         if path.name != "processes.py" and "migrations" not in path.parts
     }
     assert not {k: v for k, v in offenders.items() if v}, offenders
+
+
+def test_an_adjustment_is_validated_once_from_request_to_report(
+    tmp_path: Path, small_doc: dict[str, Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The submission's validation is stored with the document and handed to the worker's
+    run: one full check of the job between the request and the report."""
+    import solver.engine.validate as validate
+
+    calls: list[int] = []
+    real = validate.collect_problems
+    monkeypatch.setattr(validate, "collect_problems", lambda job: calls.append(1) or real(job))
+    app = create_app(Settings(data_dir=tmp_path, workers=0, require_api_keys=True))
+    with TestClient(app) as c:
+        store = app.state.services.store
+        alice = {"X-API-Key": create_key(store, "alice")[0]}
+        r = c.post("/processes/bundle-adjustment/execution", json={"inputs": {"job": small_doc}}, headers={**alice, "Prefer": "respond-async"})
+        assert r.status_code == 201, r.text
+        job_id = r.json()["jobID"]
+        assert store.get_document(job_id)["validation"]["fingerprint"] == validate.fingerprint()
+        claimed = store.claim(job_id, "test-worker")
+        assert run_claimed_job(store, claimed, "test-worker", RunLimits(job_time_limit_s=600)) == JobStatus.successful
+        assert len(calls) == 1
+        assert c.get(f"/jobs/{job_id}/results", headers=alice).json()["report"]["adjustment"]["converged"]
