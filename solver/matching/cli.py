@@ -60,7 +60,7 @@ def register_gcp(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--height", type=float, help="the terrain's ellipsoidal height (m) where there is no DEM")
     p.add_argument("--job", type=Path, help="job document orienting the image (default: the raster's own RPC)")
     p.add_argument("--report", type=Path, help="the job's report (adjusted orientation; default: the job's initial one)")
-    p.add_argument("-o", "--output", type=Path, required=True, help="control points table to write (id,x,y,z,sx,sy,sz,role)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="control points table to write (id,x,y,z,role; CRS EPSG:4979)")
     p.add_argument("--measurements", type=Path, required=True, help="measurement CSV to write (image,point,line,column,sigma_px)")
     p.add_argument("--summary", type=Path, help="JSON summary to write (candidates, matches, removed, sigma)")
     p.add_argument("--search-px", type=float, default=d.search_px, help=f"half-width of the search: the orientation's uncertainty in orthophoto pixels (default {d.search_px:g})")
@@ -75,8 +75,7 @@ def cmd_match_gcp(args: argparse.Namespace) -> int:
 
     from solver.errors import JobError
     from solver.gis.model import ModelMismatch
-    from solver.importers.points_csv import write_points
-    from solver.matching.gcp import GCP_CRS, GcpError, match_gcps
+    from solver.matching.gcp import GCP_CRS, GcpError, control_points_csv, match_gcps
     from solver.matching.orientation import OrientationError
     from solver.matching.pipeline import measurements_csv
     from solver.matching.raster import RasterError
@@ -101,7 +100,7 @@ def cmd_match_gcp(args: argparse.Namespace) -> int:
             im.raster.close()
     if not result.points:
         return _fail("no control point survived the checks (see --summary)", "match-gcp")
-    args.output.write_text(write_points(result.points, GCP_CRS))
+    args.output.write_text(control_points_csv(result.points))
     args.measurements.write_text(measurements_csv(result.measurements))
     if args.summary:
         args.summary.write_text(json.dumps(result.summary, indent=1))

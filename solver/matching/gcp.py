@@ -150,6 +150,14 @@ class GcpResult:
     summary: dict[str, Any]
 
 
+def control_points_csv(points: list[dict[str, Any]]) -> str:
+    """The control points table the importers read (:mod:`solver.importers.points_csv`):
+    ``id,x,y,z,role`` with the CRS in a comment (``--crs EPSG:4979`` for ``pba job --gcps``)."""
+    rows = [f"# crs: {GCP_CRS}", "id,x,y,z,role"]
+    rows += [f"{p['id']},{p['coordinates'][0]:.9f},{p['coordinates'][1]:.9f},{p['coordinates'][2]:.3f},{p['role']}" for p in points]
+    return "\n".join(rows) + "\n"
+
+
 def _heights(dem: Georaster | None, height_m: float | None, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
     if dem is not None:
         return dem.sample(lon, lat)
@@ -350,4 +358,4 @@ def _match(image: MatchImage, ortho: Georaster, dem: Georaster | None, height_m:
     return GcpResult(points, measurements, summary)
 
 
-__all__ = ["GCP_CRS", "GcpError", "GcpResult", "OrientationError", "match_gcps"]
+__all__ = ["GCP_CRS", "GcpError", "GcpResult", "OrientationError", "control_points_csv", "match_gcps"]
