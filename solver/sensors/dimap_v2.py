@@ -200,7 +200,8 @@ def _corners(root: Node) -> np.ndarray:
     return np.array(rows).reshape(-1, 5)
 
 
-def _rpc_name(root: Node) -> str | None:
+def rpc_component(root: Node) -> str | None:
+    """The file name (no directory) of the RPC component a DIMAP v2 document names, if any."""
     for section in ("Dataset_Content/Dataset_Components", "Geoposition/Geoposition_Models/Rational_Function_Model"):
         holder = root.element.find(section)
         if holder is None:
@@ -262,7 +263,7 @@ def read_dimap_v2_root(root: Node, path: Path, shown: str) -> DimapV2Product:
         attitude_times_s=att_t, attitude_wxyz=att_q, look_body=look.body,
         corrections=Corrections(aberration=False, light_time=False, refraction=False),
     )
-    rpc_name = _rpc_name(root)
+    rpc_name = rpc_component(root)
     rpc_path = path.parent / rpc_name if rpc_name and path.name else None  # only beside a file read from disk
     if rpc_path is not None and not rpc_path.is_file():
         rpc_path = None
