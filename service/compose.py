@@ -38,6 +38,7 @@ from solver.schema.job import load_job
 
 MAX_FILES = 200
 MAX_REFERENCES = 256  # file names in one spec (a file shared by several images counts once per image)
+MAX_SENSOR_BYTES = 16 * 2**20  # one vendor metadata file (a full SPOT 5 scene's DIMAP is 2.5 MB, a WorldView XML 2 MB)
 MAX_NAME_BYTES = 255  # a file name, UTF-8 (NAME_MAX of the usual file systems)
 MAX_JSON_DEPTH = 32  # nesting of the spec (the job document is far flatter)
 FileName = Annotated[str, Field(min_length=1, max_length=MAX_NAME_BYTES)]
@@ -59,6 +60,8 @@ class ImageSpec(_Spec):
     state: FileName | None = None
     rpc: FileName | None = Field(default=None, description="an RPC image: its NAME_RPC.TXT, NAME.RPB or DIMAP RPC_*.XML (no raster)")
     rpc_model: str | None = Field(default=None, max_length=32, description="its bias model (default: the spec's rpc_model)")
+    sensor: FileName | None = Field(default=None, description="vendor sensor metadata (Maxar XML, DIMAP of SPOT 1-7 and "
+                                    "Pleiades): the image's camera, ephemeris, attitude, line times and model")
 
 
 class ComposeSpec(_Spec):
@@ -158,7 +161,7 @@ def references(spec: ComposeSpec) -> list[tuple[tuple[str | int, ...], str]]:
     refs: list[tuple[tuple[str | int, ...], str]] = []
     for k, im in enumerate(spec.images):
         refs += [(("images", k, "measurements", j), n) for j, n in enumerate(im.measurements)]
-        refs += [(("images", k, a), n) for a in ("ephemeris", "attitude", "state", "rpc") if (n := getattr(im, a))]
+        refs += [(("images", k, a), n) for a in ("ephemeris", "attitude", "state", "rpc", "sensor") if (n := getattr(im, a))]
     for attr in ("gcps", "checks", "points", "asp_gcp", "camera_files"):
         refs += [((attr, j), n) for j, n in enumerate(getattr(spec, attr))]
     return refs
@@ -182,8 +185,11 @@ def check_sizes(spec: ComposeSpec, uploads: dict[str, bytes], max_rows: int, max
                 f"image {im.id!r} names {twice[0]!r} twice",
                 [{"pointer": json_pointer(("spec", "images", k, "measurements")), "code": "duplicate_reference", "message": f"{twice[0]!r} is named twice"}],
             )
+    for where, name in refs:  # metadata XML is bounded by its bytes, not by lines of rows
+        if where[-1] == "sensor" and len(uploads.get(name, b"")) > MAX_SENSOR_BYTES:
+            raise JobTooLarge(f"the sensor metadata {name!r} has {len(uploads[name])} bytes; at most {MAX_SENSOR_BYTES}")
     lines = {name: data.count(b"\n") + 1 for name, data in uploads.items()}
-    rows = sum(lines.get(name, 0) for _, name in refs)
+    rows = sum(lines.get(name, 0) for where, name in refs if where[-1] != "sensor")
     measured = sum(lines.get(name, 0) for where, name in refs if where[0] == "asp_gcp" or where[-2:-1] == ("measurements",))
     if rows > max_rows:
         raise JobTooLarge(
@@ -227,6 +233,7 @@ def _request(spec: ComposeSpec, uploads: dict[str, bytes]) -> ComposeRequest:
                 ),
                 rpc=file(im.rpc, ("images", k, "rpc")) if im.rpc else None,
                 rpc_model=im.rpc_model,
+                sensor=file(im.sensor, ("images", k, "sensor")) if im.sensor else None,
             )
         )
     req = ComposeRequest(

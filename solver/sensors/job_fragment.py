@@ -56,6 +56,7 @@ LONG_STRIP_MODEL = "PASS-J2"
 # default orders (with them the adjustment is off by hundreds of metres).
 DEFAULT_ORDERS = {"omega": 3, "phi": 3, "kappa": 3}
 DEFAULT_SIGMA_VELOCITY_M_S = 0.01  # Maxar EPH carries no velocity covariance
+MIN_ATTITUDE_SPACING_S = 0.015  # the job's attitude samples: Maxar's 50 Hz kept, a 100 Hz sampling thinned to 50 Hz
 
 
 def orbital_rows(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
@@ -249,6 +250,9 @@ def fragment(products: list[MaxarProduct | Spot5Product | DimapV2Product | Senso
         da = float(np.median(np.diff(m.attitude_times_s)))
         ka = (m.attitude_times_s >= lo - max(0.1, da)) & (m.attitude_times_s <= hi + max(0.1, da))
         at = m.attitude_times_s[ka]
+        if da < MIN_ATTITUDE_SPACING_S:  # densely sampled polynomials (Pleiades): every k-th sample, ends kept
+            step = int(np.ceil(MIN_ATTITUDE_SPACING_S / da))
+            at = np.unique(np.concatenate([at[::step], at[-1:]]))
         rot = effective_rotations(m, at, src.mean_height_m)  # body to ECEF
         ecef_to_ours = np.einsum("ij,njk->nik", src.ours_to_body.T, np.transpose(rot, (0, 2, 1)))
         a = ecef_to_ours @ np.transpose(orbital_rows(m.position(at), m.velocity(at)), (0, 2, 1))

@@ -191,3 +191,39 @@ def test_compose_rpc_images_from_uploaded_rpc_files(local: TestClient, tmp_path:
     spec["images"][2]["rpc"] = "missing_RPC.TXT"
     files[f"{ids[0]}_RPC.TXT"] = (tmp_path / f"{ids[0]}_RPC.TXT").read_bytes()
     assert_problem(upload(local, spec, files), 422, "/spec/images/2/rpc")
+
+
+def test_compose_images_from_uploaded_sensor_metadata(local: TestClient) -> None:
+    """Vendor metadata uploaded as an image's ``sensor`` file (a real WorldView-2 XML and a
+    simulated SPOT 6 DIMAP v2): cameras, ephemeris, attitude and model come from it, as with
+    ``pba job --sensor``; a hostile or damaged file is a 422 naming the file and the element."""
+    import numpy as np
+    from simulated_dimap import Scene, dimap_v2_xml
+
+    from solver.sensors.maxar import read_maxar
+
+    wv = ROOT / "tests" / "data" / "vendor" / "stereopipeline" / "wv_mvp_1.xml"
+    r = read_maxar(wv).rpc
+    ground = np.column_stack([r.long_off + 0.2 * r.long_scale * np.array([-1, 0, 1, 0.5]),
+                              r.lat_off + 0.2 * r.lat_scale * np.array([0, 1, -1, 0.5]), np.full(4, r.height_off)])
+    lc = np.column_stack(r.project(ground[:, 0], ground[:, 1], ground[:, 2]))
+    files = {
+        "wv.xml": wv.read_bytes(),
+        "DIM_SPOT6.XML": dimap_v2_xml(Scene())[0].encode(),
+        "wv.csv": ("point,line,column\n" + "".join(f"G{k},{x[0]:.3f},{x[1]:.3f}\n" for k, x in enumerate(lc))).encode(),
+        "s6.csv": b"point,line,column\nG0,100.0,200.0\n",
+        "gcps.csv": ("id,lon,lat,z\n" + "".join(f"G{k},{g[0]:.9f},{g[1]:.9f},{g[2]:.3f}\n" for k, g in enumerate(ground))).encode(),
+    }
+    spec = {"crs": "EPSG:4979", "gcps": ["gcps.csv"],
+            "images": [{"id": "WV", "measurements": ["wv.csv"], "sensor": "wv.xml"},
+                       {"id": "S6", "measurements": ["s6.csv"], "sensor": "DIM_SPOT6.XML"}]}
+    res = upload(local, spec, files)
+    assert res.status_code == 200, res.text[:2000]
+    job = res.json()["job"]
+    assert [c["id"] for c in job["cameras"]] == ["WV", "S6"]
+    assert [i["model"]["name"] for i in job["images"]] == ["OA-J2", "OA-J2"]
+    assert all(i["ephemeris"] and i["attitude"] for i in job["images"])
+    bomb = b'<?xml version="1.0"?><!DOCTYPE d [<!ENTITY a "aaaa"><!ENTITY b "&a;&a;&a;">]><Dimap_Document>&b;</Dimap_Document>'
+    for bad, element in ((bomb, ""), (files["DIM_SPOT6.XML"].replace(b"<NCOLS>2500</NCOLS>", b"<NCOLS>x</NCOLS>"), "NCOLS")):
+        doc = assert_problem(upload(local, spec, {**files, "DIM_SPOT6.XML": bad}), 422, "/files/DIM_SPOT6.XML")
+        assert "DIM_SPOT6.XML" in json.dumps(doc) and element in json.dumps(doc), doc
