@@ -16,7 +16,8 @@ from solver.geometry.geodesy import GEODETIC_CRS
 
 def _job_report(p: argparse.ArgumentParser) -> None:
     p.add_argument("job", type=Path, help="job document (JSON)")
-    p.add_argument("report", type=Path, help="its report (pba run -o)")
+    p.add_argument("report", type=Path, nargs="?", help="its report (pba run -o); without one, the job's own orientation "
+                   "(for a job from vendor metadata, pba job --sensor: the orientation as delivered)")
     p.add_argument("--image", required=True, help="image id")
 
 
@@ -93,9 +94,11 @@ def _fail(message: str) -> int:
 def _load_model(args: argparse.Namespace):
     from solver.gis.model import ModelMismatch, load_model
 
+    if args.report is None and getattr(args, "sigmas", False):
+        raise SystemExit(_fail("--sigmas needs the report of an adjustment (its covariances)"))
     try:
         job = json.loads(args.job.read_text())
-        report = json.loads(args.report.read_text())
+        report = json.loads(args.report.read_text()) if args.report is not None else None
     except (OSError, ValueError) as exc:
         raise SystemExit(_fail(f"cannot read the job or report: {exc}")) from None
     try:
