@@ -276,7 +276,7 @@ DELIVERED_PX = 1.0
 
 @pytest.mark.parametrize("name", ["wv_mvp_1", "spot5"])
 def test_ground_to_image_with_the_delivered_orientation(tmp_path, products, capsys, name) -> None:
-    """Without a report, ``pba ground-to-image`` uses the job's own orientation: for a job from
+    """Without a report (``-`` in its place), ``pba ground-to-image`` uses the job's own orientation: for a job from
     vendor metadata, the orientation as delivered (ephemeris, and the attitude fitted to the
     samples), which must agree with the exact model built from the same file."""
     from solver.sensors.dimap_spot5 import read_spot5
@@ -295,9 +295,9 @@ def test_ground_to_image_with_the_delivered_orientation(tmp_path, products, caps
                  "-o", str(job)]) == 0
     out = tmp_path / "px.csv"
     capsys.readouterr()
-    assert main(["ground-to-image", str(job), str(tmp_path / "g.csv"), "--image", "W", "-o", str(out)]) == 0
+    assert main(["ground-to-image", str(job), "-", str(tmp_path / "g.csv"), "--image", "W", "-o", str(out)]) == 0
     rows = np.genfromtxt(out, delimiter=",", names=True)
     assert np.hypot(rows["line"] - lc[:, 0], rows["column"] - lc[:, 1]).max() < DELIVERED_PX
     with pytest.raises(SystemExit) as exc:
-        main(["ground-to-image", str(job), str(tmp_path / "g.csv"), "--image", "W", "--sigmas"])
+        main(["ground-to-image", str(job), "-", str(tmp_path / "g.csv"), "--image", "W", "--sigmas"])
     assert exc.value.code == 2 and "--sigmas needs the report" in capsys.readouterr().err

@@ -21,7 +21,7 @@ SPOT 5 HRS segment of tests/data/vendor/stereopipeline):
   the gyros' yaw, pitch and roll speeds (rad/s, about 8 Hz), integrated (trapezoids) into the
   same three angles; the integration constant is the first absolute angle of ``Angles_List``
   (at its time) when given, else zero at the scene centre time. On three real SPOT 2/3 scenes
-  the integrated speeds reproduce the second absolute angle to 5e-7 to 9e-7 rad.
+  the integrated speeds reproduce the second absolute angle, 9 s later, to 1.6e-6 rad at most.
 - ``Data_Strip/Sensor_Configuration/Time_Stamp``: ``LINE_PERIOD`` (s), ``SCENE_CENTER_TIME``
   (UTC), ``SCENE_CENTER_LINE`` (1-based): line L (0-based, pixel centres) is at
   ``SCENE_CENTER_TIME + (L + 1 - SCENE_CENTER_LINE) LINE_PERIOD``.
@@ -96,8 +96,8 @@ def _corrected_angles(attitudes: Node, seconds: Callable[[datetime], float]) -> 
 def _integrated_speeds(attitudes: Node, seconds: Callable[[datetime], float], t_center: float) -> tuple[Node, np.ndarray, np.ndarray]:
     """SPOT 1-4: yaw, pitch, roll (rad) integrated from the gyros' angular speeds (rad/s, linear
     between samples: trapezoids). The integration constant is the first absolute AOCS angle
-    (``Aocs_Attitude/Angles_List/Angles``) at its time when the file has one (the speeds are
-    taken as zero before the first speed sample), else zero at the scene centre time."""
+    (``Aocs_Attitude/Angles_List/Angles``) at its time when the file has one (the first speed
+    held constant back to it), else zero at the scene centre time."""
     raw = attitudes.child("Raw_Attitudes")
     aocs = raw.find("Aocs_Attitude") or raw
     lst = aocs.child("Angular_Speeds_List")
@@ -115,8 +115,8 @@ def _integrated_speeds(attitudes: Node, seconds: Callable[[datetime], float], t_
     first = absolute.children("Angles")[0] if absolute is not None and absolute.children("Angles") else None
     if first is not None and not (first.find("OUT_OF_RANGE") is not None and first.text("OUT_OF_RANGE").upper() == "Y"):
         t_first = seconds(_utc(first, "TIME"))
-        if t_first < t[0]:
-            t, rates = np.concatenate([[t_first], t]), np.vstack([np.zeros(3), rates])
+        if t_first < t[0]:  # the first speed held back to the absolute angle's time
+            t, rates = np.concatenate([[t_first], t]), np.vstack([rates[:1], rates])
         origin_t, origin = t_first, np.array([first.number("YAW"), first.number("PITCH"), first.number("ROLL")])
     else:
         origin_t, origin = t_center, np.zeros(3)
