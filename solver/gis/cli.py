@@ -13,7 +13,6 @@ from typing import Any
 
 from solver.geometry.geodesy import GEODETIC_CRS
 
-
 NO_REPORT = "-"  # in place of the report: the job's own orientation
 
 
