@@ -227,3 +227,14 @@ def test_compose_images_from_uploaded_sensor_metadata(local: TestClient) -> None
     for bad, element in ((bomb, ""), (files["DIM_SPOT6.XML"].replace(b"<NCOLS>2500</NCOLS>", b"<NCOLS>x</NCOLS>"), "NCOLS")):
         doc = assert_problem(upload(local, spec, {**files, "DIM_SPOT6.XML": bad}), 422, "/files/DIM_SPOT6.XML")
         assert "DIM_SPOT6.XML" in json.dumps(doc) and element in json.dumps(doc), doc
+
+
+def test_a_sensor_metadata_upload_is_bounded_by_its_bytes(local: TestClient) -> None:
+    """A metadata file is not counted in rows (a SPOT 5 scene's DIMAP has 25,000 lines) but
+    bounded by bytes: above MAX_SENSOR_BYTES it is refused before it is parsed (413)."""
+    from service.compose import MAX_SENSOR_BYTES
+
+    spec = {"images": [{"id": "S", "measurements": ["s.csv"], "sensor": "METADATA.DIM"}]}
+    big = b"<Dimap_Document>" + b" " * MAX_SENSOR_BYTES + b"</Dimap_Document>"
+    doc = assert_problem(upload(local, spec, {"METADATA.DIM": big, "s.csv": b"point,line,column\nG0,1,1\n"}), 413)
+    assert "METADATA.DIM" in doc["detail"] and str(MAX_SENSOR_BYTES) in doc["detail"], doc
