@@ -1,59 +1,273 @@
-"""The three OGC processes the server offers and their descriptions.
+"""The processes the server offers: one table, one entry per process (what it is, how its
+input is checked and counted, how a worker runs it), and their OGC descriptions.
 
 ``bundle-adjustment`` adjusts one job (``solver.api.run``); ``model-comparison`` adjusts the
 same observations with several platform models (``solver.api.compare``); ``preanalysis``
 predicts the precision of a planned block before anything is measured
 (``solver.api.preanalyse``). All take the job document as input ``job`` and return one output
 ``report`` (docs/report-contract.md).
+
+Nothing outside this module branches on a process id: the routes, the job use cases
+(:mod:`service.jobs`) and the worker (:mod:`service.execution`) look the process up in
+:data:`PROCESSES` and call its ``count``, ``check`` and ``run``. A new process is one
+:class:`Process` entry in :data:`PROCESSES`. The solver is imported inside the functions only
+(the API process validates through ``solver.api`` and never loads the adjustment).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any, Callable, Literal
 
+from pydantic import ValidationError
+
+from service.errors import InvalidInput, NoSuchProcess
+from service.problems import job_error_entries, problem_entries, pydantic_errors
 from service.schemas import InputDescription, Link, OutputDescription, ProcessDescription
+from solver.errors import JobError
 from solver.schema.job import Job
+
+if TYPE_CHECKING:
+    from service.schemas import ExecuteInputs
 
 BUNDLE_ADJUSTMENT = "bundle-adjustment"
 MODEL_COMPARISON = "model-comparison"
 PREANALYSIS = "preanalysis"
 VERSION = "1.0.0"
+JOB_POINTER = ("inputs", "job")
+"""Where the job document sits in an execute request (JSON pointers of problems start here)."""
+
+Progress = Callable[..., None]
+Cancel = Callable[[], bool]
 
 
 @dataclass(frozen=True)
-class ProcessInfo:
-    """Static facts about a process."""
+class Checked:
+    """A job accepted by a process's check: the document to store (``{"job": ...}`` plus the
+    process's other inputs) and the validation summary (counts, images) answered to clients."""
+
+    document: dict[str, Any]
+    summary: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Process:
+    """One process of the table.
+
+    ``count(job)``: the observations the job is measured by against the users' limits and the
+    small-job threshold. ``check(job, inputs)``: the job (camera references resolved) and the
+    other inputs checked as this process needs them; raises :class:`InvalidInput` with
+    pointers into the request. ``run(document, progress, cancel)``: in a worker, the report of
+    a stored document (``progress``/``cancel`` as in ``solver.api``).
+    """
 
     id: str
     title: str
     description: str
+    report_title: str
+    count: Callable[[Job], int]
+    check: Callable[[Job, ExecuteInputs], Checked]
+    run: Callable[[dict[str, Any], Progress, Cancel], dict[str, Any]]
+    extra_inputs: Callable[[], dict[str, InputDescription]] = field(default=lambda: {})
 
 
-PROCESSES: dict[str, ProcessInfo] = {
-    BUNDLE_ADJUSTMENT: ProcessInfo(
-        BUNDLE_ADJUSTMENT,
-        "Bundle adjustment of pushbroom images",
-        "Estimates the platform-model parameters of every image (and the tie points) from "
-        "image observations of control and tie points, and reports sigmas, correlations, "
-        "residuals and check-point statistics.",
-    ),
-    MODEL_COMPARISON: ProcessInfo(
-        MODEL_COMPARISON,
-        "Platform model comparison",
-        "Adjusts the same observations with each of several platform models and reports one "
-        "adjustment per model plus a side-by-side table of sigma0, chi-square verdicts and "
-        "check-point RMSE.",
-    ),
-    PREANALYSIS: ProcessInfo(
-        PREANALYSIS,
-        "Pre-analysis of a planned block",
-        "Predicts the precision (sigmas and error ellipses) of the check, tie and control points "
-        "of a planned block from the planned point coordinates and the images' approximate "
-        "orientation, before anything is measured; image observations are not needed.",
-    ),
+def _problems_error(problems: list[dict[str, Any]], where: tuple[str, ...]) -> InvalidInput:
+    """InvalidInput listing solver problem dicts (the first five in the detail)."""
+    detail = "; ".join(str(p.get("message", "")) for p in problems[:5]) or "the job is not valid"
+    return InvalidInput(detail, problem_entries(problems, where))
+
+
+def _refuse_models(inputs: ExecuteInputs) -> None:
+    """InvalidInput when ``inputs.models`` is given to a process that takes none."""
+    if inputs.models:
+        raise InvalidInput(
+            "models is an input of model-comparison only",
+            [
+                {
+                    "pointer": "/inputs/models",
+                    "code": "unexpected",
+                    "message": "not an input of this process",
+                }
+            ],
+        )
+
+
+def _job_document(job: Job) -> dict[str, Any]:
+    return {"job": job.model_dump(mode="json", exclude_unset=False)}
+
+
+def _adjustment_summary(job: Job) -> dict[str, Any]:
+    """The solver's dry run of an adjustment (counts, degrees of freedom); InvalidInput with
+    every problem otherwise."""
+    import solver.api
+
+    try:
+        summary = solver.api.validate(job)
+    except JobError as exc:
+        raise InvalidInput(str(exc), job_error_entries(exc, JOB_POINTER)) from None
+    except ValidationError as exc:
+        raise InvalidInput(
+            "the job does not match the schema", pydantic_errors(exc.errors(), JOB_POINTER)
+        ) from None
+    if not summary.get("valid", False):
+        raise _problems_error(summary.get("problems", []), JOB_POINTER)
+    return summary
+
+
+def _observations(job: Job) -> int:
+    return len(job.observations)
+
+
+def _check_adjustment(job: Job, inputs: ExecuteInputs) -> Checked:
+    """The solver's dry run; its counts are stored with the document (``validation``) and
+    handed to the worker, which does not check the job again (solver.api.run)."""
+    import solver.api
+
+    _refuse_models(inputs)
+    summary = _adjustment_summary(job)
+    return Checked({**_job_document(job), "validation": solver.api.validation_record(summary)}, summary)
+
+
+def _run_adjustment(document: dict[str, Any], progress: Progress, cancel: Cancel) -> dict[str, Any]:
+    import solver.api
+
+    return solver.api.run(document["job"], progress=progress, cancel=cancel, validated=document.get("validation"))
+
+
+def _compared_models(job: Job, inputs: ExecuteInputs) -> list[str]:
+    """The models a comparison compares (``inputs.models``, else the job's options.models),
+    checked; InvalidInput pointing at whichever gave them."""
+    from solver.compare import comparison_problems
+
+    models = list(inputs.models or job.options.models)
+    if not models:
+        raise InvalidInput(
+            "a model comparison needs the models to compare",
+            [
+                {
+                    "pointer": "/inputs/models",
+                    "code": "missing",
+                    "message": "give inputs.models or the job's options.models",
+                }
+            ],
+        )
+    where = ("inputs", "models") if inputs.models else (*JOB_POINTER, "options", "models")
+    problems = [p.to_dict() for p in comparison_problems(models, ())]
+    if problems:
+        raise _problems_error(problems, where)
+    return models
+
+
+def _check_comparison(job: Job, inputs: ExecuteInputs) -> Checked:
+    models = _compared_models(job, inputs)
+    summary = _adjustment_summary(job)
+    return Checked({**_job_document(job), "models": models}, summary)
+
+
+def _run_comparison(document: dict[str, Any], progress: Progress, cancel: Cancel) -> dict[str, Any]:
+    import solver.api
+
+    models = document.get("models") or document["job"].get("options", {}).get("models", [])
+    return solver.api.compare(document["job"], models, progress=progress, cancel=cancel)
+
+
+def _comparison_inputs() -> dict[str, InputDescription]:
+    return {
+        "models": InputDescription(
+            title="Platform models",
+            description="models to compare (default: the job's options.models)",
+            minOccurs=0,
+            maxOccurs=1,
+            schema={
+                "type": "array",
+                "minItems": 1,
+                "items": {"type": "string", "enum": model_names()},
+            },
+        )
+    }
+
+
+def _planned_observations(job: Job) -> int:
+    """Every planned point may be observed in every image."""
+    return len(job.points) * len(job.images)
+
+
+def _check_preanalysis(job: Job, inputs: ExecuteInputs) -> Checked:
+    """Planned points carry coordinates and no observations: the adjustment's own checks
+    (observations per point, degrees of freedom) do not apply before the planning."""
+    import solver.api
+
+    _refuse_models(inputs)
+    problems = [p.to_dict() for p in solver.api.preanalysis_problems(job)]
+    if problems:
+        raise _problems_error(problems, JOB_POINTER)
+    summary = {
+        "valid": True,
+        "problems": [],
+        "planned_points": len(job.points),
+        "images": [{"id": im.id, "model": im.model.name} for im in job.images],
+    }
+    return Checked(_job_document(job), summary)
+
+
+def _run_preanalysis(document: dict[str, Any], progress: Progress, cancel: Cancel) -> dict[str, Any]:
+    import solver.api
+
+    return solver.api.preanalyse(document["job"])
+
+
+PROCESSES: dict[str, Process] = {
+    p.id: p
+    for p in (
+        Process(
+            BUNDLE_ADJUSTMENT,
+            "Bundle adjustment of pushbroom images",
+            "Estimates the platform-model parameters of every image (and the tie points) from "
+            "image observations of control and tie points, and reports sigmas, correlations, "
+            "residuals and check-point statistics.",
+            "Adjustment report",
+            count=_observations,
+            check=_check_adjustment,
+            run=_run_adjustment,
+        ),
+        Process(
+            MODEL_COMPARISON,
+            "Platform model comparison",
+            "Adjusts the same observations with each of several platform models and reports one "
+            "adjustment per model plus a side-by-side table of sigma0, chi-square verdicts and "
+            "check-point RMSE.",
+            "Comparison report",
+            count=_observations,
+            check=_check_comparison,
+            run=_run_comparison,
+            extra_inputs=_comparison_inputs,
+        ),
+        Process(
+            PREANALYSIS,
+            "Pre-analysis of a planned block",
+            "Predicts the precision (sigmas and error ellipses) of the check, tie and control "
+            "points of a planned block from the planned point coordinates and the images' "
+            "approximate orientation, before anything is measured; image observations are not "
+            "needed.",
+            "Pre-analysis report",
+            count=_planned_observations,
+            check=_check_preanalysis,
+            run=_run_preanalysis,
+        ),
+    )
 }
+
+ProcessId = Literal[tuple(PROCESSES)]  # type: ignore[valid-type]
+"""The offered process ids as a type (query parameters list them as an enum)."""
+
+
+def process(process_id: str) -> Process:
+    """The process ``process_id`` of the table; NoSuchProcess (404) when none is offered."""
+    found = PROCESSES.get(process_id)
+    if found is None:
+        raise NoSuchProcess(process_id)
+    return found
 
 
 @lru_cache(maxsize=1)
@@ -70,8 +284,8 @@ def model_names() -> list[str]:
 
 
 def describe(process_id: str, base_url: str) -> ProcessDescription:
-    """The OGC process description of ``process_id`` (KeyError when unknown)."""
-    info = PROCESSES[process_id]
+    """The OGC process description of ``process_id`` (NoSuchProcess when unknown)."""
+    info = process(process_id)
     inputs = {
         "job": InputDescription(
             title="Job document",
@@ -79,25 +293,12 @@ def describe(process_id: str, base_url: str) -> ProcessDescription:
             "observations and options (schema_version 1.0); camera refs name cameras in "
             "/cameras",
             schema=job_schema(),
-        )
+        ),
+        **info.extra_inputs(),
     }
-    if process_id == MODEL_COMPARISON:
-        inputs["models"] = InputDescription(
-            title="Platform models",
-            description="models to compare (default: the job's options.models)",
-            minOccurs=0,
-            maxOccurs=1,
-            schema={
-                "type": "array",
-                "minItems": 1,
-                "items": {"type": "string", "enum": model_names()},
-            },
-        )
     outputs = {
         "report": OutputDescription(
-            title={BUNDLE_ADJUSTMENT: "Adjustment report", PREANALYSIS: "Pre-analysis report"}.get(
-                process_id, "Comparison report"
-            ),
+            title=info.report_title,
             description="see docs/report-contract.md",
             schema={"type": "object", "contentMediaType": "application/json"},
         )

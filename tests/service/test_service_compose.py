@@ -238,3 +238,49 @@ def test_a_sensor_metadata_upload_is_bounded_by_its_bytes(local: TestClient) -> 
     big = b"<Dimap_Document>" + b" " * MAX_SENSOR_BYTES + b"</Dimap_Document>"
     doc = assert_problem(upload(local, spec, {"METADATA.DIM": big, "s.csv": b"point,line,column\nG0,1,1\n"}), 413)
     assert "METADATA.DIM" in doc["detail"] and str(MAX_SENSOR_BYTES) in doc["detail"], doc
+
+
+# -- one specification: the wire spec is the solver's ComposeRequest ------------------------
+def test_the_spec_carries_every_field_of_the_solvers_request() -> None:
+    """Every field of ComposeRequest and ImageSources (but those the server does not take
+    from uploads) is a field of the spec under its own name, and a spec setting each to a
+    value other than its default reaches the solver's request with that value."""
+    from dataclasses import fields
+
+    from service.compose import NOT_UPLOADED, ComposeSpec, ImageSpec, _request, parse_spec
+    from solver.importers.compose import ComposeRequest, ImageSources, SourceFile
+
+    assert {f.name for f in fields(ComposeRequest)} <= set(ComposeSpec.model_fields) | NOT_UPLOADED
+    assert {f.name for f in fields(ImageSources)} - NOT_UPLOADED == set(ImageSpec.model_fields)
+    image = {
+        "id": "A", "measurements": ["m.csv"], "camera": "cam", "ephemeris": "e.csv", "attitude": "a.csv",
+        "state": "s.csv", "first_line_time_s": 12.5, "rpc": "r_RPC.TXT", "rpc_model": "RPC-SHIFT", "sensor": "DIM_A.XML",
+    }
+    spec = {
+        "images": [image], "gcps": ["g.csv"], "checks": ["c.csv"], "points": ["p.csv"], "asp_gcp": ["x.gcp"],
+        "camera_files": ["cams.json"], "camera": "default-cam", "crs": "EPSG:32722", "models": ["K1", "K2"],
+        "rpc_model": "RPC-AFFINE", "options": {"covariance": False}, "name": "n", "time_scale": "UTC",
+        "sigma_px": 0.3, "match_tolerance_m": 2.0, "map_crs": "EPSG:4326", "columns": {"g.csv": {"E": "x"}},
+    }
+    names = [*image["measurements"], *(image[k] for k in ("ephemeris", "attitude", "state", "rpc", "sensor"))]
+    names += [n for k in ("gcps", "checks", "points", "asp_gcp", "camera_files") for n in spec[k]]
+    uploads = {n: n.encode() for n in names}
+    req = _request(parse_spec(json.dumps(spec)), uploads)
+    for f in fields(ComposeRequest):
+        if f.name in NOT_UPLOADED or f.name == "images":
+            continue
+        value = getattr(req, f.name)
+        if isinstance(value, list) and value and isinstance(value[0], SourceFile):
+            value = [v.name for v in value]
+        assert value == spec[f.name], f.name
+    (got,) = req.images
+    for f in fields(ImageSources):
+        if f.name in NOT_UPLOADED:
+            continue
+        value = getattr(got, f.name)
+        if isinstance(value, SourceFile):
+            value = value.name
+        elif isinstance(value, list):
+            value = [v.name for v in value]
+        assert value == image[f.name], f.name
+    assert req.gcps[0].columns == {"E": "x"} and req.gcps[0].data == b"g.csv"
