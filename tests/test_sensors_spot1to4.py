@@ -129,3 +129,19 @@ def test_bad_spot1to4_files_exit_2_naming_the_element(tmp_path, capsys, name, ed
     assert main(["import-sensor", str(path)]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and str(path) in err and expected in err, err
+
+
+JOB_FORM_PX = 0.5  # straight chips for the two-detector look angles (measured 0.03-0.09 px RMS on real scenes)
+
+
+def test_job_fragment(models) -> None:
+    from solver.schema.job import Camera, Image
+    from solver.sensors.job_fragment import fragment
+
+    _, spot2 = models
+    doc = fragment([spot2], ["S2"])
+    note = doc.pop("sensor_metadata")[0]
+    Camera(**doc["cameras"][0])
+    Image(**doc["images"][0])
+    assert note["satellite"] == "SPOT 2" and doc["images"][0]["model"]["name"] == "PASS-J2"
+    assert note["difference_px"]["rms"] < JOB_FORM_PX, note
