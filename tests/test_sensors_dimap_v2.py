@@ -156,3 +156,15 @@ def test_bad_files_exit_2_naming_file_and_element(tmp_path, scene, capsys, name,
     assert main(["import-sensor", str(path)]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and str(path) in err and expected in err, err
+
+
+def test_a_file_larger_than_any_metadata_is_refused_before_parsing(tmp_path, scene, capsys, monkeypatch) -> None:
+    import solver.sensors.xmlsafe as xmlsafe
+
+    text, _ = dimap_v2_xml(scene)
+    path = tmp_path / "DIM_big.XML"
+    path.write_text(text)
+    monkeypatch.setattr(xmlsafe, "MAX_BYTES", len(text.encode()) - 1)  # the limit just below this file
+    assert main(["import-sensor", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and f"{path}: {len(text.encode())} bytes: larger than a metadata file" in err, err
