@@ -145,6 +145,8 @@ CASES = [
     ("truncated", lambda t: t[: len(t) // 2], "not well-formed XML"),
     ("bomb", lambda t: BILLION_LAUGHS, "refused: the XML declares a DTD or entities"),
     ("not_a_number", lambda t: _variant(t, r"<NCOLS>\d+</NCOLS>", "<NCOLS>many</NCOLS>"), "NCOLS: not a number"),
+    ("huge_ncols", lambda t: _variant(t, r"<NCOLS>\d+</NCOLS>", "<NCOLS>1000000000</NCOLS>"), "1 to 1000000 columns expected"),
+    ("long_image", lambda t: _variant(t, r"<NROWS>\d+</NROWS>", "<NROWS>90000000</NROWS>"), "an image of 600 s at most is read"),
 ]
 
 

@@ -53,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from solver.schema.job import MAX_COLUMNS, MAX_LINES
 from solver.sensors.detectors import SPOT_NAVIGATION, LookAngles
 from solver.sensors.linescan import Corrections, LinescanModel, lagrange, matrix_to_quaternion
 from solver.sensors.xmlsafe import Node, load
@@ -195,8 +196,8 @@ def read_dimap_v1_root(root: Node, shown: str) -> Spot5Product:
     """The product of a parsed DIMAP v1 document (module docstring)."""
     dims = root.child("Raster_Dimensions")
     columns, lines = dims.integer("NCOLS"), dims.integer("NROWS")
-    if columns < 1 or lines < 1:
-        raise dims.error("NCOLS and NROWS must be positive")
+    if not (1 <= lines <= MAX_LINES and 1 <= columns <= MAX_COLUMNS):
+        raise dims.error(f"NROWS {lines}, NCOLS {columns}: 1 to {MAX_LINES} rows and 1 to {MAX_COLUMNS} columns expected")
     strip = root.child("Data_Strip")
     points = strip.child("Ephemeris").child("Points").children("Point")
     if len(points) < 4:

@@ -46,6 +46,7 @@ from pathlib import Path, PurePath
 
 import numpy as np
 
+from solver.schema.job import MAX_COLUMNS, MAX_LINES
 from solver.sensors.detectors import DIMAP_V2_SATELLITE, LookAngles
 from solver.sensors.linescan import Corrections, LinescanModel
 from solver.sensors.maxar import crosses_leap_second, parse_utc
@@ -56,6 +57,7 @@ LINE_PERIOD_UNITS = {"s": 1.0, "ms": 1e-3, "millisecond": 1e-3, "milliseconds": 
                      "us": 1e-6, "µs": 1e-6, "microsecond": 1e-6, "microseconds": 1e-6}
 QUATERNION_STEP_S = 0.01  # sampling of the Pleiades 1A/1B attitude polynomials (slerp error < 1e-8 rad)
 MARGIN_S = 0.5  # polynomial attitude sampled this far beyond the first and last lines
+MAX_IMAGE_S = 600.0  # longest image read (a Pleiades strip lasts tens of seconds): bounds the work of a hostile file
 DEFAULT_PIXEL_MM = 0.013  # Pleiades panchromatic detector pitch; only its ratio to the focal length matters
 
 
@@ -223,8 +225,8 @@ def read_dimap_v2_root(root: Node, path: Path, shown: str) -> DimapV2Product:
                           "product has no sensor model", "METADATA_PROFILE")
     dims = root.child("Raster_Data").child("Raster_Dimensions")
     lines, columns = dims.integer("NROWS"), dims.integer("NCOLS")
-    if lines < 2 or columns < 1:
-        raise dims.error("NROWS (2 at least) and NCOLS must be positive")
+    if not (2 <= lines <= MAX_LINES and 1 <= columns <= MAX_COLUMNS):
+        raise dims.error(f"NROWS {lines}, NCOLS {columns}: 2 to {MAX_LINES} rows and 1 to {MAX_COLUMNS} columns expected")
     model_node = root.child("Geometric_Data").child("Refined_Model")
     time = model_node.child("Time")
     first_line = parse_utc(time.child("Time_Range"), "START")
@@ -234,6 +236,13 @@ def read_dimap_v2_root(root: Node, path: Path, shown: str) -> DimapV2Product:
     eph_t, pos, vel, _ = _ephemeris(model_node, epoch)
     t0 = _seconds(first_line, epoch)
     t_end = t0 + (lines - 1) * period
+    if t_end - t0 > MAX_IMAGE_S:
+        raise time.error(f"NROWS x LINE_PERIOD is {t_end - t0:.0f} s: an image of {MAX_IMAGE_S:.0f} s at most is read")
+    margin = 2.0 * float(np.median(np.diff(eph_t)))  # extrapolation by two sample intervals at most
+    if t0 < eph_t[0] - margin or t_end > eph_t[-1] + margin:
+        raise model_node.child("Ephemeris").error(
+            f"the samples ({eph_t[0] - t0:+.3f} to {eph_t[-1] - t0:+.3f} s from the first line) do not cover the image's lines "
+            f"(0 to {t_end - t0:.3f} s)")
     if crosses_leap_second(epoch, epoch + timedelta(seconds=float(max(eph_t[-1], t_end)))):
         raise time.error("the samples span the end of 30 June or 31 December, where a leap second may fall: not read")
     att = model_node.child("Attitudes")
@@ -241,11 +250,10 @@ def read_dimap_v2_root(root: Node, path: Path, shown: str) -> DimapV2Product:
         att_t, att_q = _quaternion_list(att, epoch)
     else:
         att_t, att_q = _polynomial_quaternions(att, epoch, first_line, (t0, t_end))
-    for node, t in ((model_node.child("Ephemeris"), eph_t), (att, att_t)):
-        margin = 2.0 * float(np.median(np.diff(t)))  # extrapolation by two sample intervals at most
-        if t0 < t[0] - margin or t_end > t[-1] + margin:
-            raise node.error(f"the samples ({t[0] - t0:+.3f} to {t[-1] - t0:+.3f} s from the first line) do not cover "
-                             f"the image's lines (0 to {t_end - t0:.3f} s)")
+    margin = 2.0 * float(np.median(np.diff(att_t)))
+    if t0 < att_t[0] - margin or t_end > att_t[-1] + margin:
+        raise att.error(f"the samples ({att_t[0] - t0:+.3f} to {att_t[-1] - t0:+.3f} s from the first line) do not cover "
+                        f"the image's lines (0 to {t_end - t0:.3f} s)")
     calib = model_node.child("Geometric_Calibration").child("Instrument_Calibration")
     look, band = _look_angles(calib)
     _biases(calib)
