@@ -170,3 +170,18 @@ def test_a_file_larger_than_any_metadata_is_refused_before_parsing(tmp_path, sce
     assert main(["import-sensor", str(path)]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and f"{path}: {len(text.encode())} bytes: larger than a metadata file" in err, err
+
+
+def test_a_long_strip_keeps_a_bounded_number_of_attitude_samples(tmp_path) -> None:
+    """60 s of quaternions at 32 Hz (1920): the job keeps 1000, evenly spread with the ends, and
+    the job form stays as close to the exact model (the work of a composition stays bounded)."""
+    from solver.sensors.job_fragment import MAX_JOB_ATTITUDE_SAMPLES
+
+    scene = Scene(lines=400_000)
+    path, _ = _write(tmp_path, scene, "spot6")
+    p = read_dimap_v2(path)
+    doc = fragment([p], ["S"])
+    samples = doc["images"][0]["attitude"]
+    assert len(samples) == MAX_JOB_ATTITUDE_SAMPLES
+    assert samples[0]["time_s"] <= doc["images"][0]["first_line_time_s"]
+    assert doc["sensor_metadata"][0]["difference_px"]["rms"] < JOB_FORM_PX

@@ -57,6 +57,10 @@ LONG_STRIP_MODEL = "PASS-J2"
 DEFAULT_ORDERS = {"omega": 3, "phi": 3, "kappa": 3}
 DEFAULT_SIGMA_VELOCITY_M_S = 0.01  # Maxar EPH carries no velocity covariance
 MIN_ATTITUDE_SPACING_S = 0.015  # the job's attitude samples: Maxar's 50 Hz kept, a 100 Hz sampling thinned to 50 Hz
+# at most this many attitude samples per image in the job (each costs a fit of the effective
+# rotation, about 3.5 ms: a composition on the server stays within seconds); the public SPOT 5
+# segment has 578 over 72 s
+MAX_JOB_ATTITUDE_SAMPLES = 1000
 
 
 def orbital_rows(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
@@ -253,6 +257,8 @@ def fragment(products: list[MaxarProduct | Spot5Product | DimapV2Product | Senso
         if da < MIN_ATTITUDE_SPACING_S:  # densely sampled polynomials (Pleiades): every k-th sample, ends kept
             step = int(np.ceil(MIN_ATTITUDE_SPACING_S / da))
             at = np.unique(np.concatenate([at[::step], at[-1:]]))
+        if at.size > MAX_JOB_ATTITUDE_SAMPLES:  # a long strip: evenly spread samples, ends kept
+            at = at[np.unique(np.round(np.linspace(0, at.size - 1, MAX_JOB_ATTITUDE_SAMPLES)).astype(int))]
         rot = effective_rotations(m, at, src.mean_height_m)  # body to ECEF
         ecef_to_ours = np.einsum("ij,njk->nik", src.ours_to_body.T, np.transpose(rot, (0, 2, 1)))
         a = ecef_to_ours @ np.transpose(orbital_rows(m.position(at), m.velocity(at)), (0, 2, 1))
