@@ -315,7 +315,10 @@ def test_cors_origins(tmp_path: Path) -> None:
 
 def test_problem_details_are_strict_json() -> None:
     """Non-finite numbers in a problem's details become null (a 4xx never turns into a 500)."""
-    from service.errors import _json_safe
+    import service.errors
+    from solver.report.json_text import json_ready
 
-    safe = _json_safe([{"condition": float("inf"), "nested": {"x": float("nan"), "ok": [1.5, -float("inf")]}}])
+    assert service.errors.json_ready is json_ready  # the conversion problem documents are written with
+
+    safe = json_ready([{"condition": float("inf"), "nested": {"x": float("nan"), "ok": [1.5, -float("inf")]}}])
     assert json.loads(json.dumps(safe, allow_nan=False)) == [{"condition": None, "nested": {"x": None, "ok": [1.5, None]}}]

@@ -23,12 +23,13 @@
     ephemeris: "ephemeris",
     attitude: "attitude",
     rpc: "RPC of an image (RPC00B)",
+    sensor: "vendor sensor metadata (Maxar XML, DIMAP)",
     cameras: "camera file (JSON)",
     raster: "raster of an image (for tie points)",
     asp_gcp: "ASP GCP (several images)",
     ignore: "ignore",
   };
-  const PER_IMAGE = new Set(["measurements", "state", "ephemeris", "attitude", "rpc", "raster"]);
+  const PER_IMAGE = new Set(["measurements", "state", "ephemeris", "attitude", "rpc", "sensor", "raster"]);
   const NOT_COMPOSED = new Set(["ignore", "raster"]);  // rasters go to the match process, not to compose
   const RASTER = /\.(tiff?|jp2|ntf|img)$/i;
   const RPC_MODELS = ["RPC-SHIFT", "RPC-DRIFT", "RPC-AFFINE"];
@@ -82,6 +83,12 @@
     if (lower.endsWith("_rpc.txt")) return { kind: "rpc", image: name.slice(0, -8) };
     if (lower.endsWith(".rpb")) return { kind: "rpc", image: stem };
     if (lower.startsWith("rpc_") && lower.endsWith(".xml")) return { kind: "rpc", image: stem.slice(4) };
+    // vendor sensor metadata (camera, ephemeris, attitude, line times): Maxar's XML (root isd),
+    // DIMAP v1 METADATA.DIM or DIMAP v2 DIM_NAME.XML
+    if (lower.startsWith("dim_") && lower.endsWith(".xml")) return { kind: "sensor", image: stem.slice(4) };
+    if (lower.endsWith(".dim") || (lower.endsWith(".xml") && /<(isd|Dimap_Document)[\s>]/.test(text.slice(0, 4096)))) {
+      return { kind: "sensor", image: stem };
+    }
     if (lower.endsWith(".points") || lower.endsWith(".gcp")) return { kind: "measurements", image: stem };
     for (const k of ["state", "ephemeris", "attitude"]) {
       if (lower.endsWith(`.${k}.csv`)) return { kind: k, image: name.slice(0, -(k.length + 5)) };
@@ -162,6 +169,11 @@
     const box = $("builder-images");
     box.replaceChildren();
     for (const id of imageIds()) {
+      if (st.files.some((f) => f.kind === "sensor" && f.image === id)) {
+        // its metadata brings its camera, ephemeris, attitude and model
+        box.append(el("label", {}, `${id}: from its sensor metadata`));
+        continue;
+      }
       if (st.files.some((f) => f.kind === "rpc" && f.image === id)) {
         // an RPC image: no sensor, a bias model instead
         const chosen = (st.rpcModel || {})[id] || "RPC-DRIFT";
