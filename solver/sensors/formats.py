@@ -1,6 +1,8 @@
 """Which reader a metadata file needs, by its root element: ``isd`` (Maxar support data,
-:mod:`solver.sensors.maxar`) or ``Dimap_Document`` (DIMAP v1, SPOT 5:
-:mod:`solver.sensors.dimap_spot5`)."""
+:mod:`solver.sensors.maxar`), ``Dimap_Document`` (DIMAP v1, SPOT 5:
+:mod:`solver.sensors.dimap_spot5`) or ``prdf`` (INPE product XML of CBERS-4/4A and
+Amazonia-1: :mod:`solver.sensors.inpe_cbers`; ``FILE#left`` or ``FILE#right`` names the camera
+of a two-camera record, the left one by default)."""
 
 from __future__ import annotations
 
@@ -8,16 +10,21 @@ from pathlib import Path
 
 from solver.sensors.dimap_spot5 import Spot5Product, read_spot5
 from solver.sensors.errors import MetadataError
+from solver.sensors.inpe_cbers import CbersProduct, read_cbers
 from solver.sensors.maxar import MaxarProduct, read_maxar
 from solver.sensors.xmlsafe import read_bytes
 
-FORMATS = "Maxar/DigitalGlobe support-data XML (root isd) or SPOT 5 DIMAP v1 (root Dimap_Document)"
+FORMATS = ("Maxar/DigitalGlobe support-data XML (root isd), SPOT 5 DIMAP v1 (root Dimap_Document) or INPE product "
+           "XML of CBERS-4/4A, Amazonia-1 (root prdf)")
+CAMERA_SUFFIXES = ("#left", "#right")
 
 
-def read_product(path: str | Path, shown: str | None = None, data: bytes | str | None = None) -> MaxarProduct | Spot5Product:
+def read_product(path: str | Path, shown: str | None = None,
+                 data: bytes | str | None = None) -> MaxarProduct | Spot5Product | CbersProduct:
     """The product of a metadata file (or of its bytes ``data``), by its root element
-    (MetadataError naming the file when neither)."""
-    path = Path(path)
+    (MetadataError naming the file when none of them)."""
+    camera = next((c[1:] for c in CAMERA_SUFFIXES if str(path).endswith(c) and not Path(path).exists()), None)
+    path = Path(str(path)[: -len(camera) - 1]) if camera else Path(path)
     shown = str(path) if shown is None else shown
     if isinstance(data, str):
         data = data.encode()
@@ -28,4 +35,6 @@ def read_product(path: str | Path, shown: str | None = None, data: bytes | str |
         return read_maxar(path, shown, data)
     if b"<Dimap_Document" in head:
         return read_spot5(path, shown, data)
+    if b"<prdf" in head:
+        return read_cbers(path, shown, data, camera)
     raise MetadataError(shown, "", f"not a sensor metadata file we read: {FORMATS} expected")

@@ -32,14 +32,15 @@ Mapping (docs/models.md sections 1, 9, 10):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any
 
 import numpy as np
 
 from solver.sensors.dimap_spot5 import Spot5Product
-from solver.sensors.linescan import LinescanModel, matrix_to_quaternion, quaternion_matrices
+from solver.sensors.inpe_cbers import CbersProduct, pointing_rotation
+from solver.sensors.linescan import LinescanModel, matrix_to_quaternion, orbital_rows, quaternion_matrices
 from solver.sensors.maxar import MaxarProduct
 
 KABSCH_DETECTORS = 9
@@ -53,16 +54,6 @@ LONG_STRIP_MODEL = "PASS-J2"
 # default orders (with them the adjustment is off by hundreds of metres).
 DEFAULT_ORDERS = {"omega": 3, "phi": 3, "kappa": 3}
 DEFAULT_SIGMA_VELOCITY_M_S = 0.01  # Maxar EPH carries no velocity covariance
-
-
-def orbital_rows(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) ``R_orbit``: rows along track (velocity without its radial part), cross track
-    (``z x x``), radial up (docs/models.md section 10)."""
-    z = position / np.linalg.norm(position, axis=1, keepdims=True)
-    x = velocity - np.sum(velocity * z, axis=1, keepdims=True) * z
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    y = np.cross(z, x)
-    return np.stack([x, y, z], axis=1)
 
 
 def angles_xyz(a: np.ndarray) -> np.ndarray:
@@ -122,6 +113,7 @@ class SensorSource:
     sigma_position_m: float | None
     sigma_attitude_rad: float | None
     default_model: str = DEFAULT_MODEL
+    warnings: list[str] = field(default_factory=list)  # the reader's, for the note and standard error
 
 
 def maxar_source(p: MaxarProduct) -> SensorSource:
@@ -173,6 +165,28 @@ def spot5_source(p: Spot5Product) -> SensorSource:
     return SensorSource(p.file, p.mission, p.instrument, m, body_from_ours, camera, 0.0, None, None, LONG_STRIP_MODEL)
 
 
+CBERS_PIXEL_MM = 0.013  # nominal: the records give no detector pitch; only its ratio to the focal length matters
+
+
+def cbers_source(p: CbersProduct) -> SensorSource:
+    """An INPE product's camera: our camera frame is the fitted pointing frame (x along track,
+    z up, :mod:`solver.sensors.inpe_cbers`), one straight chip centred on the middle column with
+    the fitted IFOV for a nominal 13 um pitch (the file's focal distance, where it has one, is
+    reported in the note only). Model PASS-J2 (scenes of 9-110 s); ephemeris and attitude
+    weights: the documented defaults (the records state none)."""
+    m = p.model
+    focal = CBERS_PIXEL_MM / p.ifov_rad
+    camera = {
+        "focal_mm": float(focal), "pixel_mm": CBERS_PIXEL_MM, "line_time_s": p.line_period_s, "lines": m.lines,
+        "columns": m.columns,
+        "chips": [{"id": "1", "first_column": 0, "columns": m.columns, "dx_mm": 0.0,
+                   "dy_mm": float(((m.columns - 1) / 2.0 - p.centre_column) * CBERS_PIXEL_MM)}],
+    }
+    name = f"{p.satellite} {p.instrument}" + (f" {p.camera}" if p.camera else "")
+    return SensorSource(p.file, name, p.instrument, m, pointing_rotation(p), camera, 0.0, None, None,
+                        LONG_STRIP_MODEL, list(p.warnings))
+
+
 def _time_origin(sources: list[SensorSource]) -> datetime:
     first = min(datetime.fromisoformat(s.model.epoch_utc.replace("Z", "+00:00")) for s in sources)
     return datetime(first.year, first.month, first.day, tzinfo=timezone.utc)
@@ -182,11 +196,21 @@ DEFAULT_SIGMA_POSITION_M = 5.0  # when the file states none
 DEFAULT_SIGMA_ATTITUDE_DEG = 0.002
 
 
-def fragment(products: list[MaxarProduct | Spot5Product | SensorSource], image_ids: list[str]) -> dict[str, Any]:
+def _source(p: MaxarProduct | Spot5Product | CbersProduct | SensorSource) -> SensorSource:
+    if isinstance(p, SensorSource):
+        return p
+    if isinstance(p, MaxarProduct):
+        return maxar_source(p)
+    if isinstance(p, CbersProduct):
+        return cbers_source(p)
+    return spot5_source(p)
+
+
+def fragment(products: list[MaxarProduct | Spot5Product | CbersProduct | SensorSource], image_ids: list[str]) -> dict[str, Any]:
     """The job fragment of one or more products (``cameras``, ``images``, ``options``) and a
-    ``sensor_metadata`` block per image (what was read, the job form's difference)."""
-    sources = [p if isinstance(p, SensorSource) else maxar_source(p) if isinstance(p, MaxarProduct) else spot5_source(p)
-               for p in products]
+    ``sensor_metadata`` block per image (what was read, the job form's difference, the reader's
+    warnings)."""
+    sources = [_source(p) for p in products]
     origin = _time_origin(sources)
     cameras, images, notes = [], [], []
     for src, image_id in zip(sources, image_ids):
@@ -218,7 +242,8 @@ def fragment(products: list[MaxarProduct | Spot5Product | SensorSource], image_i
         images.append(image)
         notes.append({"image": image_id, "file": src.file, "satellite": src.satellite, "band": src.band,
                       "first_line_utc": _utc(origin, t0 + shift), "time_origin_utc": origin.isoformat().replace("+00:00", "Z"),
-                      "difference_px": job_form_difference(src, camera, image, shift)})
+                      "difference_px": job_form_difference(src, camera, image, shift),
+                      **({"warnings": src.warnings} if src.warnings else {})})
     sig_p = [s.sigma_position_m for s in sources if s.sigma_position_m is not None]
     sig_a = [s.sigma_attitude_rad for s in sources if s.sigma_attitude_rad is not None]
     options: dict[str, Any] = {
