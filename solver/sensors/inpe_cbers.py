@@ -237,7 +237,7 @@ def read_cbers(path: str | Path, shown: str | None = None, data: bytes | None = 
 
     # states the image needs but the file cannot give: propagated from the nearest kept one
     need = (eph_t >= t_first - STATE_MARGIN_S) & (eph_t <= t_last + STATE_MARGIN_S)
-    lost = need & ~kept
+    lost = need & np.isin(np.arange(eph_t.size), checked.dropped_inconsistent)
     if np.any(lost):
         p_new, v_new = propagate(eph_t[kept], pos[kept], vel[kept], eph_t[lost])
         pos, vel = pos.copy(), vel.copy()
