@@ -60,14 +60,35 @@ def rpc_constants(image: Image, frame: LocalFrame) -> np.ndarray:
     return kc
 
 
+def _footprints_ecef(job: Job) -> list[np.ndarray]:
+    """Where the images look, for a job without any known point (direct georeferencing with tie
+    points only): an RPC's ground offset, else the sub-satellite point of the mean ephemeris or
+    approximate position (on the ellipsoid)."""
+    out = []
+    for im in job.images:
+        if im.rpc is not None:
+            out.append(to_ecef([[im.rpc.long_off, im.rpc.lat_off, im.rpc.height_off]], "EPSG:4326")[0])
+            continue
+        pos = [s.position_ecef_m for s in im.ephemeris] or ([im.approx_state.position_ecef_m] if im.approx_state else [])
+        if pos:
+            p = np.mean(np.array(pos, float), axis=0)
+            r = float(np.linalg.norm(p))
+            if r > 0:
+                out.append(p / r * A_WGS84_M)
+    return out
+
+
 def control_frame(job: Job, points_ecef: dict[str, np.ndarray], line_points_ecef: np.ndarray | None = None) -> LocalFrame:
     """LGS at the centroid of the control: control points and the control lines' two points each
-    (without any control, of all known points)."""
+    (without any control, of all known points; without any known point, of where the images
+    look)."""
     gcps = [points_ecef[p.id] for p in job.points if p.role == "gcp"]
     if line_points_ecef is not None and len(line_points_ecef):
         gcps += list(line_points_ecef)
     if not gcps:
         gcps = list(points_ecef.values())
+    if not gcps:
+        gcps = _footprints_ecef(job)
     return LocalFrame.at_centroid(np.array(gcps))
 
 
