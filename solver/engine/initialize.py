@@ -159,10 +159,11 @@ def initialise(problem: AdjustmentState) -> None:
 def _attitude_by_resection(problem: AdjustmentState, img: ImageState, v_ecef) -> tuple[float, float, float]:
     if img.model.kind.attitude_in_orbital_frame:
         # relative to the orbital frame: the mean of the image's attitude samples (roll, pitch, yaw
-        # in that frame), else nominally zero; without it, images pointed off nadir start at nadir
-        # and the rays of tie points without control start (nearly) parallel
+        # in that frame) when the job weights them (options.attitude), else nominally zero; from
+        # zero, images pointed off nadir start at nadir and the rays of tie points without
+        # control start (nearly) parallel
         samples = problem.job.images[img.index].attitude
-        if samples:
+        if samples and problem.job.options.attitude is not None:
             return tuple(float(np.radians(np.mean([getattr(a, f) for a in samples]))) for f in ("roll_deg", "pitch_deg", "yaw_deg"))
         return 0.0, 0.0, 0.0
     obs = problem.obs
