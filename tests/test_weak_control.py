@@ -19,7 +19,7 @@ from solver.schema.job import load_job
 # 6.0 m with it, 2.5 m with full control; the rule's aim, 2x full control, is reached on one
 # seed of three (the truth's attitude rates, held, move the far check points)
 WITHOUT_RULE_M = 50.0  # the default before the rule: tens to hundreds of metres
-WITH_RULE_OVER_FULL = 3.0  # check RMSE with the rule / with full control (measured 2.4, 4.1, 1.4 on seeds 1-3)
+WITH_RULE_OVER_FULL = 3.0  # check RMSE with the rule / with full control, PASS-J2 (measured 2.4, 4.1, 1.4 on seeds 1-3)
 
 
 @pytest.fixture(scope="module")
