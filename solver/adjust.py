@@ -15,6 +15,7 @@ from solver.procedures.parsimony import parsimony_analysis
 from solver.procedures.significance import significance_analysis
 from solver.procedures.single import adjust_once, assert_full_rank, assess, prepare, solve_problem
 from solver.procedures.snooping import snooping_adjustment
+from solver.procedures.weak_control import weak_control_rule
 from solver.schema.job import Job
 from solver.schema.settings import Settings
 
@@ -31,7 +32,10 @@ def adjust_job(
     """Run the whole adjustment of ``job`` and return the report (docs/report-contract.md).
 
     ``models`` optionally overrides the platform model per image id (model comparison).
-    The procedures nest in this order: parsimony (``options.parsimony``) repeats the
+    The procedures nest in this order: the weak-control rule (``options.weak_control``, on by
+    default; off when the parsimony analysis is asked for, which decides the time terms, and in
+    model comparisons, whose ``models`` replace the job's)
+    repeats parsimony (``options.parsimony``), which repeats the
     significance analysis of the interior orientation (``options.self_calibration``), which
     repeats data snooping (``options.blunder_detection``), which repeats one adjustment; each
     gets the next one as its ``adjust``.
@@ -41,6 +45,8 @@ def adjust_job(
         return adjust_job(j, progress, cancel, models, window)
 
     procedures = Settings.from_options(job.options).procedures
+    if procedures.weak_control == "act" and procedures.parsimony is None and not models:
+        return weak_control_rule(job, inner, progress)
     if procedures.parsimony is not None:
         return parsimony_analysis(job, inner, progress)
     if procedures.significance_analysis:

@@ -60,25 +60,36 @@ def rpc_constants(image: Image, frame: LocalFrame) -> np.ndarray:
     return kc
 
 
+def _footprints_ecef(job: Job) -> list[np.ndarray]:
+    """Where the images look, for a job without any known point (direct georeferencing with tie
+    points only): an RPC's ground offset, else the sub-satellite point of the mean ephemeris or
+    approximate position (on the ellipsoid)."""
+    out = []
+    for im in job.images:
+        if im.rpc is not None:
+            out.append(to_ecef([[im.rpc.long_off, im.rpc.lat_off, im.rpc.height_off]], "EPSG:4326")[0])
+            continue
+        pos = [s.position_ecef_m for s in im.ephemeris] or ([im.approx_state.position_ecef_m] if im.approx_state else [])
+        if pos:
+            p = np.mean(np.array(pos, float), axis=0)
+            r = float(np.linalg.norm(p))
+            if r > 0:
+                out.append(p / r * A_WGS84_M)
+    return out
+
+
 def control_frame(job: Job, points_ecef: dict[str, np.ndarray], line_points_ecef: np.ndarray | None = None) -> LocalFrame:
     """LGS at the centroid of the control: control points and the control lines' two points each
-    (without any control, of all known points; without any known point, e.g. RPC images with
-    tie points and bias priors only, of the RPCs' ground offsets)."""
+    (without any control, of all known points; without any known point, of where the images
+    look)."""
     gcps = [points_ecef[p.id] for p in job.points if p.role == "gcp"]
     if line_points_ecef is not None and len(line_points_ecef):
         gcps += list(line_points_ecef)
     if not gcps:
         gcps = list(points_ecef.values())
     if not gcps:
-        gcps = list(rpc_centres_ecef(job))
+        gcps = _footprints_ecef(job)
     return LocalFrame.at_centroid(np.array(gcps))
-
-
-def rpc_centres_ecef(job: Job) -> np.ndarray:
-    """(n, 3) ECEF metres of the RPC images' ground offsets (``long_off``, ``lat_off``,
-    ``height_off``: the centre of each RPC's normalisation domain)."""
-    centres = [(im.rpc.long_off, im.rpc.lat_off, im.rpc.height_off) for im in job.images if im.rpc is not None]
-    return geodetic_to_ecef(np.array(centres, dtype=float).reshape(-1, 3))
 
 
 def ground_points_ecef(job: Job) -> dict[str, np.ndarray]:

@@ -1,6 +1,6 @@
 """``pba import-sensor METADATA... [--image-id ID]... [-o fragment.json] [--check-rpc]``: vendors'
 sensor metadata (Maxar/DigitalGlobe support-data XML, DIMAP v1 of SPOT 1-5, DIMAP v2 of SPOT 6/7
-and Pleiades) as a fragment of the job document:
+and Pleiades, INPE product XML of CBERS-4/4A and Amazonia-1) as a fragment of the job document:
 ``cameras`` (one per image), ``images`` (ephemeris, attitude samples, first-line time, a default
 model) and ``options`` (ephemeris and attitude weights from the file's covariances), as JSON.
 
@@ -8,7 +8,9 @@ On standard error, per image: what was read and how far the job form is from the
 exact model (px); with ``--check-rpc`` also the exact model against the vendor's RPC of the
 same image (RMS and maximum px over image positions x heights; a DIMAP v2 product's RPC_*.XML is
 looked for beside its DIM_*.XML), or, without an RPC, with the product's own tie points or extent
-corners (metres). Exit 0, or 2 with a message
+corners (metres; for CBERS, its corners in px). A reader's warnings (e.g. ephemeris states that
+disagree with their velocities, not used) are printed and kept in the note of the image. Exit 0,
+or 2 with a message
 naming the file and the element at fault (docs/sensor-metadata.md).
 """
 
@@ -23,10 +25,11 @@ from solver.sensors.errors import MetadataError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("import-sensor", help="vendor sensor metadata (Maxar XML, DIMAP of SPOT 1-7 and Pleiades) as a job "
-                       "fragment: cameras, images with ephemeris and attitude, options")
+    p = sub.add_parser("import-sensor", help="vendor sensor metadata (Maxar XML, DIMAP of SPOT 1-7 and Pleiades, INPE "
+                       "CBERS XML) as a job fragment: cameras, images with ephemeris and attitude, options")
     p.add_argument("metadata", type=Path, nargs="+", help="Maxar/DigitalGlobe support-data XML, SPOT 1-5 DIMAP v1 "
-                   "METADATA.DIM or SPOT 6/7 / Pleiades DIMAP v2 DIM_*.XML (one per image)")
+                   "METADATA.DIM, SPOT 6/7 / Pleiades DIMAP v2 DIM_*.XML or INPE CBERS/Amazonia product XML, "
+                   "FILE#left or FILE#right for one camera of a two-camera record (one per image)")
     p.add_argument("--image-id", action="append", default=[], metavar="ID",
                    help="image id, once per file in order (default: the file name without extension)")
     p.add_argument("-o", "--output", type=Path, help="JSON file to write (default: standard output)")
@@ -47,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from solver.sensors.dimap_spot5 import Spot5Product, tie_point_check
     from solver.sensors.dimap_v2 import DimapV2Product
     from solver.sensors.formats import read_product
+    from solver.sensors.inpe_cbers import CbersProduct, corner_check
     from solver.sensors.job_fragment import fragment
 
     if args.image_id and len(args.image_id) != len(args.metadata):
@@ -64,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{note['image']}: {note['satellite']} ({note['band']}), first line {note['first_line_utc']} "
               f"(times in s since {note['time_origin_utc']}); job form vs exact model {d['rms']:.3f} px RMS, "
               f"{d['max']:.3f} px max", file=sys.stderr)
+        for w in note.get("warnings", []):
+            print(f"{note['image']}: warning: {w}", file=sys.stderr)
     if args.check_rpc:
         for image_id, p in zip(ids, products):
             if isinstance(p, DimapV2Product):
@@ -75,6 +81,13 @@ def run(args: argparse.Namespace) -> int:
                 shown = ", ".join(f"{d:.2f}" for d in c["distances_m"])
                 print(f"{image_id}: exact model vs the product's {c['points']} tie points within the look-angle table: "
                       f"{shown or 'none'} m", file=sys.stderr)
+                continue
+            if isinstance(p, CbersProduct):
+                c = corner_check(p)
+                held = ", ".join(f"{h['corner']} {h['px']:.2f}" for h in c["held_out"])
+                print(f"{image_id}: model fitted to the corners {', '.join(c['corners'])}: {c['fit_rms_px']:.2f} px RMS, "
+                      f"{c['fit_max_px']:.2f} px max" + (f"; each corner from the other three: {held} px" if held else ""),
+                      file=sys.stderr)
                 continue
             if p.rpc is None:
                 print(f"{image_id}: no RPB in {p.file}", file=sys.stderr)

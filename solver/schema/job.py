@@ -696,6 +696,12 @@ class SolverOptions(_Strict):
         description="drop the platform terms that are not significant, one at a time with a test of "
         "the constraint (quality.parsimony); null: off",
     )
+    weak_control: Literal["act", "warn"] = Field(
+        default="act",
+        description="when the control does not determine an attitude term (its sigma over half the image beyond "
+        "quality_warnings.attitude_sigma_deg): run the significance analysis of the platform terms and report it "
+        "in quality.weak_control (act), or only warn (warn)",
+    )
 
 
 class Job(_Strict):

@@ -81,6 +81,7 @@ class ProcedureConfig:
     significance_analysis: bool  # of the interior orientation (options.self_calibration)
     models: tuple[str, ...]  # model comparison
     preanalysis: PreanalysisOptions | None  # planning
+    weak_control: str = "act"  # the rule when the control does not determine an attitude term
 
 
 @dataclass(frozen=True)
@@ -100,5 +101,6 @@ class Settings:
             SolveSettings(o.max_iterations, o.function_tolerance, o.parameter_tolerance, o.loss, o.loss_scale),
             BlockConfig(o.control, sc, o.ephemeris, o.attitude, o.line_model, o.line_correction),
             StatisticsConfig(o.sigma0_apriori, o.alpha, o.correlation_threshold, o.covariance, o.leave_one_out, o.quality_warnings),
-            ProcedureConfig(o.blunder_detection, o.parsimony, bool(sc is not None and sc.significance_analysis), tuple(o.models), o.preanalysis),
+            ProcedureConfig(o.blunder_detection, o.parsimony, bool(sc is not None and sc.significance_analysis), tuple(o.models),
+                            o.preanalysis, o.weak_control),
         )

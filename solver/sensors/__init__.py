@@ -12,6 +12,10 @@ the RPC00B polynomials).
 - :mod:`solver.sensors.maxar`: Maxar/DigitalGlobe support-data XML;
 - :mod:`solver.sensors.dimap_spot5`: DIMAP v1 of SPOT 1-5;
 - :mod:`solver.sensors.dimap_v2`: DIMAP v2 of SPOT 6/7, Pleiades 1A/1B and Pleiades Neo;
+- :mod:`solver.sensors.inpe_cbers`: INPE product XML (CBERS-4/4A, Amazonia-1);
+- :mod:`solver.sensors.ephemeris_check`: duplicated states and positions that disagree with the
+  velocities, named and not used; propagation of the states an image needs in their place;
+- :mod:`solver.sensors.timescales`: UTC with its leap seconds, GPS time;
 - :mod:`solver.sensors.formats`: which reader a file needs (by its root element);
 - :mod:`solver.sensors.agreement`: the exact model against the vendor's RPC, stereo closure;
 - :mod:`solver.sensors.job_fragment`: a product as cameras, images and options of our job, and

@@ -49,7 +49,8 @@ import numpy as np
 from solver.schema.job import MAX_COLUMNS, MAX_LINES
 from solver.sensors.detectors import DIMAP_V2_SATELLITE, LookAngles
 from solver.sensors.linescan import Corrections, LinescanModel
-from solver.sensors.maxar import crosses_leap_second, parse_utc
+from solver.sensors.maxar import parse_utc
+from solver.sensors.timescales import UnknownLeapSeconds, leap_seconds_between
 from solver.sensors.xmlsafe import Node, load
 
 PROFILES = {"PHR_SENSOR": "Pleiades", "PNEO_SENSOR": "Pleiades Neo", "S6_SENSOR": "SPOT 6", "S7_SENSOR": "SPOT 7"}
@@ -243,8 +244,12 @@ def read_dimap_v2_root(root: Node, path: Path, shown: str) -> DimapV2Product:
         raise model_node.child("Ephemeris").error(
             f"the samples ({eph_t[0] - t0:+.3f} to {eph_t[-1] - t0:+.3f} s from the first line) do not cover the image's lines "
             f"(0 to {t_end - t0:.3f} s)")
-    if crosses_leap_second(epoch, epoch + timedelta(seconds=float(max(eph_t[-1], t_end)))):
-        raise time.error("the samples span the end of 30 June or 31 December, where a leap second may fall: not read")
+    try:
+        leaps = leap_seconds_between(epoch, epoch + timedelta(seconds=float(max(eph_t[-1], t_end))))
+    except UnknownLeapSeconds as exc:
+        raise time.error(f"{exc}: not read") from None
+    if leaps:
+        raise time.error(f"the samples span the leap second before {leaps[0].isoformat()}: not read")
     att = model_node.child("Attitudes")
     if att.find("Quaternion_List") is not None:
         att_t, att_q = _quaternion_list(att, epoch)

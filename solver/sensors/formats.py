@@ -1,7 +1,9 @@
 """Which reader a metadata file needs, by its root element: ``isd`` (Maxar support data,
-:mod:`solver.sensors.maxar`) or ``Dimap_Document`` (DIMAP v1 of SPOT 1-5,
+:mod:`solver.sensors.maxar`), ``Dimap_Document`` (DIMAP v1 of SPOT 1-5,
 :mod:`solver.sensors.dimap_spot5`; DIMAP v2 of SPOT 6/7 and Pleiades,
-:mod:`solver.sensors.dimap_v2`, told apart by ``METADATA_FORMAT``'s version)."""
+:mod:`solver.sensors.dimap_v2`, told apart by ``METADATA_FORMAT``'s version) or ``prdf`` (INPE
+product XML of CBERS-4/4A and Amazonia-1: :mod:`solver.sensors.inpe_cbers`; ``FILE#left`` or
+``FILE#right`` names the camera of a two-camera record, the left one by default)."""
 
 from __future__ import annotations
 
@@ -10,18 +12,22 @@ from pathlib import Path
 from solver.sensors.dimap_spot5 import Spot5Product, dimap_version, read_dimap_v1_root
 from solver.sensors.dimap_v2 import DimapV2Product, read_dimap_v2_root
 from solver.sensors.errors import MetadataError
+from solver.sensors.inpe_cbers import CbersProduct, read_cbers
 from solver.sensors.maxar import MaxarProduct, read_maxar
 from solver.sensors.xmlsafe import load, read_bytes
 
-FORMATS = ("Maxar/DigitalGlobe support-data XML (root isd), DIMAP v1 of SPOT 1-5 (METADATA.DIM) or DIMAP v2 "
-           "of SPOT 6/7 and Pleiades (DIM_*.XML; root Dimap_Document)")
-Product = MaxarProduct | Spot5Product | DimapV2Product
+FORMATS = ("Maxar/DigitalGlobe support-data XML (root isd), DIMAP v1 of SPOT 1-5 (METADATA.DIM), DIMAP v2 "
+           "of SPOT 6/7 and Pleiades (DIM_*.XML; root Dimap_Document) or INPE product XML of CBERS-4/4A, "
+           "Amazonia-1 (root prdf)")
+Product = MaxarProduct | Spot5Product | DimapV2Product | CbersProduct
+CAMERA_SUFFIXES = ("#left", "#right")
 
 
 def read_product(path: str | Path, shown: str | None = None, data: bytes | str | None = None) -> Product:
     """The product of a metadata file (or of its bytes ``data``), by its root element
-    (MetadataError naming the file when neither)."""
-    path = Path(path)
+    (MetadataError naming the file when none of them)."""
+    camera = next((c[1:] for c in CAMERA_SUFFIXES if str(path).endswith(c) and not Path(path).exists()), None)
+    path = Path(str(path)[: -len(camera) - 1]) if camera else Path(path)
     shown = str(path) if shown is None else shown
     if isinstance(data, str):
         data = data.encode()
@@ -40,4 +46,6 @@ def read_product(path: str | Path, shown: str | None = None, data: bytes | str |
             return read_dimap_v2_root(root, path if from_disk else Path(""), shown)
         raise root.error(f"DIMAP version {version or 'unknown'}: 1.x (SPOT 1-5) or 2.x (SPOT 6/7, Pleiades) expected",
                          "Metadata_Identification/METADATA_FORMAT")
+    if b"<prdf" in head:
+        return read_cbers(path, shown, data, camera)
     raise MetadataError(shown, "", f"not a sensor metadata file we read: {FORMATS} expected")

@@ -32,7 +32,7 @@ Mapping (docs/models.md sections 1, 9, 10):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any
 
@@ -42,7 +42,8 @@ from solver.geometry.sensor import chip_index_of_column
 from solver.sensors.detectors import LookAngles
 from solver.sensors.dimap_spot5 import Spot5Product
 from solver.sensors.dimap_v2 import DimapV2Product
-from solver.sensors.linescan import LinescanModel, matrix_to_quaternion, quaternion_matrices
+from solver.sensors.inpe_cbers import CbersProduct, pointing_rotation
+from solver.sensors.linescan import LinescanModel, matrix_to_quaternion, orbital_rows, quaternion_matrices
 from solver.sensors.maxar import MaxarProduct
 
 KABSCH_DETECTORS = 9
@@ -61,16 +62,6 @@ MIN_ATTITUDE_SPACING_S = 0.015  # the job's attitude samples: Maxar's 50 Hz kept
 # rotation, about 3.5 ms: a composition on the server stays within seconds); the public SPOT 5
 # segment has 578 over 72 s
 MAX_JOB_ATTITUDE_SAMPLES = 1000
-
-
-def orbital_rows(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) ``R_orbit``: rows along track (velocity without its radial part), cross track
-    (``z x x``), radial up (docs/models.md section 10)."""
-    z = position / np.linalg.norm(position, axis=1, keepdims=True)
-    x = velocity - np.sum(velocity * z, axis=1, keepdims=True) * z
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    y = np.cross(z, x)
-    return np.stack([x, y, z], axis=1)
 
 
 def angles_xyz(a: np.ndarray) -> np.ndarray:
@@ -130,6 +121,7 @@ class SensorSource:
     sigma_position_m: float | None
     sigma_attitude_rad: float | None
     default_model: str = DEFAULT_MODEL
+    warnings: list[str] = field(default_factory=list)  # the reader's, for the note and standard error
 
 
 def maxar_source(p: MaxarProduct) -> SensorSource:
@@ -216,6 +208,28 @@ def dimap_v2_source(p: DimapV2Product) -> SensorSource:
     return look_angle_source(p.file, p.satellite, p.band, p.model, p.look, p.line_period_s, p.pixel_mm, DEFAULT_MODEL)
 
 
+CBERS_PIXEL_MM = 0.013  # nominal: the records give no detector pitch; only its ratio to the focal length matters
+
+
+def cbers_source(p: CbersProduct) -> SensorSource:
+    """An INPE product's camera: our camera frame is the fitted pointing frame (x along track,
+    z up, :mod:`solver.sensors.inpe_cbers`), one straight chip centred on the middle column with
+    the fitted IFOV for a nominal 13 um pitch (the file's focal distance, where it has one, is
+    reported in the note only). Model PASS-J2 (scenes of 9-110 s); ephemeris and attitude
+    weights: the documented defaults (the records state none)."""
+    m = p.model
+    focal = CBERS_PIXEL_MM / p.ifov_rad
+    camera = {
+        "focal_mm": float(focal), "pixel_mm": CBERS_PIXEL_MM, "line_time_s": p.line_period_s, "lines": m.lines,
+        "columns": m.columns,
+        "chips": [{"id": "1", "first_column": 0, "columns": m.columns, "dx_mm": 0.0,
+                   "dy_mm": float(((m.columns - 1) / 2.0 - p.centre_column) * CBERS_PIXEL_MM)}],
+    }
+    name = f"{p.satellite} {p.instrument}" + (f" {p.camera}" if p.camera else "")
+    return SensorSource(p.file, name, p.instrument, m, pointing_rotation(p), camera, 0.0, None, None,
+                        LONG_STRIP_MODEL, list(p.warnings))
+
+
 def _time_origin(sources: list[SensorSource]) -> datetime:
     first = min(datetime.fromisoformat(s.model.epoch_utc.replace("Z", "+00:00")) for s in sources)
     return datetime(first.year, first.month, first.day, tzinfo=timezone.utc)
@@ -225,7 +239,7 @@ DEFAULT_SIGMA_POSITION_M = 5.0  # when the file states none
 DEFAULT_SIGMA_ATTITUDE_DEG = 0.002
 
 
-def source(p: MaxarProduct | Spot5Product | DimapV2Product | SensorSource) -> SensorSource:
+def source(p: MaxarProduct | Spot5Product | DimapV2Product | CbersProduct | SensorSource) -> SensorSource:
     """What the fragment needs of a product of any format."""
     if isinstance(p, SensorSource):
         return p
@@ -233,12 +247,17 @@ def source(p: MaxarProduct | Spot5Product | DimapV2Product | SensorSource) -> Se
         return maxar_source(p)
     if isinstance(p, DimapV2Product):
         return dimap_v2_source(p)
+    if isinstance(p, CbersProduct):
+        return cbers_source(p)
     return spot5_source(p)
 
 
-def fragment(products: list[MaxarProduct | Spot5Product | DimapV2Product | SensorSource], image_ids: list[str]) -> dict[str, Any]:
+def fragment(
+    products: list[MaxarProduct | Spot5Product | DimapV2Product | CbersProduct | SensorSource], image_ids: list[str]
+) -> dict[str, Any]:
     """The job fragment of one or more products (``cameras``, ``images``, ``options``) and a
-    ``sensor_metadata`` block per image (what was read, the job form's difference)."""
+    ``sensor_metadata`` block per image (what was read, the job form's difference, the reader's
+    warnings)."""
     sources = [source(p) for p in products]
     origin = _time_origin(sources)
     cameras, images, notes = [], [], []
@@ -276,7 +295,8 @@ def fragment(products: list[MaxarProduct | Spot5Product | DimapV2Product | Senso
         images.append(image)
         notes.append({"image": image_id, "file": src.file, "satellite": src.satellite, "band": src.band,
                       "first_line_utc": _utc(origin, t0 + shift), "time_origin_utc": origin.isoformat().replace("+00:00", "Z"),
-                      "difference_px": job_form_difference(src, camera, image, shift)})
+                      "difference_px": job_form_difference(src, camera, image, shift),
+                      **({"warnings": src.warnings} if src.warnings else {})})
     sig_p = [s.sigma_position_m for s in sources if s.sigma_position_m is not None]
     sig_a = [s.sigma_attitude_rad for s in sources if s.sigma_attitude_rad is not None]
     options: dict[str, Any] = {

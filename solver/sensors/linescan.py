@@ -140,6 +140,16 @@ def slerp(t: np.ndarray, times: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
+def orbital_rows(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) ``R_orbit``: rows along track (velocity without its radial part), cross track
+    (``z x x``), radial up (docs/models.md section 10)."""
+    z = position / np.linalg.norm(position, axis=1, keepdims=True)
+    x = velocity - np.sum(velocity * z, axis=1, keepdims=True) * z
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    y = np.cross(z, x)
+    return np.stack([x, y, z], axis=1)
+
+
 def _rotate_z(p: np.ndarray, angle: np.ndarray) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
     return np.column_stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1], p[:, 2]])

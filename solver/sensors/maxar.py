@@ -25,8 +25,8 @@ public WorldView-2 files of tests/data/vendor/stereopipeline, whose RPB they rep
 - ``RPB/IMAGE``: the vendor's RPC00B (pixel centres, the RPC's usual convention).
 
 Times: every time of the file is UTC; the model's epoch is the first ephemeris time, and an
-interval crossing a leap second (30 June / 31 December at 23:59:60) is refused rather than
-silently one second off.
+interval containing a leap second of the table (:mod:`solver.sensors.timescales`; or the end
+of a June or December beyond the table) is refused rather than silently one second off.
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ import numpy as np
 
 from solver.geometry.rpc import RPC
 from solver.sensors.linescan import LinescanModel, quaternion_matrices
+from solver.sensors.timescales import UnknownLeapSeconds, leap_seconds_between
 from solver.sensors.xmlsafe import Node, load
 
 
@@ -74,17 +75,6 @@ def parse_utc(node: Node, tag: str) -> datetime:
     if t.tzinfo is None:
         t = t.replace(tzinfo=timezone.utc)
     return t
-
-
-def crosses_leap_second(a: datetime, b: datetime) -> bool:
-    """True when [a, b] contains the end of 30 June or 31 December (where leap seconds go)."""
-    lo, hi = min(a, b), max(a, b)
-    for year in range(lo.year, hi.year + 1):
-        for month, day in ((6, 30), (12, 31)):
-            edge = datetime(year, month, day, 23, 59, 59, tzinfo=timezone.utc)
-            if lo <= edge < hi:
-                return True
-    return False
 
 
 def _table(node: Node, list_tag: str, row_tag: str, width: int, min_rows: int) -> np.ndarray:
@@ -210,8 +200,12 @@ def read_maxar(path: str | Path, shown: str | None = None, data: bytes | None = 
         tlc_lines = np.append(tlc_lines, tlc_lines[0] + rate)
         tlc_times = np.append(tlc_times, tlc_times[0] + direction)
     last = epoch.timestamp() + max(eph_t[-1], att_t[-1])
-    if crosses_leap_second(epoch, datetime.fromtimestamp(last, timezone.utc)):
-        raise eph.error("the samples span a possible leap second (end of June or December): not supported", "STARTTIME")
+    try:
+        leaps = leap_seconds_between(epoch, datetime.fromtimestamp(last, timezone.utc))
+    except UnknownLeapSeconds as exc:
+        raise eph.error(f"{exc}: not supported", "STARTTIME") from None
+    if leaps:
+        raise eph.error(f"the samples span the leap second before {leaps[0].isoformat()}: not supported", "STARTTIME")
     t_first, t_last = tlc_times[0], tlc_times[0] + (lines - 1 - tlc_lines[0]) * (tlc_times[-1] - tlc_times[0]) / (tlc_lines[-1] - tlc_lines[0])
     for node, t in ((eph, eph_t), (att, att_t)):
         if min(t_first, t_last) < t[0] or max(t_first, t_last) > t[-1]:
