@@ -212,10 +212,11 @@ def references(spec: Any) -> list[tuple[tuple[str | int, ...], str]]:
     return refs + of(ComposeRequest, spec, ())
 
 
-def check_sizes(spec: Any, uploads: dict[str, bytes], max_rows: int, max_observations: int) -> None:
-    """Refuse, before any file is parsed, a spec naming more than :data:`MAX_REFERENCES` files
-    or one file twice in one image (422), or uploads whose lines, counted once per reference,
-    exceed ``max_rows`` (``PBA_COMPOSE_MAX_ROWS``) or whose measurement lines exceed the user's
+def check_sizes(spec: Any, lines: dict[str, int], max_rows: int, max_observations: int) -> None:
+    """Refuse, before any file is read into memory or parsed, a spec naming more than
+    :data:`MAX_REFERENCES` files or one file twice in one image (422), or uploads whose
+    ``lines`` (per file name: line ends + 1), counted once per reference, exceed
+    ``max_rows`` (``PBA_COMPOSE_MAX_ROWS``) or whose measurement lines exceed the user's
     ``max_observations`` (413): the work of a composition is bounded by these counts."""
     refs = references(spec)
     if len(refs) > MAX_REFERENCES:
@@ -230,7 +231,6 @@ def check_sizes(spec: Any, uploads: dict[str, bytes], max_rows: int, max_observa
                 f"image {im.id!r} names {twice[0]!r} twice",
                 [{"pointer": json_pointer(("spec", "images", k, "measurements")), "code": "duplicate_reference", "message": f"{twice[0]!r} is named twice"}],
             )
-    lines = {name: data.count(b"\n") + 1 for name, data in uploads.items()}
     rows = sum(lines.get(name, 0) for _, name in refs)
     measured = sum(lines.get(name, 0) for where, name in refs if where[0] == "asp_gcp" or where[-2:-1] == ("measurements",))
     if rows > max_rows:
@@ -305,12 +305,12 @@ def source_error_entries(exc: SourceError, uploads: dict[str, bytes]) -> list[di
 
 
 def compose_uploads(
-    spec: Any, uploads: dict[str, bytes], store: Store, user: UserRecord, max_rows: int, max_observations: int
+    spec: Any, uploads: dict[str, bytes], store: Store, user: UserRecord
 ) -> ComposeResult:
-    """Check the sizes (:func:`check_sizes`), compose, resolve library cameras for the checks,
-    summarize and validate; the heap is trimmed afterwards (:func:`release_memory`)."""
+    """Compose (the caller checked the sizes first: :func:`check_sizes`), resolve library
+    cameras for the checks, summarize and validate; the heap is trimmed afterwards
+    (:func:`release_memory`)."""
     try:
-        check_sizes(spec, uploads, max_rows, max_observations)
         return _compose(spec, uploads, store, user)
     finally:
         release_memory()
