@@ -41,6 +41,7 @@ from solver.schema.job import load_job
 
 MAX_FILES = 200
 MAX_REFERENCES = 256  # file names in one spec (a file shared by several images counts once per image)
+MAX_SENSOR_BYTES = 16 * 2**20  # one vendor metadata file (a full SPOT 5 scene's DIMAP is 2.5 MB, a WorldView XML 2 MB)
 MAX_NAME_BYTES = 255  # a file name, UTF-8 (NAME_MAX of the usual file systems)
 MAX_JSON_DEPTH = 32  # nesting of the spec (the job document is far flatter)
 FileName = Annotated[str, Field(min_length=1, max_length=MAX_NAME_BYTES)]
@@ -50,7 +51,7 @@ FileName = Annotated[str, Field(min_length=1, max_length=MAX_NAME_BYTES)]
 # :class:`solver.importers.compose.ComposeRequest` and :class:`ImageSources`: every field
 # carries over under its own name and type, a source file becomes the name of an uploaded file,
 # and the server adds only the bounds below (and ``columns``, the uploads' column maps).
-NOT_UPLOADED = frozenset({"sensor"})  # vendor metadata: read by pba job only, not taken from uploads
+NOT_UPLOADED: frozenset[str] = frozenset()  # fields of the solver's request not taken from uploads
 BOUNDS: dict[str, dict[str, Any]] = {
     "id": {"min_length": 1, "max_length": 64},
     "camera": {"min_length": 1, "max_length": 128},
@@ -66,7 +67,9 @@ BOUNDS: dict[str, dict[str, Any]] = {
     "first_line_time_s": {"allow_inf_nan": False},
 }
 DESCRIPTIONS = {
-    "rpc": "an RPC image: its NAME_RPC.TXT, NAME.RPB or DIMAP RPC_*.XML (no raster)",
+    "rpc": "an RPC image: its NAME_RPC.TXT, NAME.RPB, ALOS RPC-*.txt or DIMAP RPC_*.XML (no raster)",
+    "sensor": "vendor sensor metadata (Maxar XML, DIMAP of SPOT 1-7 and Pleiades): the image's camera, ephemeris, "
+    "attitude, line times and model",
     "rpc_model": "bias model of the RPC images without their own",
     "points": "point tables with a role column",
     "asp_gcp": "ASP GCP files naming their images",
@@ -212,12 +215,13 @@ def references(spec: Any) -> list[tuple[tuple[str | int, ...], str]]:
     return refs + of(ComposeRequest, spec, ())
 
 
-def check_sizes(spec: Any, lines: dict[str, int], max_rows: int, max_observations: int) -> None:
+def check_sizes(spec: Any, lines: dict[str, int], sizes: dict[str, int], max_rows: int, max_observations: int) -> None:
     """Refuse, before any file is read into memory or parsed, a spec naming more than
     :data:`MAX_REFERENCES` files or one file twice in one image (422), or uploads whose
     ``lines`` (per file name: line ends + 1), counted once per reference, exceed
-    ``max_rows`` (``PBA_COMPOSE_MAX_ROWS``) or whose measurement lines exceed the user's
-    ``max_observations`` (413): the work of a composition is bounded by these counts."""
+    ``max_rows`` (``PBA_COMPOSE_MAX_ROWS``), whose measurement lines exceed the user's
+    ``max_observations``, or a sensor metadata file over :data:`MAX_SENSOR_BYTES` (``sizes``:
+    bytes per file name) (413): the work of a composition is bounded by these counts."""
     refs = references(spec)
     if len(refs) > MAX_REFERENCES:
         raise InvalidInput(
@@ -231,7 +235,10 @@ def check_sizes(spec: Any, lines: dict[str, int], max_rows: int, max_observation
                 f"image {im.id!r} names {twice[0]!r} twice",
                 [{"pointer": json_pointer(("spec", "images", k, "measurements")), "code": "duplicate_reference", "message": f"{twice[0]!r} is named twice"}],
             )
-    rows = sum(lines.get(name, 0) for _, name in refs)
+    for where, name in refs:  # metadata XML is bounded by its bytes, not by lines of rows
+        if where[-1] == "sensor" and sizes.get(name, 0) > MAX_SENSOR_BYTES:
+            raise JobTooLarge(f"the sensor metadata {name!r} has {sizes[name]} bytes; at most {MAX_SENSOR_BYTES}")
+    rows = sum(lines.get(name, 0) for where, name in refs if where[-1] != "sensor")
     measured = sum(lines.get(name, 0) for where, name in refs if where[0] == "asp_gcp" or where[-2:-1] == ("measurements",))
     if rows > max_rows:
         raise JobTooLarge(

@@ -10,7 +10,7 @@ from typing import Any
 
 from service.cameras import resolve_camera_refs
 from service.errors import JobFailed, JobTooLarge, NoSuchJob, ResultNotReady, TooManyJobs
-from service.processes import JOB_POINTER, process
+from service.processes import JOB_POINTER, Caller, process
 from service.queue import QueueBackend
 from service.queue_view import Placement, placement
 from service.retention import quota_bytes, quota_error
@@ -22,7 +22,7 @@ from solver.schema.job import Job
 
 
 def validate_inputs(
-    process_id: str, inputs: ExecuteInputs, store: Store, user: UserRecord
+    process_id: str, inputs: ExecuteInputs, store: Store, user: UserRecord, settings: Settings
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Resolve camera refs (in ``user``'s camera namespaces) and run the process's check
     (:mod:`service.processes`: the solver's dry run for an adjustment).
@@ -32,7 +32,7 @@ def validate_inputs(
     """
     proc = process(process_id)
     job = resolve_camera_refs(inputs.job, store, user.id, JOB_POINTER)
-    checked = proc.check(job, inputs)
+    checked = proc.check(job, inputs, Caller(user.name, settings))
     return checked.document, checked.summary
 
 
@@ -61,7 +61,7 @@ class JobService:
         n_obs = process(process_id).count(inputs.job)
         if n_obs > max_obs:
             raise JobTooLarge(f"the job has {n_obs} observations; your limit is {max_obs}")
-        document, _ = validate_inputs(process_id, inputs, self.store, user)
+        document, _ = validate_inputs(process_id, inputs, self.store, user, self.settings)
         if self.store.count_queued(user.id) >= max_queued:
             raise TooManyJobs(
                 f"you already have {max_queued} jobs queued or running; wait for some to finish",
@@ -139,7 +139,7 @@ def status_info(
                 title="results",
             )
         )
-        for table in ("observations", "checkpoints", "parameters"):
+        for table in process(rec.process_id).tables:
             links.append(
                 Link(
                     href=f"{href}/results/{table}.csv",

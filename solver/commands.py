@@ -174,6 +174,10 @@ def summary_text(report: dict[str, Any]) -> str:
             f"(predicted E {_fmt(pr['e'], '.3f')}  N {_fmt(pr['n'], '.3f')}  U {_fmt(pr['u'], '.3f')}); "
             f"{loo['n_discrepancy_test_failed']} fail the discrepancy test"
         )
+    pairs = (report.get("quality") or {}).get("tie_pairs")
+    if pairs:
+        lines.append("\ntie points per image pair (found / kept / removed by data snooping):")
+        lines += [f"  {p['images'][0]}-{p['images'][1]}: {p['found']} / {p['kept']} / {p['removed']}" for p in pairs]
     ln = report.get("lines") or {}
     if ln.get("items"):
         roles = [it["role"] for it in ln["items"]]

@@ -44,6 +44,7 @@ async def compose_job(
         raise InvalidInput(f"at most {MAX_FILES} files", [{"pointer": "/files", "code": "too_many", "message": "too many files"}])
     named: dict[str, UploadFile] = {}
     lines: dict[str, int] = {}
+    sizes: dict[str, int] = {}
     for i, f in enumerate(files):
         name = check_file_name(f.filename, i)
         if name in named:
@@ -52,19 +53,20 @@ async def compose_job(
                 [{"pointer": f"/files/{name}", "code": "duplicate_file", "message": "file names must be distinct"}],
             )
         named[name] = f
-        lines[name] = await _count_lines(f)
+        lines[name], sizes[name] = await _count(f)
     _, max_observations = services.jobs.limits_of(user)
-    check_sizes(parsed, lines, services.settings.compose_max_rows, max_observations)
+    check_sizes(parsed, lines, sizes, services.settings.compose_max_rows, max_observations)
     referenced = {name for _, name in references(parsed)}
     uploads = {name: await f.read() for name, f in named.items() if name in referenced}
     return await run_in_threadpool(compose_uploads, parsed, uploads, services.store, user)
 
 
-async def _count_lines(f: UploadFile) -> int:
-    """Lines of an upload (line ends + 1), read in chunks of :data:`CHUNK_BYTES` (the
+async def _count(f: UploadFile) -> tuple[int, int]:
+    """(lines: line ends + 1, bytes) of an upload, read in chunks of :data:`CHUNK_BYTES` (the
     multipart parser keeps big uploads on disk), then rewound: counted before it is held."""
-    n = 1
+    lines, size = 1, 0
     while chunk := await f.read(CHUNK_BYTES):
-        n += chunk.count(b"\n")
+        lines += chunk.count(b"\n")
+        size += len(chunk)
     await f.seek(0)
-    return n
+    return lines, size

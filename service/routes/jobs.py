@@ -95,7 +95,7 @@ def validate_job(
 ) -> ValidationReport:
     """Dry run: schema, camera references, model names, degrees of freedom; nothing is queued.
     Answers 200 with the counts, or 422 with every problem pointing at its field."""
-    _, summary = validate_inputs(process, body.inputs, services.store, user)
+    _, summary = validate_inputs(process, body.inputs, services.store, user, services.settings)
     return ValidationReport.model_validate(summary)
 
 

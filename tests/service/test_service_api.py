@@ -109,7 +109,7 @@ def test_landing_conformance_processes(local: TestClient) -> None:
     conf = local.get("/conformance").json()["conformsTo"]
     assert "http://www.opengis.net/spec/ogcapi-processes-1/1.0/conf/core" in conf
     ids = [p["id"] for p in local.get("/processes").json()["processes"]]
-    assert ids == ["bundle-adjustment", "model-comparison", "preanalysis"]
+    assert ids == ["bundle-adjustment", "model-comparison", "preanalysis", "match"]
     desc = local.get("/processes/bundle-adjustment").json()
     assert desc["inputs"]["job"]["schema"]["title"] == "Job"
     assert "report" in desc["outputs"]

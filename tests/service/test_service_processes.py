@@ -30,7 +30,7 @@ FAKE = "echo-count"
 FAKE_COUNT = 7  # observations the fake process says a job has (its own rule, not len(observations))
 
 
-def _fake_check(job: Any, inputs: Any) -> Checked:
+def _fake_check(job: Any, inputs: Any, caller: Any) -> Checked:
     if job.name == "refuse me":
         raise InvalidInput("the fake process refuses this job", [{"pointer": "/inputs/job/name", "code": "fake", "message": "refused"}])
     return Checked({"job": job.model_dump(mode="json")}, {"valid": True, "problems": [], "images": []})
