@@ -215,11 +215,13 @@ def references(spec: Any) -> list[tuple[tuple[str | int, ...], str]]:
     return refs + of(ComposeRequest, spec, ())
 
 
-def check_sizes(spec: Any, uploads: dict[str, bytes], max_rows: int, max_observations: int) -> None:
-    """Refuse, before any file is parsed, a spec naming more than :data:`MAX_REFERENCES` files
-    or one file twice in one image (422), or uploads whose lines, counted once per reference,
-    exceed ``max_rows`` (``PBA_COMPOSE_MAX_ROWS``) or whose measurement lines exceed the user's
-    ``max_observations`` (413): the work of a composition is bounded by these counts."""
+def check_sizes(spec: Any, lines: dict[str, int], sizes: dict[str, int], max_rows: int, max_observations: int) -> None:
+    """Refuse, before any file is read into memory or parsed, a spec naming more than
+    :data:`MAX_REFERENCES` files or one file twice in one image (422), or uploads whose
+    ``lines`` (per file name: line ends + 1), counted once per reference, exceed
+    ``max_rows`` (``PBA_COMPOSE_MAX_ROWS``), whose measurement lines exceed the user's
+    ``max_observations``, or a sensor metadata file over :data:`MAX_SENSOR_BYTES` (``sizes``:
+    bytes per file name) (413): the work of a composition is bounded by these counts."""
     refs = references(spec)
     if len(refs) > MAX_REFERENCES:
         raise InvalidInput(
@@ -234,9 +236,8 @@ def check_sizes(spec: Any, uploads: dict[str, bytes], max_rows: int, max_observa
                 [{"pointer": json_pointer(("spec", "images", k, "measurements")), "code": "duplicate_reference", "message": f"{twice[0]!r} is named twice"}],
             )
     for where, name in refs:  # metadata XML is bounded by its bytes, not by lines of rows
-        if where[-1] == "sensor" and len(uploads.get(name, b"")) > MAX_SENSOR_BYTES:
-            raise JobTooLarge(f"the sensor metadata {name!r} has {len(uploads[name])} bytes; at most {MAX_SENSOR_BYTES}")
-    lines = {name: data.count(b"\n") + 1 for name, data in uploads.items()}
+        if where[-1] == "sensor" and sizes.get(name, 0) > MAX_SENSOR_BYTES:
+            raise JobTooLarge(f"the sensor metadata {name!r} has {sizes[name]} bytes; at most {MAX_SENSOR_BYTES}")
     rows = sum(lines.get(name, 0) for where, name in refs if where[-1] != "sensor")
     measured = sum(lines.get(name, 0) for where, name in refs if where[0] == "asp_gcp" or where[-2:-1] == ("measurements",))
     if rows > max_rows:
@@ -311,12 +312,12 @@ def source_error_entries(exc: SourceError, uploads: dict[str, bytes]) -> list[di
 
 
 def compose_uploads(
-    spec: Any, uploads: dict[str, bytes], store: Store, user: UserRecord, max_rows: int, max_observations: int
+    spec: Any, uploads: dict[str, bytes], store: Store, user: UserRecord
 ) -> ComposeResult:
-    """Check the sizes (:func:`check_sizes`), compose, resolve library cameras for the checks,
-    summarize and validate; the heap is trimmed afterwards (:func:`release_memory`)."""
+    """Compose (the caller checked the sizes first: :func:`check_sizes`), resolve library
+    cameras for the checks, summarize and validate; the heap is trimmed afterwards
+    (:func:`release_memory`)."""
     try:
-        check_sizes(spec, uploads, max_rows, max_observations)
         return _compose(spec, uploads, store, user)
     finally:
         release_memory()

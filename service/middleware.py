@@ -18,7 +18,8 @@ log = logging.getLogger("pba.http")
 
 class BodyLimitMiddleware:
     """Refuse request bodies over ``max_bytes`` with a 413 problem document, before the app
-    sees them (declared Content-Length or counted while reading a chunked body)."""
+    sees them: by the declared Content-Length (the body then streams through, so a big upload
+    is not held in memory here), or counted while reading a chunked body."""
 
     def __init__(self, app: ASGIApp, max_bytes: int) -> None:
         self.app = app
@@ -55,12 +56,16 @@ class BodyLimitMiddleware:
         declared = headers.get(b"content-length")
         if declared is not None:
             try:
-                if int(declared) > self.max_bytes:
-                    await self._refuse(scope, send)
-                    return
+                length = int(declared)
             except ValueError:
-                pass
-        # read (and count) the whole body, then replay it to the app
+                length = -1
+            if length > self.max_bytes:
+                await self._refuse(scope, send)
+                return
+            if length >= 0:  # the server frames the body by its length: streamed, never held here
+                await self.app(scope, self._bounded(receive), send)
+                return
+        # no usable length (chunked): read (and count) the whole body, then replay it to the app
         chunks: list[bytes] = []
         total = 0
         more = True
@@ -86,6 +91,22 @@ class BodyLimitMiddleware:
             return await receive()
 
         await self.app(scope, replay, send)
+
+    def _bounded(self, receive: Receive) -> Receive:
+        """``receive`` passing the body through as it comes, a disconnect past ``max_bytes``
+        (a guard: the server does not deliver more than the declared length)."""
+        total = 0
+
+        async def bounded() -> Message:
+            nonlocal total
+            message = await receive()
+            if message["type"] == "http.request":
+                total += len(message.get("body", b""))
+                if total > self.max_bytes:
+                    return {"type": "http.disconnect"}
+            return message
+
+        return bounded
 
 
 class ServicesContextMiddleware:

@@ -196,7 +196,9 @@ def _run_comparison(document: dict[str, Any], progress: Progress, cancel: Cancel
     import solver.api
 
     models = document.get("models") or document["job"].get("options", {}).get("models", [])
-    return solver.api.compare(document["job"], models, progress=progress, cancel=cancel)
+    return solver.api.compare(
+        document["job"], models, progress=progress, cancel=cancel, validated=document.get("validation")
+    )
 
 
 def _comparison_inputs() -> dict[str, InputDescription]:

@@ -92,7 +92,7 @@ def run(
 
     j = _as_job(job)
     if j.options.models:
-        return compare(j, j.options.models, progress=progress, cancel=cancel)
+        return compare(j, j.options.models, progress=progress, cancel=cancel, validated=validated)
     from solver.adjust import adjust_job
 
     with _input_faults_as_job_errors(), handed_validation(j, validated):
@@ -112,12 +112,14 @@ def compare(
     models: list[str],
     progress: ProgressFn | None = None,
     cancel: CancelFn | None = None,
+    validated: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Adjust the same observations with each platform model; one report per model + a table."""
+    """Adjust the same observations with each platform model; one report per model + a table.
+    ``validated`` as in :func:`run`: the job is not checked again for each model."""
     from solver.compare import compare_models
 
     with _input_faults_as_job_errors():
-        return compare_models(_as_job(job), models, progress=progress, cancel=cancel)
+        return compare_models(_as_job(job), models, progress=progress, cancel=cancel, validated=validated)
 
 
 def preanalyse(job: Job | dict[str, Any] | str | bytes) -> dict[str, Any]:

@@ -56,3 +56,13 @@ def test_a_record_of_other_code_or_another_job_is_not_taken(checks: list[int]) -
         with pytest.raises(JobError):  # the copy lost its observations: checked, refused
             validate.require_valid(copy)
     assert validate._handed == {}  # nothing kept after the block
+
+
+def test_a_comparison_takes_the_handed_validation_for_every_model(checks: list[int]) -> None:
+    job = load_job(single_image_job("K2", seed=3)[0])
+    record = solver.api.validation_record(solver.api.validate(job))
+    n = len(checks)
+    report = solver.api.compare(job, ["K1", "K2"], validated=record)
+    assert len(checks) == n and set(report["reports"]) == {"K1", "K2"}
+    solver.api.compare(job, ["K1", "K2"])  # nothing handed: the job is checked for each model
+    assert len(checks) == n + 2

@@ -9,11 +9,20 @@ from typing import Annotated
 from fastapi import APIRouter, File, Form, UploadFile
 from fastapi.concurrency import run_in_threadpool
 
-from service.compose import MAX_FILES, ComposeResult, check_file_name, compose_uploads, parse_spec
+from service.compose import (
+    MAX_FILES,
+    ComposeResult,
+    check_file_name,
+    check_sizes,
+    compose_uploads,
+    parse_spec,
+    references,
+)
 from service.deps import CurrentUser, ServicesDep
 from service.errors import InvalidInput, problem_responses
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
+CHUNK_BYTES = 1 << 20
 
 
 @router.post(
@@ -33,16 +42,31 @@ async def compose_job(
     parsed = parse_spec(spec)
     if len(files) > MAX_FILES:
         raise InvalidInput(f"at most {MAX_FILES} files", [{"pointer": "/files", "code": "too_many", "message": "too many files"}])
-    uploads: dict[str, bytes] = {}
+    named: dict[str, UploadFile] = {}
+    lines: dict[str, int] = {}
+    sizes: dict[str, int] = {}
     for i, f in enumerate(files):
         name = check_file_name(f.filename, i)
-        if name in uploads:
+        if name in named:
             raise InvalidInput(
                 f"two files named {name!r}",
                 [{"pointer": f"/files/{name}", "code": "duplicate_file", "message": "file names must be distinct"}],
             )
-        uploads[name] = await f.read()
+        named[name] = f
+        lines[name], sizes[name] = await _count(f)
     _, max_observations = services.jobs.limits_of(user)
-    return await run_in_threadpool(
-        compose_uploads, parsed, uploads, services.store, user, services.settings.compose_max_rows, max_observations
-    )
+    check_sizes(parsed, lines, sizes, services.settings.compose_max_rows, max_observations)
+    referenced = {name for _, name in references(parsed)}
+    uploads = {name: await f.read() for name, f in named.items() if name in referenced}
+    return await run_in_threadpool(compose_uploads, parsed, uploads, services.store, user)
+
+
+async def _count(f: UploadFile) -> tuple[int, int]:
+    """(lines: line ends + 1, bytes) of an upload, read in chunks of :data:`CHUNK_BYTES` (the
+    multipart parser keeps big uploads on disk), then rewound: counted before it is held."""
+    lines, size = 1, 0
+    while chunk := await f.read(CHUNK_BYTES):
+        lines += chunk.count(b"\n")
+        size += len(chunk)
+    await f.seek(0)
+    return lines, size
