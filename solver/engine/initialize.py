@@ -10,10 +10,10 @@
    the control points before the bundle was measured and rejected: it moves each image along
    its weakly determined pitch / along-track-position direction away from the header state, and
    the bundle then needs 51+ instead of 8 (triplet) or 26 (20 triplets) iterations.
-   Where the job weights measured attitude (``options.attitude`` with ``images[].attitude``
-   samples, orbit-attitude and pass models), the angles' polynomials are instead fitted to the
-   samples (weighted least squares): an agile satellite looks 10-20 degrees off the orbital
-   frame, and tie rays started from the nominal attitude miss each other by kilometres.
+   Then each observation family refines what its observations determine
+   (:meth:`solver.observations.family.ObservationFamily.initialise`): measured attitude fits the
+   angles' polynomials to the weighted samples (an agile satellite looks 10-30 degrees off the
+   orbital frame, and tie rays started from the nominal attitude miss each other by kilometres).
 3. ``initial`` values given in the job override everything (report units).
 4. Tie points: least-squares intersection of their rays.
 """
@@ -26,7 +26,7 @@ import numpy as np
 
 from solver.errors import JobError, Problem
 from solver.kernels import gravity_and_gradient, intersect_all, platform_state
-from solver.observations.attitude import attitude_terms
+from solver.observations import registry
 from solver.observations.ephemeris import image_state
 from solver.observations.passes import initialise_passes
 from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
@@ -158,23 +158,13 @@ def initialise(problem: AdjustmentState) -> None:
     issues += initialise_passes(problem, states)
     if issues:
         raise JobError(issues)
-    _attitude_from_samples(problem)
+    for family in registry.FAMILIES:  # e.g. the attitude polynomials fitted to measured attitude
+        family.initialise(problem)
+    for img in problem.images:  # the job's own initial values win
+        if img.initial:
+            _apply_initial(img)
+            img.params[:] = img.base[img.free_idx]
     intersect_estimated_points(problem)
-
-
-def _attitude_from_samples(problem: AdjustmentState) -> None:
-    """The attitude coefficients of each block with weighted attitude samples, fitted to them
-    (weighted least squares, minimum norm where the samples do not fix a coefficient); the
-    job's own ``initial`` values still win."""
-    for term in attitude_terms(problem):
-        cols = np.flatnonzero(np.any(term.a != 0.0, axis=0))
-        if cols.size == 0:
-            continue
-        fitted = np.linalg.lstsq(term.w[:, None] * term.a[:, cols], term.w * term.b, rcond=None)[0]
-        img = problem.images[term.image_index]
-        img.base[img.free_idx[cols]] = fitted
-        _apply_initial(img)
-        img.params[:] = img.base[img.free_idx]
 
 
 def _attitude_by_resection(problem: AdjustmentState, img: ImageState, v_ecef) -> tuple[float, float, float]:
