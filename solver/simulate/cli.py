@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -140,6 +141,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--gcps", type=int, default=None, help="gcps in total (default 4 per triplet)")
     p.add_argument("--checks", type=int, default=None, help="check points in total (default 2 per triplet)")
 
+    p = sub.add_parser("small-triplet", help="small backward/nadir/forward triplet (20 m pixels, N x N): quick raster and matching trials")
+    _common(p)
+    p.add_argument("--size", type=int, default=480, help="image lines and columns, pixels (default 480)")
+    p.add_argument("--gcps", type=int, default=8, help="control points (default 8)")
+    p.add_argument("--checks", type=int, default=8, help="check points (default 8)")
+    p.add_argument("--tie-points", type=int, default=30, help="tie points, each seen by all three images (default 30)")
+
     sim.set_defaults(func=run)
 
 
@@ -189,6 +197,8 @@ def _scene(args: argparse.Namespace, settings: Settings):
         return cbers_lines(
             settings, args.lines, args.gcps, args.checks, args.yaw_steering, args.line_noise_px, args.check_lines
         )
+    if args.preset == "small-triplet":
+        return presets.small_triplet(settings, args.size, args.gcps, args.checks, args.tie_points)
     return presets.strip(settings, args.triplets, args.tie_points, args.gcps, args.checks)
 
 
@@ -207,6 +217,9 @@ def run(args: argparse.Namespace) -> int:
         job_options=_job_options(args),
         rpc=_rpc_settings(args),
     )
+    if args.preset == "small-triplet" and args.size < presets.SMALL_MIN_PX:
+        print(f"pba simulate small-triplet: --size {args.size}: at least {presets.SMALL_MIN_PX} pixels", file=sys.stderr)
+        return 2
     t0 = time.perf_counter()
     try:
         scene = _scene(args, settings)
