@@ -374,8 +374,10 @@ def test_tutorial_blocks_are_found() -> None:
 
 @pytest.mark.slow
 def test_tutorial_prism_triplet_runs(tmp_path: Path) -> None:
-    proc = run_tutorial(ROOT / "docs" / "tutorials" / "prism-triplet.md", tmp_path, timeout_s=900)
+    page = ROOT / "docs" / "tutorials" / "prism-triplet.md"
+    proc = run_tutorial(page, tmp_path, timeout_s=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert missing_outputs(page.read_text(), proc.stdout + proc.stderr) == [], proc.stdout[-3000:] + proc.stderr[-3000:]
     work = tmp_path / "triplet"
     for made in ("job.json", "report.json", "ortho.tif", "prism-nadir_RPC.TXT", "pixel.csv"):
         assert (work / made).is_file(), made
