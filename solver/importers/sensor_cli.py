@@ -27,13 +27,18 @@ from pathlib import Path
 from solver.sensors.errors import MetadataError
 
 
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("import-sensor", help="vendor sensor metadata (Maxar XML, SPOT 5 DIMAP) as a job fragment: cameras, "
-                       "images with ephemeris and attitude, options")
+def _metadata_args(p: argparse.ArgumentParser) -> None:
+    """The metadata files and their image ids (``import-sensor``, ``simulate-measurements``)."""
     p.add_argument("metadata", type=Path, nargs="+", help="Maxar/DigitalGlobe support-data XML or SPOT 5 DIMAP v1 "
                    "METADATA.DIM (one per image)")
     p.add_argument("--image-id", action="append", default=[], metavar="ID",
                    help="image id, once per file in order (default: the file name without extension)")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("import-sensor", help="vendor sensor metadata (Maxar XML, SPOT 5 DIMAP) as a job fragment: cameras, "
+                       "images with ephemeris and attitude, options")
+    _metadata_args(p)
     p.add_argument("-o", "--output", type=Path, help="JSON file to write (default: standard output)")
     p.add_argument("--check-rpc", action="store_true",
                    help="also compare the exact model with the vendor's RPC of each image, or with a SPOT 5 "
@@ -43,10 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("simulate-measurements", help="survey and image measurements simulated on vendor metadata's exact "
                        "models (a stand-in for your own): control.csv, checks.csv, ID.csv, truth.json")
-    p.add_argument("metadata", type=Path, nargs="+", help="Maxar/DigitalGlobe support-data XML or SPOT 5 DIMAP v1 "
-                   "METADATA.DIM (one per image)")
-    p.add_argument("--image-id", action="append", default=[], metavar="ID",
-                   help="image id, once per file in order (default: the file name without extension)")
+    _metadata_args(p)
     p.add_argument("--gcps", type=int, default=4, help="control points (default 4)")
     p.add_argument("--checks", type=int, default=12, help="check points (default 12)")
     p.add_argument("--ties", type=int, default=20, help="tie points (default 20)")
