@@ -401,7 +401,7 @@ def setting_names() -> list[str]:
 
 # ---------------------------------------------------------------- platform models -----------
 def platform_models_page() -> str:
-    from solver.platforms import all_models
+    from solver.platforms import aliases, all_models, get_model
 
     lines = [
         "# Platform models",
@@ -418,6 +418,9 @@ def platform_models_page() -> str:
     lines.append("")
     for d in described:
         lines += [f"## {d['name']}", "", f"{d['title']}. Frame {d['frame']}; time variable {d['time_variable']}.", ""]
+        other = aliases(get_model(d["name"]))
+        if other:
+            lines += ["Also accepted as " + ", ".join(f"`{a}`" for a in other) + " (the same model).", ""]
         if d.get("equations"):
             lines += ["```text", d["equations"], "```", ""]
         lines += ["| parameter | unit |", "|---|---|"]
