@@ -20,7 +20,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from service.errors import Forbidden, InvalidInput, NotFound
+from service.errors import Forbidden, InvalidInput
 from service.problems import json_pointer, pydantic_errors
 from service.store import SHARED, CameraRecord, Store, UserRecord
 from solver.importers.presets import PRESETS
@@ -138,34 +138,6 @@ def resolve_camera_refs(
         raise InvalidInput(
             "a camera completed from the library is invalid", pydantic_errors(exc.errors(), prefix)
         ) from None
-
-
-def camera_from_report(
-    document: dict[str, Any], report: dict[str, Any], camera_id: str
-) -> dict[str, Any]:
-    """A library definition from a finished job: the job's camera with the estimated
-    interior orientation (values and covariance) the report gives for it.
-
-    Reads ``report["cameras"]``: ``[{"id", "iop": {name: value}, "iop_covariance": {"names",
-    "matrix"}}]``; a report without an entry for the camera did not estimate its interior
-    orientation (NotFound).
-    """
-    job = document.get("job", {})
-    cams = {c.get("id"): c for c in job.get("cameras", [])}
-    if camera_id not in cams:
-        raise NotFound(f"the job has no camera {camera_id!r}")
-    definition = {k: v for k, v in cams[camera_id].items() if k in JOB_CAMERA_FIELDS}
-    estimated = {c.get("id"): c for c in (report.get("cameras") or []) if isinstance(c, dict)}
-    entry = estimated.get(camera_id)
-    if not entry or not entry.get("iop"):
-        raise NotFound(
-            f"the job's report has no estimated interior orientation for camera {camera_id!r} "
-            "(was it a self-calibration job?)"
-        )
-    definition["iop"] = {**definition.get("iop", {}), **entry["iop"]}
-    if entry.get("iop_covariance"):
-        definition["iop_covariance"] = entry["iop_covariance"]
-    return definition
 
 
 def camera_links(rec: CameraRecord, base_url: str) -> list[dict[str, str]]:

@@ -17,9 +17,12 @@ from __future__ import annotations
 import ctypes
 import json
 from collections import Counter
-from typing import Annotated, Any
+from dataclasses import MISSING
+from dataclasses import fields as dataclass_fields
+from types import UnionType
+from typing import Annotated, Any, Union, get_args, get_origin, get_type_hints
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 
 from service.cameras import find_camera, qualified_name, resolve_camera_refs
 from service.errors import InvalidInput, JobTooLarge, ServiceError
@@ -38,52 +41,92 @@ from solver.schema.job import load_job
 
 MAX_FILES = 200
 MAX_REFERENCES = 256  # file names in one spec (a file shared by several images counts once per image)
+MAX_SENSOR_BYTES = 16 * 2**20  # one vendor metadata file (a full SPOT 5 scene's DIMAP is 2.5 MB, a WorldView XML 2 MB)
 MAX_NAME_BYTES = 255  # a file name, UTF-8 (NAME_MAX of the usual file systems)
 MAX_JSON_DEPTH = 32  # nesting of the spec (the job document is far flatter)
 FileName = Annotated[str, Field(min_length=1, max_length=MAX_NAME_BYTES)]
 
 
-class _Spec(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+# The wire form of a composition is derived from the solver's one specification,
+# :class:`solver.importers.compose.ComposeRequest` and :class:`ImageSources`: every field
+# carries over under its own name and type, a source file becomes the name of an uploaded file,
+# and the server adds only the bounds below (and ``columns``, the uploads' column maps).
+NOT_UPLOADED: frozenset[str] = frozenset()  # fields of the solver's request not taken from uploads
+BOUNDS: dict[str, dict[str, Any]] = {
+    "id": {"min_length": 1, "max_length": 64},
+    "camera": {"min_length": 1, "max_length": 128},
+    "rpc_model": {"max_length": 32},
+    "crs": {"max_length": 4096},
+    "map_crs": {"max_length": 4096},
+    "time_scale": {"max_length": 32},
+    "name": {"max_length": 200},
+    "images": {"min_length": 1, "max_length": 64},
+    "models": {"min_length": 1, "max_length": 16},
+    "sigma_px": {"gt": 0, "le": 1e6},
+    "match_tolerance_m": {"gt": 0, "le": 1e6},
+    "first_line_time_s": {"allow_inf_nan": False},
+}
+DESCRIPTIONS = {
+    "rpc": "an RPC image: its NAME_RPC.TXT, NAME.RPB, ALOS RPC-*.txt or DIMAP RPC_*.XML (no raster)",
+    "sensor": "vendor sensor metadata (Maxar XML, DIMAP of SPOT 1-7 and Pleiades): the image's camera, ephemeris, "
+    "attitude, line times and model",
+    "rpc_model": "bias model of the RPC images without their own",
+    "points": "point tables with a role column",
+    "asp_gcp": "ASP GCP files naming their images",
+    "camera": "camera by name (a camera file's, a preset, the camera library's)",
+    "crs": "CRS of the point tables",
+}
 
 
-class ImageSpec(_Spec):
-    """One image: its id, the uploaded files of its measurements and times, its camera; or, for
-    an RPC image, the uploaded file of its RPC (instead of camera and times) and its bias model."""
-
-    id: str = Field(min_length=1, max_length=64)
-    camera: str | None = Field(default=None, min_length=1, max_length=128)
-    measurements: list[FileName] = Field(default_factory=list, max_length=MAX_FILES)
-    ephemeris: FileName | None = None
-    attitude: FileName | None = None
-    state: FileName | None = None
-    rpc: FileName | None = Field(default=None, description="an RPC image: its NAME_RPC.TXT, NAME.RPB or DIMAP RPC_*.XML (no raster)")
-    rpc_model: str | None = Field(default=None, max_length=32, description="its bias model (default: the spec's rpc_model)")
+def _is_file(hint: Any) -> bool:
+    return hint is SourceFile or (get_origin(hint) in (Union, UnionType) and SourceFile in get_args(hint))
 
 
-class ComposeSpec(_Spec):
-    """What the uploaded files are (by their file names) and the job's choices; the form
-    of :class:`solver.importers.compose.ComposeRequest` (see ``pba job --help``)."""
+def _is_file_list(hint: Any) -> bool:
+    return get_origin(hint) is list and get_args(hint) == (SourceFile,)
 
-    images: list[ImageSpec] = Field(min_length=1, max_length=64)
-    gcps: list[FileName] = Field(default_factory=list, max_length=MAX_FILES)
-    checks: list[FileName] = Field(default_factory=list, max_length=MAX_FILES)
-    points: list[FileName] = Field(default_factory=list, max_length=MAX_FILES, description="point tables with a role column")
-    asp_gcp: list[FileName] = Field(default_factory=list, max_length=MAX_FILES, description="ASP GCP files naming their images")
-    camera_files: list[FileName] = Field(default_factory=list, max_length=MAX_FILES)
-    camera: str | None = Field(default=None, description="camera of images without their own")
-    crs: str | None = Field(default=None, max_length=4096, description="CRS of the point tables")
-    models: list[str] = Field(default_factory=lambda: ["K2"], min_length=1, max_length=16)
-    rpc_model: str = Field(default="RPC-DRIFT", max_length=32, description="bias model of the RPC images without their own")
-    options: dict[str, Any] = Field(default_factory=dict)
-    name: str = Field(default="job", max_length=200)
-    time_scale: str | None = Field(default=None, max_length=32)
-    sigma_px: float = Field(default=0.5, gt=0, le=1e6)
-    match_tolerance_m: float = Field(default=1.0, gt=0, le=1e6)
-    map_crs: str | None = Field(default=None, max_length=4096)
-    columns: dict[str, dict[str, str]] = Field(
-        default_factory=dict, description="file name -> {its column name: the format's name}"
-    )
+
+def _wire_fields(cls: type, nested: dict[type, type]) -> dict[str, Any]:
+    """The pydantic fields of ``cls``'s wire form (a source file -> its file name)."""
+    hints = get_type_hints(cls)
+    out: dict[str, Any] = {}
+    for f in dataclass_fields(cls):
+        if f.name in NOT_UPLOADED:
+            continue
+        hint = hints[f.name]
+        if _is_file(hint):
+            hint = FileName | None
+        elif _is_file_list(hint):
+            hint = Annotated[list[FileName], Field(max_length=MAX_FILES)]
+        elif get_origin(hint) is list and get_args(hint)[0] in nested:
+            hint = list[nested[get_args(hint)[0]]]  # type: ignore[index]
+        if f.default_factory is not MISSING:
+            default: dict[str, Any] = {"default_factory": f.default_factory}
+        else:
+            default = {} if f.default is MISSING else {"default": f.default}
+        info = Field(**default, description=DESCRIPTIONS.get(f.name), **BOUNDS.get(f.name, {}))
+        out[f.name] = (hint, info)
+    return out
+
+
+_CONFIG = ConfigDict(extra="forbid")
+ImageSpec = create_model(  # type: ignore[call-overload]
+    "ImageSpec",
+    __config__=_CONFIG,
+    __doc__="One image of a composition: the fields of ImageSources, files by their upload names.",
+    **_wire_fields(ImageSources, {}),
+)
+ComposeSpec = create_model(  # type: ignore[call-overload]
+    "ComposeSpec",
+    __config__=_CONFIG,
+    __doc__="What the uploaded files are (by their file names) and the job's choices: the fields "
+    "of ComposeRequest (see ``pba job --help``), files by their upload names.",
+    columns=(
+        dict[str, dict[str, str]],
+        Field(default_factory=dict, description="file name -> {its column name: the format's name}"),
+    ),
+    **_wire_fields(ComposeRequest, {ImageSources: ImageSpec}),
+)
 
 
 class ComposeResult(BaseModel):
@@ -95,7 +138,7 @@ class ComposeResult(BaseModel):
     validation: dict[str, Any]
 
 
-def parse_spec(text: str) -> ComposeSpec:
+def parse_spec(text: str) -> Any:
     """The form's ``spec`` field (JSON) or InvalidInput pointing into ``/spec``."""
     def no_constant(name: str) -> Any:
         raise ValueError(f"{name} is not a JSON number")
@@ -153,18 +196,26 @@ def check_file_name(name: str | None, index: int) -> str:
     return name
 
 
-def references(spec: ComposeSpec) -> list[tuple[tuple[str | int, ...], str]]:
+def references(spec: Any) -> list[tuple[tuple[str | int, ...], str]]:
     """(where in the spec, file name) of every file the spec names."""
-    refs: list[tuple[tuple[str | int, ...], str]] = []
-    for k, im in enumerate(spec.images):
-        refs += [(("images", k, "measurements", j), n) for j, n in enumerate(im.measurements)]
-        refs += [(("images", k, a), n) for a in ("ephemeris", "attitude", "state", "rpc") if (n := getattr(im, a))]
-    for attr in ("gcps", "checks", "points", "asp_gcp", "camera_files"):
-        refs += [((attr, j), n) for j, n in enumerate(getattr(spec, attr))]
-    return refs
+    def of(cls: type, wire: Any, where: tuple[str | int, ...]) -> list[tuple[tuple[str | int, ...], str]]:
+        hints = get_type_hints(cls)
+        refs: list[tuple[tuple[str | int, ...], str]] = []
+        for f in dataclass_fields(cls):
+            if f.name in NOT_UPLOADED:
+                continue
+            value, hint = getattr(wire, f.name), hints[f.name]
+            if _is_file(hint) and value is not None:
+                refs.append(((*where, f.name), value))
+            elif _is_file_list(hint):
+                refs += [((*where, f.name, j), n) for j, n in enumerate(value)]
+        return refs
+
+    refs = [r for k, im in enumerate(spec.images) for r in of(ImageSources, im, ("images", k))]
+    return refs + of(ComposeRequest, spec, ())
 
 
-def check_sizes(spec: ComposeSpec, uploads: dict[str, bytes], max_rows: int, max_observations: int) -> None:
+def check_sizes(spec: Any, uploads: dict[str, bytes], max_rows: int, max_observations: int) -> None:
     """Refuse, before any file is parsed, a spec naming more than :data:`MAX_REFERENCES` files
     or one file twice in one image (422), or uploads whose lines, counted once per reference,
     exceed ``max_rows`` (``PBA_COMPOSE_MAX_ROWS``) or whose measurement lines exceed the user's
@@ -182,8 +233,11 @@ def check_sizes(spec: ComposeSpec, uploads: dict[str, bytes], max_rows: int, max
                 f"image {im.id!r} names {twice[0]!r} twice",
                 [{"pointer": json_pointer(("spec", "images", k, "measurements")), "code": "duplicate_reference", "message": f"{twice[0]!r} is named twice"}],
             )
+    for where, name in refs:  # metadata XML is bounded by its bytes, not by lines of rows
+        if where[-1] == "sensor" and len(uploads.get(name, b"")) > MAX_SENSOR_BYTES:
+            raise JobTooLarge(f"the sensor metadata {name!r} has {len(uploads[name])} bytes; at most {MAX_SENSOR_BYTES}")
     lines = {name: data.count(b"\n") + 1 for name, data in uploads.items()}
-    rows = sum(lines.get(name, 0) for _, name in refs)
+    rows = sum(lines.get(name, 0) for where, name in refs if where[-1] != "sensor")
     measured = sum(lines.get(name, 0) for where, name in refs if where[0] == "asp_gcp" or where[-2:-1] == ("measurements",))
     if rows > max_rows:
         raise JobTooLarge(
@@ -203,7 +257,9 @@ def release_memory() -> None:
         pass
 
 
-def _request(spec: ComposeSpec, uploads: dict[str, bytes]) -> ComposeRequest:
+def _request(spec: Any, uploads: dict[str, bytes]) -> ComposeRequest:
+    """The solver's request of a checked spec: every field carried over, each file name
+    replaced by its upload (InvalidInput listing the names that were not uploaded)."""
     missing: list[dict[str, Any]] = []
 
     def file(name: str, where: tuple[str | int, ...]) -> SourceFile:
@@ -214,38 +270,24 @@ def _request(spec: ComposeSpec, uploads: dict[str, bytes]) -> ComposeRequest:
             return SourceFile(name, b"")
         return SourceFile(name, uploads[name], spec.columns.get(name, {}))
 
-    images = []
-    for k, im in enumerate(spec.images):
-        images.append(
-            ImageSources(
-                im.id,
-                [file(n, ("images", k, "measurements", j)) for j, n in enumerate(im.measurements)],
-                im.camera,
-                *(
-                    file(n, ("images", k, attr)) if n else None
-                    for attr, n in (("ephemeris", im.ephemeris), ("attitude", im.attitude), ("state", im.state))
-                ),
-                rpc=file(im.rpc, ("images", k, "rpc")) if im.rpc else None,
-                rpc_model=im.rpc_model,
-            )
-        )
-    req = ComposeRequest(
-        images=images,
-        **{
-            attr: [file(n, (attr, j)) for j, n in enumerate(getattr(spec, attr))]
-            for attr in ("gcps", "checks", "points", "asp_gcp", "camera_files")
-        },
-        camera=spec.camera,
-        crs=spec.crs,
-        models=spec.models,
-        rpc_model=spec.rpc_model,
-        options=spec.options,
-        name=spec.name,
-        time_scale=spec.time_scale,
-        sigma_px=spec.sigma_px,
-        match_tolerance_m=spec.match_tolerance_m,
-        map_crs=spec.map_crs,
-    )
+    def build(cls: type, wire: Any, where: tuple[str | int, ...]) -> Any:
+        hints = get_type_hints(cls)
+        values: dict[str, Any] = {}
+        for f in dataclass_fields(cls):
+            if f.name in NOT_UPLOADED:
+                continue
+            value, hint = getattr(wire, f.name), hints[f.name]
+            if _is_file(hint):
+                values[f.name] = file(value, (*where, f.name)) if value is not None else None
+            elif _is_file_list(hint):
+                values[f.name] = [file(n, (*where, f.name, j)) for j, n in enumerate(value)]
+            elif f.name == "images":
+                values[f.name] = [build(ImageSources, im, (*where, f.name, k)) for k, im in enumerate(value)]
+            else:
+                values[f.name] = value
+        return cls(**values)
+
+    req = build(ComposeRequest, spec, ())
     if missing:
         raise InvalidInput("the spec names files that were not uploaded", missing)
     return req
@@ -269,7 +311,7 @@ def source_error_entries(exc: SourceError, uploads: dict[str, bytes]) -> list[di
 
 
 def compose_uploads(
-    spec: ComposeSpec, uploads: dict[str, bytes], store: Store, user: UserRecord, max_rows: int, max_observations: int
+    spec: Any, uploads: dict[str, bytes], store: Store, user: UserRecord, max_rows: int, max_observations: int
 ) -> ComposeResult:
     """Check the sizes (:func:`check_sizes`), compose, resolve library cameras for the checks,
     summarize and validate; the heap is trimmed afterwards (:func:`release_memory`)."""
@@ -280,7 +322,7 @@ def compose_uploads(
         release_memory()
 
 
-def _compose(spec: ComposeSpec, uploads: dict[str, bytes], store: Store, user: UserRecord) -> ComposeResult:
+def _compose(spec: Any, uploads: dict[str, bytes], store: Store, user: UserRecord) -> ComposeResult:
     import solver.api
 
     def lookup(name: str) -> dict[str, Any] | None:

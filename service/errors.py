@@ -9,7 +9,6 @@ pointer (RFC 6901) to the offending field of the request body.
 from __future__ import annotations
 
 import logging
-import math
 import re
 from typing import Any, Sequence
 
@@ -20,7 +19,9 @@ from pydantic import ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from service.problems import job_error_entries, pydantic_errors
+from service.states import FailureCode
 from solver.errors import JobError
+from solver.report.json_text import json_ready
 
 log = logging.getLogger("pba.service")
 
@@ -121,14 +122,28 @@ class InvalidInput(ServiceError):
     status, code, title = 422, "invalid-input", "Invalid input"
 
 
+def failed_job_status(error: dict[str, Any] | None) -> int:
+    """HTTP status of a failed job's results, from the code its stored error keeps: 500 when
+    the server failed it (:class:`service.states.FailureCode`, or no code recorded), 422 when
+    its content did (a solver problem code, ``invalid-input``). Errors stored before codes
+    alone were kept carry their ``status``, which is honoured."""
+    error = error or {}
+    code = error.get("code")
+    if code is None:
+        legacy = error.get("status")
+        return legacy if isinstance(legacy, int) and 400 <= legacy <= 599 else 500
+    return 500 if code in set(FailureCode) else 422
+
+
 class JobFailed(ServiceError):
-    """Results asked of a failed job: the job's own error, with the status it recorded."""
+    """Results asked of a failed job: the job's own error and message, with the status
+    :func:`failed_job_status` gives it."""
 
     code, title = "job-failed", "The job failed"
 
-    def __init__(self, detail: str, status: int, errors: Sequence[dict[str, Any]] = ()) -> None:
-        super().__init__(detail, errors)
-        self.status = status
+    def __init__(self, detail: str, error: dict[str, Any] | None) -> None:
+        super().__init__(detail, (error or {}).get("errors", []))
+        self.status = failed_job_status(error)
 
 
 class Unauthorized(ServiceError):
@@ -183,18 +198,6 @@ class NotReady(ServiceError):
     status, code, title = 503, "not-ready", "Service not ready"
 
 
-def _json_safe(value: Any) -> Any:
-    """``value`` with non-finite floats replaced by None (JSON has no NaN or infinity; a
-    problem detail must never turn a 4xx into a 500)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    return value
-
-
 def problem_response(
     request: Request,
     status: int,
@@ -213,7 +216,7 @@ def problem_response(
         "instance": request.url.path,
     }
     if errors:
-        body["errors"] = [_json_safe(e) for e in list(errors)[:MAX_ERRORS]]
+        body["errors"] = [json_ready(e) for e in list(errors)[:MAX_ERRORS]]  # never NaN: a 4xx must not become a 500
         if len(errors) > MAX_ERRORS:
             body["detail"] += f" ({len(errors)} problems; the first {MAX_ERRORS} are listed)"
     # nosniff here too: a 500 is sent by Starlette's outermost middleware, past ours

@@ -11,7 +11,6 @@ This module imports the solver; it must only be imported in worker processes.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -20,9 +19,10 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from service.problems import problem_entries, pydantic_errors
-from service.processes import MODEL_COMPARISON, PREANALYSIS
-from service.states import JobStatus
+from service.processes import process
+from service.states import FailureCode, JobStatus
 from service.store import JobRecord, Store
+from solver.report.json_text import report_json
 
 log = logging.getLogger("pba.worker")
 
@@ -38,29 +38,6 @@ class RunLimits:
     job_time_limit_s: float
     progress_interval_s: float = 0.5
     cancel_poll_interval_s: float = 0.2
-
-
-def _json_safe(x: Any) -> Any:
-    """Plain JSON types: numpy scalars/arrays converted, non-finite floats as None."""
-    if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, bool) or x is None or isinstance(x, str):
-        return x
-    if isinstance(x, int):
-        return int(x)
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    tolist = getattr(x, "tolist", None)  # numpy scalars and arrays
-    if callable(tolist):
-        return _json_safe(tolist())
-    return str(x)
-
-
-def report_to_json(report: dict[str, Any]) -> str:
-    """Serialize a report as strict JSON (no NaN/Infinity)."""
-    return json.dumps(_json_safe(report), allow_nan=False, separators=(",", ":"))
 
 
 class JobHooks:
@@ -121,17 +98,8 @@ class JobHooks:
 
 
 def solve(document: dict[str, Any], process_id: str, hooks: JobHooks) -> dict[str, Any]:
-    """Call the solver's entry point for a process."""
-    import solver.api
-
-    if process_id == MODEL_COMPARISON:
-        models = document.get("models") or document["job"].get("options", {}).get("models", [])
-        return solver.api.compare(
-            document["job"], models, progress=hooks.progress, cancel=hooks.cancel
-        )
-    if process_id == PREANALYSIS:
-        return solver.api.preanalyse(document["job"])
-    return solver.api.run(document["job"], progress=hooks.progress, cancel=hooks.cancel)
+    """Run the stored document as its process says (service.processes)."""
+    return process(process_id).run(document, hooks.progress, hooks.cancel)
 
 
 def run_claimed_job(
@@ -172,7 +140,7 @@ def run_claimed_job(
             ok = store.fail(
                 job.id,
                 f"time limit of {limits.job_time_limit_s:g} s exceeded; the solve was stopped",
-                {"status": 500, "code": "time_limit"},
+                {"code": FailureCode.time_limit},
                 worker=worker,
                 usage=usage(),
             )
@@ -187,7 +155,7 @@ def run_claimed_job(
         ok = store.fail(
             job.id,
             str(exc) if isinstance(exc, UnusableSolution) else f"invalid job: {exc}",
-            {"status": 422, "code": exc.code, "errors": problem_entries(problems)},
+            {"code": exc.code, "errors": problem_entries(problems)},
             worker=worker,
             usage=usage(),
         )
@@ -198,7 +166,6 @@ def run_claimed_job(
             job.id,
             "invalid job document",
             {
-                "status": 422,
                 "code": "invalid-input",
                 "errors": pydantic_errors(exc.errors(), ("inputs", "job")),
             },
@@ -211,7 +178,7 @@ def run_claimed_job(
         ok = store.fail(
             job.id,
             f"internal solver error: {type(exc).__name__}: {exc}",
-            {"status": 500, "code": "internal"},
+            {"code": FailureCode.internal},
             worker=worker,
             usage=usage(),
         )
@@ -219,12 +186,12 @@ def run_claimed_job(
     spent = usage()
     elapsed = spent[1]
     try:
-        text = report_to_json(report)
+        text = report_json(report)
     except Exception as exc:
         ok = store.fail(
             job.id,
             f"the report could not be serialized: {exc}",
-            {"status": 500, "code": "internal"},
+            {"code": FailureCode.internal},
             worker=worker,
             usage=spent,
         )

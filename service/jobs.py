@@ -8,20 +8,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import ValidationError
-
 from service.cameras import resolve_camera_refs
-from service.errors import (
-    InvalidInput,
-    JobFailed,
-    JobTooLarge,
-    NoSuchJob,
-    NoSuchProcess,
-    ResultNotReady,
-    TooManyJobs,
-)
-from service.problems import job_error_entries, problem_entries, pydantic_errors
-from service.processes import MODEL_COMPARISON, PREANALYSIS, PROCESSES
+from service.errors import JobFailed, JobTooLarge, NoSuchJob, ResultNotReady, TooManyJobs
+from service.processes import JOB_POINTER, Caller, process
 from service.queue import QueueBackend
 from service.queue_view import Placement, placement
 from service.retention import quota_bytes, quota_error
@@ -29,96 +18,22 @@ from service.schemas import ExecuteInputs, Link, StatusInfo
 from service.settings import Settings
 from service.states import JobStatus
 from service.store import JobRecord, QuotaExceeded, Store, UserRecord
-from solver.errors import JobError
 from solver.schema.job import Job
-
-PREFIX = ("inputs", "job")
-
-
-def check_process(process_id: str) -> None:
-    """NoSuchProcess unless ``process_id`` is offered."""
-    if process_id not in PROCESSES:
-        raise NoSuchProcess(process_id)
 
 
 def validate_inputs(
-    process_id: str, inputs: ExecuteInputs, store: Store, user: UserRecord
+    process_id: str, inputs: ExecuteInputs, store: Store, user: UserRecord, settings: Settings
 ) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Resolve camera refs (in ``user``'s camera namespaces) and dry-run the solver's checks.
+    """Resolve camera refs (in ``user``'s camera namespaces) and run the process's check
+    (:mod:`service.processes`: the solver's dry run for an adjustment).
 
-    Returns (the document to store ``{"job": ..., "models": ...}``, the solver's validation
-    summary); raises InvalidInput with pointers into the request on any problem.
+    Returns (the document to store ``{"job": ..., "models": ...}``, the validation summary);
+    raises InvalidInput with pointers into the request on any problem.
     """
-    import solver.api
-
-    check_process(process_id)
-    job = resolve_camera_refs(inputs.job, store, user.id, PREFIX)
-    models: list[str] | None = None
-    if process_id == MODEL_COMPARISON:
-        models = list(inputs.models or job.options.models)
-        if not models:
-            raise InvalidInput(
-                "a model comparison needs the models to compare",
-                [
-                    {
-                        "pointer": "/inputs/models",
-                        "code": "missing",
-                        "message": "give inputs.models or the job's options.models",
-                    }
-                ],
-            )
-        from solver.compare import comparison_problems
-
-        where = ("inputs", "models") if inputs.models else (*PREFIX, "options", "models")
-        problems = [p.to_dict() for p in comparison_problems(models, ())]
-        if problems:
-            raise InvalidInput(
-                "; ".join(str(p["message"]) for p in problems[:5]), problem_entries(problems, where)
-            )
-    elif inputs.models:
-        raise InvalidInput(
-            "models is an input of model-comparison only",
-            [
-                {
-                    "pointer": "/inputs/models",
-                    "code": "unexpected",
-                    "message": "not an input of this process",
-                }
-            ],
-        )
-    if process_id == PREANALYSIS:
-        # planned points carry coordinates and no observations: the adjustment's own checks
-        # (observations per point, degrees of freedom) do not apply before the planning
-        problems = [p.to_dict() for p in solver.api.preanalysis_problems(job)]
-        if problems:
-            raise InvalidInput(
-                "; ".join(str(p["message"]) for p in problems[:5]), problem_entries(problems, PREFIX)
-            )
-        summary = {
-            "valid": True,
-            "problems": [],
-            "planned_points": len(job.points),
-            "images": [{"id": im.id, "model": im.model.name} for im in job.images],
-        }
-        return {"job": job.model_dump(mode="json", exclude_unset=False)}, summary
-    try:
-        summary = solver.api.validate(job)
-    except JobError as exc:
-        raise InvalidInput(str(exc), job_error_entries(exc, PREFIX)) from None
-    except ValidationError as exc:
-        raise InvalidInput(
-            "the job does not match the schema", pydantic_errors(exc.errors(), PREFIX)
-        ) from None
-    if not summary.get("valid", False):
-        problems = summary.get("problems", [])
-        raise InvalidInput(
-            "; ".join(str(p.get("message", "")) for p in problems[:5]) or "the job is not valid",
-            problem_entries(problems, PREFIX),
-        )
-    document: dict[str, Any] = {"job": job.model_dump(mode="json", exclude_unset=False)}
-    if models is not None:
-        document["models"] = models
-    return document, summary
+    proc = process(process_id)
+    job = resolve_camera_refs(inputs.job, store, user.id, JOB_POINTER)
+    checked = proc.check(job, inputs, Caller(user.name, settings))
+    return checked.document, checked.summary
 
 
 class JobService:
@@ -142,14 +57,11 @@ class JobService:
         """Validate, check the user's limits, store as accepted, and queue. Jobs of at most
         ``small_job_observations`` observations and ``sync`` requests (a client waiting for
         the answer) take the small-job lane (service.store.fair)."""
-        check_process(process_id)
         max_queued, max_obs = self.limits_of(user)
-        n_obs = len(inputs.job.observations)
-        if process_id == PREANALYSIS:  # every planned point may be observed in every image
-            n_obs = len(inputs.job.points) * len(inputs.job.images)
+        n_obs = process(process_id).count(inputs.job)
         if n_obs > max_obs:
             raise JobTooLarge(f"the job has {n_obs} observations; your limit is {max_obs}")
-        document, _ = validate_inputs(process_id, inputs, self.store, user)
+        document, _ = validate_inputs(process_id, inputs, self.store, user, self.settings)
         if self.store.count_queued(user.id) >= max_queued:
             raise TooManyJobs(
                 f"you already have {max_queued} jobs queued or running; wait for some to finish",
@@ -201,8 +113,7 @@ def results_text(rec: JobRecord) -> str:
             return text
         raise ResultNotReady("the job's results are missing")
     if rec.status == JobStatus.failed:
-        err = rec.error or {}
-        raise JobFailed(rec.message, int(err.get("status", 500)), err.get("errors", []))
+        raise JobFailed(rec.message, rec.error)
     if rec.status == JobStatus.dismissed:
         raise ResultNotReady("the job was dismissed; it has no results")
     raise ResultNotReady(f"the job is {rec.status.value}; results are not ready yet")
@@ -228,7 +139,7 @@ def status_info(
                 title="results",
             )
         )
-        for table in ("observations", "checkpoints", "parameters"):
+        for table in process(rec.process_id).tables:
             links.append(
                 Link(
                     href=f"{href}/results/{table}.csv",

@@ -11,7 +11,11 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from service.states import JobStatus
+from solver.matching.features import MatchSettings
 from solver.schema.job import MAX_COMPARED_MODELS, Camera, IopCovariance, Job
+
+MAX_MATCH_RASTERS = 16  # rasters of one match request
+_MATCH = MatchSettings()
 
 
 class ProblemEntry(BaseModel):
@@ -108,8 +112,43 @@ class ProcessDescription(ProcessSummary):
     outputs: dict[str, OutputDescription]
 
 
+class MatchRaster(BaseModel):
+    """One raster of the match process: a file under the server's image root (``path``, inside
+    the caller's subfolder) or an upload (``value``: the file's bytes in base64)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    id: str = Field(min_length=1, max_length=64, description="the job's image id")
+    path: str | None = Field(
+        default=None,
+        min_length=1,
+        max_length=1024,
+        description="a raster under PBA_IMAGE_ROOT, relative to the caller's subfolder",
+    )
+    value: str | None = Field(default=None, min_length=1, description="an uploaded raster, base64")
+    mediaType: str | None = Field(default=None, max_length=100, description="of an upload (ignored)")
+
+    @model_validator(mode="after")
+    def _one_source(self) -> "MatchRaster":
+        if (self.path is None) == (self.value is None):
+            raise ValueError("give either path (a raster on the server) or value (an upload)")
+        return self
+
+
+class MatchSettingsInput(BaseModel):
+    """The match process's settings (those of ``pba match``, docs/matching.md)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    grid: int = Field(_MATCH.grid, ge=1, le=200, description="tiles / thinning cells per image side")
+    per_cell: int = Field(_MATCH.per_cell, ge=1, le=100, description="tie points kept per cell of each image")
+    search_px: float = Field(_MATCH.search_px, gt=0, le=10_000, description="half-width of the search band, px")
+    min_ncc: float = Field(_MATCH.min_ncc, gt=0, lt=1, description="lowest accepted correlation peak")
+
+
 class ExecuteInputs(BaseModel):
-    """Inputs of both processes: the job document, and for a comparison the model names."""
+    """Inputs of the processes: the job document; for a comparison the model names; for the
+    match process the rasters, the terrain height range and the settings."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -120,6 +159,18 @@ class ExecuteInputs(BaseModel):
         description="model-comparison only: platform models to compare (default: the job's "
         "options.models)",
     )
+    images: list[MatchRaster] | None = Field(
+        default=None,
+        min_length=2,
+        max_length=MAX_MATCH_RASTERS,
+        description="match only: the rasters of the job's images to match (at least two)",
+    )
+    heights_m: tuple[float, float] | None = Field(
+        default=None,
+        description="match only: the terrain's ellipsoidal height range MIN, MAX in metres "
+        "(default: the job's points +- 100 m, or the RPCs' range)",
+    )
+    match: MatchSettingsInput | None = Field(default=None, description="match only: settings")
 
 
 class Execute(BaseModel):

@@ -65,6 +65,17 @@ class Settings(BaseSettings):
     max_job_observations: int = Field(
         2_000_000, gt=0, description="default per-user limit on observations in one job"
     )
+    image_root: Path | None = Field(
+        None,
+        description="match process: directory of the rasters already on the server, one subfolder "
+        "per user name (a request names a raster by its path inside the caller's subfolder; none: "
+        "uploads only)",
+    )
+    max_image_upload_bytes: int = Field(
+        16 * 1024 * 1024,
+        gt=0,
+        description="match process: an uploaded raster (inputs.images[].value, decoded), at most",
+    )
     compose_max_rows: int = Field(
         20_000,
         gt=0,

@@ -55,3 +55,17 @@ def check_transition(source: JobStatus, target: JobStatus) -> None:
     """Raise :class:`IllegalTransition` unless ``source -> target`` is allowed."""
     if target not in ALLOWED_TRANSITIONS[source]:
         raise IllegalTransition(f"{source.value} -> {target.value} is not allowed")
+
+
+class FailureCode(StrEnum):
+    """Why the server, not the job's content, failed a job (the ``code`` of its stored error).
+
+    A job that fails for its content keeps the solver's problem code instead (e.g.
+    ``rank_deficient``) or ``invalid-input`` (schema). The store keeps codes only; the HTTP
+    status of a failed job's results is decided in one place, :func:`service.errors.failed_job_status`.
+    """
+
+    time_limit = "time_limit"
+    worker_died = "worker_died"
+    interrupted = "interrupted"
+    internal = "internal"

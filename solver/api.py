@@ -2,6 +2,7 @@
 
     validate(job)                      -> dict   dry run: schema, references, degrees of freedom
     run(job, progress=..., cancel=...) -> dict   the adjustment report (JSON-ready)
+    validation_record(summary)         -> dict   a validate() to hand to run(validated=...)
     compare(job, models, ...)          -> dict   one report per model plus a side-by-side table
     preanalyse(job)                    -> dict   predicted precision of a planned block (no measurements)
 
@@ -77,19 +78,33 @@ def run(
     job: Job | dict[str, Any] | str | bytes,
     progress: ProgressFn | None = None,
     cancel: CancelFn | None = None,
+    validated: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Adjust a job and return its report (docs/report-contract.md; built by
     :func:`solver.report.document.assess`).
 
     If ``job.options.models`` is not empty this is a model comparison (same as :func:`compare`).
+    ``validated``: the record of a validation already made (:func:`validation_record` of
+    :func:`validate`'s counts, e.g. at a server's submission); when it was made by this code
+    the job is not checked again.
     """
+    from solver.engine.validate import handed_validation
+
     j = _as_job(job)
     if j.options.models:
         return compare(j, j.options.models, progress=progress, cancel=cancel)
     from solver.adjust import adjust_job
 
-    with _input_faults_as_job_errors():
+    with _input_faults_as_job_errors(), handed_validation(j, validated):
         return adjust_job(j, progress=progress, cancel=cancel)
+
+
+def validation_record(summary: dict[str, Any]) -> dict[str, Any]:
+    """What to hand to :func:`run` with a job :func:`validate` found valid (its counts and
+    the fingerprint of the checks that ran)."""
+    from solver.engine.validate import validation_record as record
+
+    return record({k: v for k, v in summary.items() if k in ("n_observations", "n_unknowns", "dof")})
 
 
 def compare(

@@ -38,6 +38,7 @@ def build_parser(extra: Sequence[Registrar] = ()) -> argparse.ArgumentParser:
     import_sensor_cli.register(sub)  # import-sensor, simulate-measurements
     gis_cli.register(sub)  # ground-to-image, image-to-ground, export-rpc, export-geojson, ortho, resample
     matching_cli.register(sub)  # match
+    matching_cli.register_gcp(sub)  # match-gcp
     for register in extra:
         register(sub)
     return parser

@@ -12,6 +12,7 @@ from typing import Any, TextIO
 from pydantic import ValidationError
 
 from solver.errors import Cancelled, JobError
+from solver.report.json_text import report_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -173,6 +174,10 @@ def summary_text(report: dict[str, Any]) -> str:
             f"(predicted E {_fmt(pr['e'], '.3f')}  N {_fmt(pr['n'], '.3f')}  U {_fmt(pr['u'], '.3f')}); "
             f"{loo['n_discrepancy_test_failed']} fail the discrepancy test"
         )
+    pairs = (report.get("quality") or {}).get("tie_pairs")
+    if pairs:
+        lines.append("\ntie points per image pair (found / kept / removed by data snooping):")
+        lines += [f"  {p['images'][0]}-{p['images'][1]}: {p['found']} / {p['kept']} / {p['removed']}" for p in pairs]
     ln = report.get("lines") or {}
     if ln.get("items"):
         roles = [it["role"] for it in ln["items"]]
@@ -201,7 +206,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"cancelled: {exc}", file=sys.stderr)
         return 3
     if args.output:
-        args.output.write_text(json.dumps(report, indent=1))
+        args.output.write_text(report_json(report, indent=1))
     if report.get("kind") == "comparison":
         from solver.compare import comparison_table_text
 
@@ -246,7 +251,7 @@ def cmd_preanalysis(args: argparse.Namespace) -> int:
         _print_problems(exc)
         return 2
     if args.output:
-        args.output.write_text(json.dumps(report, indent=1))
+        args.output.write_text(report_json(report, indent=1))
     print(preanalysis_text(report))
     return 0
 
@@ -299,7 +304,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         _print_problems(exc)
         return 2
     if args.output:
-        args.output.write_text(json.dumps(report, indent=1))
+        args.output.write_text(report_json(report, indent=1))
     print(comparison_table_text(report))
     return 0
 
@@ -307,14 +312,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_export_camera(args: argparse.Namespace) -> int:
     """Write the job's camera with the estimated IOP and their covariance, ready to reuse in
     another job (``iop_use``: "fixed", or "weighted" with the same parameters estimated)."""
-    from solver.observations.interior import camera_from_report
+    from solver.observations.interior import NoEstimatedCamera, camera_from_report
 
     job = json.loads(args.job.read_text())
     report = json.loads(args.report.read_text())
     try:
         definition = camera_from_report(job, report, args.camera)
-    except StopIteration:
-        print(f"no estimated interior orientation for camera {args.camera!r} in {args.report}", file=sys.stderr)
+    except NoEstimatedCamera as exc:
+        print(f"{args.report}: {exc}", file=sys.stderr)
         return 2
     text = json.dumps(definition, indent=1)
     if args.output:

@@ -73,3 +73,46 @@ def test_preanalysis_writes_report_and_prints_predicted_precision(tmp_path: Path
     jp.write_text(json.dumps(job))
     r = subprocess.run(PBA + ["preanalysis", str(jp)], capture_output=True, text=True)
     assert r.returncode == 2 and "planned_point_without_coordinates" in r.stderr
+
+
+def test_export_camera_without_an_estimate_exits_2_naming_the_report(tmp_path: Path):
+    job, _ = single_image_job("K2", seed=1)
+    jp, rp = tmp_path / "job.json", tmp_path / "report.json"
+    jp.write_text(json.dumps(job))
+    rp.write_text(json.dumps({"cameras": []}))  # not a self-calibration report
+    cam = job["cameras"][0]["id"]
+    r = subprocess.run(PBA + ["export-camera", str(jp), str(rp), "--camera", cam], capture_output=True, text=True)
+    assert r.returncode == 2 and str(rp) in r.stderr and "self-calibration" in r.stderr, r.stderr
+    rp.write_text(json.dumps({"cameras": [{"id": cam, "iop": {"df": 0.002}}]}))
+    r = subprocess.run(PBA + ["export-camera", str(jp), str(rp), "--camera", cam], capture_output=True, text=True, check=True)
+    assert json.loads(r.stdout)["iop"]["df"] == 0.002 and json.loads(r.stdout)["id"] == cam
+
+
+def test_a_written_report_is_strict_json_as_the_servers(tmp_path: Path, monkeypatch):
+    """pba run -o and the server write a report through the one serialiser: non-finite
+    numbers as null (before, the CLI wrote NaN, which strict JSON parsers refuse)."""
+    import math
+
+    import numpy as np
+
+    import solver.api
+    import solver.commands
+    from solver.cli import main
+    from solver.report.json_text import report_json
+
+    report = {"kind": "comparison", "sigma0": float("nan"), "condition": np.float64(np.inf), "v": np.array([1.5, -np.inf])}
+    monkeypatch.setattr(solver.api, "run", lambda job, progress=None, cancel=None: report)
+    monkeypatch.setattr("solver.compare.comparison_table_text", lambda rep: "table")
+    job, _ = single_image_job("K2", seed=1)
+    jp, out = tmp_path / "job.json", tmp_path / "report.json"
+    jp.write_text(json.dumps(job))
+    assert main(["run", str(jp), "-o", str(out), "-q"]) == 0
+
+    def no_constants(name: str):
+        raise AssertionError(f"{name} in a written report")
+
+    written = json.loads(out.read_text(), parse_constant=no_constants)
+    assert written == {"kind": "comparison", "sigma0": None, "condition": None, "v": [1.5, None]}
+    assert json.loads(report_json(report), parse_constant=no_constants) == written  # the server's text
+    assert math.isnan(report["sigma0"])  # the caller's report is not modified
+    assert solver.commands.report_json is report_json

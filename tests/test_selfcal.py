@@ -113,3 +113,38 @@ def test_a_creeping_solve_names_the_nearly_undetermined_pair():
     rep = adjust_job(load_job(job))
     assert rep["adjustment"]["converged"], rep["adjustment"]["message"]
     assert not [w for w in rep["warnings"] if "nearly undetermined together" in w]
+
+
+# -- camera_from_report: the one conversion of an estimated camera (CLI and server) ----------
+def _calibration(iop_covariance: dict | None) -> tuple[dict, dict]:
+    camera = {
+        "id": "cam", "ref": {"name": "shared/prism-nadir", "version": 2}, "iop_use": "weighted",
+        "focal_mm": 1939.0, "iop": {"df": 0.1, "a0@2": 0.02},
+        "iop_covariance": {"names": ["df"], "matrix": [[9.0]]},  # the prior's, of other values
+    }
+    entry = {"id": "cam", "iop": {"df": 0.25, "b0@1": -0.01}}
+    if iop_covariance is not None:
+        entry["iop_covariance"] = iop_covariance
+    return {"cameras": [camera, {"id": "other", "focal_mm": 1.0}]}, {"cameras": [entry]}
+
+
+def test_camera_from_report_keeps_the_job_camera_and_takes_the_estimate() -> None:
+    cov = {"names": ["df", "b0@1"], "matrix": [[1e-4, 0.0], [0.0, 4e-6]]}
+    job, report = _calibration(cov)
+    out = camera_from_report(job, report, "cam")
+    assert {k: out[k] for k in ("id", "ref", "iop_use", "focal_mm")} == {
+        "id": "cam", "ref": {"name": "shared/prism-nadir", "version": 2}, "iop_use": "weighted", "focal_mm": 1939.0,
+    }
+    assert out["iop"] == {"df": 0.25, "a0@2": 0.02, "b0@1": -0.01}  # estimated over the job's
+    assert out["iop_covariance"] == cov
+    job, report = _calibration(None)
+    assert "iop_covariance" not in camera_from_report(job, report, "cam")  # never the prior's
+
+
+@pytest.mark.parametrize("camera_id", ["other", "missing"])
+def test_camera_from_report_names_what_is_missing(camera_id: str) -> None:
+    from solver.observations.interior import NoEstimatedCamera
+
+    job, report = _calibration(None)
+    with pytest.raises(NoEstimatedCamera, match=repr(camera_id)):
+        camera_from_report(job, report, camera_id)

@@ -75,10 +75,12 @@ def _variant(pattern: str, repl: str, count: int = 1) -> str:
 
 
 @pytest.mark.parametrize("name,text,expected", [
-    ("dimap_v2", lambda: _variant(r"<METADATA_FORMAT version='1.1'>", "<METADATA_FORMAT version='2.0'>"), "only DIMAP v1 (SPOT 5) is read"),
-    ("spot4", lambda: _variant(r"<MISSION_INDEX>5</MISSION_INDEX>", "<MISSION_INDEX>4</MISSION_INDEX>"), "only SPOT 5 is read"),
+    ("dimap_v3", lambda: _variant(r"<METADATA_FORMAT version='1.1'>", "<METADATA_FORMAT version='3.0'>"),
+     "DIMAP version 3.0: 1.x (SPOT 1-5) or 2.x (SPOT 6/7, Pleiades) expected"),
+    ("spot6_in_v1", lambda: _variant(r"<MISSION_INDEX>5</MISSION_INDEX>", "<MISSION_INDEX>6</MISSION_INDEX>"),
+     "SPOT 6: a DIMAP v1 product of SPOT 1 to 5 expected"),
     ("few_look_angles", lambda: _variant(r"<Look_Angles>\s*<DETECTOR_ID>300</DETECTOR_ID>.*?</Look_Angles>", ""),
-     "one look angle per column expected (detectors 1..300), 299 found"),
+     "look angles (rad) of detectors 1 to 300 expected in increasing order (every column, or the first and last), 299 found"),
     ("out_of_range", lambda: _variant(r"(<Corrected_Attitude>\s*<Angles>.*?)<OUT_OF_RANGE>N", r"\1<OUT_OF_RANGE>Y"), "OUT_OF_RANGE"),
     ("bad_psi", lambda: _variant(r"<PSI_X>[^<]*</PSI_X>", "<PSI_X>0.3.4</PSI_X>"), "PSI_X: not a number"),
     ("no_ephemeris", lambda: _variant(r"<Ephemeris>.*</Ephemeris>", ""), "Data_Strip/Ephemeris: missing"),

@@ -30,6 +30,7 @@ from datetime import datetime, timezone
 from service.execution import RunLimits
 from service.queue.worker import WorkerConfig, worker_id, worker_main
 from service.settings import Settings
+from service.states import FailureCode
 from service.store import Store
 
 log = logging.getLogger("pba.queue")
@@ -216,16 +217,16 @@ class LocalPoolBackend:
                 f"time limit of {self.settings.job_time_limit_s:g} s exceeded and the solve did "
                 f"not stop; its worker process was killed"
             )
-            code = "time_limit"
+            code = FailureCode.time_limit
         else:
             message = (
                 f"the worker process running this job {how} (a crash in the solver or an "
                 "external kill); the job was not retried"
             )
-            code = "worker_died"
+            code = FailureCode.worker_died
         for job in self.store.running_jobs():
             if job.worker == wid and self.store.fail(
-                job.id, message, {"status": 500, "code": code}, worker=wid
+                job.id, message, {"code": code}, worker=wid
             ):
                 log.error("worker %s %s; job failed", wid, how, extra={"job_id": job.id})
         log.warning("worker %s %s; replacing it", wid, how)

@@ -17,7 +17,6 @@ from fastapi.responses import JSONResponse
 
 from service.cameras import (
     SHARED_PREFIX,
-    camera_from_report,
     camera_links,
     check_may_publish,
     find_camera,
@@ -39,6 +38,7 @@ from service.schemas import (
 )
 from service.states import JobStatus
 from service.store import SHARED, CameraRecord, QuotaExceeded, Store, UserRecord
+from solver.observations.interior import NoEstimatedCamera, camera_from_report
 
 router = APIRouter(prefix="/cameras", tags=["cameras"], route_class=StrictJSONRoute)
 
@@ -153,9 +153,12 @@ def camera_from_job(
     report = json.loads(results_text(job))
     if report.get("kind") == "comparison":
         raise Conflict("a model comparison does not yield one camera; use an adjustment job")
-    document = job.document or {}
-    definition = camera_from_report(document, report, body.camera)
-    CameraDefinition.model_validate(definition)
+    try:
+        estimated = camera_from_report((job.document or {}).get("job", {}), report, body.camera)
+    except NoEstimatedCamera as exc:
+        raise NotFound(str(exc)) from None
+    # a library definition has no id and no ref (the job's camera may have come from the library)
+    definition = _definition(CameraDefinition.model_validate({k: v for k, v in estimated.items() if k != "ref"}))
     rec = _store_camera(services, user, body.name, body.description, definition, source_job=job.id)
     return _created(rec, base, user)
 

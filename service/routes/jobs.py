@@ -14,7 +14,7 @@ from fastapi.sse import EventSourceResponse, ServerSentEvent
 from service.deps import JSON_BODY, BaseUrl, CurrentUser, ServicesDep, VisibleJob
 from service.errors import JobDismissed, problem_responses
 from service.jobs import results_text, status_info, validate_inputs
-from service.processes import BUNDLE_ADJUSTMENT
+from service.processes import BUNDLE_ADJUSTMENT, ProcessId
 from service.report_csv import table_rows, to_csv
 from service.routes import StrictJSONRoute
 from service.schemas import Execute, JobList, Link, StatusInfo, ValidationReport
@@ -40,7 +40,7 @@ def list_jobs(
         list[JobStatus] | None, Query(description="only jobs in these states")
     ] = None,
     processID: Annotated[
-        Literal["bundle-adjustment", "model-comparison", "preanalysis"] | None,
+        ProcessId | None,
         Query(description="only this process"),
     ] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 10,
@@ -89,13 +89,13 @@ def validate_job(
     user: CurrentUser,
     services: ServicesDep,
     process: Annotated[
-        Literal["bundle-adjustment", "model-comparison", "preanalysis"],
+        ProcessId,
         Query(description="process to validate for"),
     ] = BUNDLE_ADJUSTMENT,
 ) -> ValidationReport:
     """Dry run: schema, camera references, model names, degrees of freedom; nothing is queued.
     Answers 200 with the counts, or 422 with every problem pointing at its field."""
-    _, summary = validate_inputs(process, body.inputs, services.store, user)
+    _, summary = validate_inputs(process, body.inputs, services.store, user, services.settings)
     return ValidationReport.model_validate(summary)
 
 

@@ -11,9 +11,9 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
 from service.deps import JSON_BODY, BaseUrl, CurrentUser, Services, ServicesDep
-from service.errors import NoSuchProcess, ServiceError, problem_responses
+from service.errors import ServiceError, problem_responses
 from service.jobs import results_text, status_info
-from service.processes import PROCESSES, describe
+from service.processes import PROCESSES, describe, process
 from service.routes import StrictJSONRoute
 from service.schemas import (
     Execute,
@@ -53,8 +53,6 @@ def list_processes(base: BaseUrl) -> ProcessList:
 )
 def get_process(processId: ProcessId, base: BaseUrl) -> ProcessDescription:
     """Description of one process, with its inputs and outputs."""
-    if processId not in PROCESSES:
-        raise NoSuchProcess(processId)
     return describe(processId, base)
 
 
@@ -96,7 +94,7 @@ async def execute(
     settings = services.settings
     sync = not (
         wants_async
-        or len(body.inputs.job.observations) > settings.sync_max_observations
+        or process(processId).count(body.inputs.job) > settings.sync_max_observations
         or settings.sync_timeout_s <= 0
         or services.backend.worker_count() == 0
     )

@@ -35,7 +35,7 @@ from typing import Callable, Literal
 
 from sqlalchemy import func, select, update
 
-from service.states import FINISHED, JobStatus
+from service.states import FINISHED, FailureCode, JobStatus
 from service.store.base import JobRecord
 from service.store.rows import JobRow
 from service.store.sql import LOST_RACE, RunningJob, SqlStore, _status_change, utcnow
@@ -189,7 +189,7 @@ def claim_run(
                     .values(
                         status=JobStatus.failed.value,
                         message=lost_message(job.attempts, max_attempts),
-                        error=json.dumps({"status": 500, "code": "worker_died"}),
+                        error=json.dumps({"code": FailureCode.worker_died}),
                         updated=now,
                         finished=now,
                     )
@@ -361,13 +361,13 @@ def expire_leases(
                     f"time limit of {job_time_limit_s:g} s exceeded and the solve did not stop; "
                     "its worker process was killed"
                 ),
-                "error": json.dumps({"status": 500, "code": "time_limit"}),
+                "error": json.dumps({"code": FailureCode.time_limit}),
             }
         elif job.attempts >= max_attempts:
             target, action = JobStatus.failed, "failed"
             values = {
                 "message": lost_message(job.attempts, max_attempts),
-                "error": json.dumps({"status": 500, "code": "worker_died"}),
+                "error": json.dumps({"code": FailureCode.worker_died}),
             }
         else:
             target, action = JobStatus.accepted, "requeued"

@@ -34,7 +34,7 @@ from sqlalchemy.engine import Connection, Engine, make_url
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.pool import NullPool
 
-from service.states import JobStatus, check_transition
+from service.states import FailureCode, JobStatus, check_transition
 from service.store.base import (
     SHARED,
     CameraRecord,
@@ -743,7 +743,7 @@ class SqlStore:
                         f"interrupted by a server restart {attempts} times "
                         f"(limit {max_attempts}); not retried again"
                     ),
-                    error=json.dumps({"status": 500, "code": "interrupted"}),
+                    error=json.dumps({"code": FailureCode.interrupted}),
                 ):
                     failed.append(job_id)
         return requeued, failed
@@ -769,7 +769,7 @@ class SqlStore:
                     [JobStatus.running],
                     worker=worker,
                     message=message,
-                    error=json.dumps({"status": 500, "code": "worker_died"}),
+                    error=json.dumps({"code": FailureCode.worker_died}),
                 ):
                     done.append(job_id)
             return done

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from solver.geometry.geodesy import A_WGS84_M, E2_WGS84, LocalFrame, to_ecef
+from solver.geometry.geodesy import A_WGS84_M, E2_WGS84, LocalFrame, geodetic_to_ecef, to_ecef
 from solver.geometry.rpc import RPC
 from solver.geometry.sensor import chip_indices, chip_of_index
 from solver.kernels import N_COEF, N_KEPLER_CONST, N_OBS_CONST
@@ -62,13 +62,23 @@ def rpc_constants(image: Image, frame: LocalFrame) -> np.ndarray:
 
 def control_frame(job: Job, points_ecef: dict[str, np.ndarray], line_points_ecef: np.ndarray | None = None) -> LocalFrame:
     """LGS at the centroid of the control: control points and the control lines' two points each
-    (without any control, of all known points)."""
+    (without any control, of all known points; without any known point, e.g. RPC images with
+    tie points and bias priors only, of the RPCs' ground offsets)."""
     gcps = [points_ecef[p.id] for p in job.points if p.role == "gcp"]
     if line_points_ecef is not None and len(line_points_ecef):
         gcps += list(line_points_ecef)
     if not gcps:
         gcps = list(points_ecef.values())
+    if not gcps:
+        gcps = list(rpc_centres_ecef(job))
     return LocalFrame.at_centroid(np.array(gcps))
+
+
+def rpc_centres_ecef(job: Job) -> np.ndarray:
+    """(n, 3) ECEF metres of the RPC images' ground offsets (``long_off``, ``lat_off``,
+    ``height_off``: the centre of each RPC's normalisation domain)."""
+    centres = [(im.rpc.long_off, im.rpc.lat_off, im.rpc.height_off) for im in job.images if im.rpc is not None]
+    return geodetic_to_ecef(np.array(centres, dtype=float).reshape(-1, 3))
 
 
 def ground_points_ecef(job: Job) -> dict[str, np.ndarray]:

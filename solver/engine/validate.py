@@ -8,8 +8,12 @@ linearised problem and runs at the start of the adjustment (:mod:`solver.adjust`
 
 from __future__ import annotations
 
+import hashlib
 from collections import Counter, defaultdict
-from typing import Any
+from contextlib import contextmanager
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Iterator
 
 import numpy as np
 from pyproj.exceptions import ProjError
@@ -494,8 +498,52 @@ def validate_job(job: Job) -> dict[str, Any]:
     return {"valid": not problems, "problems": [p.to_dict() for p in problems], **counts}
 
 
+# packages whose code decides what a valid job is (the checks, the families', the models', the
+# schema's): a validation made elsewhere is taken only when it ran this very code
+CHECKING_CODE = ("engine/validate.py", "errors.py", "observations", "platforms", "schema", "geometry")
+_handed: dict[int, tuple[Job, dict[str, Any]]] = {}
+
+
+@lru_cache(maxsize=1)
+def fingerprint() -> str:
+    """SHA-256 of the source of :data:`CHECKING_CODE`: names the code a validation ran."""
+    root = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    for part in CHECKING_CODE:
+        path = root / part
+        for f in sorted([path] if path.is_file() else path.rglob("*.py")):
+            digest.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes())
+    return digest.hexdigest()
+
+
+def validation_record(counts: dict[str, Any]) -> dict[str, Any]:
+    """What a caller that validated a job hands to whoever solves it later (a server's
+    submission to its worker): the counts and the :func:`fingerprint` of the checks."""
+    return {"fingerprint": fingerprint(), "counts": counts}
+
+
+@contextmanager
+def handed_validation(job: Job, record: dict[str, Any] | None) -> Iterator[bool]:
+    """Within the block, :func:`require_valid` of this very ``job`` object returns the counts
+    of ``record`` (:func:`validation_record`) instead of checking again, when the record was
+    made by this code (same fingerprint); yields whether it was taken. A changed copy of the
+    job (snooping's removals, parsimony's models) is another object and is checked."""
+    taken = isinstance(record, dict) and record.get("fingerprint") == fingerprint() and isinstance(record.get("counts"), dict)
+    if taken:
+        _handed[id(job)] = (job, record["counts"])  # type: ignore[index]
+    try:
+        yield taken
+    finally:
+        if taken:
+            _handed.pop(id(job), None)
+
+
 def require_valid(job: Job) -> dict[str, Any]:
-    """Raise :class:`JobError` with every problem, or return the counts."""
+    """Raise :class:`JobError` with every problem, or return the counts (those handed for
+    this job object by :func:`handed_validation`, without checking again)."""
+    handed = _handed.get(id(job))
+    if handed is not None and handed[0] is job:
+        return handed[1]
     problems, counts = collect_problems(job)
     if problems:
         raise JobError(problems)

@@ -13,16 +13,20 @@ from typing import Any
 
 from solver.geometry.geodesy import GEODETIC_CRS
 
+NO_REPORT = "-"  # in place of the report: the job's own orientation
 
-def _job_report(p: argparse.ArgumentParser) -> None:
+
+def _job_report(p: argparse.ArgumentParser, optional: bool = False) -> None:
     p.add_argument("job", type=Path, help="job document (JSON)")
-    p.add_argument("report", type=Path, help="its report (pba run -o)")
+    p.add_argument("report", type=Path, help="its report (pba run -o)" + (
+        f"; {NO_REPORT} for none: the job's own orientation (for a job from vendor metadata, pba job --sensor: "
+        "the orientation as delivered)" if optional else ""))
     p.add_argument("--image", required=True, help="image id")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("ground-to-image", help="image positions of ground points with the adjusted model (CSV)")
-    _job_report(p)
+    _job_report(p, optional=True)
     p.add_argument("points", type=Path, help="CSV with a header: lon,lat,height (EPSG:4979) or the --crs axes")
     p.add_argument("--crs", default=GEODETIC_CRS, help="CRS of the ground columns (default EPSG:4979: lon,lat,height)")
     p.add_argument("--sigmas", action="store_true", help="add propagated standard deviations sigma_line_px, sigma_column_px")
@@ -30,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_ground_to_image)
 
     p = sub.add_parser("image-to-ground", help="ground coordinates of image positions with the adjusted model (CSV)")
-    _job_report(p)
+    _job_report(p, optional=True)
     p.add_argument("pixels", type=Path, help="CSV with a header: line,column,height (height not needed with --dem)")
     p.add_argument("--crs", default=GEODETIC_CRS, help="CRS of the ground columns written (default EPSG:4979)")
     p.add_argument("--dem", type=Path, help="DEM raster (ellipsoidal heights, m) instead of the height column")
@@ -93,9 +97,12 @@ def _fail(message: str) -> int:
 def _load_model(args: argparse.Namespace):
     from solver.gis.model import ModelMismatch, load_model
 
+    delivered = str(args.report) == NO_REPORT
+    if delivered and getattr(args, "sigmas", False):
+        raise SystemExit(_fail("--sigmas needs the report of an adjustment (its covariances)"))
     try:
         job = json.loads(args.job.read_text())
-        report = json.loads(args.report.read_text())
+        report = None if delivered else json.loads(args.report.read_text())
     except (OSError, ValueError) as exc:
         raise SystemExit(_fail(f"cannot read the job or report: {exc}")) from None
     try:

@@ -270,7 +270,9 @@ class AdjustedModel:
     """Every image of a finished job with its adjusted orientation (see the module docstring)."""
 
     def __init__(self, job: Job | dict[str, Any] | str | bytes, report: dict[str, Any] | None):
-        """``report`` None: the job's initial orientation (as the adjustment starts from it)."""
+        """``report`` None: the job's own orientation, the one the adjustment starts from (its
+        attitude fitted to the job's weighted attitude samples where it has some: for a job from
+        vendor metadata, the orientation as delivered; :mod:`solver.engine.initialize`)."""
         from solver.adjust import prepare
         from solver.engine.packed_tables import camera_table, image_table
 
@@ -330,6 +332,7 @@ def rpc_image_entries(job: Job) -> dict[str, dict[str, Any]]:
     return out
 
 
-def load_model(job: Job | dict[str, Any] | str | bytes, report: dict[str, Any]) -> AdjustedModel:
-    """The adjusted model of ``job`` with the values of ``report`` (raises :class:`ModelMismatch`)."""
+def load_model(job: Job | dict[str, Any] | str | bytes, report: dict[str, Any] | None) -> AdjustedModel:
+    """The adjusted model of ``job`` with the values of ``report`` (raises :class:`ModelMismatch`);
+    without a report, the job's own (delivered) orientation."""
     return AdjustedModel(job, report)

@@ -83,6 +83,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="add tie points matched in these rasters (pba match, guided by the composed job's initial "
                    "orientation; at least two images); see docs/matching.md")
     p.add_argument("--match-summary", type=Path, metavar="FILE", help="with --match: the matching's summary (JSON)")
+    p.add_argument("--match-heights", metavar="MIN,MAX", help="with --match: the terrain's ellipsoidal height range in metres "
+                   "(default: the job's points +- 100 m, or the RPCs' range)")
     p.add_argument("-o", "--output", type=Path, help="job document (JSON); default stdout")
     p.set_defaults(func=cmd_job)
 
@@ -202,7 +204,7 @@ def cmd_job(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     if args.match:
         try:
-            summary = add_matched_ties(composed.job, args.match)
+            summary = add_matched_ties(composed.job, args.match, heights=args.match_heights)
         except ValueError as exc:
             print(f"--match: {exc}", file=sys.stderr)
             return 2
@@ -234,20 +236,23 @@ def cmd_job(args: argparse.Namespace) -> int:
     return 1
 
 
-def add_matched_ties(job: dict[str, Any], rasters: list[str], settings=None) -> dict[str, Any]:
+def add_matched_ties(job: dict[str, Any], rasters: list[str], settings=None, heights: str | None = None) -> dict[str, Any]:
     """Tie points matched in ``rasters`` (``ID=PATH``) added to the composed ``job`` (in place),
     oriented by the job's initial orientation; the matching's summary. Raises ValueError
     (the matching's located errors) when matching cannot run. ``settings``: a
-    :class:`solver.matching.features.MatchSettings` (default: the defaults of ``pba match``)."""
+    :class:`solver.matching.features.MatchSettings` (default: the defaults of ``pba match``);
+    ``heights``: ``MIN,MAX`` ellipsoidal metres (default: the job's or the RPCs' range)."""
     from solver.errors import JobError
     from solver.matching.features import MatchSettings
-    from solver.matching.orientation import images_from_job
+    from solver.matching.orientation import height_range_arg, images_from_job
     from solver.matching.pipeline import match_images
 
     images = []
     try:
-        images, heights = images_from_job(job, None, rasters)
-        result = match_images(images, heights, settings or MatchSettings())
+        images, heights_m = images_from_job(job, None, rasters)
+        if heights:
+            heights_m = height_range_arg(heights, "--match-heights")
+        result = match_images(images, heights_m, settings or MatchSettings())
     except JobError as exc:
         raise ValueError("the composed job cannot orient the images: " + "; ".join(p.message for p in exc.problems[:3])) from None
     finally:

@@ -31,8 +31,8 @@ class SourceProblem:
         where = self.file
         if self.line:
             where += f", line {self.line}"
-        if self.column:
-            where += f", column {self.column}"
+        if self.column:  # an XML element's path (a/b) in metadata files, a header's column elsewhere
+            where += f", {'element' if '/' in self.column else 'column'} {self.column}"
         return f"{where}: {self.message}"
 
     def to_problem(self) -> Problem:

@@ -6,10 +6,12 @@ Maxar support-data XML, which GDAL reads only beside its raster):
 - a raster (``IMAGE.tif`` and anything else GDAL opens): its RPC metadata domain, i.e. GeoTIFF
   RPC tags, or the sidecar GDAL finds beside it (``IMAGE_RPC.TXT``, ``IMAGE.RPB``, a DIMAP
   product's ``RPC_*.XML``), or a format's own (NITF RPC00B, a DIMAP ``DIM_*.XML``);
-- a bare sidecar: ``NAME_RPC.TXT`` (GDAL's RPC text), ``NAME.RPB`` (DigitalGlobe style) or a
-  DIMAP RPC XML (``RPC_*.XML``, Pleiades/SPOT 6-7 ``Rational_Function_Model``), or a Maxar
-  support-data XML (root ``isd``: its ``RPB`` element, read by :mod:`solver.sensors.maxar`
-  since GDAL reads it only beside the raster). GDAL reads
+- a bare sidecar: ``NAME_RPC.TXT`` (GDAL's RPC text), ``NAME.RPB`` (DigitalGlobe style), an
+  ALOS ``RPC-<scene>.txt`` (one fixed-width line), a DIMAP RPC XML (``RPC_*.XML``,
+  Pleiades/SPOT 6-7 ``Rational_Function_Model``), a DIMAP v2 metadata file (``DIM_*.XML``
+  or renamed: the RPC component it names, beside it), or a Maxar support-data XML (root
+  ``isd``: its ``RPB`` element, read by :mod:`solver.sensors.maxar` since GDAL reads it only
+  beside the raster). GDAL reads
   those only beside a raster, so the file is copied into a temporary directory beside a 1 x 1
   GeoTIFF under the names GDAL looks for, and GDAL reads that raster's RPC.
 
@@ -34,17 +36,19 @@ from solver.importers.errors import fail
 from solver.sensors.errors import MetadataError
 from solver.sensors.maxar import is_maxar_xml, read_maxar_rpc
 
-SIDECAR_KINDS = ("txt", "rpb", "dimap")
+SIDECAR_KINDS = ("txt", "rpb", "dimap", "alos")
 
 
 def sidecar_kind(path: Path) -> str | None:
-    """``txt``, ``rpb`` or ``dimap`` for a bare RPC file (by name), None for anything else."""
+    """``alos``, ``txt``, ``rpb`` or ``dimap`` for a bare RPC file (by name), None for anything else."""
     name = path.name.lower()
+    if name.startswith("rpc-") and name.endswith(".txt"):  # ALOS PRISM/AVNIR-2: RPC-<scene>.txt, one fixed-width line
+        return "alos"
     if name.endswith(".txt"):  # NAME_RPC.TXT (any .txt is tried as GDAL's RPC text)
         return "txt"
     if name.endswith(".rpb"):
         return "rpb"
-    if name.endswith(".xml") and not name.startswith("dim_"):
+    if name.endswith(".xml"):  # an RPC_*.XML, or a DIMAP metadata file naming its RPC component
         return "dimap"
     return None
 
@@ -89,11 +93,11 @@ def read_rpc_bytes(data: bytes | str, name: str) -> RPC:
     (``pba import-rpc`` reads rasters on the caller's machine)."""
     base = PurePath(name.replace("\\", "/")).name or "upload"
     if base in (".", "..") or sidecar_kind(Path(base)) is None:
-        raise fail(name, 0, "", "an uploaded RPC is a NAME_RPC.TXT, NAME.RPB or DIMAP RPC_*.XML file (by its name); "
+        raise fail(name, 0, "", "an uploaded RPC is a NAME_RPC.TXT, NAME.RPB, ALOS RPC-*.txt or DIMAP RPC_*.XML file (by its name); "
                    "for a raster's RPC, send its sidecar or the output of pba import-rpc", "not_an_rpc_file")
     with tempfile.TemporaryDirectory(prefix="pba-rpc-upload-") as tmp:
         # a fixed name of the same kind: an upload's own name may hold NUL or exceed NAME_MAX
-        path = Path(tmp) / ("upload" + PurePath(base).suffix.lower())
+        path = Path(tmp) / (("rpc-upload" if sidecar_kind(Path(base)) == "alos" else "upload") + PurePath(base).suffix.lower())
         path.write_bytes(data.encode() if isinstance(data, str) else data)
         return read_rpc(path, shown=name)
 
@@ -111,15 +115,46 @@ def read_rpc(path: str | Path, shown: str | None = None) -> RPC:
         return _gdal_rpcs(path, shown)
     if kind == "dimap" and is_maxar_xml(path):  # GDAL reads a Maxar XML's RPB only beside its raster
         return _maxar_rpc(path, shown)
+    if kind == "dimap":
+        component = _dimap_metadata_rpc(path, shown)
+        if component is not None:  # a DIM_*.XML: its RPC is a file of its own beside it
+            return read_rpc(component, f"{shown} (its RPC component {component.name})")
     with tempfile.TemporaryDirectory(prefix="pba-rpc-") as tmp:
         d = Path(tmp)
         # the names GDAL's readers look for beside a raster (GDALMDReaderPleiades: IMG_<x>_R1C1
-        # -> RPC_<x>_R1C1.XML)
-        raster = d / ("IMG_PBA_R1C1.tif" if kind == "dimap" else "image.tif")
-        sidecar = {"txt": d / "image_RPC.TXT", "rpb": d / "image.RPB", "dimap": d / "RPC_PBA_R1C1.XML"}[kind]
+        # -> RPC_<x>_R1C1.XML; GDALMDReaderALOS: IMG-<x> -> RPC-<x>.txt, with a summary.txt)
+        raster = d / {"dimap": "IMG_PBA_R1C1.tif", "alos": "IMG-PBA.tif"}.get(kind, "image.tif")
+        sidecar = {"txt": d / "image_RPC.TXT", "rpb": d / "image.RPB", "dimap": d / "RPC_PBA_R1C1.XML", "alos": d / "RPC-PBA.txt"}[kind]
         _dummy_raster(raster)
         shutil.copyfile(path, sidecar)
+        if kind == "alos":
+            (d / "summary.txt").write_text("")
         return _gdal_rpcs(raster, shown)
+
+
+def _dimap_metadata_rpc(path: Path, shown: str) -> Path | None:
+    """None for an RPC XML; for a DIMAP v2 metadata file (``Dimap_Document`` without an RPC
+    model of its own) the RPC component's file beside it, or a located error when it is not
+    there (GDAL reads that component only beside the product's rasters)."""
+    from solver.sensors.dimap_v2 import rpc_component
+    from solver.sensors.xmlsafe import load
+
+    try:
+        root = load(path, shown)
+    except MetadataError as exc:
+        raise fail(shown, 0, exc.element, exc.reason) from None
+    if root.element.tag != "Dimap_Document" or root.element.find(".//Global_RFM") is not None \
+            or root.element.find("Geometric_Data") is None and root.element.find("Dataset_Content") is None:
+        return None
+    name = rpc_component(root)
+    if name is None:
+        raise fail(shown, 0, "Dataset_Content/Dataset_Components", "a DIMAP metadata file without an RPC model or an RPC "
+                   "component: give the product's RPC_*.XML", "no_rpc")
+    beside = path.parent / name
+    if not beside.is_file() or beside.resolve() == path.resolve():
+        raise fail(shown, 0, "Dataset_Content/Dataset_Components", f"a DIMAP metadata file: its RPC is the component {name}, "
+                   "not found beside it; give that file", "no_rpc")
+    return beside
 
 
 def _maxar_rpc(path: Path, shown: str) -> RPC:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -39,8 +40,79 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_match)
 
 
-def _fail(message: str) -> int:
-    print(f"pba match: {message}", file=sys.stderr)
+def register_gcp(sub: argparse._SubParsersAction) -> None:
+    """Add ``match-gcp`` to the ``pba`` command line."""
+    from solver.matching.features import MatchSettings
+
+    d = MatchSettings()
+    p = sub.add_parser(
+        "match-gcp",
+        help="control points of an image from an orthophoto (and a DEM), guided by the orientation",
+        description="Match an image against a georeferenced orthophoto: a corner per grid cell of the orthophoto, its "
+        "ground point (orthophoto CRS, DEM height), predicted in the image by the orientation, found by correlation, "
+        "checked for a smooth offset; writes the control points (id,x,y,z: longitude, latitude, ellipsoidal height; "
+        "--crs EPSG:4979) and their measurements (image,point,line,column,sigma_px). See docs/matching.md for how "
+        "reliable this is.",
+    )
+    p.add_argument("image", metavar="IMAGE", help="the image's raster, as PATH or ID=PATH (ID: the job's image id)")
+    p.add_argument("ortho", type=Path, metavar="ORTHO", help="georeferenced orthophoto (GDAL: GeoTIFF, JPEG 2000, ...)")
+    p.add_argument("--dem", type=Path, help="DEM of ellipsoidal heights (m) under the orthophoto (GDAL, georeferenced)")
+    p.add_argument("--height", type=float, help="the terrain's ellipsoidal height (m) where there is no DEM")
+    p.add_argument("--job", type=Path, help="job document orienting the image (default: the raster's own RPC)")
+    p.add_argument("--report", type=Path, help="the job's report (adjusted orientation; default: the job's initial one)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="control points table to write (id,x,y,z,role; CRS EPSG:4979)")
+    p.add_argument("--measurements", type=Path, required=True, help="measurement CSV to write (image,point,line,column,sigma_px)")
+    p.add_argument("--summary", type=Path, help="JSON summary to write (candidates, matches, removed, sigma)")
+    p.add_argument("--search-px", type=float, default=d.search_px, help=f"half-width of the search: the orientation's uncertainty in orthophoto pixels (default {d.search_px:g})")
+    p.add_argument("--grid", type=int, default=d.grid, help=f"cells per side of the orthophoto's part under the image: one candidate each (default {d.grid})")
+    p.add_argument("--min-ncc", type=float, default=d.min_ncc, help=f"lowest accepted correlation peak (default {d.min_ncc:g})")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_match_gcp, per_cell=1, images=None, heights=None)
+
+
+def cmd_match_gcp(args: argparse.Namespace) -> int:
+    from pydantic import ValidationError
+
+    from solver.errors import JobError
+    from solver.gis.model import ModelMismatch
+    from solver.matching.gcp import GCP_CRS, GcpError, control_points_csv, match_gcps
+    from solver.matching.orientation import OrientationError
+    from solver.matching.pipeline import measurements_csv
+    from solver.matching.raster import RasterError
+
+    os.environ.setdefault("GDAL_CACHEMAX", GDAL_CACHE_MB)
+    args.images = [args.image]
+    images = []
+    try:
+        settings = settings_from_args(args)
+        if args.height is not None and not math.isfinite(args.height):
+            raise ValueError("--height must be a number of metres")
+        images, _heights = load_images(args)
+        result = match_gcps(images[0], args.ortho, args.dem, args.height, settings, _bar(not args.quiet))
+    except (RasterError, OrientationError, GcpError, ModelMismatch, ValueError) as exc:
+        return _fail(str(exc), "match-gcp")
+    except ValidationError as exc:
+        return _fail(f"{args.job}: invalid job document: " + "; ".join(f"{'/'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors()[:5]), "match-gcp")
+    except JobError as exc:
+        return _fail(f"{args.job}: " + "; ".join(f"[{p.code}] {p.message}" for p in exc.problems[:5]), "match-gcp")
+    finally:
+        for im in images:
+            im.raster.close()
+    if not result.points:
+        return _fail("no control point survived the checks (see --summary)", "match-gcp")
+    args.output.write_text(control_points_csv(result.points))
+    args.measurements.write_text(measurements_csv(result.measurements))
+    if args.summary:
+        args.summary.write_text(json.dumps(result.summary, indent=1))
+    s = result.summary
+    print(f"{args.output}: {s['control_points']} control points ({GCP_CRS}) of {s['candidates']} candidates, "
+          f"{s['removed_inconsistent']} removed as inconsistent; sigma line {s['sigma_px']['line']} px, column {s['sigma_px']['column']} px; "
+          f"measurements in {args.measurements}")
+    return 0
+
+
+def _fail(message: str, command: str = "match") -> int:
+    print(f"pba {command}: {message}", file=sys.stderr)
     return 2
 
 

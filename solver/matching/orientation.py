@@ -29,6 +29,7 @@ import numpy as np
 from solver.matching.raster import Raster, RasterError
 
 GRID_NODES = 17  # nodes of the prediction grid along each image axis
+RPC_HALF_RANGE_M = 1000.0  # widest half height range taken from an RPC (m)
 N_HEIGHTS = 3  # heights of the prediction grid (lowest, middle, highest)
 
 
@@ -83,7 +84,6 @@ def images_from_rpcs(args: list[str]) -> tuple[list[MatchImage], tuple[float, fl
     from solver.gis.rpc_image import RpcImage
 
     out: list[MatchImage] = []
-    lows, highs = [], []
     for arg in args:
         name, path = _split_arg(arg)
         raster = Raster.open(path)
@@ -96,20 +96,34 @@ def images_from_rpcs(args: list[str]) -> tuple[list[MatchImage], tuple[float, fl
         image_id = name or re.sub(r"\.(tiff?|jp2|ntf|img)$", "", path.name, flags=re.I)
         model = RpcImage(image_id, rpc, RpcBias(), "RPC").with_size(raster.lines, raster.columns)
         out.append(MatchImage(image_id, raster, model))
-        half = min(rpc.height_scale, 1000.0)
-        lows.append(rpc.height_off - half)
-        highs.append(rpc.height_off + half)
     _unique_ids(out)
-    return out, (float(min(lows)), float(max(highs)))
+    return out, rpc_height_range([im.model.rpc for im in out])
+
+
+def rpc_height_range(rpcs: list[Any]) -> tuple[float, float]:
+    """The ellipsoidal height range (m) the RPCs span: each RPC's height offset +- its height
+    scale (at most +- :data:`RPC_HALF_RANGE_M`), joined over the images."""
+    half = [min(r.height_scale, RPC_HALF_RANGE_M) for r in rpcs]
+    return float(min(r.height_off - h for r, h in zip(rpcs, half, strict=True))), float(max(r.height_off + h for r, h in zip(rpcs, half, strict=True)))
 
 
 def images_from_job(job: dict[str, Any], report: dict[str, Any] | None, args: list[str]) -> tuple[list[MatchImage], tuple[float, float]]:
-    """Images oriented by a job (and its report), and the height range of its points +- 100 m."""
-    from solver.gis.model import load_model
+    """Images oriented by a job (and its report), and the height range of its points +- 100 m.
+
+    A job whose images are all RPC images (``images[].rpc``) needs no adjustment's preparation:
+    the delivered RPCs plus the report's bias (none without a report) orient them, and the
+    height range is the RPCs' (:func:`rpc_height_range`). So a job composed from RPC images
+    alone, before any measurement, can guide the matching (``pba job --rpc ... --match ...``)."""
     from solver.gis.rpc_image import RpcImage
 
-    model = load_model(job, report)
-    ids = model.image_ids
+    models, heights = _rpc_job_images(job, report)
+    if models is None:
+        from solver.gis.model import load_model
+
+        model = load_model(job, report)
+        models = {i: model.image(i) for i in model.image_ids}
+        heights = model.height_range_m()
+    ids = list(models)
     out: list[MatchImage] = []
     for arg in args:
         name, path = _split_arg(arg)
@@ -119,7 +133,7 @@ def images_from_job(job: dict[str, Any], report: dict[str, Any] | None, args: li
                 f"{path}: which image of the job is it? Name it ID={path} (the job's images: {', '.join(ids)})"
             )
         raster = Raster.open(path)
-        img = model.image(image_id)
+        img = models[image_id]
         if isinstance(img, RpcImage):
             img = img.with_size(raster.lines, raster.columns)
         elif (img.lines, img.columns) != (raster.lines, raster.columns):
@@ -128,7 +142,33 @@ def images_from_job(job: dict[str, Any], report: dict[str, Any] | None, args: li
             )
         out.append(MatchImage(image_id, raster, img))
     _unique_ids(out)
-    return out, model.height_range_m()
+    return out, heights
+
+
+def _rpc_job_images(job: dict[str, Any], report: dict[str, Any] | None) -> tuple[dict[str, Any] | None, tuple[float, float]]:
+    """({id: RpcImage}, height range) of a job whose images are all RPC images; (None, _)
+    otherwise (the caller prepares the job as the adjustment does)."""
+    from solver.gis.model import ModelMismatch
+    from solver.gis.rpc_image import rpc_image
+
+    entries = job.get("images") if isinstance(job, dict) else None
+    if not entries or not all(isinstance(e, dict) and isinstance(e.get("rpc"), dict) and isinstance(e.get("id"), str) for e in entries):
+        return None, (0.0, 0.0)
+    reported = {e.get("id"): e for e in (report or {}).get("images", [])}
+    models: dict[str, Any] = {}
+    for e in entries:
+        if report is not None:
+            entry = reported.get(e["id"])
+            model = (e.get("model") or {}).get("name") if isinstance(e.get("model"), dict) else e.get("model")
+            if entry is None:
+                raise ModelMismatch(f"image {e['id']!r} of the job is not in the report")
+            if entry.get("model") != model:
+                raise ModelMismatch(f"image {e['id']!r}: the report's model is {entry.get('model')!r}, the job's {model!r}")
+        try:
+            models[e["id"]] = rpc_image(e, reported.get(e["id"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise OrientationError(f"image {e['id']!r}: unusable rpc: {exc}") from None
+    return models, rpc_height_range([m.rpc for m in models.values()])
 
 
 def _unique_ids(images: list[MatchImage]) -> None:
@@ -214,14 +254,14 @@ def distance_to_segment(p: np.ndarray, s0: np.ndarray, s1: np.ndarray) -> tuple[
     return perp, beyond
 
 
-def height_range_arg(text: str) -> tuple[float, float]:
-    """``MIN,MAX`` ellipsoidal metres."""
+def height_range_arg(text: str, option: str = "--heights") -> tuple[float, float]:
+    """``MIN,MAX`` ellipsoidal metres (``option``: the flag named in the message)."""
     try:
         lo, hi = (float(x) for x in text.split(","))
     except ValueError:
-        raise OrientationError(f"--heights {text!r}: give MIN,MAX in ellipsoidal metres") from None
+        raise OrientationError(f"{option} {text!r}: give MIN,MAX in ellipsoidal metres") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-        raise OrientationError(f"--heights {text!r}: MIN must be below MAX")
+        raise OrientationError(f"{option} {text!r}: MIN must be below MAX")
     return lo, hi
 
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from solver.matching.features import MatchSettings, PairMatches, match_pair
 from solver.matching.orientation import MatchImage, PairMapping
-from solver.matching.refine import SIGMA_FLOOR_PX, epipolar_check, refine_track
+from solver.matching.refine import REFERENCE_SIGMA_PX, epipolar_check, other_sigma, refine_track
 from solver.matching.tracks import cell_of, link, thin
 
 Progress = Callable[[float, str], None]
@@ -96,7 +96,7 @@ def match_images(images: list[MatchImage], heights: tuple[float, float], setting
     if not pairs:
         raise MatchError(
             f"no two images overlap at terrain heights {heights[0]:.0f} to {heights[1]:.0f} m "
-            f"(images: {', '.join(im.id for im in images)})"
+            f"(images: {', '.join(im.id for im in images)}); if they do overlap, narrow the height range (--heights)"
         )
     say(0.05, "features")
     matches: list[PairMatches] = []
@@ -157,7 +157,7 @@ def _measurements(refined: list[dict], images: list[MatchImage], sigmas: dict[tu
         point = f"M{n + 1:0{width}d}"
         for m in sorted(r):
             pos, _ncc = r[m]
-            sigma = SIGMA_FLOOR_PX if m == ref else sigmas[(ref, m)]
+            sigma = REFERENCE_SIGMA_PX if m == ref else other_sigma(sigmas[(ref, m)])
             out.append({"image": images[m].id, "point": point, "line": round(float(pos[0]), 3), "column": round(float(pos[1]), 3), "sigma_px": round(sigma, 3)})
     return out
 
@@ -178,7 +178,8 @@ def _summary(images, heights, settings, pairs, overlaps, matches, tracks, incons
         row.update({k: int(v) for k, v in pm.counts.items()})
         row["removed_epipolar"] = removed.get((i, j), 0)
         row["tie_points"] = both
-        row["sigma_px"] = round(sigmas[(i, j)], 3) if (i, j) in sigmas else None
+        row["scatter_px"] = round(sigmas[(i, j)], 3) if (i, j) in sigmas else None
+        row["sigma_px"] = round(other_sigma(sigmas[(i, j)]), 3) if (i, j) in sigmas else None
         pair_rows.append(row)
     image_rows = []
     for k, im in enumerate(images):

@@ -30,7 +30,11 @@ SEARCH_PX = 3
 MAX_ITERATIONS = 6
 CONVERGED_PX = 0.01
 MIN_TEMPLATE_STD = 1e-3  # relative to the image's stretch: a flat template has no position
-SIGMA_FLOOR_PX = 0.05  # the least standard deviation written (quantisation, resampling)
+SIGMA_FLOOR_PX = 0.05  # the least matching precision of a pair (quantisation, resampling)
+# The reference measurement is the defining pixel: the tie point is its ground point, so it has
+# no matching error; this small sigma only keeps its weight finite. The other image's sigma is
+# the rest of the pair's measured scatter (:func:`other_sigma`).
+REFERENCE_SIGMA_PX = 0.02
 
 
 def _parabola(r_minus: float, r0: float, r_plus: float) -> float:
@@ -111,6 +115,14 @@ def refine_track(members: dict[int, np.ndarray], images: list[MatchImage], mappi
         if got is not None:
             out[m] = got
     return out if len(out) >= 2 else {}
+
+
+def other_sigma(pair_sigma: float) -> float:
+    """The sigma (px) of the non-reference measurements of a pair whose matches scatter by
+    ``pair_sigma`` px about their epipolar curves: with :data:`REFERENCE_SIGMA_PX` the two
+    variances add up to the scatter's, so the adjustment's residuals across the epipolar
+    direction have the measured spread (sigma0 near 1 when the stated precision is right)."""
+    return float(np.sqrt(max(pair_sigma**2 - REFERENCE_SIGMA_PX**2, REFERENCE_SIGMA_PX**2)))
 
 
 def epipolar_check(ref_pos: np.ndarray, pos: np.ndarray, mapping: PairMapping, search_px: float) -> tuple[np.ndarray, float, np.ndarray]:

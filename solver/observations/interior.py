@@ -139,12 +139,33 @@ def cameras_report(cameras: list[CameraState], cov_block, var_factor: float) -> 
     return out
 
 
+class NoEstimatedCamera(LookupError):
+    """The job has no such camera, or its report no estimated interior orientation of it."""
+
+
 def camera_from_report(job: dict[str, Any], report: dict[str, Any], camera_id: str) -> dict[str, Any]:
-    """A camera definition (job camera fields + estimated IOP and covariance) for reuse."""
-    cam = next(c for c in job["cameras"] if c["id"] == camera_id)
-    entry = next(c for c in report.get("cameras", []) if c["id"] == camera_id)
-    out = {k: v for k, v in cam.items() if k not in ("iop", "iop_covariance", "iop_use")}
-    out["iop"] = {**cam.get("iop", {}), **entry["iop"]}
+    """A camera definition for reuse: the job's camera ``camera_id`` (every field it has:
+    ``id``, ``ref``, ``iop_use``, the focal plane and chips) with the interior orientation the
+    report estimated for it (values in mm merged over the job's, and the report's covariance,
+    mm², or none: a covariance the job carried describes other values).
+
+    Reads ``report["cameras"]``: ``[{"id", "iop": {name: value}, "iop_covariance": {"names",
+    "matrix"}}]``. Raises :class:`NoEstimatedCamera` (a sentence saying which) when the job has
+    no such camera or the report estimated none for it (not a self-calibration job).
+    """
+    cam = next((c for c in job.get("cameras", []) if isinstance(c, dict) and c.get("id") == camera_id), None)
+    if cam is None:
+        raise NoEstimatedCamera(f"the job has no camera {camera_id!r}")
+    entry = next(
+        (c for c in report.get("cameras") or [] if isinstance(c, dict) and c.get("id") == camera_id), None
+    )
+    if not entry or not entry.get("iop"):
+        raise NoEstimatedCamera(
+            f"the report has no estimated interior orientation for camera {camera_id!r} "
+            "(was it a self-calibration job?)"
+        )
+    out = {k: v for k, v in cam.items() if k not in ("iop", "iop_covariance")}
+    out["iop"] = {**(cam.get("iop") or {}), **entry["iop"]}
     if entry.get("iop_covariance"):
         out["iop_covariance"] = entry["iop_covariance"]
     return out

@@ -18,6 +18,7 @@ from solver.procedures.single import adjust_once
 from solver.quality.flags import flag_sections
 from solver.quality.removal import INFLATE, reinstate, remove, testable, whole_points, with_candidates
 from solver.quality.snooping import entry, failing_clusters, predicted_test, reliability_section, snoop
+from solver.quality.tie_pairs import tie_pairs
 from solver.schema.job import Job
 
 
@@ -314,6 +315,7 @@ class _Snooping:
                 "lost_control": lost,
                 "check_point_outliers": outliers,
                 "reliability": reliability_section(sn),
+                "tie_pairs": tie_pairs(self.job, report["observations"]),
             }
         )
         flag_sections(report)

@@ -1,5 +1,5 @@
-"""Airbus/CNES DIMAP v1 (SPOT 5 HRG/HRS level 1A/1B scene or segment metadata, ``METADATA.DIM``)
-read into the exact linescan model.
+"""Airbus/CNES DIMAP v1 (SPOT 1-5 level 1A/1B scene or segment metadata, ``METADATA.DIM``: SPOT 5
+HRG/HRS, SPOT 1-4 HRV/HRVIR) read into the exact linescan model.
 
 What is read, and the conventions (SPOT 1-5 Geometry Handbook, GAEL-P135-DOC-001; the public
 SPOT 5 HRS segment of tests/data/vendor/stereopipeline):
@@ -7,7 +7,7 @@ SPOT 5 HRS segment of tests/data/vendor/stereopipeline):
 - ``Raster_Dimensions``: ``NCOLS``, ``NROWS``.
 - ``Data_Strip/Ephemeris/Points/Point``: ``Location`` and ``Velocity`` (``X Y Z``, ECEF m and
   m/s, DORIS-determined, 30 s apart) and ``TIME`` (UTC, ISO 8601 without zone).
-- ``Data_Strip/Satellite_Attitudes/Corrected_Attitudes/Corrected_Attitude/Angles``: ``TIME``,
+- SPOT 5: ``Data_Strip/Satellite_Attitudes/Corrected_Attitudes/Corrected_Attitude/Angles``: ``TIME``,
   ``YAW``, ``PITCH``, ``ROLL`` (rad; star-tracker corrected, 8 Hz), samples flagged
   ``OUT_OF_RANGE`` Y are refused. The angles turn the navigation frame O1 into the local
   orbital frame O2: ``M = [[cr cy, -cr sy, -sr], [cp sy + sp sr cy, cp cy - sp sr sy, sp cr],
@@ -17,13 +17,19 @@ SPOT 5 HRS segment of tests/data/vendor/stereopipeline):
   interpolates the angles linearly; at 8 Hz the two differ by far less than a pixel). Real
   segments start and end a fraction of a second beyond the attitude samples: extrapolation by
   up to two sample intervals is accepted.
+- SPOT 1-4 (no corrected attitude): ``.../Raw_Attitudes/Aocs_Attitude/Angular_Speeds_List``:
+  the gyros' yaw, pitch and roll speeds (rad/s, about 8 Hz), integrated (trapezoids) into the
+  same three angles; the integration constant is the first absolute angle of ``Angles_List``
+  (at its time) when given, else zero at the scene centre time. On three real SPOT 2/3 scenes
+  the integrated speeds reproduce the second absolute angle, 9 s later, to 1.6e-6 rad at most.
 - ``Data_Strip/Sensor_Configuration/Time_Stamp``: ``LINE_PERIOD`` (s), ``SCENE_CENTER_TIME``
   (UTC), ``SCENE_CENTER_LINE`` (1-based): line L (0-based, pixel centres) is at
   ``SCENE_CENTER_TIME + (L + 1 - SCENE_CENTER_LINE) LINE_PERIOD``.
 - ``.../Instrument_Look_Angles/Look_Angles_List/Look_Angles``: ``DETECTOR_ID`` (1-based;
   column C is detector C + 1), ``PSI_X`` (along track) and ``PSI_Y`` (across track), rad:
-  the detector looks along ``(-tan PSI_Y, tan PSI_X, -1)`` in O1 (z away from the ground).
-  There must be one per column.
+  the detector looks along ``(-tan PSI_Y, tan PSI_X, -1)`` in O1 (z away from the ground;
+  :mod:`solver.sensors.detectors`). SPOT 5 gives one per column, SPOT 1-4 the first and last
+  detector's: the tangents are linear in the column between the given detectors.
 
 The file's corner tie points (``Geoposition/Geoposition_Points/Tie_Point``: ``TIE_POINT_CRS_X``
 longitude, ``_Y`` latitude, ``_Z`` height at ``TIE_POINT_DATA_X`` column, ``_Y`` line, 1-based)
@@ -32,18 +38,23 @@ are kept for a check (:func:`tie_point_check`); DIMAP v1 carries no RPC. The cor
 model has none (its tie points agree with the uncorrected model to centimetres, and the
 corrected attitude, estimated with that model, absorbs them); switch them on to see their size.
 
-Only SPOT 5 is read: SPOT 1-4 DIMAP (attitude as angular speeds, look angles of the first and
-last detector) and DIMAP v2 (SPOT 6/7, Pleiades) are refused with a message saying so.
+The tie points of SPOT 1-4 products are the vendor's systematic location without the attitude:
+the exact model with zero angles meets them to 0.4-2.6 m (one constant offset per scene), with
+the measured attitude 3-20 m away (docs/sensor-metadata.md). DIMAP v2 (SPOT 6/7, Pleiades) is
+:mod:`solver.sensors.dimap_v2`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
+from solver.schema.job import MAX_COLUMNS, MAX_LINES
+from solver.sensors.detectors import SPOT_NAVIGATION, LookAngles
 from solver.sensors.linescan import Corrections, LinescanModel, lagrange, matrix_to_quaternion
 from solver.sensors.xmlsafe import Node, load
 
@@ -56,6 +67,7 @@ class Spot5Product:
     model: LinescanModel
     corners: np.ndarray  # (k, 5): tie points: line, column (0-based), lon_deg, lat_deg, h_m
     line_period_s: float
+    look: LookAngles
 
 
 def _utc(node: Node, tag: str) -> datetime:
@@ -65,6 +77,76 @@ def _utc(node: Node, tag: str) -> datetime:
     except ValueError:
         raise node.error(f"not an ISO 8601 time: {text[:40]!r}", tag) from None
     return t if t.tzinfo else t.replace(tzinfo=timezone.utc)
+
+
+def _corrected_angles(attitudes: Node, seconds: Callable[[datetime], float]) -> tuple[Node, np.ndarray, np.ndarray]:
+    """SPOT 5: the star-tracker corrected yaw, pitch, roll samples (rad)."""
+    att = attitudes.child("Corrected_Attitudes").child("Corrected_Attitude")
+    samples = att.children("Angles")
+    if len(samples) < 2:
+        raise att.error(f"2 attitude samples at least, {len(samples)} found", "Angles")
+    for s in samples:
+        if s.find("OUT_OF_RANGE") is not None and s.text("OUT_OF_RANGE").upper() == "Y":
+            raise s.error("a sample flagged OUT_OF_RANGE", "OUT_OF_RANGE")
+    att_t = np.array([seconds(_utc(s, "TIME")) for s in samples])
+    if np.any(np.diff(att_t) <= 0):
+        raise att.error("attitude times must increase", "Angles")
+    return att, att_t, np.array([[s.number("YAW"), s.number("PITCH"), s.number("ROLL")] for s in samples])
+
+
+def _integrated_speeds(attitudes: Node, seconds: Callable[[datetime], float], t_center: float) -> tuple[Node, np.ndarray, np.ndarray]:
+    """SPOT 1-4: yaw, pitch, roll (rad) integrated from the gyros' angular speeds (rad/s, linear
+    between samples: trapezoids). The integration constant is the first absolute AOCS angle
+    (``Aocs_Attitude/Angles_List/Angles``) at its time when the file has one (the first speed
+    held constant back to it), else zero at the scene centre time."""
+    raw = attitudes.child("Raw_Attitudes")
+    aocs = raw.find("Aocs_Attitude") or raw
+    lst = aocs.child("Angular_Speeds_List")
+    samples = lst.children("Angular_Speeds")
+    if len(samples) < 2:
+        raise lst.error(f"2 angular speed samples at least, {len(samples)} found", "Angular_Speeds")
+    for s in samples:
+        if s.find("OUT_OF_RANGE") is not None and s.text("OUT_OF_RANGE").upper() == "Y":
+            raise s.error("a sample flagged OUT_OF_RANGE", "OUT_OF_RANGE")
+    t = np.array([seconds(_utc(s, "TIME")) for s in samples])
+    rates = np.array([[s.number("YAW"), s.number("PITCH"), s.number("ROLL")] for s in samples])
+    if np.any(np.abs(rates) > 0.1):
+        raise lst.error("angular speeds above 0.1 rad/s: rad/s of a pointing platform expected", "Angular_Speeds")
+    absolute = aocs.find("Angles_List")
+    first = absolute.children("Angles")[0] if absolute is not None and absolute.children("Angles") else None
+    if first is not None and not (first.find("OUT_OF_RANGE") is not None and first.text("OUT_OF_RANGE").upper() == "Y"):
+        t_first = seconds(_utc(first, "TIME"))
+        if t_first < t[0]:  # the first speed held back to the absolute angle's time
+            t, rates = np.concatenate([[t_first], t]), np.vstack([rates[:1], rates])
+        origin_t, origin = t_first, np.array([first.number("YAW"), first.number("PITCH"), first.number("ROLL")])
+    else:
+        origin_t, origin = t_center, np.zeros(3)
+    if np.any(np.diff(t) <= 0):
+        raise lst.error("angular speed times must increase", "Angular_Speeds")
+    if not t[0] <= origin_t <= t[-1]:
+        raise lst.error("the samples do not contain the time they are integrated from", "Angular_Speeds")
+    steps = 0.5 * (rates[1:] + rates[:-1]) * np.diff(t)[:, None]
+    angles = np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
+    # the integral of speeds linear between samples is quadratic there: its value at the origin
+    i = int(np.clip(np.searchsorted(t, origin_t) - 1, 0, t.size - 2))
+    u = origin_t - t[i]
+    slope = (rates[i + 1] - rates[i]) / (t[i + 1] - t[i])
+    at_origin = angles[i] + rates[i] * u + 0.5 * slope * u * u
+    return lst, t, angles - at_origin + origin
+
+
+def _look_angles(cfg: Node, columns: int) -> LookAngles:
+    """The look angles of the first band's detectors: one per column (SPOT 5) or a few detectors
+    (SPOT 1-4: the first and the last), linear in their tangents between detectors."""
+    looks = cfg.child("Instrument_Look_Angles_List").child("Instrument_Look_Angles").child("Look_Angles_List")
+    cells = looks.children("Look_Angles")
+    table = np.array([[c.number("DETECTOR_ID"), c.number("PSI_X"), c.number("PSI_Y")] for c in cells]) if cells else np.zeros((0, 3))
+    ids = table[:, 0]
+    if (table.shape[0] < min(2, columns) or np.any(np.diff(ids) <= 0) or ids[0] != 1 or ids[-1] != columns
+            or np.any(np.abs(table[:, 1:]) >= 1.0)):
+        raise looks.error(f"look angles (rad) of detectors 1 to {columns} expected in increasing order (every column, or "
+                          f"the first and last), {table.shape[0]} found")
+    return LookAngles.table(np.tan(table[:, 1]), np.tan(table[:, 2]), SPOT_NAVIGATION, ids - 1.0)
 
 
 def look_rotation(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
@@ -86,24 +168,36 @@ def orbital_to_ecef(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z], axis=2)
 
 
+def dimap_version(root: Node) -> str:
+    """The DIMAP version of a parsed ``Dimap_Document`` (``METADATA_FORMAT``'s ``version``: in
+    ``Metadata_Id`` for v1, ``Metadata_Identification`` for v2), "" when it has none."""
+    if root.element.tag != "Dimap_Document":
+        raise root.error("not a DIMAP document (root element Dimap_Document expected)")
+    for section in ("Metadata_Id", "Metadata_Identification"):
+        fmt = root.element.find(f"{section}/METADATA_FORMAT")
+        if fmt is not None:
+            return fmt.get("version", "").strip()
+    return ""
+
+
 def read_spot5(path: str | Path, shown: str | None = None, data: bytes | None = None) -> Spot5Product:
-    """The exact model of a SPOT 5 DIMAP v1 metadata file (module docstring); ``data`` as for
+    """The exact model of a SPOT 1-5 DIMAP v1 metadata file (module docstring); ``data`` as for
     :func:`solver.sensors.maxar.read_maxar`."""
     path = Path(path)
     shown = str(path) if shown is None else shown
     root = load(path, shown, data)
-    if root.element.tag != "Dimap_Document":
-        raise root.error("not a DIMAP document (root element Dimap_Document expected)")
-    fmt = root.find("Metadata_Id")
-    fmt = fmt.find("METADATA_FORMAT") if fmt is not None else None
-    version = fmt.element.get("version", "") if fmt is not None else ""
+    version = dimap_version(root)
     if not version.startswith("1."):
-        raise root.error(f"DIMAP version {version or 'unknown'}: only DIMAP v1 (SPOT 5) is read; DIMAP v2 "
-                         "(SPOT 6/7, Pleiades) is not read yet")
+        raise root.error(f"DIMAP version {version or 'unknown'}: DIMAP v1 (SPOT 1-5) expected here")
+    return read_dimap_v1_root(root, shown)
+
+
+def read_dimap_v1_root(root: Node, shown: str) -> Spot5Product:
+    """The product of a parsed DIMAP v1 document (module docstring)."""
     dims = root.child("Raster_Dimensions")
     columns, lines = dims.integer("NCOLS"), dims.integer("NROWS")
-    if columns < 1 or lines < 1:
-        raise dims.error("NCOLS and NROWS must be positive")
+    if not (1 <= lines <= MAX_LINES and 1 <= columns <= MAX_COLUMNS):
+        raise dims.error(f"NROWS {lines}, NCOLS {columns}: 1 to {MAX_LINES} rows and 1 to {MAX_COLUMNS} columns expected")
     strip = root.child("Data_Strip")
     points = strip.child("Ephemeris").child("Points").children("Point")
     if len(points) < 4:
@@ -123,18 +217,6 @@ def read_spot5(path: str | Path, shown: str | None = None, data: bytes | None = 
     if np.any((r < 6.4e6) | (r > 5e7)):
         raise strip.error("positions are not ECEF metres of an orbit", "Ephemeris/Points")
 
-    att = strip.child("Satellite_Attitudes").child("Corrected_Attitudes").child("Corrected_Attitude")
-    samples = att.children("Angles")
-    if len(samples) < 2:
-        raise att.error(f"2 attitude samples at least, {len(samples)} found", "Angles")
-    for s in samples:
-        if s.find("OUT_OF_RANGE") is not None and s.text("OUT_OF_RANGE").upper() == "Y":
-            raise s.error("a sample flagged OUT_OF_RANGE", "OUT_OF_RANGE")
-    att_t = np.array([seconds(_utc(s, "TIME")) for s in samples])
-    if np.any(np.diff(att_t) <= 0):
-        raise att.error("attitude times must increase", "Angles")
-    ypr = np.array([[s.number("YAW"), s.number("PITCH"), s.number("ROLL")] for s in samples])
-
     cfg = strip.child("Sensor_Configuration")
     stamp = cfg.child("Time_Stamp")
     period = stamp.number("LINE_PERIOD")
@@ -142,28 +224,13 @@ def read_spot5(path: str | Path, shown: str | None = None, data: bytes | None = 
         raise stamp.error(f"{period}: a line period in seconds expected", "LINE_PERIOD")
     t_center = seconds(_utc(stamp, "SCENE_CENTER_TIME"))
     center_line = stamp.number("SCENE_CENTER_LINE")
-    looks = cfg.child("Instrument_Look_Angles_List").child("Instrument_Look_Angles").child("Look_Angles_List")
-    cells = looks.children("Look_Angles")
-    table = np.array([[c.number("DETECTOR_ID"), c.number("PSI_X"), c.number("PSI_Y")] for c in cells]) if cells else np.zeros((0, 3))
-    if table.shape[0] != columns or not np.array_equal(table[:, 0], np.arange(1, columns + 1)):
-        raise looks.error(f"one look angle per column expected (detectors 1..{columns}), {table.shape[0]} found")
-    psi_x, psi_y = table[:, 1], table[:, 2]
 
-    detectors = np.arange(columns, dtype=float)
-
-    def table(c: np.ndarray, values: np.ndarray) -> np.ndarray:
-        """Linear between detectors, extended with the end slopes beyond the first and last."""
-        if columns == 1:
-            return np.full(c.shape, values[0])
-        out = np.interp(c, detectors, values)
-        lo, hi = c < 0, c > columns - 1
-        out[lo] = values[0] + c[lo] * (values[1] - values[0])
-        out[hi] = values[-1] + (c[hi] - columns + 1) * (values[-1] - values[-2])
-        return out
-
-    def look_body(column: np.ndarray) -> np.ndarray:
-        c = np.atleast_1d(np.asarray(column, float))
-        return np.column_stack([-table(c, np.tan(psi_y)), table(c, np.tan(psi_x)), -np.ones_like(c)])
+    attitudes = strip.child("Satellite_Attitudes")
+    if attitudes.find("Corrected_Attitudes") is not None:
+        att, att_t, ypr = _corrected_angles(attitudes, seconds)
+    else:
+        att, att_t, ypr = _integrated_speeds(attitudes, seconds, t_center)
+    look = _look_angles(cfg, columns)
 
     t0 = t_center + (0 + 1 - center_line) * period
     t_end = t0 + (lines - 1) * period
@@ -176,7 +243,7 @@ def read_spot5(path: str | Path, shown: str | None = None, data: bytes | None = 
         lines=lines, columns=columns, epoch_utc=epoch.isoformat().replace("+00:00", "Z"),
         tlc_lines=np.array([0.0, 1.0]), tlc_times_s=np.array([t0, t0 + period]),
         ephemeris_times_s=eph_t, positions_ecef_m=pos, velocities_ecef_m_s=vel,
-        attitude_times_s=att_t, attitude_wxyz=matrix_to_quaternion(rot), look_body=look_body,
+        attitude_times_s=att_t, attitude_wxyz=matrix_to_quaternion(rot), look_body=look.body,
         corrections=Corrections(aberration=False, light_time=False, refraction=False),
     )
     corners = []
@@ -189,10 +256,10 @@ def read_spot5(path: str | Path, shown: str | None = None, data: bytes | None = 
     scene = src.find("Source_Information") if src is not None else None
     scene = scene.find("Scene_Source") if scene is not None else None
     mission = f"{scene.text('MISSION')} {scene.text('MISSION_INDEX')}" if scene is not None and scene.find("MISSION") is not None else ""
-    if mission and mission != "SPOT 5":
-        raise scene.error(f"{mission}: only SPOT 5 is read (SPOT 1-4 give their attitude as angular speeds)", "MISSION_INDEX")
+    if mission and mission not in ("SPOT 1", "SPOT 2", "SPOT 3", "SPOT 4", "SPOT 5"):
+        raise scene.error(f"{mission}: a DIMAP v1 product of SPOT 1 to 5 expected", "MISSION_INDEX")
     instrument = scene.text("INSTRUMENT") if scene is not None and scene.find("INSTRUMENT") is not None else ""
-    return Spot5Product(shown, mission, instrument, model, np.array(corners).reshape(-1, 5), period)
+    return Spot5Product(shown, mission, instrument, model, np.array(corners).reshape(-1, 5), period, look)
 
 
 def tie_point_check(p: Spot5Product) -> dict[str, object]:

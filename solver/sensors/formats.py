@@ -1,31 +1,43 @@
 """Which reader a metadata file needs, by its root element: ``isd`` (Maxar support data,
-:mod:`solver.sensors.maxar`) or ``Dimap_Document`` (DIMAP v1, SPOT 5:
-:mod:`solver.sensors.dimap_spot5`)."""
+:mod:`solver.sensors.maxar`) or ``Dimap_Document`` (DIMAP v1 of SPOT 1-5,
+:mod:`solver.sensors.dimap_spot5`; DIMAP v2 of SPOT 6/7 and Pleiades,
+:mod:`solver.sensors.dimap_v2`, told apart by ``METADATA_FORMAT``'s version)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from solver.sensors.dimap_spot5 import Spot5Product, read_spot5
+from solver.sensors.dimap_spot5 import Spot5Product, dimap_version, read_dimap_v1_root
+from solver.sensors.dimap_v2 import DimapV2Product, read_dimap_v2_root
 from solver.sensors.errors import MetadataError
 from solver.sensors.maxar import MaxarProduct, read_maxar
-from solver.sensors.xmlsafe import read_bytes
+from solver.sensors.xmlsafe import load, read_bytes
 
-FORMATS = "Maxar/DigitalGlobe support-data XML (root isd) or SPOT 5 DIMAP v1 (root Dimap_Document)"
+FORMATS = ("Maxar/DigitalGlobe support-data XML (root isd), DIMAP v1 of SPOT 1-5 (METADATA.DIM) or DIMAP v2 "
+           "of SPOT 6/7 and Pleiades (DIM_*.XML; root Dimap_Document)")
+Product = MaxarProduct | Spot5Product | DimapV2Product
 
 
-def read_product(path: str | Path, shown: str | None = None, data: bytes | str | None = None) -> MaxarProduct | Spot5Product:
+def read_product(path: str | Path, shown: str | None = None, data: bytes | str | None = None) -> Product:
     """The product of a metadata file (or of its bytes ``data``), by its root element
     (MetadataError naming the file when neither)."""
     path = Path(path)
     shown = str(path) if shown is None else shown
     if isinstance(data, str):
         data = data.encode()
+    from_disk = data is None  # an upload's name is no path: nothing is looked for beside it
     if data is None:
         data = read_bytes(path, shown)
     head = data[:4096]
     if b"<isd>" in head or b"<isd " in head:
         return read_maxar(path, shown, data)
     if b"<Dimap_Document" in head:
-        return read_spot5(path, shown, data)
+        root = load(path, shown, data)
+        version = dimap_version(root)
+        if version.startswith("1."):
+            return read_dimap_v1_root(root, shown)
+        if version.startswith("2."):
+            return read_dimap_v2_root(root, path if from_disk else Path(""), shown)
+        raise root.error(f"DIMAP version {version or 'unknown'}: 1.x (SPOT 1-5) or 2.x (SPOT 6/7, Pleiades) expected",
+                         "Metadata_Identification/METADATA_FORMAT")
     raise MetadataError(shown, "", f"not a sensor metadata file we read: {FORMATS} expected")

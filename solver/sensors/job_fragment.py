@@ -20,10 +20,10 @@ Mapping (docs/models.md sections 1, 9, 10):
   meet the ground where the exact model, with every correction, puts them at the product's
   mean height. What this cannot absorb (their change across the swath and with height) is in
   ``difference_px``.
-- SPOT 5: the look-angle table as one straight chip (:func:`spot5_source`), our axes
-  ``(Y, -X, Z)`` of the navigation frame.
-- Model: OA-J2 for Maxar's short images, PASS-J2 for SPOT 5's long segments (it uses every
-  ephemeris sample), with cubic attitude polynomials.
+- SPOT 1-7 and Pleiades: the look angles (one model, :mod:`solver.sensors.detectors`) as one
+  straight chip (:func:`look_angle_source`).
+- Model: OA-J2 for Maxar's, SPOT 6/7's and Pleiades' short images, PASS-J2 for SPOT 1-5's long
+  segments (it uses every ephemeris sample), with cubic attitude polynomials.
 - Line times: a constant ``line_time_s = 1 / AVGLINERATE`` from the first line's time; a
   TLC table that departs from it is counted in the difference.
 - Times: seconds since 00:00 UTC of the product's first ephemeris date (``time_origin_utc``),
@@ -38,7 +38,10 @@ from typing import Any
 
 import numpy as np
 
+from solver.geometry.sensor import chip_index_of_column
+from solver.sensors.detectors import LookAngles
 from solver.sensors.dimap_spot5 import Spot5Product
+from solver.sensors.dimap_v2 import DimapV2Product
 from solver.sensors.linescan import LinescanModel, matrix_to_quaternion, quaternion_matrices
 from solver.sensors.maxar import MaxarProduct
 
@@ -53,6 +56,11 @@ LONG_STRIP_MODEL = "PASS-J2"
 # default orders (with them the adjustment is off by hundreds of metres).
 DEFAULT_ORDERS = {"omega": 3, "phi": 3, "kappa": 3}
 DEFAULT_SIGMA_VELOCITY_M_S = 0.01  # Maxar EPH carries no velocity covariance
+MIN_ATTITUDE_SPACING_S = 0.015  # the job's attitude samples: Maxar's 50 Hz kept, a 100 Hz sampling thinned to 50 Hz
+# at most this many attitude samples per image in the job (each costs a fit of the effective
+# rotation, about 3.5 ms: a composition on the server stays within seconds); the public SPOT 5
+# segment has 578 over 72 s
+MAX_JOB_ATTITUDE_SAMPLES = 1000
 
 
 def orbital_rows(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
@@ -148,29 +156,64 @@ def maxar_source(p: MaxarProduct) -> SensorSource:
 SPOT5_PIXEL_MM = 0.0065  # HRG/HRS detector pitch: nominal; only its ratio to the focal length matters
 
 
+CHIP_TOLERANCE_PX = 0.05  # straight chips follow the look-angle model to this (focal plane, px)
+MAX_CHIPS = 64
+
+
+def look_angle_chips(along_mm: np.ndarray, across_mm: np.ndarray, pixel_mm: float) -> list[dict[str, Any]]:
+    """Our chips for detector positions in the focal plane (mm, one per column, ``across_mm``
+    increasing by about ``pixel_mm`` a column): the fewest equal straight pieces (1, 2, 4, ...,
+    :data:`MAX_CHIPS`) each with its own ``dx_mm`` (mean along-track position) and ``dy_mm``
+    (mean offset from the piece's nominal scanline) that follow the positions within
+    :data:`CHIP_TOLERANCE_PX`. A curved or rotated detector line (SPOT, Pleiades Neo) becomes
+    several touching chips; each chip's ``dx_mm``/``dy_mm`` are then the self-calibration terms
+    of its piece of the line."""
+    n = along_mm.size
+    k = 1
+    while True:
+        pieces = np.array_split(np.arange(n), k)
+        chips, worst = [], 0.0
+        for j, cols in enumerate(pieces):
+            first, width = int(cols[0]), int(cols.size)
+            ys = (cols - first - (width - 1) / 2.0) * pixel_mm
+            dx, dy = float(np.mean(along_mm[cols])), float(np.mean(across_mm[cols] - ys))
+            worst = max(worst, float(np.max(np.hypot(along_mm[cols] - dx, across_mm[cols] - ys - dy))) / pixel_mm)
+            chips.append({"id": str(j + 1), "first_column": first, "columns": width, "dx_mm": dx, "dy_mm": dy})
+        if worst <= CHIP_TOLERANCE_PX or 2 * k > min(MAX_CHIPS, n):
+            return chips
+        k *= 2
+
+
+def look_angle_source(file: str, satellite: str, band: str, model: LinescanModel, look: LookAngles, line_period_s: float,
+                      pixel_mm: float, default_model: str, mean_height_m: float = 0.0) -> SensorSource:
+    """A look-angle focal plane (:mod:`solver.sensors.detectors`, SPOT 1-7 and Pleiades) as
+    straight chips of ours (:func:`look_angle_chips`). Our camera sees ``(a, s c, -1)`` for the
+    look frame's ``(a, c, 1)`` (``s`` = +-1 so that our axes are a rotation of the body's),
+    turned half a turn about z when the columns run against our y; the focal length is the
+    nominal pitch over the mean slope of ``s c`` in the column."""
+    c = np.arange(model.columns, dtype=float)
+    along, across = look.tangents(c)
+    s = -1.0 / float(np.sign(np.linalg.det(look.to_body)))
+    slope = float(np.polyfit(c, s * across, 1)[0]) if model.columns > 1 else 1e-6
+    turn = 1.0 if slope > 0 else -1.0  # columns running against our y: turn the camera about z
+    ours_from_look = np.diag([turn, turn * s, -1.0])
+    body_from_ours = look.to_body @ ours_from_look  # ours_from_look is its own inverse
+    focal = pixel_mm / abs(slope)
+    chips = look_angle_chips(focal * turn * along, focal * turn * s * across, pixel_mm)
+    camera = {"focal_mm": float(focal), "pixel_mm": pixel_mm, "line_time_s": line_period_s, "lines": model.lines,
+              "columns": model.columns, "chips": chips}
+    return SensorSource(file, satellite, band, model, body_from_ours, camera, mean_height_m, None, None, default_model)
+
+
 def spot5_source(p: Spot5Product) -> SensorSource:
-    """A SPOT 5 product's camera: the look-angle table as one straight chip. Our camera axes are
-    (Y, -X, Z) of the navigation frame O1 (Y along the flight), so a detector sits at
-    ``f (tan PSI_X, tan PSI_Y)``; ``tan PSI_Y`` is fitted by a line in the column (its slope
-    gives the focal length for the nominal pitch), ``tan PSI_X`` by its mean; what the line and
-    the mean leave out is in the difference."""
-    m = p.model
-    c = np.arange(m.columns, dtype=float)
-    look = m.look_body(c)
-    tan_x, tan_y = look[:, 1], -look[:, 0]
-    slope, intercept = np.polyfit(c, tan_y, 1)
-    focal = SPOT5_PIXEL_MM / abs(slope)
-    sign = 1.0 if slope > 0 else -1.0  # columns running against our y: turn the camera about z
-    body_from_ours = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # columns: ours x, y, z in O1
-    if sign < 0:
-        body_from_ours = body_from_ours @ np.diag([-1.0, -1.0, 1.0])
-        tan_x = -tan_x
-    camera = {
-        "focal_mm": float(focal), "pixel_mm": SPOT5_PIXEL_MM, "line_time_s": p.line_period_s, "lines": m.lines, "columns": m.columns,
-        "chips": [{"id": "1", "first_column": 0, "columns": m.columns, "dx_mm": float(focal * np.mean(tan_x)),
-                   "dy_mm": float(sign * focal * (intercept + slope * (m.columns - 1) / 2.0))}],
-    }
-    return SensorSource(p.file, p.mission, p.instrument, m, body_from_ours, camera, 0.0, None, None, LONG_STRIP_MODEL)
+    """A SPOT 1-5 product's camera (:func:`look_angle_source`; its body frame is the navigation
+    frame O1, our x along its Y, the flight)."""
+    return look_angle_source(p.file, p.mission, p.instrument, p.model, p.look, p.line_period_s, SPOT5_PIXEL_MM, LONG_STRIP_MODEL)
+
+
+def dimap_v2_source(p: DimapV2Product) -> SensorSource:
+    """A DIMAP v2 product's camera (:func:`look_angle_source`; body frame: the satellite frame)."""
+    return look_angle_source(p.file, p.satellite, p.band, p.model, p.look, p.line_period_s, p.pixel_mm, DEFAULT_MODEL)
 
 
 def _time_origin(sources: list[SensorSource]) -> datetime:
@@ -182,11 +225,21 @@ DEFAULT_SIGMA_POSITION_M = 5.0  # when the file states none
 DEFAULT_SIGMA_ATTITUDE_DEG = 0.002
 
 
-def fragment(products: list[MaxarProduct | Spot5Product | SensorSource], image_ids: list[str]) -> dict[str, Any]:
+def source(p: MaxarProduct | Spot5Product | DimapV2Product | SensorSource) -> SensorSource:
+    """What the fragment needs of a product of any format."""
+    if isinstance(p, SensorSource):
+        return p
+    if isinstance(p, MaxarProduct):
+        return maxar_source(p)
+    if isinstance(p, DimapV2Product):
+        return dimap_v2_source(p)
+    return spot5_source(p)
+
+
+def fragment(products: list[MaxarProduct | Spot5Product | DimapV2Product | SensorSource], image_ids: list[str]) -> dict[str, Any]:
     """The job fragment of one or more products (``cameras``, ``images``, ``options``) and a
     ``sensor_metadata`` block per image (what was read, the job form's difference)."""
-    sources = [p if isinstance(p, SensorSource) else maxar_source(p) if isinstance(p, MaxarProduct) else spot5_source(p)
-               for p in products]
+    sources = [source(p) for p in products]
     origin = _time_origin(sources)
     cameras, images, notes = [], [], []
     for src, image_id in zip(sources, image_ids):
@@ -201,6 +254,11 @@ def fragment(products: list[MaxarProduct | Spot5Product | SensorSource], image_i
         da = float(np.median(np.diff(m.attitude_times_s)))
         ka = (m.attitude_times_s >= lo - max(0.1, da)) & (m.attitude_times_s <= hi + max(0.1, da))
         at = m.attitude_times_s[ka]
+        if da < MIN_ATTITUDE_SPACING_S:  # densely sampled polynomials (Pleiades): every k-th sample, ends kept
+            step = int(np.ceil(MIN_ATTITUDE_SPACING_S / da))
+            at = np.unique(np.concatenate([at[::step], at[-1:]]))
+        if at.size > MAX_JOB_ATTITUDE_SAMPLES:  # a long strip: evenly spread samples, ends kept
+            at = at[np.unique(np.round(np.linspace(0, at.size - 1, MAX_JOB_ATTITUDE_SAMPLES)).astype(int))]
         rot = effective_rotations(m, at, src.mean_height_m)  # body to ECEF
         ecef_to_ours = np.einsum("ij,njk->nik", src.ours_to_body.T, np.transpose(rot, (0, 2, 1)))
         a = ecef_to_ours @ np.transpose(orbital_rows(m.position(at), m.velocity(at)), (0, 2, 1))
@@ -235,18 +293,24 @@ def _utc(origin: datetime, seconds: float) -> str:
 
 def job_form_difference(src: SensorSource, camera: dict[str, Any], image: dict[str, Any], shift: float,
                         n: int = 7, k: int = 3) -> dict[str, float]:
-    """How far the job form (our one-chip camera, constant line rate, the effective attitude
+    """How far the job form (our chips, constant line rate, the effective attitude
     samples slerped, straight rays, no corrections) is from the exact model with every
     correction: RMS and maximum px over ``n`` x ``n`` image positions times ``k`` heights (the
     RPC's height range, else 0 +- 500 m)."""
     m = src.model
-    chip = camera["chips"][0]
-    f, pix, dx, dy, cols = camera["focal_mm"], camera["pixel_mm"], chip["dx_mm"], chip["dy_mm"], camera["columns"]
+    chips = camera["chips"]
+    f, pix = camera["focal_mm"], camera["pixel_mm"]
+    first = np.array([ch["first_column"] for ch in chips], float)
+    width = np.array([ch["columns"] for ch in chips], float)
+    dx = np.array([ch["dx_mm"] for ch in chips])
+    dy = np.array([ch["dy_mm"] for ch in chips])
     ours_to_body = src.ours_to_body
 
     def look_body(c: np.ndarray) -> np.ndarray:
         c = np.asarray(c, float)
-        v = np.column_stack([np.full(c.shape, dx), (c - (cols - 1) / 2.0) * pix + dy, np.full(c.shape, -f)])
+        k = chip_index_of_column(list(first), [int(w) for w in width], c)
+        k = np.where(k < 0, np.where(c < first.min(), int(np.argmin(first)), int(np.argmax(first))), k)  # beyond the ends
+        v = np.column_stack([dx[k], (c - first[k] - (width[k] - 1) / 2.0) * pix + dy[k], np.full(c.shape, -f)])
         return v @ ours_to_body.T
 
     at = np.array([s["time_s"] - shift for s in image["attitude"]])

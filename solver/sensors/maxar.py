@@ -76,7 +76,7 @@ def parse_utc(node: Node, tag: str) -> datetime:
     return t
 
 
-def _crosses_leap_second(a: datetime, b: datetime) -> bool:
+def crosses_leap_second(a: datetime, b: datetime) -> bool:
     """True when [a, b] contains the end of 30 June or 31 December (where leap seconds go)."""
     lo, hi = min(a, b), max(a, b)
     for year in range(lo.year, hi.year + 1):
@@ -210,7 +210,7 @@ def read_maxar(path: str | Path, shown: str | None = None, data: bytes | None = 
         tlc_lines = np.append(tlc_lines, tlc_lines[0] + rate)
         tlc_times = np.append(tlc_times, tlc_times[0] + direction)
     last = epoch.timestamp() + max(eph_t[-1], att_t[-1])
-    if _crosses_leap_second(epoch, datetime.fromtimestamp(last, timezone.utc)):
+    if crosses_leap_second(epoch, datetime.fromtimestamp(last, timezone.utc)):
         raise eph.error("the samples span a possible leap second (end of June or December): not supported", "STARTTIME")
     t_first, t_last = tlc_times[0], tlc_times[0] + (lines - 1 - tlc_lines[0]) * (tlc_times[-1] - tlc_times[0]) / (tlc_lines[-1] - tlc_lines[0])
     for node, t in ((eph, eph_t), (att, att_t)):

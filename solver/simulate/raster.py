@@ -93,6 +93,12 @@ def render_image(scene, index: int, step: int = 8, texture: str = "smooth", seed
     rows, cols = np.arange(cam.lines, dtype=float), np.arange(cam.columns, dtype=float)
     e = _bilinear(e_grid, ls, cs, rows, cols)
     n = _bilinear(n_grid, ls, cs, rows, cols)
+    return _ground_grey(scene, frame, e, n, gsd, texture, [seed, index], noise_dn)
+
+
+def _ground_grey(scene, frame: LocalFrame, e: np.ndarray, n: np.ndarray, gsd: float, texture: str, seed: list[int], noise_dn: float) -> np.ndarray:
+    """The ground's grey levels at east/north metres ``e``, ``n`` of ``frame`` (module
+    docstring), with the radiometry of one view (``seed``) for the rich texture."""
     tau = 2 * np.pi
     value = 100.0 + 15.0 * np.sin(tau * e / (37 * gsd)) * np.cos(tau * n / (53 * gsd)) + 12.0 * np.sin(tau * (e + n) / (25 * gsd))
     sigma = TARGET_SIGMA_GSD * gsd
@@ -104,13 +110,29 @@ def render_image(scene, index: int, step: int = 8, texture: str = "smooth", seed
         if near.any():
             value[near] += TARGET_PEAK * np.exp(-((e[near] - te) ** 2 + (n[near] - tn) ** 2) / (2 * sigma**2))
     if texture == "rich":
-        rng = np.random.default_rng([seed, index])
+        rng = np.random.default_rng(seed)
         gain, offset = rng.uniform(0.8, 1.2), rng.uniform(-15.0, 15.0)
         value = gain * (value + _rich_texture(e, n, gsd)) + offset + rng.normal(0.0, noise_dn, value.shape)
         return np.clip(np.rint(value * RICH_SCALE_16BIT), 0, 65535).astype(np.uint16)
     if texture != "smooth":
         raise ValueError(f"unknown texture {texture!r} (smooth or rich)")
     return np.clip(np.rint(value), 0, 255).astype(np.uint8)
+
+
+def render_ortho(scene, lon_deg: np.ndarray, lat_deg: np.ndarray, seed: int = 0, noise_dn: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """A true orthophoto of the scene's ground and its DEM on the geographic grid ``lon_deg``
+    (columns, west to east) x ``lat_deg`` (rows, north to south), pixel centres: the rich
+    texture of :func:`render_image` (uint16) with radiometry of its own (``seed``), and the
+    true terrain's ellipsoidal height (float32 m) at every pixel centre."""
+    from solver.geometry.geodesy import geodetic_to_ecef
+
+    frame = LocalFrame.at_centroid(np.array([p.ecef_m for p in scene.points]))
+    lon, lat = np.meshgrid(np.asarray(lon_deg, float), np.asarray(lat_deg, float))
+    h = scene.terrain.height(lon.ravel(), lat.ravel())
+    g = frame.to_lgs(geodetic_to_ecef(np.column_stack([lon.ravel(), lat.ravel(), h])))
+    e, n = g[:, 0].reshape(lon.shape), g[:, 1].reshape(lon.shape)
+    grey = _ground_grey(scene, frame, e, n, scene_gsd(scene, frame), "rich", [seed, 1_000_003], noise_dn)
+    return grey, h.reshape(lon.shape).astype(np.float32)
 
 
 def write_rasters(scene, job_path: Path, step: int = 8, texture: str = "smooth", seed: int = 0) -> list[Path]:

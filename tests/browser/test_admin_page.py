@@ -32,7 +32,7 @@ def record_failure(server: Server, user: str) -> str:
         owner = next(u.id for u in store.list_users() if u.name == user)
         rec = store.create_job(owner, "bundle-adjustment", {"job": {}}, 1, "broken")
         assert store.claim(rec.id, "elsewhere:1") is not None
-        assert store.fail(rec.id, "no-such-image", {"status": 422}, "elsewhere:1", (0.5, 1.0))
+        assert store.fail(rec.id, "no-such-image", {"code": "no_solution"}, "elsewhere:1", (0.5, 1.0))
     finally:
         store.close()
     return rec.id

@@ -124,3 +124,32 @@ def test_build_an_rpc_block_from_its_files(page: Any, local_server: Server, tmp_
     assert all("rpc" in im and "camera" not in im for im in built["images"])
     page.click("#builder-submit")
     expect(page.locator("#cur-status")).to_have_text("successful", timeout=SOLVE_MS)
+
+
+def test_build_an_image_from_its_sensor_metadata(page: Any, local_server: Server, tmp_path: Path) -> None:
+    """A vendor metadata file (a real WorldView-2 support-data XML) is recognised as the sensor
+    of its image: no camera to choose, and the composed job carries the metadata's camera,
+    ephemeris, attitude and model."""
+    import numpy as np
+
+    from solver.sensors.maxar import read_maxar
+
+    wv = ROOT / "tests" / "data" / "vendor" / "stereopipeline" / "wv_mvp_1.xml"
+    r = read_maxar(wv).rpc
+    ground = np.column_stack([r.long_off + 0.2 * r.long_scale * np.array([-1, 0, 1, 0.5, -0.5]),
+                              r.lat_off + 0.2 * r.lat_scale * np.array([0, 1, -1, 0.5, -0.5]), np.full(5, r.height_off)])
+    lc = np.column_stack(r.project(ground[:, 0], ground[:, 1], ground[:, 2]))
+    (tmp_path / "wv_mvp_1.xml").write_bytes(wv.read_bytes())
+    (tmp_path / "wv_mvp_1.csv").write_text("point,line,column\n" + "".join(f"G{k},{x[0]:.3f},{x[1]:.3f}\n" for k, x in enumerate(lc)))
+    (tmp_path / "gcps.csv").write_text("id,lon,lat,z\n" + "".join(f"G{k},{g[0]:.9f},{g[1]:.9f},{g[2]:.3f}\n" for k, g in enumerate(ground)))
+    page.goto(f"{local_server.url}/ui")
+    page.fill("#b-crs", "EPSG:4979")
+    page.set_input_files("#builder-input", [str(p) for p in sorted(tmp_path.iterdir())])
+    expect(page.locator('select.b-kind[data-file="wv_mvp_1.xml"]')).to_have_value("sensor", timeout=60_000)
+    expect(page.locator('input.b-image[data-file="wv_mvp_1.xml"]')).to_have_value("wv_mvp_1")
+    expect(page.locator("select.b-camera")).to_have_count(0)
+    expect(page.locator("#builder-status")).to_contain_text("degrees of freedom", timeout=60_000)
+    built = json.loads(page.locator("#builder-json").input_value())
+    assert [c["id"] for c in built["cameras"]] == ["wv_mvp_1"]
+    im = built["images"][0]
+    assert im["model"]["name"] == "OA-J2" and im["ephemeris"] and im["attitude"]

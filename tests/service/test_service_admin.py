@@ -137,7 +137,7 @@ def test_overview_lists_running_jobs_and_failures(deployment: Any) -> None:
     store.claim(running, "host:42")
     broken = store.create_job(bob.id, "bundle-adjustment", {"inputs": {}}, 1, "f").id
     store.claim(broken, "host:43")
-    store.fail(broken, "the solver gave up", {"status": 422}, worker="host:43")
+    store.fail(broken, "the solver gave up", {"code": "no_solution"}, worker="host:43")
     assert c.get("/admin/overview", headers={"X-API-Key": keys["bob"]}).status_code == 403
     r = c.get("/admin/overview", headers={"X-API-Key": keys["root"]})
     assert r.status_code == 200, r.text

@@ -109,7 +109,7 @@ def test_landing_conformance_processes(local: TestClient) -> None:
     conf = local.get("/conformance").json()["conformsTo"]
     assert "http://www.opengis.net/spec/ogcapi-processes-1/1.0/conf/core" in conf
     ids = [p["id"] for p in local.get("/processes").json()["processes"]]
-    assert ids == ["bundle-adjustment", "model-comparison", "preanalysis"]
+    assert ids == ["bundle-adjustment", "model-comparison", "preanalysis", "match"]
     desc = local.get("/processes/bundle-adjustment").json()
     assert desc["inputs"]["job"]["schema"]["title"] == "Job"
     assert "report" in desc["outputs"]
@@ -315,7 +315,10 @@ def test_cors_origins(tmp_path: Path) -> None:
 
 def test_problem_details_are_strict_json() -> None:
     """Non-finite numbers in a problem's details become null (a 4xx never turns into a 500)."""
-    from service.errors import _json_safe
+    import service.errors
+    from solver.report.json_text import json_ready
 
-    safe = _json_safe([{"condition": float("inf"), "nested": {"x": float("nan"), "ok": [1.5, -float("inf")]}}])
+    assert service.errors.json_ready is json_ready  # the conversion problem documents are written with
+
+    safe = json_ready([{"condition": float("inf"), "nested": {"x": float("nan"), "ok": [1.5, -float("inf")]}}])
     assert json.loads(json.dumps(safe, allow_nan=False)) == [{"condition": None, "nested": {"x": None, "ok": [1.5, None]}}]

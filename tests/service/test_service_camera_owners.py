@@ -192,8 +192,14 @@ def test_camera_from_another_users_job(
     assert_problem(c.post("/cameras/from-job", json=request, headers=h["alice"]), 404)
     r = c.post("/cameras/from-job", json=request, headers=h["bob"])
     assert r.status_code == 201 and r.json()["shared"] is False, r.text
-    assert c.get("/cameras/calib", headers=h["bob"]).json()["source_job"] == job_id
+    stored = c.get("/cameras/calib", headers=h["bob"]).json()
+    assert stored["source_job"] == job_id
+    # the job's camera with the estimate, as a library definition: no id, no ref
+    assert stored["definition"]["iop"]["df"] == 0.001 and not {"id", "ref"} & set(stored["definition"])
+    assert stored["definition"]["focal_mm"] == triplet_doc["cameras"][0]["focal_mm"]
     assert_problem(c.get("/cameras/calib", headers=h["alice"]), 404)
+    missing = assert_problem(c.post("/cameras/from-job", json={**request, "camera": "nope"}, headers=h["bob"]), 404)
+    assert "no camera 'nope'" in missing["detail"]
 
 
 def test_single_user_mode_owns_and_shares(tmp_path: Path, triplet_doc: dict[str, Any]) -> None:
@@ -217,6 +223,6 @@ def test_camera_from_a_failed_job_is_a_conflict_not_the_jobs_error(
     job_id, cam_id = r.json()["jobID"], triplet_doc["cameras"][0]["id"]
     store = c.app.state.services.store  # type: ignore[attr-defined]
     assert store.claim(job_id, "w") is not None
-    assert store.fail(job_id, "the worker process running this job was killed by SIGKILL", {"status": 500})
+    assert store.fail(job_id, "the worker process running this job was killed by SIGKILL", {"code": "worker_died"})
     request = {"job_id": job_id, "camera": cam_id, "name": "calib"}
     assert_problem(c.post("/cameras/from-job", json=request, headers=h["bob"]), 409)

@@ -191,3 +191,96 @@ def test_compose_rpc_images_from_uploaded_rpc_files(local: TestClient, tmp_path:
     spec["images"][2]["rpc"] = "missing_RPC.TXT"
     files[f"{ids[0]}_RPC.TXT"] = (tmp_path / f"{ids[0]}_RPC.TXT").read_bytes()
     assert_problem(upload(local, spec, files), 422, "/spec/images/2/rpc")
+
+
+def test_compose_images_from_uploaded_sensor_metadata(local: TestClient) -> None:
+    """Vendor metadata uploaded as an image's ``sensor`` file (a real WorldView-2 XML and a
+    simulated SPOT 6 DIMAP v2): cameras, ephemeris, attitude and model come from it, as with
+    ``pba job --sensor``; a hostile or damaged file is a 422 naming the file and the element."""
+    import numpy as np
+    from simulated_dimap import Scene, dimap_v2_xml
+
+    from solver.sensors.maxar import read_maxar
+
+    wv = ROOT / "tests" / "data" / "vendor" / "stereopipeline" / "wv_mvp_1.xml"
+    r = read_maxar(wv).rpc
+    ground = np.column_stack([r.long_off + 0.2 * r.long_scale * np.array([-1, 0, 1, 0.5]),
+                              r.lat_off + 0.2 * r.lat_scale * np.array([0, 1, -1, 0.5]), np.full(4, r.height_off)])
+    lc = np.column_stack(r.project(ground[:, 0], ground[:, 1], ground[:, 2]))
+    files = {
+        "wv.xml": wv.read_bytes(),
+        "DIM_SPOT6.XML": dimap_v2_xml(Scene())[0].encode(),
+        "wv.csv": ("point,line,column\n" + "".join(f"G{k},{x[0]:.3f},{x[1]:.3f}\n" for k, x in enumerate(lc))).encode(),
+        "s6.csv": b"point,line,column\nG0,100.0,200.0\n",
+        "gcps.csv": ("id,lon,lat,z\n" + "".join(f"G{k},{g[0]:.9f},{g[1]:.9f},{g[2]:.3f}\n" for k, g in enumerate(ground))).encode(),
+    }
+    spec = {"crs": "EPSG:4979", "gcps": ["gcps.csv"],
+            "images": [{"id": "WV", "measurements": ["wv.csv"], "sensor": "wv.xml"},
+                       {"id": "S6", "measurements": ["s6.csv"], "sensor": "DIM_SPOT6.XML"}]}
+    res = upload(local, spec, files)
+    assert res.status_code == 200, res.text[:2000]
+    job = res.json()["job"]
+    assert [c["id"] for c in job["cameras"]] == ["WV", "S6"]
+    assert [i["model"]["name"] for i in job["images"]] == ["OA-J2", "OA-J2"]
+    assert all(i["ephemeris"] and i["attitude"] for i in job["images"])
+    bomb = b'<?xml version="1.0"?><!DOCTYPE d [<!ENTITY a "aaaa"><!ENTITY b "&a;&a;&a;">]><Dimap_Document>&b;</Dimap_Document>'
+    for bad, element in ((bomb, ""), (files["DIM_SPOT6.XML"].replace(b"<NCOLS>2500</NCOLS>", b"<NCOLS>x</NCOLS>"), "NCOLS")):
+        doc = assert_problem(upload(local, spec, {**files, "DIM_SPOT6.XML": bad}), 422, "/files/DIM_SPOT6.XML")
+        assert "DIM_SPOT6.XML" in json.dumps(doc) and element in json.dumps(doc), doc
+
+
+def test_a_sensor_metadata_upload_is_bounded_by_its_bytes(local: TestClient) -> None:
+    """A metadata file is not counted in rows (a SPOT 5 scene's DIMAP has 25,000 lines) but
+    bounded by bytes: above MAX_SENSOR_BYTES it is refused before it is parsed (413)."""
+    from service.compose import MAX_SENSOR_BYTES
+
+    spec = {"images": [{"id": "S", "measurements": ["s.csv"], "sensor": "METADATA.DIM"}]}
+    big = b"<Dimap_Document>" + b" " * MAX_SENSOR_BYTES + b"</Dimap_Document>"
+    doc = assert_problem(upload(local, spec, {"METADATA.DIM": big, "s.csv": b"point,line,column\nG0,1,1\n"}), 413)
+    assert "METADATA.DIM" in doc["detail"] and str(MAX_SENSOR_BYTES) in doc["detail"], doc
+
+
+# -- one specification: the wire spec is the solver's ComposeRequest ------------------------
+def test_the_spec_carries_every_field_of_the_solvers_request() -> None:
+    """Every field of ComposeRequest and ImageSources (but those the server does not take
+    from uploads) is a field of the spec under its own name, and a spec setting each to a
+    value other than its default reaches the solver's request with that value."""
+    from dataclasses import fields
+
+    from service.compose import NOT_UPLOADED, ComposeSpec, ImageSpec, _request, parse_spec
+    from solver.importers.compose import ComposeRequest, ImageSources, SourceFile
+
+    assert {f.name for f in fields(ComposeRequest)} <= set(ComposeSpec.model_fields) | NOT_UPLOADED
+    assert {f.name for f in fields(ImageSources)} - NOT_UPLOADED == set(ImageSpec.model_fields)
+    image = {
+        "id": "A", "measurements": ["m.csv"], "camera": "cam", "ephemeris": "e.csv", "attitude": "a.csv",
+        "state": "s.csv", "first_line_time_s": 12.5, "rpc": "r_RPC.TXT", "rpc_model": "RPC-SHIFT", "sensor": "DIM_A.XML",
+    }
+    spec = {
+        "images": [image], "gcps": ["g.csv"], "checks": ["c.csv"], "points": ["p.csv"], "asp_gcp": ["x.gcp"],
+        "camera_files": ["cams.json"], "camera": "default-cam", "crs": "EPSG:32722", "models": ["K1", "K2"],
+        "rpc_model": "RPC-AFFINE", "options": {"covariance": False}, "name": "n", "time_scale": "UTC",
+        "sigma_px": 0.3, "match_tolerance_m": 2.0, "map_crs": "EPSG:4326", "columns": {"g.csv": {"E": "x"}},
+    }
+    names = [*image["measurements"], *(image[k] for k in ("ephemeris", "attitude", "state", "rpc", "sensor"))]
+    names += [n for k in ("gcps", "checks", "points", "asp_gcp", "camera_files") for n in spec[k]]
+    uploads = {n: n.encode() for n in names}
+    req = _request(parse_spec(json.dumps(spec)), uploads)
+    for f in fields(ComposeRequest):
+        if f.name in NOT_UPLOADED or f.name == "images":
+            continue
+        value = getattr(req, f.name)
+        if isinstance(value, list) and value and isinstance(value[0], SourceFile):
+            value = [v.name for v in value]
+        assert value == spec[f.name], f.name
+    (got,) = req.images
+    for f in fields(ImageSources):
+        if f.name in NOT_UPLOADED:
+            continue
+        value = getattr(got, f.name)
+        if isinstance(value, SourceFile):
+            value = value.name
+        elif isinstance(value, list):
+            value = [v.name for v in value]
+        assert value == image[f.name], f.name
+    assert req.gcps[0].columns == {"E": "x"} and req.gcps[0].data == b"g.csv"

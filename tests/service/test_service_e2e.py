@@ -48,9 +48,9 @@ def assert_same_numbers(a: Any, b: Any, path: str = "") -> None:
 
 
 def json_roundtrip(report: dict[str, Any]) -> dict[str, Any]:
-    from service.execution import report_to_json
+    from solver.report.json_text import report_json
 
-    return json.loads(report_to_json(report))
+    return json.loads(report_json(report))
 
 
 def read_events(

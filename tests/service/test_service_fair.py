@@ -108,13 +108,13 @@ def test_accounting_sums_the_runs(store: Store) -> None:  # noqa: F811
     for i, job_id in enumerate(ids):
         assert store.claim(job_id, "w") is not None
     assert store.complete(ids[0], "w", "{}", "ok", (1.5, 2.0))
-    assert store.fail(ids[1], "bad", {"status": 422}, worker="w", usage=(0.25, 0.5))
+    assert store.fail(ids[1], "bad", {"code": "no_solution"}, worker="w", usage=(0.25, 0.5))
     store.request_cancel(ids[2])
     assert store.finish_cancelled(ids[2], "w", "cancelled", (0.125, 0.25))
     # a failure the server records for a lost worker is counted by nobody's measurement
     lost = add(store, u, 1)[0]
     store.claim(lost, "dead")
-    store.fail(lost, "worker died", {"status": 500}, worker="dead")
+    store.fail(lost, "worker died", {"code": "worker_died"}, worker="dead")
     (row,) = [r for r in store.usage() if r.user_id == u]
     assert (row.jobs_successful, row.jobs_failed, row.jobs_dismissed) == (1, 1, 1)
     jobs = [store.get_job(i) for i in ids]

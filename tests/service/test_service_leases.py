@@ -124,7 +124,7 @@ def test_last_attempt_fails_and_cancelled_is_dismissed(store: SqlStore) -> None:
     res = claim_run(store, job_id, "h:2:b", LEASE_S, 1, never_dead)
     assert res.outcome == "failed" and res.job is not None
     assert res.job.status == JobStatus.failed and "lost 1 time" in res.job.message
-    assert res.job.error == {"status": 500, "code": "worker_died"}
+    assert res.job.error == {"code": "worker_died"}
 
     other = new_job(store)
     claim_run(store, other, "h:1:a", LEASE_S, 2, never_dead)
@@ -200,7 +200,7 @@ def test_expire_leases(store: SqlStore) -> None:
     rec = store.get_job(requeue)
     assert rec is not None and rec.status == JobStatus.accepted and rec.worker is None
     assert "stopped renewing its lease" in rec.message
-    assert store.get_job(late).error == {"status": 500, "code": "time_limit"}  # type: ignore[union-attr]
+    assert store.get_job(late).error == {"code": "time_limit"}  # type: ignore[union-attr]
     assert store.get_job(fresh).status == JobStatus.running  # type: ignore[union-attr]
     assert expire_leases(store, LEASE_S, 2, 60.0) == []  # nothing twice
     again = claim_run(store, requeue, "h:2:z", LEASE_S, 2, never_dead)

@@ -10,7 +10,7 @@ import re
 from typing import Any
 
 import pytest
-from pba_service_harness import Server, execute_body, load_example
+from pba_service_harness import Server, execute_body, load_example, wait_status
 
 IMAGE = "prism-nadir"
 CAMERA = {"focal_mm": 1939.0, "pixel_mm": 0.0071, "line_time_s": 0.00037, "lines": 1000, "columns": 1000}
@@ -56,10 +56,17 @@ def routes(doc: dict[str, Any], job: str) -> list[tuple[str, str, str, dict[str,
 @pytest.fixture(scope="module")
 def alice_job(server: Server, keys: dict[str, str]) -> str:
     with server.client(keys["alice"]) as c:
-        r = c.post("/processes/bundle-adjustment/execution", json=execute_body(load_example("prism-nadir.json")))
-        assert r.status_code == 200, r.text[:500]
+        # asynchronous: a loaded machine may take longer than the synchronous wait
+        r = c.post(
+            "/processes/bundle-adjustment/execution",
+            json=execute_body(load_example("prism-nadir.json")),
+            headers={"Prefer": "respond-async"},
+        )
+        assert r.status_code == 201, r.text[:500]
+        job = r.json()["jobID"]
+        assert wait_status(c, job, timeout=600)["status"] == "successful"
         assert c.post("/cameras", json={"name": "alicecam", "definition": CAMERA}).status_code == 201
-        return r.headers["location"].rsplit("/", 1)[1]
+        return job
 
 
 def test_another_users_key_reaches_nothing_owned(server: Server, keys: dict[str, str], alice_job: str) -> None:

@@ -1,6 +1,6 @@
 """The OGC process ``preanalysis`` (issue 15): listed and described, planned jobs validated with
 problem documents that point into the request, accepted jobs solved by the real solver through
-the worker's entry point (service.execution.solve)."""
+the worker's entry point (the process table's ``run``, as service.execution calls it)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from service.app import create_app
-from service.execution import solve
-from service.processes import PREANALYSIS
+from service.processes import PREANALYSIS, process
 from service.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -61,7 +60,7 @@ def test_planned_points_need_coordinates(local: TestClient, planned: dict[str, A
 
 
 def test_the_worker_runs_the_preanalysis(planned: dict[str, Any]) -> None:
-    report = solve({"job": planned}, PREANALYSIS, None)
+    report = process(PREANALYSIS).run({"job": planned}, lambda *_: None, lambda: False)
     assert report["kind"] == "preanalysis"
     cps = report["checkpoints"]
     assert cps["n"] == sum(p["role"] == "check" for p in planned["points"])

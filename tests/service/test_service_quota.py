@@ -81,14 +81,55 @@ def test_cameras_over_the_quota_are_refused(tmp_path: Path) -> None:
         assert_problem(c.post("/cameras", json=body, headers=h), 413)
 
 
-def test_camera_size_is_bounded_and_version_lists_paginated(tmp_path: Path) -> None:
+def test_camera_size_is_bounded(tmp_path: Path) -> None:
     client, keys = _keyed(tmp_path, camera_max_bytes=4000)
     with client as c:
         h = {"X-API-Key": keys["alice"]}
         chips = [{"id": str(i), "first_column": i, "columns": 1} for i in range(200)]
         assert_problem(c.post("/cameras", json={"name": "huge", "definition": {**CAMERA, "chips": chips}}, headers=h), 413)
+
+
+def test_version_lists_are_paginated(tmp_path: Path) -> None:
+    # before: ?limit=1000 on a 100k-chip camera answered 266 MB to every user
+    client, keys = _keyed(tmp_path)
+    with client as c:
+        h = {"X-API-Key": keys["alice"]}
         for _ in range(12):
             assert c.post("/cameras", json={"name": "cam", "definition": CAMERA}, headers=h).status_code == 201
         page = c.get("/cameras/cam/versions", headers=h).json()
         assert page["numberMatched"] == 12 and len(page["cameras"]) == 10  # the default page
         assert c.get("/cameras/cam/versions?limit=1000", headers=h).status_code == 400
+
+
+def test_concurrent_http_submissions_hold_the_quota(tmp_path: Path, small_doc: dict[str, Any]) -> None:
+    """The whole path (real server, SQLite): 16 clients submitting at once get exactly as many
+    jobs accepted as one client submitting one at a time (before: 18 one at a time, 20 at once)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from pba_service_harness import Server, execute_body
+
+    body = execute_body(small_doc)
+    async_ = {"Prefer": "respond-async"}
+    srv = Server(tmp_path, workers=0, require_api_keys="true", max_queued_jobs=1000)
+    srv.start()
+    try:  # one job's stored size, to set a quota of 10.5 jobs
+        probe = srv.create_key("probe")
+        with srv.client(probe) as c:
+            assert c.post("/processes/bundle-adjustment/execution", json=body, headers=async_).status_code == 201
+        store = srv.store()
+        size = store.storage_used(next(u.id for u in store.list_users() if u.name == "probe"))
+        store.close()
+    finally:
+        srv.stop()
+    srv = Server(tmp_path / "quota", workers=0, require_api_keys="true", max_queued_jobs=1000, user_storage_quota_mb=10.5 * size / 1e6)
+    srv.start()
+    try:
+        one, many = srv.create_key("one"), srv.create_key("many")
+        with srv.client(one) as c:
+            codes = [c.post("/processes/bundle-adjustment/execution", json=body, headers=async_).status_code for _ in range(13)]
+        assert codes == [201] * 10 + [413] * 3, codes
+        with srv.client(many) as c, ThreadPoolExecutor(16) as pool:
+            codes = list(pool.map(lambda _: c.post("/processes/bundle-adjustment/execution", json=body, headers=async_).status_code, range(32)))
+        assert sorted(codes) == [201] * 10 + [413] * 22, codes
+    finally:
+        srv.stop()

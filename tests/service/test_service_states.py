@@ -65,3 +65,39 @@ def test_refused(source: str, target: str) -> None:
 
 def test_sources_of_running_is_only_accepted() -> None:
     assert sources_of(JobStatus.running) == {JobStatus.accepted}
+
+
+# -- failed jobs: the store keeps a code, the error mapping decides the HTTP status ----------
+@pytest.mark.parametrize(
+    "error, status",
+    [
+        ({"code": "worker_died"}, 500),
+        ({"code": "time_limit"}, 500),
+        ({"code": "interrupted"}, 500),
+        ({"code": "internal"}, 500),
+        (None, 500),  # no code recorded: the server cannot say the job's content was at fault
+        ({"code": "rank_deficient", "errors": [{"pointer": "/inputs/job/images"}]}, 422),
+        ({"code": "invalid-input"}, 422),
+        ({"status": 422, "code": None}, 422),  # stored before codes alone were kept
+        ({"status": 500}, 500),
+    ],
+)
+def test_the_status_of_a_failed_job_comes_from_its_code(error: dict | None, status: int) -> None:
+    from service.errors import JobFailed, failed_job_status
+
+    assert failed_job_status(error) == status
+    assert JobFailed("failed", error).status == status
+
+
+def test_the_store_and_the_queues_write_no_http_status() -> None:
+    """Stored errors carry codes; a literal HTTP status in the store or the queues would be a
+    second place that decides it."""
+    import re
+    from pathlib import Path
+
+    import service
+
+    root = Path(service.__file__).parent
+    sources = [*root.glob("store/*.py"), *root.glob("queue/*.py"), root / "execution.py"]
+    offenders = [str(p) for p in sources if re.search(r"""["']status["']\s*:\s*\d{3}""", p.read_text())]
+    assert offenders == []

@@ -212,9 +212,9 @@ def test_fail_and_fail_jobs_of_worker(store: Store) -> None:
     assert (
         rec is not None
         and rec.status == JobStatus.failed
-        and rec.error == {"status": 500, "code": "worker_died"}
+        and rec.error == {"code": "worker_died"}
     )
-    assert store.fail(b, "cannot run", {"status": 422})
+    assert store.fail(b, "cannot run", {"code": "no_solution"})
     assert not store.fail(b, "twice")
 
 

@@ -5,7 +5,10 @@
 // on the server (POST /jobs/compose, multipart: the files and a JSON spec); its problems are
 // shown beside the file they name (file, line, column), a header that is not recognised gets a
 // column map, and the generated JSON is shown. "Use and submit" hands the document to the main
-// editor and submits it there (same validation, progress and result views).
+// editor and submits it there (same validation, progress and result views). "Find tie points"
+// runs the match process (POST processes/match/execution) on the dropped rasters (uploaded,
+// base64) or rasters named in the user's folder on the server, guided by the composed job, and
+// adds the tie points it finds as one measurement file per image.
 "use strict";
 
 (() => {
@@ -20,11 +23,15 @@
     ephemeris: "ephemeris",
     attitude: "attitude",
     rpc: "RPC of an image (RPC00B)",
+    sensor: "vendor sensor metadata (Maxar XML, DIMAP)",
     cameras: "camera file (JSON)",
+    raster: "raster of an image (for tie points)",
     asp_gcp: "ASP GCP (several images)",
     ignore: "ignore",
   };
-  const PER_IMAGE = new Set(["measurements", "state", "ephemeris", "attitude", "rpc"]);
+  const PER_IMAGE = new Set(["measurements", "state", "ephemeris", "attitude", "rpc", "sensor", "raster"]);
+  const NOT_COMPOSED = new Set(["ignore", "raster"]);  // rasters go to the match process, not to compose
+  const RASTER = /\.(tiff?|jp2|ntf|img)$/i;
   const RPC_MODELS = ["RPC-SHIFT", "RPC-DRIFT", "RPC-AFFINE"];
   const CANONICAL = {
     points: ["id", "x", "y", "z", "sx", "sy", "sz", "role"],
@@ -70,11 +77,18 @@
   function guess(name, text) {
     const lower = name.toLowerCase();
     const stem = name.replace(/\.[^.]+$/, "");
+    if (RASTER.test(name)) return { kind: "raster", image: stem };
     if (lower.endsWith(".json")) return { kind: "cameras" };
     // an image's RPC: GDAL's NAME_RPC.TXT, NAME.RPB, a DIMAP RPC_NAME.XML (a raster's RPC: its sidecar, or pba import-rpc)
     if (lower.endsWith("_rpc.txt")) return { kind: "rpc", image: name.slice(0, -8) };
     if (lower.endsWith(".rpb")) return { kind: "rpc", image: stem };
     if (lower.startsWith("rpc_") && lower.endsWith(".xml")) return { kind: "rpc", image: stem.slice(4) };
+    // vendor sensor metadata (camera, ephemeris, attitude, line times): Maxar's XML (root isd),
+    // DIMAP v1 METADATA.DIM or DIMAP v2 DIM_NAME.XML
+    if (lower.startsWith("dim_") && lower.endsWith(".xml")) return { kind: "sensor", image: stem.slice(4) };
+    if (lower.endsWith(".dim") || (lower.endsWith(".xml") && /<(isd|Dimap_Document)[\s>]/.test(text.slice(0, 4096)))) {
+      return { kind: "sensor", image: stem };
+    }
     if (lower.endsWith(".points") || lower.endsWith(".gcp")) return { kind: "measurements", image: stem };
     for (const k of ["state", "ephemeris", "attitude"]) {
       if (lower.endsWith(`.${k}.csv`)) return { kind: k, image: name.slice(0, -(k.length + 5)) };
@@ -91,7 +105,7 @@
 
   async function addFiles(list) {
     for (const f of Array.from(list)) {
-      const text = await f.text();
+      const text = RASTER.test(f.name) ? "" : await f.text();
       const old = st.files.findIndex((x) => x.name === f.name);
       const entry = { name: f.name, file: f, text, ...guess(f.name, text), problems: [] };
       if (entry.kind === "cameras") {
@@ -109,7 +123,7 @@
 
   function imageIds() {
     const ids = [];
-    for (const f of st.files) if (PER_IMAGE.has(f.kind) && f.image && !ids.includes(f.image)) ids.push(f.image);
+    for (const f of st.files) if (PER_IMAGE.has(f.kind) && f.kind !== "raster" && f.image && !ids.includes(f.image)) ids.push(f.image);
     return ids;
   }
 
@@ -155,6 +169,11 @@
     const box = $("builder-images");
     box.replaceChildren();
     for (const id of imageIds()) {
+      if (st.files.some((f) => f.kind === "sensor" && f.image === id)) {
+        // its metadata brings its camera, ephemeris, attitude and model
+        box.append(el("label", {}, `${id}: from its sensor metadata`));
+        continue;
+      }
       if (st.files.some((f) => f.kind === "rpc" && f.image === id)) {
         // an RPC image: no sensor, a bias model instead
         const chosen = (st.rpcModel || {})[id] || "RPC-DRIFT";
@@ -183,7 +202,7 @@
       for (const f of st.files) {
         if (f.image !== id) continue;
         if (f.kind === "measurements") im.measurements.push(f.name);
-        else if (PER_IMAGE.has(f.kind)) im[f.kind] = f.name;
+        else if (PER_IMAGE.has(f.kind) && !NOT_COMPOSED.has(f.kind)) im[f.kind] = f.name;
       }
       const cam = document.querySelector(`select.b-camera[data-image="${CSS.escape(id)}"]`);
       if (cam && cam.value) im.camera = cam.value;
@@ -225,12 +244,13 @@
     for (const f of st.files) { f.problems = []; }
     st.job = null; st.valid = false;
     $("builder-submit").disabled = true;
-    if (!imageIds().length) { render(); setStatus("Add measurement files (CSV, QGIS .points, ASP .gcp).", true); return; }
+    updateMatch();
+    if (!imageIds().length) { render(); setStatus("Add measurement files (CSV, QGIS .points, ASP .gcp) or the images' RPCs.", true); return; }
     let body;
     try { body = spec(); } catch (e) { setStatus(`Options: not JSON (${e.message})`, true); return; }
     const form = new FormData();
     form.append("spec", JSON.stringify(body));
-    for (const f of st.files) if (f.kind !== "ignore") form.append("files", f.file, f.name);
+    for (const f of st.files) if (!NOT_COMPOSED.has(f.kind)) form.append("files", f.file, f.name);
     setStatus("composing…", false);
     let r, doc;
     try {
@@ -262,6 +282,113 @@
     if (st.valid) setStatus(`valid: ${doc.validation.n_observations} observations, ${doc.validation.dof} degrees of freedom`, false);
     else setStatus("composed, but the checks refuse it: see the problems", true);
     $("builder-submit").disabled = !st.valid;
+    updateMatch();
+  }
+
+  // ---- find tie points: the match process on the rasters, guided by the composed job ----
+  function serverRasters() {
+    const out = [];
+    for (const part of $("b-raster-paths").value.split(",")) {
+      const s = part.trim();
+      const eq = s.indexOf("=");
+      if (eq > 0) out.push({ id: s.slice(0, eq).trim(), path: s.slice(eq + 1).trim() });
+    }
+    return out;
+  }
+
+  function matchRasters() {
+    const named = serverRasters();
+    const uploads = st.files.filter((f) => f.kind === "raster" && f.image && !named.some((r) => r.id === f.image));
+    return { named, uploads };
+  }
+
+  function updateMatch() {
+    const { named, uploads } = matchRasters();
+    $("builder-match").disabled = !st.job || named.length + uploads.length < 2 || st.matching;
+  }
+
+  function setMatchStatus(text, bad) {
+    const s = $("builder-match-status");
+    s.textContent = text;
+    s.className = bad ? "bad" : "ok";
+  }
+
+  function base64Of(file) {
+    return new Promise((resolve, reject) => {
+      const reader = new FileReader();
+      reader.onload = () => resolve(String(reader.result).split(",", 2)[1] || "");
+      reader.onerror = () => reject(reader.error);
+      reader.readAsDataURL(file);
+    });
+  }
+
+  function problemText(doc) {
+    const first = (doc.errors || doc.problems || [])[0];
+    return [doc.detail || doc.message || "", first ? `${first.pointer || ""} ${first.message || ""}`.trim() : ""].filter(Boolean).join(": ");
+  }
+
+  async function findTiePoints() {
+    if (!st.job) return;
+    const { named, uploads } = matchRasters();
+    const images = [...named];
+    for (const f of uploads) images.push({ id: f.image, value: await base64Of(f.file), mediaType: f.file.type || "image/tiff" });
+    const inputs = { job: st.job, images };
+    const h = $("b-heights").value.split(",").map((x) => Number(x.trim()));
+    if (h.length === 2 && h.every((x) => Number.isFinite(x)) && $("b-heights").value.trim()) inputs.heights_m = h;
+    st.matching = true;
+    updateMatch();
+    setMatchStatus("submitting…", false);
+    try {
+      const r = await fetch("processes/match/execution", {
+        method: "POST", headers: { ...headers(), "Content-Type": "application/json", Prefer: "respond-async" },
+        body: JSON.stringify({ inputs }),
+      });
+      const doc = await r.json();
+      if (!r.ok) { setMatchStatus(`refused: ${problemText(doc)}`, true); return; }
+      let status = doc;
+      while (!["successful", "failed", "dismissed"].includes(status.status)) {
+        setMatchStatus(`matching: ${status.status} ${status.progress || 0}% ${status.message || ""}`, false);
+        await new Promise((res) => setTimeout(res, 500));
+        status = await (await fetch(`jobs/${doc.jobID}`, { headers: headers() })).json();
+      }
+      if (status.status !== "successful") {
+        const res = await fetch(`jobs/${doc.jobID}/results`, { headers: headers() });
+        setMatchStatus(`no tie points: ${problemText(await res.json())}`, true);
+        return;
+      }
+      const result = (await (await fetch(`jobs/${doc.jobID}/results`, { headers: headers() })).json()).report;
+      addTies(result);
+    } catch (e) {
+      setMatchStatus(`matching failed: ${e.message}`, true);
+    } finally {
+      st.matching = false;
+      updateMatch();
+    }
+  }
+
+  // the matched tie points as one measurement file per image (the composer reads them as tie points)
+  function addTies(result) {
+    const byImage = {};
+    for (const o of result.observations) (byImage[o.image] = byImage[o.image] || []).push(o);
+    const files = [];
+    for (const [id, rows] of Object.entries(byImage)) {
+      const text = ["point,line,column,sigma_px", ...rows.map((o) => `${o.point},${o.line},${o.column},${o.sigma_px}`)].join("\n") + "\n";
+      files.push(new File([text], `${id}-matched-ties.csv`, { type: "text/csv" }));
+    }
+    const s = result.summary;
+    setMatchStatus(`${s.tie_points} tie points, ${s.measurements} measurements added`, false);
+    $("builder-match-pairs").replaceChildren(...s.pairs.map((p) => el("div", {
+      class: "b-match-pair",
+      text: `${p.images[0]}-${p.images[1]}: ${p.matched || 0} matches, ${p.removed_epipolar} removed by the epipolar check, ${p.tie_points} tie points, sigma ${p.sigma_px} px`,
+    })));
+    addFiles(files).then(() => {
+      for (const f of files) {
+        const entry = st.files.find((x) => x.name === f.name);
+        if (entry) { entry.kind = "measurements"; entry.image = f.name.slice(0, -"-matched-ties.csv".length); }
+      }
+      render();
+      schedule(0);
+    });
   }
 
   function summaryLines(s) {
@@ -316,6 +443,8 @@
     $("builder-input").addEventListener("change", () => { addFiles($("builder-input").files); $("builder-input").value = ""; });
     for (const id of ["b-name", "b-crs", "b-models", "b-sigma", "b-time-scale", "b-options"]) $(id).addEventListener("input", () => schedule());
     $("builder-submit").addEventListener("click", useAndSubmit);
+    $("builder-match").addEventListener("click", findTiePoints);
+    $("b-raster-paths").addEventListener("input", updateMatch);
     $("key-form").addEventListener("submit", () => setTimeout(loadLibrary, 100));
     render();
     loadLibrary();

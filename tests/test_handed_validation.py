@@ -1,0 +1,58 @@
+"""A job validated once: the counts of a validation made elsewhere (a server's submission)
+are handed to the solve, which then does not check that job again; a record made by other
+code, or a changed copy of the job, is checked as before."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+import solver.api
+import solver.engine.validate as validate
+from solver.errors import JobError
+from solver.schema.job import load_job
+from solver.synthetic import single_image_job
+
+
+@pytest.fixture
+def checks(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """Counts the full checks (collect_problems) that run."""
+    calls: list[int] = []
+    real = validate.collect_problems
+
+    def counted(job: Any) -> Any:
+        calls.append(id(job))
+        return real(job)
+
+    monkeypatch.setattr(validate, "collect_problems", counted)
+    return calls
+
+
+def test_a_handed_validation_is_not_repeated(checks: list[int]) -> None:
+    job = load_job(single_image_job("K2", seed=3)[0])
+    summary = solver.api.validate(job)
+    record = solver.api.validation_record(summary)
+    assert len(checks) == 1
+    report = solver.api.run(job, validated=record)
+    assert checks == [id(job)]  # the solve took the handed counts
+    assert report["adjustment"]["n_observations"] == summary["n_observations"]
+    solver.api.run(job)  # nothing handed: checked again
+    assert len(checks) == 2
+
+
+def test_a_record_of_other_code_or_another_job_is_not_taken(checks: list[int]) -> None:
+    job = load_job(single_image_job("K2", seed=3)[0])
+    record = solver.api.validation_record(solver.api.validate(job))
+    with validate.handed_validation(job, {**record, "fingerprint": "other code"}) as taken:
+        n = len(checks)
+        validate.require_valid(job)
+        assert not taken and len(checks) == n + 1
+    copy = job.model_copy(update={"observations": job.observations[:2]})
+    with validate.handed_validation(job, record) as taken:
+        assert taken
+        n = len(checks)
+        assert validate.require_valid(job) == record["counts"] and len(checks) == n
+        with pytest.raises(JobError):  # the copy lost its observations: checked, refused
+            validate.require_valid(copy)
+    assert validate._handed == {}  # nothing kept after the block

@@ -1,0 +1,102 @@
+"""``pba match`` on real satellite images: two Pleiades pairs with their vendor RPCs
+(tests/data/matching/README.md: CNES shareloc, Apache-2.0).
+
+There is no truth for real images, so the evidence is the adjustment's: the matched ties of
+each pair, adjusted with the bias-compensated RPC model RPC-SHIFT (bias priors of 10 px, no
+control), must pass the chi-square test of the variance factor with sigma0 near 1. That is,
+the ``sigma_px`` the matching states is the precision its ties really have across the epipolar
+direction (the only direction two images check).
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+
+from solver import api
+from solver.cli import main
+from solver.geometry.rpc import RPC
+from solver.importers.measurements_csv import read_measurements
+
+pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")]
+
+DATA = Path(__file__).parent / "data" / "matching"
+# sigma0 of the adjustment of the matched ties within this band around 1: the stated sigma_px
+# agrees with the scatter of the matches (the chi-square test's own bounds at ~100-500 dof
+# are about 0.85-1.15)
+SIGMA0_BAND = (0.85, 1.15)
+BIAS_PRIOR_PX = 10.0  # a-priori sigma of each image's RPC shift (Pleiades: ~10 m, 0.5 m pixels)
+MIN_TIE_POINTS = 50
+# (first image, second image, terrain height range MIN,MAX or None for the RPCs' own)
+PAIRS = {
+    "ventoux": ("ventoux_left", "ventoux_right", "400,700"),  # SRTM: 440-550 m + geoid ~50 m
+    "gizeh": ("gizeh_img1", "gizeh_img2", None),  # the RPCs' 10-270 m
+}
+
+
+def _rpc_job(ids: list[str], measurements: list[dict], options: dict | None = None) -> dict:
+    """An RPC-SHIFT job of the images' delivered RPCs (their sidecars) with the matched ties."""
+    images = []
+    for i in ids:
+        with warnings.catch_warnings(), rasterio.open(DATA / f"{i}.tif") as ds:
+            warnings.simplefilter("ignore")
+            rpc = RPC.from_gdal(ds.rpcs.to_gdal())
+        prior = {"value": 0.0, "sigma": BIAS_PRIOR_PX}
+        images.append({"id": i, "model": {"name": "RPC-SHIFT"}, "rpc": rpc.to_job(), "bias_prior": {"a0": prior, "b0": prior}})
+    return {
+        "schema_version": "1.0", "name": "real-pair", "cameras": [], "images": images,
+        "points": [{"id": p, "role": "tie"} for p in sorted({m["point"] for m in measurements})],
+        "observations": measurements, "options": options or {},
+    }
+
+
+@pytest.fixture(scope="module", params=sorted(PAIRS))
+def matched_pair(request, tmp_path_factory):
+    a, b, heights = PAIRS[request.param]
+    d = tmp_path_factory.mktemp(request.param)
+    out, summary = d / "ties.csv", d / "summary.json"
+    argv = ["match", str(DATA / f"{a}.tif"), str(DATA / f"{b}.tif"), "-o", str(out), "--summary", str(summary), "-q"]
+    assert main(argv + (["--heights", heights] if heights else [])) == 0
+    return request.param, [a, b], read_measurements(out.read_text(), "ties.csv"), json.loads(summary.read_text())
+
+
+def test_real_pair_is_matched(matched_pair):
+    _name, ids, measurements, summary = matched_pair
+    assert summary["tie_points"] >= MIN_TIE_POINTS, summary
+    assert {m["image"] for m in measurements} == set(ids)
+    (pair,) = summary["pairs"]
+    assert pair["tie_points"] == summary["tie_points"]
+    # the two variances written add up to the measured scatter about the epipolar curves
+    sigmas = {m["image"]: m["sigma_px"] for m in measurements}
+    assert np.hypot(sigmas[ids[0]], sigmas[ids[1]]) == pytest.approx(pair["scatter_px"], abs=0.002)
+
+
+def test_rpc_adjustment_of_real_ties_passes_chi_square(matched_pair):
+    """RPC-SHIFT adjustment of the matched ties: the chi-square test passes and sigma0 is near 1."""
+    name, ids, measurements, _summary = matched_pair
+    report = api.run(_rpc_job(ids, measurements))
+    adj = report["adjustment"]
+    assert adj["chi2"]["passed"], (name, adj["sigma0_aposteriori"], adj["chi2"])
+    assert SIGMA0_BAND[0] < adj["sigma0_aposteriori"] < SIGMA0_BAND[1], (name, adj["sigma0_aposteriori"])
+
+
+def test_job_from_rpc_images_alone_gets_matched_ties(tmp_path):
+    """``pba job --rpc ... --match ...``: a job composed from RPC images alone (no measurement
+    yet) guides the matching by its delivered RPCs; the ties join the job."""
+    a, b, heights = PAIRS["ventoux"]
+    out = tmp_path / "job.json"
+    argv = ["job", "--rpc", f"{a}={DATA / a}.tif", "--rpc", f"{b}={DATA / b}.tif", "--rpc-model", "RPC-SHIFT",
+            "--match", f"{a}={DATA / a}.tif", "--match", f"{b}={DATA / b}.tif", "--match-heights", heights, "-o", str(out)]
+    main(argv)  # exit 1: without bias priors or control the composed job's datum is undefined
+    job = json.loads(out.read_text())
+    ties = [p for p in job["points"] if p["role"] == "tie"]
+    assert len(ties) >= MIN_TIE_POINTS
+    assert {o["image"] for o in job["observations"]} == {a, b}
+    for im in job["images"]:
+        im["bias_prior"] = {"a0": {"value": 0.0, "sigma": BIAS_PRIOR_PX}, "b0": {"value": 0.0, "sigma": BIAS_PRIOR_PX}}
+    assert api.run(job)["adjustment"]["chi2"]["passed"]

@@ -1,0 +1,221 @@
+"""DIMAP v2 (SPOT 6/7, Pleiades 1A/1B, Pleiades Neo): the reader against simulated products with
+known truth (tests/simulated_dimap.py: an independent orbit, attitude and look-angle scene; no
+public DIMAP v2 product with its geometric model may be committed, docs/sensor-metadata.md),
+the exact model against an RPC of the product beside it, the job fragment, and refusals."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+from simulated_dimap import Scene, dimap_v2_xml
+from test_importers_rpc import _dimap_xml
+
+from solver.cli import main
+from solver.geometry.rpc import GroundGrid, fit_rpc
+from solver.schema.job import Camera, Image
+from solver.sensors.dimap_v2 import extent_check, read_dimap_v2
+from solver.sensors.job_fragment import fragment
+
+TRUTH_M = 0.005  # reader vs the scene's truth (measured 0.4 mm: Lagrange ephemeris, slerped attitude, bisection)
+ROUND_TRIP_PX = 1e-3  # ground-to-image of image-to-ground (the iteration's acceptance)
+RPC_RMS_PX = 0.5  # the goal: exact model vs the product's RPC (a cubic RPC of a 3000-line image: measured below 0.01 px)
+CORNER_M = 0.05  # extent corners at their common height, fitted on a 1/40 grid refined three times
+JOB_FORM_PX = 0.5  # one straight chip for the look-angle polynomials (their curvature: 3e-13 per column^2)
+KINDS = {"spot6": ("S6_SENSOR", "list"), "pleiades": ("PHR_SENSOR", "polynomial"), "neo": ("PNEO_SENSOR", "list")}
+
+
+@pytest.fixture(scope="module")
+def scene() -> Scene:
+    return Scene()
+
+
+def _write(tmp_path, scene, kind, **kw):
+    profile, attitude = KINDS[kind]
+    text, truth = dimap_v2_xml(scene, profile, attitude, **kw)
+    path = tmp_path / f"DIM_{kind}.XML"
+    path.write_text(text)
+    return path, truth
+
+
+def _grid(scene, n=7):
+    L, C = np.meshgrid(np.linspace(0, scene.lines - 1, n), np.linspace(0, scene.columns - 1, n), indexing="ij")
+    return L.ravel(), C.ravel()
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_reader_meets_the_truth_and_inverts(tmp_path, scene, kind) -> None:
+    path, truth = _write(tmp_path, scene, kind)
+    p = read_dimap_v2(path)
+    assert (p.model.lines, p.model.columns) == (scene.lines, scene.columns)
+    assert p.line_period_s == pytest.approx(scene.period_s, rel=1e-12)
+    L, C = _grid(scene)
+    for h in (-100.0, 1500.0):
+        g = scene.ground(L, C, np.full(L.size, h), truth)
+        assert np.linalg.norm(p.model.image_to_ecef(L, C, np.full(L.size, h)) - g, axis=1).max() < TRUTH_M
+        back = p.model.ground_to_image(scene.geodetic(g))
+        assert np.abs(back - np.column_stack([L, C])).max() < ROUND_TRIP_PX
+
+
+def test_swath_first_column_offsets_the_polynomials(tmp_path, scene) -> None:
+    # the same scene with FIRST_COL 1 and the polynomials shifted accordingly is the same camera
+    shifted = Scene(first_col=1, xlos=_shift(scene.xlos, 4), ylos=_shift(scene.ylos, 4))
+    a, _ = _write(tmp_path, scene, "spot6")
+    (tmp_path / "b").mkdir()
+    b, _ = _write(tmp_path / "b", shifted, "spot6")
+    L, C = _grid(scene, 4)
+    ga = read_dimap_v2(a).model.image_to_ecef(L, C, np.zeros(L.size))
+    gb = read_dimap_v2(b).model.image_to_ecef(L, C, np.zeros(L.size))
+    assert np.linalg.norm(ga - gb, axis=1).max() < TRUTH_M
+
+
+def _shift(coeffs: tuple[float, ...], k: float) -> tuple[float, ...]:
+    """Coefficients of p(c + k) for p with ``coeffs`` (lowest first)."""
+    p = np.polynomial.Polynomial(coeffs)
+    return tuple(float(c) for c in p(np.polynomial.Polynomial([k, 1.0])).coef)
+
+
+def _rpc_of(scene, truth):
+    """A cubic RPC fitted to the truth (as the vendor fits its RPC to its rigorous model)."""
+    L, C = np.meshgrid(np.linspace(0, scene.lines - 1, 15), np.linspace(0, scene.columns - 1, 15), indexing="ij")
+    L, C = np.repeat(L.ravel(), 5), np.repeat(C.ravel(), 5)
+    H = np.tile(np.linspace(-200.0, 1800.0, 5), 225)
+    g = scene.geodetic(scene.ground(L, C, H, truth))
+    return fit_rpc(GroundGrid(L, C, g[:, 0], g[:, 1], H))
+
+
+@pytest.mark.parametrize("kind", ["spot6", "pleiades"])
+def test_import_sensor_compares_with_the_rpc_beside_the_metadata(tmp_path, scene, capsys, kind) -> None:
+    path, truth = _write(tmp_path, scene, kind, rpc_name=f"RPC_{kind}.XML")
+    (tmp_path / f"RPC_{kind}.XML").write_text(_dimap_xml(_rpc_of(scene, truth)))
+    out = tmp_path / "f.json"
+    assert main(["import-sensor", str(path), "--image-id", "S", "--check-rpc", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    m = re.search(r"exact model vs vendor RPC \(RPC_\w+\.XML\) over (\d+) points: ([\d.]+) px RMS, ([\d.]+) px max", err)
+    assert m, err
+    assert int(m.group(1)) == 605 and float(m.group(2)) < RPC_RMS_PX, err
+    for name in ("aberration", "light_time", "refraction"):
+        assert f"S: {name} (off by default) would move image positions by" in err, err
+    doc = json.loads(out.read_text())
+    assert doc["images"][0]["model"]["name"] == "OA-J2"
+
+
+def test_extent_corners_without_rpc(tmp_path, scene, capsys) -> None:
+    path, truth = _write(tmp_path, scene, "spot6", corners_h=412.0, rpc_name="RPC_missing.XML")
+    c = extent_check(read_dimap_v2(path))
+    assert c["points"] == 4 and max(c["distances_m"]) < CORNER_M and c["height_m"] == pytest.approx(412.0, abs=1.0), c
+    assert main(["import-sensor", str(path), "--check-rpc", "-o", str(tmp_path / "f.json")]) == 0
+    err = capsys.readouterr().err
+    assert "no RPC_missing.XML beside" in err and "4 extent corners at their common height 412" in err, err
+
+
+@pytest.mark.parametrize("kind", ["spot6", "pleiades"])
+def test_job_fragment(tmp_path, scene, kind) -> None:
+    path, _ = _write(tmp_path, scene, kind)
+    doc = fragment([read_dimap_v2(path)], ["S"])
+    note = doc.pop("sensor_metadata")[0]
+    Camera(**doc["cameras"][0])
+    Image(**doc["images"][0])
+    assert note["satellite"] == {"spot6": "SPOT 6", "pleiades": "Pleiades"}[kind]
+    assert note["difference_px"]["rms"] < JOB_FORM_PX, note
+
+
+def _variant(text: str, pattern: str, repl: str) -> str:
+    out = re.sub(pattern, repl, text, count=1, flags=re.S)
+    assert out != text
+    return out
+
+
+BILLION_LAUGHS = """<?xml version="1.0"?>
+<!DOCTYPE lolz [<!ENTITY lol "lol"><!ENTITY lol2 "&lol;&lol;&lol;&lol;&lol;&lol;&lol;&lol;&lol;&lol;">]>
+<Dimap_Document>&lol2;</Dimap_Document>"""
+CASES = [
+    ("ortho", lambda t: _variant(t, r"S6_SENSOR", "S6_ORTHO"), "METADATA_PROFILE: S6_ORTHO: a sensor product"),
+    ("no_look", lambda t: _variant(t, r"<XLOS_0>[^<]*</XLOS_0>", ""), "Polynomial_Look_Angles/XLOS_0: missing"),
+    ("bad_q", lambda t: _variant(t, r"<Q2>[^<]*</Q2>", "<Q2>nan</Q2>"), "Q2: not a finite number"),
+    ("norm", lambda t: _variant(t, r"<Q0>[^<]*</Q0>", "<Q0>3.0</Q0>"), "quaternion 1 has norm"),
+    ("period_unit", lambda t: _variant(t, r'unit="microsecond"', 'unit="furlong"'), "LINE_PERIOD: unit 'furlong'"),
+    ("period", lambda t: _variant(t, r'(<LINE_PERIOD[^>]*>)[^<]*<', r"\g<1>150000<"), "not the line period of a pushbroom"),
+    ("short_eph", lambda t: _variant(t, r"<Point_List>.*</Point_List>", "<Point_List></Point_List>"), "4 points at least, 0 found"),
+    ("late_start", lambda t: _variant(t, r"<START>2021-05-03T10:21:07", "<START>2021-05-03T10:22:07"), "do not cover the image's lines"),
+    ("bias", lambda t: _variant(t, r"<ROLL>0.0</ROLL>", "<ROLL>1e-4</ROLL>"), "Instrument_Biases/ROLL: non-zero instrument biases"),
+    ("no_time", lambda t: _variant(t, r"<Time>.*</Time>", ""), "Refined_Model/Time: missing"),
+    ("truncated", lambda t: t[: len(t) // 2], "not well-formed XML"),
+    ("bomb", lambda t: BILLION_LAUGHS, "refused: the XML declares a DTD or entities"),
+    ("not_a_number", lambda t: _variant(t, r"<NCOLS>\d+</NCOLS>", "<NCOLS>many</NCOLS>"), "NCOLS: not a number"),
+    ("huge_ncols", lambda t: _variant(t, r"<NCOLS>\d+</NCOLS>", "<NCOLS>1000000000</NCOLS>"), "1 to 1000000 columns expected"),
+    ("long_image", lambda t: _variant(t, r"<NROWS>\d+</NROWS>", "<NROWS>90000000</NROWS>"), "an image of 600 s at most is read"),
+]
+
+
+@pytest.mark.parametrize("name,make,expected", CASES, ids=[c[0] for c in CASES])
+def test_bad_files_exit_2_naming_file_and_element(tmp_path, scene, capsys, name, make, expected) -> None:
+    text, _ = dimap_v2_xml(scene)
+    path = tmp_path / "DIM_bad.XML"
+    path.write_text(make(text))
+    assert main(["import-sensor", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and str(path) in err and expected in err, err
+
+
+def test_a_file_larger_than_any_metadata_is_refused_before_parsing(tmp_path, scene, capsys, monkeypatch) -> None:
+    import solver.sensors.xmlsafe as xmlsafe
+
+    text, _ = dimap_v2_xml(scene)
+    path = tmp_path / "DIM_big.XML"
+    path.write_text(text)
+    monkeypatch.setattr(xmlsafe, "MAX_BYTES", len(text.encode()) - 1)  # the limit just below this file
+    assert main(["import-sensor", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and f"{path}: {len(text.encode())} bytes: larger than a metadata file" in err, err
+
+
+def test_a_long_strip_keeps_a_bounded_number_of_attitude_samples(tmp_path) -> None:
+    """60 s of quaternions at 32 Hz (1920): the job keeps 1000, evenly spread with the ends, and
+    the job form stays as close to the exact model (the work of a composition stays bounded)."""
+    from solver.sensors.job_fragment import MAX_JOB_ATTITUDE_SAMPLES
+
+    scene = Scene(lines=400_000)
+    path, _ = _write(tmp_path, scene, "spot6")
+    p = read_dimap_v2(path)
+    doc = fragment([p], ["S"])
+    samples = doc["images"][0]["attitude"]
+    assert len(samples) == MAX_JOB_ATTITUDE_SAMPLES
+    assert samples[0]["time_s"] <= doc["images"][0]["first_line_time_s"]
+    assert doc["sensor_metadata"][0]["difference_px"]["rms"] < JOB_FORM_PX
+
+
+@pytest.mark.slow
+def test_self_calibration_of_a_look_angle_camera(tmp_path) -> None:
+    """The look angles delivered with a scale error (XLOS_1 0.1 % too large: 1.25 px at the
+    swath's edges) and image positions of the true scene: the camera-wide term df, the
+    self-calibration term of a look-angle focal plane's scale, recovers the true focal length
+    (the delivered one x 1.001) within 3 sigma and removes the check points' error (measured:
+    df 6.4947 mm for 6.4935, check points 0.93 m -> 0.001 m)."""
+    import copy
+
+    from solver.api import run
+
+    truth = Scene(xlos=(-1.26e-3, 1.0e-6), ylos=(2.5e-3,))
+    eps = 1e-3
+    path, _ = _write(tmp_path, Scene(xlos=(-1.26e-3, 1.0e-6 * (1 + eps)), ylos=(2.5e-3,)), "spot6")
+    doc = fragment([read_dimap_v2(path)], ["S"])
+    doc.pop("sensor_metadata")
+    assert len(doc["cameras"][0]["chips"]) == 1
+    rng = np.random.default_rng(3)
+    n = 40
+    L, C, H = rng.uniform(0, truth.lines - 1, n), rng.uniform(0, truth.columns - 1, n), rng.uniform(-200, 1500, n)
+    g = truth.geodetic(truth.ground(L, C, H))
+    points = [{"id": f"P{k}", "role": "gcp" if k < 10 else "check", "coordinates": [float(v) for v in g[k]],
+               **({"sigma_m": [0.05, 0.05, 0.05]} if k < 10 else {})} for k in range(n)]
+    obs = [{"image": "S", "point": f"P{k}", "line": float(L[k]), "column": float(C[k]), "sigma_px": 0.1} for k in range(n)]
+    job = {"schema_version": "1.0", "name": "look-angle self-calibration", "crs": "EPSG:4979", **doc, "points": points,
+           "observations": obs}
+    plain = run(copy.deepcopy(job))
+    job["options"]["self_calibration"] = {"estimate": ["df"]}
+    calibrated = run(job)
+    (df,) = [p for p in calibrated["cameras"][0]["parameters"] if p["name"] == "df" and p["estimated"]]
+    assert abs(df["value"] - doc["cameras"][0]["focal_mm"] * eps) < 3 * df["sigma"], df
+    assert calibrated["checkpoints"]["rmse_m"]["planimetric"] < 0.1 * plain["checkpoints"]["rmse_m"]["planimetric"]
