@@ -304,11 +304,12 @@ def tutorial_blocks(markdown: str) -> list[tuple[str, str]]:
 
 def run_tutorial(page: Path, workdir: Path, timeout_s: float, substitutions: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
     """One bash script of the page's blocks (python blocks through the venv's python), run in
-    ``workdir`` (holding copies of ``examples/`` and the vendors' metadata files,
-    ``tests/data/vendor/``, as a clone does) with ``pba`` and ``python`` of this environment
+    ``workdir`` (holding copies of ``examples/``, the vendors' metadata files and the real
+    image crops, ``tests/data/vendor/`` and ``tests/data/matching/``, as a clone does) with ``pba`` and ``python`` of this environment
     first on the PATH; each key of ``substitutions`` (e.g. the page's port) replaced by its value."""
     shutil.copytree(ROOT / "examples", workdir / "examples")
-    shutil.copytree(ROOT / "tests" / "data" / "vendor", workdir / "tests" / "data" / "vendor")
+    for data in ("vendor", "matching"):
+        shutil.copytree(ROOT / "tests" / "data" / data, workdir / "tests" / "data" / data)
     script = ["set -euo pipefail"]
     text = page.read_text()
     for old, new in (substitutions or {}).items():
