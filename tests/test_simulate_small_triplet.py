@@ -45,4 +45,4 @@ def test_the_scene_is_small_and_sees_every_point(tmp_path: Path) -> None:
 
 def test_a_size_below_the_minimum_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["simulate", "small-triplet", "--size", "10", "-o", str(tmp_path / "x.json")]) == 2
-    assert "--size 10: at least 64 pixels" in capsys.readouterr().err
+    assert "small-triplet --size 10: at least 64 pixels" in capsys.readouterr().err

@@ -151,6 +151,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.set_defaults(func=run)
 
 
+def _fail(message: str) -> int:
+    """Print ``message`` as ``pba simulate``'s error; the exit status of a bad argument (2)."""
+    print(f"pba simulate: {message}", file=sys.stderr)
+    return 2
+
+
 def _job_options(args: argparse.Namespace) -> dict:
     """options.ephemeris / options.attitude from --weight-ephemeris and --weight-attitude."""
     options: dict = {}
@@ -158,7 +164,7 @@ def _job_options(args: argparse.Namespace) -> dict:
         try:
             pos, vel = (float(x) for x in args.weight_ephemeris.split(","))
         except ValueError:
-            raise SystemExit("--weight-ephemeris needs two numbers: SIGMA_M,SIGMA_M_S (e.g. 10,0.05)") from None
+            raise SystemExit(_fail("--weight-ephemeris needs two numbers: SIGMA_M,SIGMA_M_S (e.g. 10,0.05)")) from None
         options["ephemeris"] = {"sigma_position_m": pos, "sigma_velocity_m_s": vel}
     if args.weight_attitude is not None:
         options["attitude"] = {"sigma_deg": [args.weight_attitude] * 3}
@@ -169,13 +175,13 @@ def _rpc_settings(args: argparse.Namespace) -> RpcSettings | None:
     """RpcSettings from --rpc-model, --rpc-bias and --rpc-images (exit with a message when bad)."""
     if args.rpc_model is None:
         if args.rpc_bias or args.rpc_images:
-            raise SystemExit("--rpc-bias and --rpc-images need --rpc-model (RPC-SHIFT, RPC-DRIFT or RPC-AFFINE)")
+            raise SystemExit(_fail("--rpc-bias and --rpc-images need --rpc-model (RPC-SHIFT, RPC-DRIFT or RPC-AFFINE)"))
         return None
     try:
         bias = parse_bias(args.rpc_bias)
         images = tuple(int(x) for x in args.rpc_images.split(",")) if args.rpc_images else None
     except ValueError as exc:
-        raise SystemExit(f"--rpc-bias / --rpc-images: {exc}") from None
+        raise SystemExit(_fail(f"--rpc-bias / --rpc-images: {exc}")) from None
     return RpcSettings(args.rpc_model, bias, images)
 
 
@@ -218,13 +224,12 @@ def run(args: argparse.Namespace) -> int:
         rpc=_rpc_settings(args),
     )
     if args.preset == "small-triplet" and args.size < presets.SMALL_MIN_PX:
-        print(f"pba simulate small-triplet: --size {args.size}: at least {presets.SMALL_MIN_PX} pixels", file=sys.stderr)
-        return 2
+        return _fail(f"small-triplet --size {args.size}: at least {presets.SMALL_MIN_PX} pixels")
     t0 = time.perf_counter()
     try:
         scene = _scene(args, settings)
     except RpcSettingsError as exc:
-        raise SystemExit(str(exc)) from None
+        raise SystemExit(_fail(str(exc))) from None
     job_path, truth_path = write_documents(scene, Path(args.output), args.truth, args.indent)
     if args.raster:
         from solver.simulate.raster import write_rasters
