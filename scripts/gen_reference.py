@@ -43,6 +43,76 @@ UNIT_SUFFIXES = (
 )
 
 
+# The unit (and frame) of the job's numeric fields whose names state none; "1": a dimensionless
+# number, "count": a number of things. tests/test_docs.py fails when a numeric field has neither a
+# unit in its name nor an entry here.
+FIELD_UNITS = {
+    "BiasPrior.value": "px (a0, b0) or px/px (the others)",
+    "BiasPrior.sigma": "as `value`",
+    "BlunderDetection.alpha0": "1 (probability)",
+    "BlunderDetection.beta": "1 (probability)",
+    "BlunderDetection.max_rejections": "count",
+    "BlunderDetection.separability": "1 (correlation)",
+    "Camera.lines": "count (px)",
+    "Camera.columns": "count (px)",
+    "Camera.iop": "each parameter's unit ([Models](../models.md) section 8: x0, y0, df, a0, b0 mm; k1 mm^-2; k2 mm^-4; sy, a1, b1 1; delta rad)",
+    "CameraRef.version": "count",
+    "Chip.first_column": "px (image column of the chip's first detector)",
+    "Chip.columns": "count (px)",
+    "EphemerisOptions.nodes": "count",
+    "FittedImageLine.a": "px/px",
+    "FittedImageLine.b": "px (image line or column at 0)",
+    "FittedImageLine.sigma_a": "px/px",
+    "FittedImageLine.sigma_b": "px",
+    "FittedImageLine.correlation": "1",
+    "GroundLine.endpoints": "the job's `crs` axes (as `GroundPoint.coordinates`)",
+    "GroundPoint.coordinates": "the point's `crs` (default the job's) axes: x, y (easting, northing m or longitude, latitude deg), z ellipsoidal height m",
+    "Image.initial": "each parameter's report unit (`pba models`)",
+    "ImageObservation.line": "px (image line; 0 = centre of the first line, grows with time)",
+    "ImageObservation.column": "px (image column; 0 = centre of the first column)",
+    "IopCovariance.matrix": "products of the IOP parameters' units (as `Camera.iop`)",
+    "LineImagePoint.line": "px (as `ImageObservation.line`)",
+    "LineImagePoint.column": "px (as `ImageObservation.column`)",
+    "ModelOptions.orders": "count (polynomial order of each element)",
+    "Parsimony.threshold": "1 (multiple of sigma)",
+    "Parsimony.alpha": "1 (probability)",
+    "Parsimony.max_steps": "count",
+    "PreanalysisOptions.line_points": "count",
+    "QualityWarnings.correlation": "1 (correlation)",
+    "Rpc.line_off": "px (RPC00B, `pixel_convention`)",
+    "Rpc.samp_off": "px (RPC00B, `pixel_convention`)",
+    "Rpc.lat_off": "deg (WGS 84 geodetic latitude)",
+    "Rpc.long_off": "deg (WGS 84 geodetic longitude)",
+    "Rpc.height_off": "m (WGS 84 ellipsoidal height)",
+    "Rpc.line_scale": "px",
+    "Rpc.samp_scale": "px",
+    "Rpc.lat_scale": "deg",
+    "Rpc.long_scale": "deg",
+    "Rpc.height_scale": "m",
+    "Rpc.line_num_coeff": "1 (normalised coordinates, RPC00B term order)",
+    "Rpc.line_den_coeff": "1 (normalised coordinates, RPC00B term order)",
+    "Rpc.samp_num_coeff": "1 (normalised coordinates, RPC00B term order)",
+    "Rpc.samp_den_coeff": "1 (normalised coordinates, RPC00B term order)",
+    "Rpc.err_bias": "m",
+    "Rpc.err_rand": "m",
+    "SelfCalibration.sigmas": "each parameter's unit (as `Camera.iop`)",
+    "SelfCalibration.significance_threshold": "1 (multiple of sigma)",
+    "SolverOptions.max_iterations": "count",
+    "SolverOptions.function_tolerance": "1 (relative cost change)",
+    "SolverOptions.parameter_tolerance": "1 (relative step)",
+    "SolverOptions.sigma0_apriori": "1 (standard deviation of unit weight)",
+    "SolverOptions.alpha": "1 (probability)",
+    "SolverOptions.correlation_threshold": "1 (correlation)",
+    "SolverOptions.loss_scale": "1 (whitened residual: multiples of its sigma)",
+}
+
+
+def field_unit(model: str, name: str) -> str:
+    """The unit of field ``name`` of schema model ``model``: from its name's suffix, else
+    :data:`FIELD_UNITS` ('' when neither says)."""
+    return unit_of(name) or FIELD_UNITS.get(f"{model}.{name}", "")
+
+
 def unit_of(name: str) -> str:
     """The unit a field name states by its suffix ('' when it states none)."""
     for suffix, unit in UNIT_SUFFIXES:
@@ -119,7 +189,7 @@ def _model_section(name: str, schema: dict[str, Any]) -> list[str]:
     for field, prop in schema.get("properties", {}).items():
         default = "required" if field in required else (_code(prop["default"]) if "default" in prop else "optional")
         lines.append(
-            f"| `{field}` | {_schema_type(prop)} | {default} | {unit_of(field)} | {_cell(_limits(prop))} | "
+            f"| `{field}` | {_schema_type(prop)} | {default} | {_cell(field_unit(name, field))} | {_cell(_limits(prop))} | "
             f"{_cell(_prose(prop.get('description', '')))} |"
         )
     return lines + [""]
@@ -331,7 +401,7 @@ def setting_names() -> list[str]:
 
 # ---------------------------------------------------------------- platform models -----------
 def platform_models_page() -> str:
-    from solver.platforms import all_models
+    from solver.platforms import aliases, all_models, get_model
 
     lines = [
         "# Platform models",
@@ -348,6 +418,9 @@ def platform_models_page() -> str:
     lines.append("")
     for d in described:
         lines += [f"## {d['name']}", "", f"{d['title']}. Frame {d['frame']}; time variable {d['time_variable']}.", ""]
+        other = aliases(get_model(d["name"]))
+        if other:
+            lines += ["Also accepted as " + ", ".join(f"`{a}`" for a in other) + " (the same model).", ""]
         if d.get("equations"):
             lines += ["```text", d["equations"], "```", ""]
         lines += ["| parameter | unit |", "|---|---|"]
@@ -454,4 +527,4 @@ if __name__ == "__main__":
     sys.exit(main())
 
 
-__all__ = ["pages", "write", "job_fields", "cli_entries", "http_endpoints", "setting_names", "platform_model_names", "unit_of"]
+__all__ = ["pages", "write", "job_fields", "cli_entries", "http_endpoints", "setting_names", "platform_model_names", "unit_of", "field_unit"]

@@ -35,7 +35,7 @@ def build_parser(extra: Sequence[Registrar] = ()) -> argparse.ArgumentParser:
     simulate_cli.register(sub)  # simulate
     importers_cli.register(sub)  # job, job-sources
     import_rpc_cli.register(sub)  # import-rpc
-    import_sensor_cli.register(sub)  # import-sensor
+    import_sensor_cli.register(sub)  # import-sensor, simulate-measurements
     gis_cli.register(sub)  # ground-to-image, image-to-ground, export-rpc, export-geojson, ortho, resample
     matching_cli.register(sub)  # match
     matching_cli.register_gcp(sub)  # match-gcp

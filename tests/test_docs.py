@@ -31,6 +31,11 @@ import gen_reference  # noqa: E402
 BIN = Path(sys.executable).parent
 ISSUE_NUMBER = re.compile(r"\bissues? #?\d+|\(#\d+\)", re.I)
 NOT_RUN = re.compile(r"<!--\s*not run:\s*(.+?)\s*-->")
+OUTPUT_MARK = re.compile(r"<!--\s*output\s*-->")
+NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", re.I)
+# A number a tutorial states may differ from the run's by one unit of its last printed digit
+# or by this fraction (rounding across platforms and BLAS builds); more, and the text is stale.
+OUTPUT_REL_TOL = 0.02
 FENCE = re.compile(r"^```(\w*)[^\n]*\n(.*?)^```\s*$", re.M | re.S)
 
 
@@ -129,10 +134,14 @@ def missing_settings(page: str) -> list[str]:
 
 
 def missing_models(page: str) -> list[str]:
-    from solver.platforms import all_models
+    """Every registered model has its heading, and every other name a job may use for it
+    (MT12 for ON2) is named in that model's section."""
+    from solver.platforms import aliases, all_models
 
-    headings = set(sections(page, "##"))
-    return [m.name for m in all_models() if m.name not in headings]
+    found = sections(page, "##")
+    missing = [m.name for m in all_models() if m.name not in found]
+    missing += [a for m in all_models() if m.name in found for a in aliases(m) if f"`{a}`" not in found[m.name]]
+    return missing
 
 
 @pytest.fixture(scope="module")
@@ -174,6 +183,7 @@ def test_the_coverage_checks_have_teeth(generated: dict[str, str]) -> None:
     assert missing_settings(settings) == ["PBA_LEASE_S"]
     models = generated["reference/platform-models.md"].replace("## PASS-J2\n", "## pass\n")
     assert missing_models(models) == ["PASS-J2"]
+    assert missing_models(generated["reference/platform-models.md"].replace("`MT12`", "MT12")) == ["MT12"]
 
 
 def test_every_report_key_is_listed_and_in_the_contract(generated: dict[str, str]) -> None:
@@ -206,6 +216,45 @@ def test_every_report_key_is_listed_and_in_the_contract(generated: dict[str, str
     assert sorted(k for k in keys if f'"{k}"' not in contract) == []
 
 
+def numeric_fields_without_unit() -> list[str]:
+    """``Model.field`` of every numeric job field (numbers, integers, lists or maps of them)
+    whose name states no unit and that :data:`gen_reference.FIELD_UNITS` does not list."""
+    from solver.schema.job import Job
+
+    schema = Job.model_json_schema(by_alias=True)
+
+    def numeric(prop: dict) -> bool:
+        if prop.get("type") in ("number", "integer"):
+            return True
+        if any(numeric(sub) for key in ("anyOf", "prefixItems") for sub in prop.get(key, [])):
+            return True
+        return any(isinstance(prop.get(key), dict) and numeric(prop[key]) for key in ("items", "additionalProperties"))
+
+    models = [("Job", schema), *sorted(schema.get("$defs", {}).items())]
+    return [f"{name}.{field}" for name, s in models for field, prop in s.get("properties", {}).items()
+            if numeric(prop) and not gen_reference.field_unit(name, field)]
+
+
+def test_every_numeric_job_field_has_its_unit(generated: dict[str, str]) -> None:
+    assert numeric_fields_without_unit() == []
+    assert "| `coordinates` |" in generated["reference/job.md"] and "ellipsoidal height m" in generated["reference/job.md"]
+    stale = sorted(set(gen_reference.FIELD_UNITS) - {f"{n}.{f}" for n, f in _all_fields()})
+    assert stale == []  # every listed field still exists
+
+
+def test_the_unit_check_has_teeth(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delitem(gen_reference.FIELD_UNITS, "Rpc.height_off")
+    assert numeric_fields_without_unit() == ["Rpc.height_off"]
+
+
+def _all_fields() -> list[tuple[str, str]]:
+    from solver.schema.job import Job
+
+    schema = Job.model_json_schema(by_alias=True)
+    models = [("Job", schema), *schema.get("$defs", {}).items()]
+    return [(name, field) for name, s in models for field in s.get("properties", {})]
+
+
 def test_units_come_from_the_names() -> None:
     assert [gen_reference.unit_of(n) for n in ("focal_mm", "sigma_velocity_m_s", "time_s", "sigma_m", "roll_deg", "sigma_px", "id")] == [
         "mm", "m/s", "s", "m", "deg", "px", ""]
@@ -221,6 +270,12 @@ def test_no_issue_numbers_in_user_facing_text() -> None:
     found = [f"{name}: {m.group(0)!r}" for name, text in user_facing_text().items() for m in ISSUE_NUMBER.finditer(text)]
     assert found == []
     assert ISSUE_NUMBER.search("Blunder detection (issue 15)") and ISSUE_NUMBER.search("fixed in (#12)")
+
+
+def test_no_issue_numbers_in_the_generated_reference(generated: dict[str, str]) -> None:
+    """The reference pages carry the code's own words (help texts, model sources, docstrings)."""
+    found = [f"{name}: {m.group(0)!r}" for name, text in generated.items() for m in ISSUE_NUMBER.finditer(text)]
+    assert found == []
 
 
 def test_readme_is_a_front_page() -> None:
@@ -249,9 +304,12 @@ def tutorial_blocks(markdown: str) -> list[tuple[str, str]]:
 
 def run_tutorial(page: Path, workdir: Path, timeout_s: float, substitutions: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
     """One bash script of the page's blocks (python blocks through the venv's python), run in
-    ``workdir`` with ``pba`` and ``python`` of this environment first on the PATH; each key of
-    ``substitutions`` (e.g. the page's port) replaced by its value."""
+    ``workdir`` (holding copies of ``examples/``, the vendors' metadata files and the real
+    image crops, ``tests/data/vendor/`` and ``tests/data/matching/``, as a clone does) with ``pba`` and ``python`` of this environment
+    first on the PATH; each key of ``substitutions`` (e.g. the page's port) replaced by its value."""
     shutil.copytree(ROOT / "examples", workdir / "examples")
+    for data in ("vendor", "matching"):
+        shutil.copytree(ROOT / "tests" / "data" / data, workdir / "tests" / "data" / data)
     script = ["set -euo pipefail"]
     text = page.read_text()
     for old, new in (substitutions or {}).items():
@@ -268,6 +326,53 @@ def run_tutorial(page: Path, workdir: Path, timeout_s: float, substitutions: dic
     return subprocess.run(["bash", "-c", "\n".join(script)], cwd=workdir, env=full_env, capture_output=True, text=True, timeout=timeout_s)
 
 
+def stated_outputs(markdown: str) -> list[str]:
+    """The lines of every ``text`` block marked ``<!-- output -->`` on the line before its fence:
+    what the page says the reader will see."""
+    lines = []
+    for m in FENCE.finditer(markdown):
+        before = markdown[: m.start()].rstrip().rsplit("\n", 1)[-1]
+        if m.group(1) == "text" and OUTPUT_MARK.search(before):
+            lines += [line for line in m.group(2).splitlines() if line.strip()]
+    return lines
+
+
+def _last_digit(number: str) -> float:
+    mantissa = re.split("[eE]", number)[0]
+    exponent = int(re.split("[eE]", number)[1]) if re.search("[eE]", number) else 0
+    decimals = len(mantissa.split(".")[1]) if "." in mantissa else 0
+    return 10.0 ** (exponent - decimals)
+
+
+def line_matches(stated: str, seen: str) -> bool:
+    """The same words, the same integers (counts), and each decimal number within
+    OUTPUT_REL_TOL or one unit of its last digit."""
+    if NUMBER.sub("#", stated).strip() != NUMBER.sub("#", seen).strip():
+        return False
+    for a, b in zip(NUMBER.findall(stated), NUMBER.findall(seen)):
+        if a.lstrip("+-").isdigit():
+            if int(a) != int(float(b)) or not b.lstrip("+-").isdigit():
+                return False
+        elif abs(float(a) - float(b)) > max(1.0001 * _last_digit(a), OUTPUT_REL_TOL * abs(float(a))):
+            return False
+    return True
+
+
+def missing_outputs(markdown: str, output: str) -> list[str]:
+    """The stated output lines (:func:`stated_outputs`) no line of ``output`` matches."""
+    seen = [line for line in output.splitlines() if line.strip()]
+    return [line for line in stated_outputs(markdown) if not any(line_matches(line, s) for s in seen)]
+
+
+def test_stated_outputs_are_compared_with_tolerance() -> None:
+    page = "x\n<!-- output -->\n```text\nsigma0 0.971 (a priori 1.0), 20 points\n```\n\n```text\nnot marked\n```\n"
+    assert stated_outputs(page) == ["sigma0 0.971 (a priori 1.0), 20 points"]
+    assert missing_outputs(page, "sigma0 0.972 (a priori 1.0), 20 points\n") == []
+    assert missing_outputs(page, "sigma0 0.995 (a priori 1.0), 20 points\n") != []  # 2.5 % off: stale
+    assert missing_outputs(page, "sigma0 0.971 (a priori 1.0), 21 points\n") != []
+    assert missing_outputs(page, "sigma0 0.971 (a posteriori 1.0), 20 points\n") != []
+
+
 def test_tutorial_blocks_are_found() -> None:
     page = "text\n\n```sh\necho a\n```\n\n<!-- not run: needs Docker -->\n```sh\ndocker x\n```\n\n```python\nprint(1)\n```\n\n```text\nout\n```\n"
     assert tutorial_blocks(page) == [("sh", "echo a\n"), ("python", "print(1)\n")]
@@ -275,8 +380,10 @@ def test_tutorial_blocks_are_found() -> None:
 
 @pytest.mark.slow
 def test_tutorial_prism_triplet_runs(tmp_path: Path) -> None:
-    proc = run_tutorial(ROOT / "docs" / "tutorials" / "prism-triplet.md", tmp_path, timeout_s=900)
+    page = ROOT / "docs" / "tutorials" / "prism-triplet.md"
+    proc = run_tutorial(page, tmp_path, timeout_s=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert missing_outputs(page.read_text(), proc.stdout + proc.stderr) == [], proc.stdout[-3000:] + proc.stderr[-3000:]
     work = tmp_path / "triplet"
     for made in ("job.json", "report.json", "ortho.tif", "prism-nadir_RPC.TXT", "pixel.csv"):
         assert (work / made).is_file(), made
@@ -296,3 +403,29 @@ def test_tutorial_lab_server_runs(tmp_path: Path) -> None:
     assert "sigma0 " in out and "lab-prism-nadir version 1 shared True" in out, out
     assert 'pba_user_jobs_total{status="successful",user="alice"} 1.0' in out and "pba_workers 1.0" in out, out
     assert "['alice', 'bob', 'maria']" in out and "would delete 0 finished jobs" in out + proc.stderr, out
+
+
+@pytest.mark.slow
+def test_tutorial_worldview_pair_runs(tmp_path: Path) -> None:
+    """The real WorldView-2 metadata with simulated measurements: every stated output (the
+    metadata's agreement with the RPCs, the check-point RMSEs of the four runs, the RPCs'
+    distances) is what the commands print."""
+    page = ROOT / "docs" / "tutorials" / "worldview-pair.md"
+    proc = run_tutorial(page, tmp_path, timeout_s=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert missing_outputs(page.read_text(), proc.stdout + proc.stderr) == [], proc.stdout[-3000:] + proc.stderr[-3000:]
+    for made in ("fragment.json", "direct.report.json", "adjusted.report.json", "rpc-shift.report.json", "L_RPC.TXT"):
+        assert (tmp_path / "wv2" / made).is_file(), made
+
+
+@pytest.mark.slow
+def test_tutorial_rpc_triplet_runs(tmp_path: Path) -> None:
+    """Simulated RPC images (480 x 480 px, so it stays short): matching, the RPC-DRIFT bias
+    recovered (the page's own assertion), the comparison table and the refined RPCs' distances
+    as stated."""
+    page = ROOT / "docs" / "tutorials" / "rpc-triplet.md"
+    proc = run_tutorial(page, tmp_path, timeout_s=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert missing_outputs(page.read_text(), proc.stdout + proc.stderr) == [], proc.stdout[-3000:] + proc.stderr[-3000:]
+    for made in ("ties.csv", "job.json", "report.json", "comparison.json", "refined/back.tif", "refined/fwd.tif"):
+        assert (tmp_path / "triplet" / made).is_file(), made

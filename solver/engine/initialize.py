@@ -10,6 +10,10 @@
    the control points before the bundle was measured and rejected: it moves each image along
    its weakly determined pitch / along-track-position direction away from the header state, and
    the bundle then needs 51+ instead of 8 (triplet) or 26 (20 triplets) iterations.
+   Then each observation family refines what its observations determine
+   (:meth:`solver.observations.family.ObservationFamily.initialise`): measured attitude fits the
+   angles' polynomials to the weighted samples (an agile satellite looks 10-30 degrees off the
+   orbital frame, and tie rays started from the nominal attitude miss each other by kilometres).
 3. ``initial`` values given in the job override everything (report units).
 4. Tie points: least-squares intersection of their rays.
 """
@@ -22,6 +26,7 @@ import numpy as np
 
 from solver.errors import JobError, Problem
 from solver.kernels import gravity_and_gradient, intersect_all, platform_state
+from solver.observations import registry
 from solver.observations.ephemeris import image_state
 from solver.observations.passes import initialise_passes
 from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
@@ -153,6 +158,12 @@ def initialise(problem: AdjustmentState) -> None:
     issues += initialise_passes(problem, states)
     if issues:
         raise JobError(issues)
+    for family in registry.FAMILIES:  # e.g. the attitude polynomials fitted to measured attitude
+        family.initialise(problem)
+    for img in problem.images:  # the job's own initial values win
+        if img.initial:
+            _apply_initial(img)
+            img.params[:] = img.base[img.free_idx]
     intersect_estimated_points(problem)
 
 

@@ -85,23 +85,6 @@ def _apply_report(problem: AdjustmentState, report: dict[str, Any]) -> None:
     refresh_segments(problem)
 
 
-def _delivered_attitude(problem: AdjustmentState) -> None:
-    """Set the attitude coefficients of every attitude block with samples to their weighted
-    least-squares fit to the samples (in place): the samples observe linear functions of those
-    coefficients (:mod:`solver.observations.attitude`), so this is the orientation the samples
-    deliver, before any image observation moves it."""
-    from solver.observations.attitude import attitude_terms
-
-    for term in attitude_terms(problem):
-        img = problem.images[term.image_index]
-        cols = np.flatnonzero(np.any(term.a != 0.0, axis=0))
-        if cols.size == 0:
-            continue
-        fit, *_ = np.linalg.lstsq(term.w[:, None] * term.a[:, cols], term.w * term.b, rcond=None)
-        img.params[cols] = fit
-        img.base[img.free_idx[cols]] = fit
-
-
 @dataclass
 class AdjustedImage:
     """One adjusted image: ground <-> image with the adjusted rigorous model."""
@@ -287,9 +270,9 @@ class AdjustedModel:
     """Every image of a finished job with its adjusted orientation (see the module docstring)."""
 
     def __init__(self, job: Job | dict[str, Any] | str | bytes, report: dict[str, Any] | None):
-        """``report`` None: the job's own orientation, the one the adjustment starts from, with
-        the attitude fitted to the job's attitude samples where it has some (for a job from
-        vendor metadata: the orientation as delivered, :func:`_delivered_attitude`)."""
+        """``report`` None: the job's own orientation, the one the adjustment starts from (its
+        attitude fitted to the job's weighted attitude samples where it has some: for a job from
+        vendor metadata, the orientation as delivered; :mod:`solver.engine.initialize`)."""
         from solver.adjust import prepare
         from solver.engine.packed_tables import camera_table, image_table
 
@@ -298,8 +281,6 @@ class AdjustedModel:
         self.problem = prepare(self.job)
         if report is not None:
             _apply_report(self.problem, report)
-        else:
-            _delivered_attitude(self.problem)
         frame = (report or {}).get("frames", {}).get("lgs", {})
         if frame.get("origin_ecef_m") is not None:
             gap = float(np.linalg.norm(np.asarray(frame["origin_ecef_m"]) - self.problem.frame.origin_ecef_m))

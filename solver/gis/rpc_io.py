@@ -14,6 +14,7 @@ GDAL finds a sidecar beside ``NAME.tif`` as ``NAME_RPC.TXT`` (or ``NAME_rpc.txt`
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -100,6 +101,7 @@ def write_sidecar(rpc: RPC, path: Path) -> Path:
 def write_raster_with_rpc(rpc: RPC, source: Path, destination: Path) -> Path:
     """A GeoTIFF copy of ``source`` with the RPC as GeoTIFF RPC tags (rasterio / GDAL)."""
     import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
     from rasterio.rpc import RPC as GdalRPC
 
     with rasterio.open(source) as src:
@@ -108,9 +110,11 @@ def write_raster_with_rpc(rpc: RPC, source: Path, destination: Path) -> Path:
         profile.pop("crs", None)
         profile.pop("transform", None)
         data = src.read()
-    with rasterio.open(destination, "w", **profile) as dst:
-        dst.write(data)
-        dst.rpcs = GdalRPC.from_gdal(rpc.to_gdal())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)  # raw image geometry: the RPC is its georeferencing
+        with rasterio.open(destination, "w", **profile) as dst:
+            dst.write(data)
+            dst.rpcs = GdalRPC.from_gdal(rpc.to_gdal())
     return Path(destination)
 
 

@@ -41,8 +41,9 @@ from solver.importers.errors import SourceError, fail
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("job", help="compose a job document from survey, measurement and ephemeris files")
-    p.add_argument("--image", action="append", default=[], metavar="ID=FILE",
-                   help="measurements of image ID (.csv, .points, .gcp); repeat for more files or images")
+    p.add_argument("--image", action="append", default=[], metavar="[ID=]FILE",
+                   help="measurements of image ID (.csv, .points, .gcp); repeat for more files or images. Without "
+                   "ID=: a CSV whose image column names each row's image (the tie points of pba match -o)")
     p.add_argument("--camera", action="append", default=[], metavar="[ID=]NAME",
                    help="camera by name: a preset (prism-backward, prism-nadir, prism-forward, cbers-ccd) "
                    "or a camera of --camera-file; ID= for one image")
@@ -132,8 +133,13 @@ def request_from_args(args: argparse.Namespace) -> ComposeRequest:
     def image(iid: str) -> ImageSources:
         return images.setdefault(iid, ImageSources(iid))
 
-    for iid, path in _pairs(args.image, "--image"):
-        image(iid).measurements.append(_file(path, columns))
+    named: list[SourceFile] = []  # CSVs whose rows name their images
+    for v in args.image:
+        if "=" in v:
+            iid, path = v.split("=", 1)
+            image(iid).measurements.append(_file(path, columns))
+        else:
+            named.append(_file(v, columns))
 
     def per_image(values: list[str], attr: str, default: str | None) -> str | None:
         """``[ID=]NAME`` flags: ID=NAME sets ``attr`` of that image, NAME alone the default."""
@@ -169,6 +175,7 @@ def request_from_args(args: argparse.Namespace) -> ComposeRequest:
         checks=[_file(p, columns) for p in args.checks],
         points=[_file(p, columns) for p in args.points],
         asp_gcp=[_file(p, columns) for p in args.asp_gcp],
+        measurements=named,
         camera_files=[_file(p, columns) for p in args.camera_file],
         camera=default_camera,
         crs=args.crs,

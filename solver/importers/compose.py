@@ -90,6 +90,7 @@ class ComposeRequest:
     checks: list[SourceFile] = field(default_factory=list)
     points: list[SourceFile] = field(default_factory=list)  # with a role column
     asp_gcp: list[SourceFile] = field(default_factory=list)  # files naming their images
+    measurements: list[SourceFile] = field(default_factory=list)  # CSVs whose rows name their images (pba match -o)
     camera_files: list[SourceFile] = field(default_factory=list)
     camera: str | None = None  # default camera of images without their own
     crs: str | None = None
@@ -155,6 +156,8 @@ def compose_job(req: ComposeRequest, camera_lookup: CameraLookup = preset_lookup
     image_ids = [im.id for im in req.images]
     for f in req.asp_gcp:
         observations += _asp(f, None, points, origin, crs, notes, problems)
+    for f in req.measurements:
+        observations += _named_measurements(f, image_ids, req.sigma_px, problems)
     for im in req.images:
         for f in im.measurements:
             try:
@@ -222,6 +225,26 @@ def _measurements(
     if kind == "asp":
         return _asp(f, image, points, origin, crs, notes, problems)
     raise fail(f.name, 0, "", f"unknown measurement file type {PurePath(f.name).suffix!r} (.csv, .points, .gcp)")
+
+
+def _named_measurements(f: SourceFile, image_ids: list[str], sigma_px: float, problems: list[SourceProblem]) -> list[dict[str, Any]]:
+    """Observations of a measurement CSV whose ``image`` column names each row's image (the
+    tie points ``pba match`` writes); a row naming an image not given is a located problem."""
+    if f.kind != "csv":
+        problems.append(SourceProblem(f.name, 0, "", "a measurement file without its image id (ID=FILE) must be a CSV "
+                                      "whose image column names each row's image"))
+        return []
+    try:
+        table = read_measurements(f.data, f.name, None, f.columns, sigma_px)
+    except SourceError as exc:
+        problems += exc.source_problems
+        return []
+    unknown = sorted({o["image"] for o in table} - set(image_ids))
+    if unknown:
+        problems.append(SourceProblem(f.name, 0, "image", f"image(s) {', '.join(map(repr, unknown))} not among the images given "
+                                      f"({', '.join(image_ids)})"))
+        return []
+    return table
 
 
 def _asp(

@@ -85,12 +85,13 @@ def _point(table: Table, line: int, fields: list[str], default_role: str | None)
     return point
 
 
-def write_points(points: list[dict[str, Any]], crs: str | None = None) -> str:
-    """A points table of job points (``id,x,y,z,sx,sy,sz,role``; the CRS in a comment)."""
+def write_points(points: list[dict[str, Any]], crs: str | None = None, with_role: bool = True) -> str:
+    """A points table of job points (``id,x,y,z,sx,sy,sz,role``; the CRS in a comment);
+    ``with_role=False``: without the role column (a file given as ``--gcps`` or ``--checks``)."""
     rows = []
     for p in points:
         xyz = p.get("coordinates") or [None, None, None]
         s = p.get("sigma_m") or [None, None, None]
-        rows.append([p["id"], *xyz, *s, p["role"]])
+        rows.append([p["id"], *xyz, *s] + ([p["role"]] if with_role else []))
     comments = [f"crs: {crs}"] if crs else []
-    return write_rows(["id", "x", "y", "z", "sx", "sy", "sz", "role"], rows, comments)
+    return write_rows(["id", "x", "y", "z", "sx", "sy", "sz"] + (["role"] if with_role else []), rows, comments)

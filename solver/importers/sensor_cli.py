@@ -12,6 +12,13 @@ corners (metres; for CBERS, its corners in px). A reader's warnings (e.g. epheme
 disagree with their velocities, not used) are printed and kept in the note of the image. Exit 0,
 or 2 with a message
 naming the file and the element at fault (docs/sensor-metadata.md).
+
+``pba simulate-measurements METADATA... [--image-id ID]... -o DIR``: a stand-in for a lab's own
+survey and image measurements when only the metadata is at hand: control, check and tie points
+simulated on the metadata's exact models, each image's direct georeferencing off by a few metres
+(:mod:`solver.sensors.simulated`), written as the files ``pba job`` reads (``control.csv``,
+``checks.csv``: WGS 84 longitude, latitude, ellipsoidal height; ``ID.csv``: image measurements)
+and the truth (``truth.json``).
 """
 
 from __future__ import annotations
@@ -24,20 +31,50 @@ from pathlib import Path
 from solver.sensors.errors import MetadataError
 
 
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("import-sensor", help="vendor sensor metadata (Maxar XML, DIMAP of SPOT 1-7 and Pleiades, INPE "
-                       "CBERS XML) as a job fragment: cameras, images with ephemeris and attitude, options")
+def _metadata_args(p: argparse.ArgumentParser) -> None:
+    """The metadata files and their image ids (``import-sensor``, ``simulate-measurements``)."""
     p.add_argument("metadata", type=Path, nargs="+", help="Maxar/DigitalGlobe support-data XML, SPOT 1-5 DIMAP v1 "
                    "METADATA.DIM, SPOT 6/7 / Pleiades DIMAP v2 DIM_*.XML or INPE CBERS/Amazonia product XML, "
                    "FILE#left or FILE#right for one camera of a two-camera record (one per image)")
     p.add_argument("--image-id", action="append", default=[], metavar="ID",
                    help="image id, once per file in order (default: the file name without extension)")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("import-sensor", help="vendor sensor metadata (Maxar XML, DIMAP of SPOT 1-7 and Pleiades, INPE "
+                       "CBERS XML) as a job fragment: cameras, images with ephemeris and attitude, options")
+    _metadata_args(p)
     p.add_argument("-o", "--output", type=Path, help="JSON file to write (default: standard output)")
     p.add_argument("--check-rpc", action="store_true",
                    help="also compare the exact model with the vendor's RPC of each image (a DIMAP v2 product's "
                    "RPC_*.XML beside it), or else with the product's tie points or extent corners (standard error)")
     p.add_argument("--indent", type=int, default=2, help="JSON indentation (default 2)")
     p.set_defaults(func=run)
+
+    p = sub.add_parser("simulate-measurements", help="survey and image measurements simulated on vendor metadata's exact "
+                       "models (a stand-in for your own): control.csv, checks.csv, ID.csv, truth.json")
+    _metadata_args(p)
+    p.add_argument("--gcps", type=int, default=4, help="control points (default 4)")
+    p.add_argument("--checks", type=int, default=12, help="check points (default 12)")
+    p.add_argument("--ties", type=int, default=20, help="tie points (default 20)")
+    p.add_argument("--shift-sigma-m", type=float, default=3.0,
+                   help="sigma of each image's ground shift, east and north, m: how far the metadata's direct "
+                   "georeferencing misses (default 3)")
+    p.add_argument("--noise-px", type=float, default=0.3, help="image measurement sigma, px (default 0.3)")
+    p.add_argument("--survey-sigma-m", type=float, default=0.1, help="survey sigma of control and check points, m (default 0.1)")
+    p.add_argument("--seed", type=int, default=1, help="random seed (same seed, same files)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="directory to write the files into")
+    p.set_defaults(func=run_simulate)
+
+
+def _ids(args: argparse.Namespace) -> list[str] | str:
+    """The image ids of ``args.metadata``, or the message saying why they are wrong."""
+    if args.image_id and len(args.image_id) != len(args.metadata):
+        return f"{len(args.image_id)} --image-id for {len(args.metadata)} files: give one per file, or none"
+    ids = args.image_id or [p.stem for p in args.metadata]
+    if len(set(ids)) != len(ids):
+        return f"image ids must differ: {', '.join(ids)}"
+    return ids
 
 
 def _fail(message: str) -> int:
@@ -53,11 +90,9 @@ def run(args: argparse.Namespace) -> int:
     from solver.sensors.inpe_cbers import CbersProduct, corner_check
     from solver.sensors.job_fragment import fragment
 
-    if args.image_id and len(args.image_id) != len(args.metadata):
-        return _fail(f"{len(args.image_id)} --image-id for {len(args.metadata)} files: give one per file, or none")
-    ids = args.image_id or [p.stem for p in args.metadata]
-    if len(set(ids)) != len(ids):
-        return _fail(f"image ids must differ: {', '.join(ids)}")
+    ids = _ids(args)
+    if isinstance(ids, str):
+        return _fail(ids)
     try:
         products = [read_product(p, str(p)) for p in args.metadata]
         doc = fragment(products, ids)
@@ -135,3 +170,40 @@ def _check_dimap_v2(image_id: str, p) -> bool:  # noqa: ANN001 (DimapV2Product, 
         print(f"{image_id}: {name} (off by default) would move image positions by {size['shift_rms_px']:.2f} px RMS",
               file=sys.stderr)
     return True
+
+
+def run_simulate(args: argparse.Namespace) -> int:
+    from solver.importers.measurements_csv import write_measurements
+    from solver.importers.points_csv import write_points
+    from solver.sensors.formats import read_product
+    from solver.sensors.simulated import height_range, simulate_measurements
+
+    def fail(message: str) -> int:
+        print(f"pba simulate-measurements: {message}", file=sys.stderr)
+        return 2
+
+    ids = _ids(args)
+    if isinstance(ids, str):
+        return fail(ids)
+    try:
+        products = [read_product(p, str(p)) for p in args.metadata]
+    except MetadataError as exc:
+        return fail(str(exc))
+    try:
+        sim = simulate_measurements([p.model for p in products], ids, height_range(getattr(products[0], "rpc", None)),
+                                    args.gcps, args.checks, args.ties, args.shift_sigma_m, args.noise_px,
+                                    args.survey_sigma_m, args.seed)
+    except ValueError as exc:
+        return fail(str(exc))
+    out = args.output
+    out.mkdir(parents=True, exist_ok=True)
+    for name, role in (("control.csv", "gcp"), ("checks.csv", "check")):
+        (out / name).write_text(write_points([p for p in sim.points if p["role"] == role], "EPSG:4326", with_role=False))
+    for image_id in ids:
+        (out / f"{image_id}.csv").write_text(write_measurements([o for o in sim.observations if o["image"] == image_id], with_image=False))
+    (out / "truth.json").write_text(json.dumps(sim.truth, indent=1) + "\n")
+    shifts = ", ".join(f"{i} {e:+.2f} E {n:+.2f} N" for i, (e, n) in sim.truth["image_shifts_en_m"].items())
+    print(f"{out}: control.csv ({args.gcps} points), checks.csv ({args.checks}), {', '.join(f'{i}.csv' for i in ids)} "
+          f"({args.gcps + args.checks + args.ties} points each), truth.json; direct georeferencing off by (m) {shifts}",
+          file=sys.stderr)
+    return 0

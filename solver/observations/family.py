@@ -128,6 +128,11 @@ class ObservationFamily(Protocol):
         """The family's residual terms, in a fixed order."""
         ...
 
+    def initialise(self, problem: AdjustmentState) -> None:
+        """Refine the initial parameters from the family's observations (in place), after the
+        platform states and before the tie points are intersected (default: nothing)."""
+        ...
+
     def refresh(self, problem: AdjustmentState) -> float:
         """Re-linearise at the current parameters; the largest whitened-residual change (0: none)."""
         ...
@@ -158,8 +163,11 @@ class ObservationFamily(Protocol):
 
 
 class FamilyDefaults:
-    """Defaults for the optional parts of :class:`ObservationFamily`: nothing to re-linearise,
-    nothing tested, no report section, nothing removable, nothing to flag."""
+    """Defaults for the optional parts of :class:`ObservationFamily`: no initial values, nothing
+    to re-linearise, nothing tested, no report section, nothing removable, nothing to flag."""
+
+    def initialise(self, problem: AdjustmentState) -> None:
+        return None
 
     def refresh(self, problem: AdjustmentState) -> float:
         return 0.0

@@ -15,6 +15,7 @@ from solver.platforms.registry import (  # noqa: F401
     HELD,
     ParameterSpec,
     PlatformModel,
+    aliases,
     all_models,
     coef_index,
     get_model,

@@ -154,6 +154,11 @@ def model_names() -> list[str]:
     return list(seen)
 
 
+def aliases(model: PlatformModel) -> list[str]:
+    """The other names a job may call ``model`` by (as registered, upper case)."""
+    return [k for k, m in _REGISTRY.items() if m is model and k != model.name.upper()]
+
+
 def all_models() -> list[PlatformModel]:
     return [get_model(n) for n in model_names()]
 

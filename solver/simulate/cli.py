@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -140,7 +141,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--gcps", type=int, default=None, help="gcps in total (default 4 per triplet)")
     p.add_argument("--checks", type=int, default=None, help="check points in total (default 2 per triplet)")
 
+    p = sub.add_parser("small-triplet", help="small backward/nadir/forward triplet (20 m pixels, N x N): quick raster and matching trials")
+    _common(p)
+    p.add_argument("--size", type=int, default=480, help="image lines and columns, pixels (default 480)")
+    p.add_argument("--gcps", type=int, default=8, help="control points (default 8)")
+    p.add_argument("--checks", type=int, default=8, help="check points (default 8)")
+    p.add_argument("--tie-points", type=int, default=30, help="tie points, each seen by all three images (default 30)")
+
     sim.set_defaults(func=run)
+
+
+def _fail(message: str) -> int:
+    """Print ``message`` as ``pba simulate``'s error; the exit status of a bad argument (2)."""
+    print(f"pba simulate: {message}", file=sys.stderr)
+    return 2
 
 
 def _job_options(args: argparse.Namespace) -> dict:
@@ -150,7 +164,7 @@ def _job_options(args: argparse.Namespace) -> dict:
         try:
             pos, vel = (float(x) for x in args.weight_ephemeris.split(","))
         except ValueError:
-            raise SystemExit("--weight-ephemeris needs two numbers: SIGMA_M,SIGMA_M_S (e.g. 10,0.05)") from None
+            raise SystemExit(_fail("--weight-ephemeris needs two numbers: SIGMA_M,SIGMA_M_S (e.g. 10,0.05)")) from None
         options["ephemeris"] = {"sigma_position_m": pos, "sigma_velocity_m_s": vel}
     if args.weight_attitude is not None:
         options["attitude"] = {"sigma_deg": [args.weight_attitude] * 3}
@@ -161,13 +175,13 @@ def _rpc_settings(args: argparse.Namespace) -> RpcSettings | None:
     """RpcSettings from --rpc-model, --rpc-bias and --rpc-images (exit with a message when bad)."""
     if args.rpc_model is None:
         if args.rpc_bias or args.rpc_images:
-            raise SystemExit("--rpc-bias and --rpc-images need --rpc-model (RPC-SHIFT, RPC-DRIFT or RPC-AFFINE)")
+            raise SystemExit(_fail("--rpc-bias and --rpc-images need --rpc-model (RPC-SHIFT, RPC-DRIFT or RPC-AFFINE)"))
         return None
     try:
         bias = parse_bias(args.rpc_bias)
         images = tuple(int(x) for x in args.rpc_images.split(",")) if args.rpc_images else None
     except ValueError as exc:
-        raise SystemExit(f"--rpc-bias / --rpc-images: {exc}") from None
+        raise SystemExit(_fail(f"--rpc-bias / --rpc-images: {exc}")) from None
     return RpcSettings(args.rpc_model, bias, images)
 
 
@@ -189,6 +203,8 @@ def _scene(args: argparse.Namespace, settings: Settings):
         return cbers_lines(
             settings, args.lines, args.gcps, args.checks, args.yaw_steering, args.line_noise_px, args.check_lines
         )
+    if args.preset == "small-triplet":
+        return presets.small_triplet(settings, args.size, args.gcps, args.checks, args.tie_points)
     return presets.strip(settings, args.triplets, args.tie_points, args.gcps, args.checks)
 
 
@@ -207,11 +223,13 @@ def run(args: argparse.Namespace) -> int:
         job_options=_job_options(args),
         rpc=_rpc_settings(args),
     )
+    if args.preset == "small-triplet" and args.size < presets.SMALL_MIN_PX:
+        return _fail(f"small-triplet --size {args.size}: at least {presets.SMALL_MIN_PX} pixels")
     t0 = time.perf_counter()
     try:
         scene = _scene(args, settings)
     except RpcSettingsError as exc:
-        raise SystemExit(str(exc)) from None
+        raise SystemExit(_fail(str(exc))) from None
     job_path, truth_path = write_documents(scene, Path(args.output), args.truth, args.indent)
     if args.raster:
         from solver.simulate.raster import write_rasters

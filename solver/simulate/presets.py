@@ -7,19 +7,28 @@
 - ``cbers-scene``: one CBERS-like CCD scene (~20 m GSD, 778 km orbit) with ground coordinates in
   SAD69 / UTM zone 22S (EPSG:29192), 23 gcp and 8 check points (seed 002);
 - ``strip``: N consecutive PRISM triplets along one pass with M tie points in total, each seen
-  in the three images of its triplet (large blocks for the solver benchmark).
+  in the three images of its triplet (large blocks for the solver benchmark);
+- ``small-triplet``: a backward / nadir / forward triplet of a small single-chip camera (20 m
+  ground pixels, N x N pixels, views 20 degrees apart, terrain 200-1200 m): rasters of a few
+  hundred pixels a side for trying image matching and RPC images in seconds.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 
-from solver.simulate.camera import cbers_camera, prism_camera
+from solver.simulate.camera import cbers_camera, prism_camera, simple_camera
 from solver.simulate.scene import Group, Scene, Settings
 
 PRISM_VIEWS = ("backward", "nadir", "forward")
 CBERS_SITE = (-51.147, -22.372)  # centre of the seed 002 scene (orbit 159, point 125)
 CBERS_INCLINATION_DEG = 98.5
+# small-triplet: a CBERS-like detector (f 520 mm, 13 um pixels, 2.92 ms lines: ~20 m ground
+# pixels from the ALOS-like orbit) pitched back, down and forward; terrain with ~1 km of relief,
+# so the views differ by up to ~20 px of parallax (what image matching must follow)
+SMALL_VIEWS_DEG = (("back", -20.0), ("nadir", 0.0), ("fwd", 20.0))
+SMALL_TERRAIN_M = (200.0, 1200.0)
+SMALL_MIN_PX = 64
 
 
 def prism_single(
@@ -73,3 +82,15 @@ def strip(
         for k in range(triplets)
     ]
     return Scene(replace(settings, preset="strip", truth_step_lines=max(settings.truth_step_lines, 1000)), groups).simulate()
+
+
+def small_triplet(settings: Settings, size_px: int = 480, gcps: int = 8, checks: int = 8, tie_points: int = 30) -> Scene:
+    """Three views (``back``, ``nadir``, ``fwd``: pitched -20, 0, +20 degrees) of a
+    ``size_px`` x ``size_px`` single-chip camera with ~20 m ground pixels over terrain of
+    200-1200 m ellipsoidal height."""
+    if size_px < SMALL_MIN_PX:
+        raise ValueError(f"size {size_px}: at least {SMALL_MIN_PX} pixels")
+    cams = [simple_camera(name, 520.0, 0.013, 0.00292, size_px, size_px, pitch) for name, pitch in SMALL_VIEWS_DEG]
+    low, high = SMALL_TERRAIN_M
+    s = replace(settings, preset="small-triplet", terrain_min_m=low, terrain_max_m=high)
+    return Scene(s, [Group(cams, gcps, checks, tie_points)]).simulate()

@@ -21,6 +21,7 @@ exercised.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -137,6 +138,7 @@ def render_ortho(scene, lon_deg: np.ndarray, lat_deg: np.ndarray, seed: int = 0,
 def write_rasters(scene, job_path: Path, step: int = 8, texture: str = "smooth", seed: int = 0) -> list[Path]:
     """One GeoTIFF per image beside the job: ``<job stem>.<image id>.tif`` (raw geometry)."""
     import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
 
     job_path = Path(job_path)
     stem = job_path.name[:-5] if job_path.name.endswith(".json") else job_path.name
@@ -144,7 +146,9 @@ def write_rasters(scene, job_path: Path, step: int = 8, texture: str = "smooth",
     for i, geom in enumerate(scene.images):
         data = render_image(scene, i, step, texture, seed)
         path = job_path.with_name(f"{stem}.{geom.id}.tif")
-        with rasterio.open(path, "w", driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype=data.dtype.name, compress="deflate") as dst:
-            dst.write(data, 1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)  # raw image geometry, as delivered
+            with rasterio.open(path, "w", driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype=data.dtype.name, compress="deflate") as dst:
+                dst.write(data, 1)
         out.append(path)
     return out
