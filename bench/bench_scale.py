@@ -106,6 +106,16 @@ def child(n_obs: int, model: str, seed: int) -> dict[str, Any]:
     single.assert_full_rank = _timed(stages, "rank_check", single.assert_full_rank)
     single.solve_problem = _timed(stages, "solve", single.solve_problem)
     single.assess = _timed(stages, "report", single.assess)
+    ceres: dict[str, float] = {}
+    summarise = backend.summarise
+
+    def summarise_and_keep(*args, **kwargs):
+        outcome = summarise(*args, **kwargs)
+        for k, v in outcome.timing_s.items():
+            ceres[k] = ceres.get(k, 0.0) + v
+        return outcome
+
+    backend.summarise = summarise_and_keep
     t0 = time.perf_counter()
     report = run(doc)
     total_s = time.perf_counter() - t0
@@ -118,6 +128,7 @@ def child(n_obs: int, model: str, seed: int) -> dict[str, Any]:
         "generation_s": generation_s,
         "run_s": total_s,
         "stages_s": stages,
+        "ceres_s": ceres,
         "iterations": adj["iterations"],
         "solve_time_s": adj["solve_time_s"],
         "per_iteration_s": adj["solve_time_s"] / max(adj["iterations"], 1),
@@ -149,6 +160,7 @@ def main() -> None:
             r = json.loads(out.stdout.strip().splitlines()[-1])
             runs.append(r)
             stages = " ".join(f"{k} {v:.2f}" for k, v in r["stages_s"].items())
+            stages += "; in Ceres: " + " ".join(f"{k} {v:.2f}" for k, v in r["ceres_s"].items())
             print(
                 f"  {r['observations']:>8} obs {r['images']:>4} images [{r['evaluation']}]: run {r['run_s']:.2f} s "
                 f"({stages}), {r['iterations']} iterations, {r['per_iteration_s']:.3f} s/iteration, "

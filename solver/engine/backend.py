@@ -293,8 +293,13 @@ class _Compiled:
         desc[:, cb.B_SIZES + lead :] = blocks.sizes
         return desc
 
-    def cost(self, callback: Any, descriptor: np.ndarray, n_residuals: int, sizes: list[int]) -> Any:
-        return self.native.CallbackCost(self.evaluator, callback.address, descriptor, n_residuals, sizes)
+    def cost(self, callback: Any, address: int, n_residuals: int, sizes: list[int]) -> Any:
+        """A cost function over the descriptor at ``address`` (a row of a table the problem keeps)."""
+        return self.native.CallbackCost(self.evaluator, callback.address, address, n_residuals, sizes)
+
+    @staticmethod
+    def row_addresses(desc: np.ndarray) -> list[int]:
+        return (desc.ctypes.data + np.arange(len(desc)) * desc.strides[0]).tolist()
 
 
 def _add_fixed_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, control: SolveControl, tables, compiled: _Compiled | None) -> None:
@@ -304,16 +309,20 @@ def _add_fixed_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: A
         return
     pts = fixed_points(problem, blocks)
     out.keep += [blocks.rec, pts]
-    desc = compiled.descriptors(blocks, False, pts) if compiled is not None else None
-    for b in range(len(blocks)):
-        s, e = blocks.start[b], blocks.start[b + 1]
-        sizes = [len(a) for a in blocks.params[b]]
+    start = blocks.start.tolist()
+    if compiled is not None:
+        desc = compiled.descriptors(blocks, False, pts)
+        out.keep.append(desc)
+        addresses = compiled.row_addresses(desc)
+    for b, params in enumerate(blocks.params):
+        s, e = start[b], start[b + 1]
+        sizes = [len(a) for a in params]
         if compiled is not None:
-            cf = compiled.cost(compiled.cb.fixed_block_callback, desc[b], 2 * int(e - s), sizes)
+            cf = compiled.cost(compiled.cb.fixed_block_callback, addresses[b], 2 * (e - s), sizes)
         else:
             cf = ImageBatchCost(blocks.rec[s:e], pts[s:e], sizes, control, tables)
             out.python_blocks += 1
-        out.add(cf, loss, blocks.params[b])
+        out.add(cf, loss, params)
 
 
 def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, control: SolveControl, tables, compiled: _Compiled | None) -> None:
@@ -324,18 +333,22 @@ def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, co
         return
     out.has_points = True
     out.keep.append(blocks.rec)
-    desc = compiled.descriptors(blocks, True) if compiled is not None else None
+    start = blocks.start.tolist()
+    if compiled is not None:
+        desc = compiled.descriptors(blocks, True)
+        out.keep.append(desc)
+        addresses = compiled.row_addresses(desc)
     points = problem.points
-    for b in range(len(blocks)):
-        p = points[int(blocks.owner[b])]
-        s, e = blocks.start[b], blocks.start[b + 1]
-        sizes = [len(a) for a in blocks.params[b]]
+    for b, (owner, params) in enumerate(zip(blocks.owner.tolist(), blocks.params)):
+        p = points[owner]
+        s, e = start[b], start[b + 1]
+        sizes = [len(a) for a in params]
         if compiled is not None:
-            cf = compiled.cost(compiled.cb.point_block_callback, desc[b], 2 * int(e - s), [3] + sizes)
+            cf = compiled.cost(compiled.cb.point_block_callback, addresses[b], 2 * (e - s), [3] + sizes)
         else:
             cf = PointCost(blocks.rec[s:e], sizes, control, tables)
             out.python_blocks += 1
-        out.add(cf, loss, [p.xyz] + blocks.params[b])
+        out.add(cf, loss, [p.xyz] + params)
         if p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
             out.add(pyceres.factors.NormalPrior(p.known_lgs.copy(), np.diag(p.sigma_m**2)), None, [p.xyz])
 

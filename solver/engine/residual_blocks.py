@@ -100,29 +100,29 @@ def layout(problem: AdjustmentState, rows: np.ndarray, block: np.ndarray, owner:
     pass_slot = np.where(pass_rank >= 0, pass_rank + n_img[block] + n_cam[block], -1)
     rec = records(problem, rows, img_slot, cam_slot, pass_slot)
     start = np.searchsorted(block, np.arange(n_blocks + 1)).astype(np.int64)
-    params: list[list[np.ndarray]] = []
     ci = np.concatenate([[0], np.cumsum(n_img)])
     cc = np.concatenate([[0], np.cumsum(n_cam)])
     cp = np.concatenate([[0], np.cumsum(n_pass)])
     cameras, passes = problem.cameras, problem.passes
-    for b in range(n_blocks):
-        params.append(
-            [image_arrays[k] for k in img_keys[ci[b] : ci[b + 1]]]
-            + [cameras[k].params for k in cam_keys[cc[b] : cc[b + 1]]]
-            + [passes[k].params for k in pass_keys[cp[b] : cp[b + 1]]]
-        )
+    # one key space over every parameter array: images' blocks, then cameras', then passes'
+    arrays = image_arrays + [c.params for c in cameras] + [q.params for q in passes]
     n_params = n_img + n_cam + n_pass
-    sizes = np.zeros((n_blocks, int(n_params.max()) if n_blocks else 0), dtype=np.int64)
+    width = int(n_params.max()) if n_blocks else 0
+    sizes = np.zeros((n_blocks, width), dtype=np.int64)
+    keys = -np.ones((n_blocks, width), dtype=np.int64)
     parts = (
-        (np.array([len(a) for a in image_arrays], dtype=np.int64), img_keys, n_img, ci, np.zeros(n_blocks, dtype=np.int64)),
-        (np.array([len(c.params) for c in cameras], dtype=np.int64), cam_keys, n_cam, cc, n_img),
-        (np.array([len(q.params) for q in passes], dtype=np.int64), pass_keys, n_pass, cp, n_img + n_cam),
+        (0, img_keys, n_img, ci, np.zeros(n_blocks, dtype=np.int64)),
+        (len(image_arrays), cam_keys, n_cam, cc, n_img),
+        (len(image_arrays) + len(cameras), pass_keys, n_pass, cp, n_img + n_cam),
     )
-    for key_size, keys, count, offsets, first_column in parts:
-        if len(keys):
+    key_size = np.array([len(a) for a in arrays], dtype=np.int64)
+    for key_offset, part_keys, count, offsets, first_column in parts:
+        if len(part_keys):
             blk = np.repeat(np.arange(n_blocks), count)
-            col = np.arange(len(keys)) - np.repeat(offsets[:-1], count) + first_column[blk]
-            sizes[blk, col] = key_size[keys]
+            col = np.arange(len(part_keys)) - np.repeat(offsets[:-1], count) + first_column[blk]
+            keys[blk, col] = part_keys + key_offset
+            sizes[blk, col] = key_size[part_keys + key_offset]
+    params = [[arrays[k] for k in row if k >= 0] for row in keys.tolist()]
     return ResidualBlocks(rows, start, np.asarray(owner, dtype=np.int64), rec, params, sizes, n_params)
 
 

@@ -26,7 +26,7 @@ from types import ModuleType
 EVALUATION_ENV = "PBA_EVALUATION"  # auto (default) | compiled | python
 THREADS_ENV = "PBA_SOLVER_THREADS"  # threads of a compiled solve (default: the machine's cores)
 EVALUATION_CHOICES = ("auto", "compiled", "python")
-ABI = 1  # the module's ``ABI`` attribute this Python side expects
+ABI = 2  # the module's ``ABI`` attribute this Python side expects
 SOURCE = Path(__file__).with_name("callback_cost.cpp")
 
 

@@ -77,12 +77,13 @@ class Evaluator {
 
 class CallbackCost : public ceres::CostFunction {
  public:
-  CallbackCost(std::shared_ptr<Evaluator> evaluator, std::uintptr_t fn,
-               py::array_t<std::int64_t, py::array::c_style> block, int num_residuals,
-               const std::vector<int>& block_sizes)
+  // ``block``: the address of the block's descriptor; the caller keeps its memory alive for as
+  // long as the cost function lives (solver/engine/backend.py keeps the descriptor table).
+  CallbackCost(std::shared_ptr<Evaluator> evaluator, std::uintptr_t fn, std::uintptr_t block,
+               int num_residuals, const std::vector<int>& block_sizes)
       : evaluator_(std::move(evaluator)),
         fn_(reinterpret_cast<BlockFn>(fn)),
-        block_(block),
+        block_(reinterpret_cast<const void*>(block)),
         jacobian_size_(0) {
     set_num_residuals(num_residuals);
     for (int s : block_sizes) {
@@ -96,12 +97,12 @@ class CallbackCost : public ceres::CostFunction {
     if (evaluator_->cancelled()) return false;
     double* table = evaluator_->thread_table();
     if (jacobians == nullptr) {
-      return fn_(block_.data(), table, parameters, residuals, nullptr, 0);
+      return fn_(block_, table, parameters, residuals, nullptr, 0);
     }
     const auto& sizes = parameter_block_sizes();
     bool complete = true;
     for (std::size_t i = 0; i < sizes.size(); ++i) complete = complete && jacobians[i] != nullptr;
-    if (complete) return fn_(block_.data(), table, parameters, residuals, jacobians, 1);
+    if (complete) return fn_(block_, table, parameters, residuals, jacobians, 1);
     // Ceres leaves out the Jacobians of constant blocks: the kernel writes those into scratch.
     thread_local std::vector<double> scratch;
     thread_local std::vector<double*> filled;
@@ -112,13 +113,13 @@ class CallbackCost : public ceres::CostFunction {
       filled[i] = jacobians[i] != nullptr ? jacobians[i] : scratch.data() + offset;
       offset += static_cast<std::size_t>(sizes[i]) * num_residuals();
     }
-    return fn_(block_.data(), table, parameters, residuals, filled.data(), 1);
+    return fn_(block_, table, parameters, residuals, filled.data(), 1);
   }
 
  private:
   std::shared_ptr<Evaluator> evaluator_;
   BlockFn fn_;
-  py::array_t<std::int64_t, py::array::c_style> block_;  // kept alive with the cost function
+  const void* block_;
   std::size_t jacobian_size_;
 };
 
@@ -173,13 +174,12 @@ PYBIND11_MODULE(callback_cost, m) {
       .def_property_readonly("cancelled", &Evaluator::cancelled)
       .def_property_readonly("threads_used", &Evaluator::threads_used);
   py::class_<CallbackCost, ceres::CostFunction, py::smart_holder>(m, "CallbackCost")
-      .def(py::init<std::shared_ptr<Evaluator>, std::uintptr_t,
-                    py::array_t<std::int64_t, py::array::c_style>, int, const std::vector<int>&>(),
-           py::arg("evaluator"), py::arg("function_address"), py::arg("block"),
+      .def(py::init<std::shared_ptr<Evaluator>, std::uintptr_t, std::uintptr_t, int, const std::vector<int>&>(),
+           py::arg("evaluator"), py::arg("function_address"), py::arg("block_address"),
            py::arg("num_residuals"), py::arg("block_sizes"));
   py::class_<LinearCost, ceres::CostFunction, py::smart_holder>(m, "LinearCost")
       .def(py::init<std::shared_ptr<Evaluator>, py::array_t<double, py::array::c_style | py::array::forcecast>,
                     py::array_t<double, py::array::c_style | py::array::forcecast>>(),
            py::arg("evaluator"), py::arg("a"), py::arg("b"));
-  m.attr("ABI") = 1;
+  m.attr("ABI") = 2;
 }
