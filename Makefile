@@ -8,7 +8,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: serve test lint venv services system-deps bench clean openapi docs
+.PHONY: serve test lint venv services system-deps ceres-headers native bench clean openapi docs
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -19,11 +19,23 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 # Debian packages the browser tests need (chromium; Playwright drives it, no browser download).
-system-deps:
+system-deps: ceres-headers
 	@command -v chromium >/dev/null 2>&1 || { \
 	  echo "installing Debian chromium for the browser tests"; \
 	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) || \
 	  { echo "could not install chromium"; exit 1; }; }
+
+# ceres/cost_function.h for the compiled cost functions (Debian's libceres-dev; g++ and the Python
+# headers are on the machine). Without root or apt, the build is skipped and solves use Python.
+ceres-headers:
+	@test -f /usr/include/ceres/cost_function.h || test -n "$$CERES_INCLUDE_DIR" || { \
+	  echo "installing Debian libceres-dev for the compiled cost functions"; \
+	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends libceres-dev >/dev/null) || \
+	  echo "could not install libceres-dev: solves will use the slower Python cost functions"; }
+
+# the compiled cost functions (solver/engine/native), rebuilt when their source or pyceres changes
+native: $(STAMP) ceres-headers
+	$(BIN)/python scripts/build_native.py $(NATIVE_FLAGS)
 
 # PostgreSQL and Redis on 127.0.0.1 for the scale-out tests: start them if they are not running.
 services:
@@ -31,14 +43,16 @@ services:
 
 # pba warmup: the numba kernels compiled into their disk cache before the server starts
 # (one to two minutes the first time, a few seconds after), so no job waits for the compiler
-serve: $(STAMP)
+serve: $(STAMP) native
 	$(BIN)/pba warmup
 	$(BIN)/pba serve --host 127.0.0.1 --port 8000
 
-test: $(STAMP) system-deps services
+# the tests run both evaluation paths; here the compiled one must exist (PBA_REQUIRE_NATIVE)
+test: NATIVE_FLAGS = --require
+test: $(STAMP) system-deps services native
 	$(BIN)/ruff check solver service tests bench scripts
 	$(BIN)/lint-imports
-	$(BIN)/python -m pytest -q
+	PBA_REQUIRE_NATIVE=1 $(BIN)/python -m pytest -q
 
 # ruff and the import contracts alone (seconds; also the first step of make test)
 lint: $(STAMP)
@@ -56,4 +70,4 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_solver.py
 
 clean:
-	rm -rf $(VENV) build site *.egg-info .pytest_cache
+	rm -rf $(VENV) build site *.egg-info .pytest_cache solver/engine/native/*.so solver/engine/native/*.stamp

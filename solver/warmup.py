@@ -74,8 +74,13 @@ def warmup_jobs() -> Iterator[tuple[str, dict[str, Any]]]:
 def compile_kernels(say: Say | None = None) -> float:
     """Run the warm-up adjustments (compiling or loading every kernel); their total seconds."""
     from solver.api import run
+    from solver.engine import native
 
     t0 = time.perf_counter()
+    state = native.status()
+    if say is not None:
+        prefix = "" if state.path == "compiled" else "WARNING: "
+        say(f"{prefix}residual evaluation: {state.path} ({state.reason})")
     for label, job in warmup_jobs():
         t = time.perf_counter()
         report = run(job)

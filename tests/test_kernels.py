@@ -185,13 +185,17 @@ def test_point_block_matches_single_projections_and_layout():
     Jacobian of image i only on rows 2i, 2i+1 (Ceres' dense row-major layout)."""
     from solver.engine.backend import PointCost, SolveControl
     from solver.engine.packed_tables import camera_table, image_table
+    from solver.engine.residual_blocks import point_blocks
 
     job, _ = block_job("K2", n_triplets=1, n_tie=5, n_gcp=6, n_check=2, seed=3)
     problem = prepare(load_job(job))
     control = SolveControl(None, None, 10)
     p = next(q for q in problem.points if q.role == "tie")
-    rows = np.flatnonzero(problem.obs.pt == p.index)
-    cf = PointCost(problem, p.index, rows, control, (image_table(problem), camera_table(problem)))
+    blocks = point_blocks(problem)
+    b = int(np.flatnonzero(blocks.owner == p.index)[0])
+    rows = blocks.rows[blocks.start[b] : blocks.start[b + 1]]
+    sizes = [len(a) for a in blocks.params[b]]
+    cf = PointCost(blocks.records_of(b), sizes, control, (image_table(problem), camera_table(problem)))
     k = len(rows)
     imgs = [problem.images[problem.obs.img[r]] for r in rows]
     params = [p.xyz] + [im.params for im in imgs]

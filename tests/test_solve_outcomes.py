@@ -34,13 +34,17 @@ def triplet(**options: Any) -> dict[str, Any]:
 
 
 def fail_every_evaluation(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Every observation block reports an evaluation failure: Ceres ends with FAILURE."""
+    """Every observation block reports an evaluation failure: Ceres ends with FAILURE (on the
+    Python evaluation path, whose cost functions can be patched)."""
+    monkeypatch.setenv("PBA_EVALUATION", "python")
     for cls in OBSERVATION_COSTS:
         monkeypatch.setattr(cls, "Evaluate", lambda self, parameters, residuals, jacobians: False)
 
 
 def fail_every_trial_point(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Observation blocks evaluate at the start only; every step Ceres tries is rejected."""
+    """Observation blocks evaluate at the start only; every step Ceres tries is rejected (Python
+    evaluation path)."""
+    monkeypatch.setenv("PBA_EVALUATION", "python")
     for cls in OBSERVATION_COSTS:
         original = cls.Evaluate
 

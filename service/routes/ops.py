@@ -15,14 +15,21 @@ from service.auth import user_for_key
 from service.deps import ServicesDep
 from service.errors import Forbidden, Unauthorized, problem_responses
 from service.schemas import Health
+from solver.engine import native
 
 router = APIRouter(tags=["operations"])
 
 
 @router.get("/healthz", response_model=Health)
 def healthz() -> Health:
-    """Liveness: the server process answers."""
-    return Health(status="ok")
+    """Liveness: the server process answers; ``checks.evaluation`` says whether solves use the
+    compiled cost functions or, slower, the Python ones (and why)."""
+    return Health(status="ok", checks={"evaluation": evaluation_check()})
+
+
+def evaluation_check() -> str:
+    built, why = native.built()
+    return "compiled" if built else f"python (slower): {why}"
 
 
 @router.get("/readyz", response_model=Health, responses={503: {"model": Health}})
@@ -38,6 +45,7 @@ async def readyz(services: ServicesDep) -> JSONResponse:
         checks["store"] = f"unavailable: {type(exc).__name__}"
     ready, why = services.backend.ready()
     checks["queue"] = why
+    checks["evaluation"] = evaluation_check()
     ok = ok and ready
     body = Health(status="ok" if ok else "unavailable", checks=checks)
     return JSONResponse(body.model_dump(), status_code=200 if ok else 503)

@@ -106,21 +106,76 @@ def ground_points_ecef(job: Job) -> dict[str, np.ndarray]:
     return out
 
 
-def _chip_indices(job: Job, images: list, img_index: dict[str, int]) -> np.ndarray:
+def _chip_indices(job: Job, images: list, obs_img: np.ndarray) -> np.ndarray:
     """Chip index (in its camera's chips) of every observation, computed per camera in one
     vectorised pass (validation guarantees every column is on a chip; RPC images: 0)."""
+    observations = job.observations
+    out = np.zeros(len(observations), dtype=np.int64)
+    if not len(observations):
+        return out
+    columns = np.fromiter((o.column for o in observations), dtype=float, count=len(observations))
     by_camera: dict[int, list[int]] = {}
     cams: dict[int, Any] = {}
-    for k, o in enumerate(job.observations):
-        cam = images[img_index[o.image]].camera
-        if cam is not None:
-            by_camera.setdefault(id(cam), []).append(k)
-            cams[id(cam)] = cam
-    out = np.zeros(len(job.observations), dtype=np.int64)
-    for key, ks in by_camera.items():
-        obs = [job.observations[k] for k in ks]
-        out[ks] = chip_indices(cams[key], np.array([o.column for o in obs], dtype=float), [o.chip for o in obs])
+    for im in images:
+        if im.camera is not None:
+            by_camera.setdefault(id(im.camera), []).append(im.index)
+            cams[id(im.camera)] = im.camera
+    for key, image_indices in by_camera.items():
+        ks = np.flatnonzero(np.isin(obs_img, image_indices))
+        out[ks] = chip_indices(cams[key], columns[ks], [observations[k].chip for k in ks.tolist()])
     return out
+
+
+def _image_chip_table(images: list) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Per image: the first row of its chips in one table; per chip row: dx - x0, dy - y0 (mm),
+    centre column, and its id (RPC images: one row of zeros, chip :data:`RPC_CHIP`)."""
+    first = np.zeros(len(images), dtype=np.int64)
+    rows: list[tuple[float, float, float]] = []
+    ids: list[str] = []
+    for im in images:
+        first[im.index] = len(rows)
+        cam = im.camera
+        if cam is None:
+            rows.append((0.0, 0.0, 0.0))
+            ids.append(RPC_CHIP)
+            continue
+        x0, y0 = cam.principal_point_mm
+        for k in range(max(len(cam.chips), 1)):
+            chip_id, dx, dy, centre = chip_of_index(cam, k)
+            rows.append((dx - x0, dy - y0, centre))
+            ids.append(chip_id)
+    return first, np.array(rows, dtype=float).reshape(-1, 3), ids
+
+
+def _observation_constants(observations: list, images: list, obs_img: np.ndarray, chip_of_obs: np.ndarray) -> np.ndarray:
+    """The observation constants ``oc`` (:mod:`solver.kernels`) of every observation, in array
+    passes: measured line, column, sigma (px), then the camera's focal length and pixel size
+    (mm), the chip's offset from the principal point (mm), its centre column and the model's
+    tau per line (RPC images: zeros after the sigma)."""
+    n = len(observations)
+    oc = np.zeros((n, N_OBS_CONST))
+    if n == 0:
+        return oc
+    oc[:, 0] = np.fromiter((o.line for o in observations), dtype=float, count=n)
+    oc[:, 1] = np.fromiter((o.column for o in observations), dtype=float, count=n)
+    oc[:, 2] = np.fromiter((o.sigma_px for o in observations), dtype=float, count=n)
+    per_image = np.array(
+        [(im.camera.focal_mm, im.camera.pixel_mm, im.tau_per_line) if im.camera is not None else (0.0, 0.0, 0.0) for im in images],
+        dtype=float,
+    ).reshape(-1, 3)
+    first, chip_rows, _ids = _image_chip_table(images)
+    chip_row = first[obs_img] + chip_of_obs
+    oc[:, 3] = per_image[obs_img, 0]
+    oc[:, 4] = per_image[obs_img, 1]
+    oc[:, 5:8] = chip_rows[chip_row]
+    oc[:, 8] = per_image[obs_img, 2]
+    return oc
+
+
+def _chip_ids(images: list, obs_img: np.ndarray, chip_of_obs: np.ndarray) -> list[str]:
+    """The chip id of every observation (RPC images: :data:`RPC_CHIP`)."""
+    first, _rows, ids = _image_chip_table(images)
+    return [ids[r] for r in (first[obs_img] + chip_of_obs).tolist()]
 
 
 def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentState:
@@ -175,41 +230,18 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
 
     img_index = {im.id: im.index for im in images}
     pt_index = {p.id: p.index for p in points}
-    n = len(job.observations)
-    obs_img = np.empty(n, dtype=np.int64)
-    obs_pt = np.empty(n, dtype=np.int64)
-    oc = np.empty((n, N_OBS_CONST))
-    chips: list[str] = []
-    chip_of_obs = _chip_indices(job, images, img_index)
-    for k, o in enumerate(job.observations):
-        im = images[img_index[o.image]]
-        cam = im.camera
-        if cam is None:  # RPC image: line, column, sigma only (solver.kernels.rpc)
-            obs_img[k] = im.index
-            obs_pt[k] = pt_index[o.point]
-            oc[k] = (o.line, o.column, o.sigma_px, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-            chips.append(RPC_CHIP)
-            continue
-        chip_id, dx, dy, centre = chip_of_index(cam, int(chip_of_obs[k]))
-        x0, y0 = cam.principal_point_mm
-        obs_img[k] = im.index
-        obs_pt[k] = pt_index[o.point]
-        oc[k] = (
-            o.line,
-            o.column,
-            o.sigma_px,
-            cam.focal_mm,
-            cam.pixel_mm,
-            dx - x0,
-            dy - y0,
-            centre,
-            im.tau_per_line,
-        )
-        chips.append(chip_id)
+    observations = job.observations
+    n = len(observations)
+    obs_img = np.fromiter((img_index[o.image] for o in observations), dtype=np.int64, count=n)
+    obs_pt = np.fromiter((pt_index[o.point] for o in observations), dtype=np.int64, count=n)
+    chip_of_obs = _chip_indices(job, images, obs_img)
+    oc = _observation_constants(observations, images, obs_img, chip_of_obs)
+    chips = _chip_ids(images, obs_img, chip_of_obs)
     cams = build_cameras(job)
     cam_index = {c.id: c.index for c in cams}
     # RPC images have no camera: index -1 (the kernels never read a camera for them)
-    obs_cam = np.array([cam_index[images[i].camera.id] if images[i].camera else -1 for i in obs_img], dtype=np.int64)
+    cam_of_image = np.array([cam_index[im.camera.id] if im.camera else -1 for im in images], dtype=np.int64)
+    obs_cam = cam_of_image[obs_img] if n else np.zeros(0, dtype=np.int64)
     obs_chip = chip_of_obs  # the index in chip_ids(camera) (chip ids are unique; RPC images: 0)
     obs = Observations(obs_img, obs_pt, oc, chips, np.arange(n), obs_cam, obs_chip)
     lines = build_lines(job, frame, images, line_ecef) if job.lines else None

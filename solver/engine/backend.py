@@ -18,14 +18,18 @@ callback stops the solve cleanly between iterations; progress is reported from t
 from __future__ import annotations
 
 import math
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import pyceres
 
-from solver.engine.packed_tables import camera_table, image_table, records
+from solver.engine import native
+from solver.engine.packed_tables import camera_table, image_table
+from solver.engine.residual_blocks import ResidualBlocks, fixed_blocks, fixed_points, point_blocks
 from solver.engine.terms import block_owner, family_terms
 from solver.kernels import fixed_obs_block, point_obs_block
 from solver.observations.passes import refresh_segments
@@ -89,59 +93,21 @@ class SolveControl:
             self.progress(self._last_fraction, f"iteration {it}, cost {cost:.6g}", {"iteration": it, "cost": cost})
 
 
-def _slots(problem: AdjustmentState, rows: np.ndarray):
-    """Parameter blocks of a residual block over ``rows``: the images (in row order), the
-    distinct cameras with free interior orientation and the distinct passes of pass-propagated
-    images; returns (blocks, image slots, camera slots, pass slots)."""
-    obs = problem.obs
-    blocks = []
-    img_slot = np.empty(len(rows), dtype=np.int64)
-    seen_img: dict[int, int] = {}  # by block identity: images of one camera may share a block
-    for q, r in enumerate(rows):
-        params = problem.images[int(obs.img[r])].params
-        if id(params) not in seen_img:
-            seen_img[id(params)] = len(blocks)
-            blocks.append(params)
-        img_slot[q] = seen_img[id(params)]
-    cam_slot = -np.ones(len(rows), dtype=np.int64)
-    seen_cam: dict[int, int] = {}
-    for q, r in enumerate(rows):
-        cm = int(obs.cam[r])
-        if cm < 0 or problem.cameras[cm].nfree == 0:  # -1: an RPC image (no camera)
-            continue
-        cam = problem.cameras[cm]
-        if cm not in seen_cam:
-            seen_cam[cm] = len(blocks)
-            blocks.append(cam.params)
-        cam_slot[q] = seen_cam[cm]
-    pass_slot = -np.ones(len(rows), dtype=np.int64)
-    seen_pass: dict[int, int] = {}
-    for q, r in enumerate(rows):
-        pi = problem.images[int(obs.img[r])].pass_index
-        if pi < 0:
-            continue
-        if pi not in seen_pass:
-            seen_pass[pi] = len(blocks)
-            blocks.append(problem.passes[pi].params)
-        pass_slot[q] = seen_pass[pi]
-    return blocks, img_slot, cam_slot, pass_slot
-
-
 class ImageBatchCost(pyceres.CostFunction):
-    """Observations of fixed ground points in one image: residuals (2m) wrt the image block
-    (and its camera's interior orientation when that is estimated)."""
+    """Python path: the observations of fixed ground points in one image (a fixed block of
+    :mod:`solver.engine.residual_blocks`): residuals (2m) wrt the image block (and its camera's
+    interior orientation and its pass when those are estimated)."""
 
-    def __init__(self, problem: AdjustmentState, image_index: int, obs_rows: np.ndarray, control: SolveControl, tables):
+    def __init__(self, rec: np.ndarray, pts: np.ndarray, sizes: list[int], control: SolveControl, tables):
         pyceres.CostFunction.__init__(self)
         self.img_tab, self.cam_tab = tables
-        self.blocks, img_slot, cam_slot, pass_slot = _slots(problem, obs_rows)
-        self.rec = records(problem, obs_rows, img_slot, cam_slot, pass_slot)
-        self.pts = np.ascontiguousarray(np.array([problem.points[problem.obs.pt[k]].xyz for k in obs_rows], dtype=float).reshape(-1, 3))
-        m = len(obs_rows)
-        self.scratch = tuple(np.zeros(2 * m * len(b)) for b in self.blocks)
+        self.rec = rec
+        self.pts = pts
+        m = len(rec)
+        self.scratch = tuple(np.zeros(2 * m * n) for n in sizes)
         self.control = control
         self.set_num_residuals(2 * m)
-        self.set_parameter_block_sizes([len(b) for b in self.blocks])
+        self.set_parameter_block_sizes(list(sizes))
 
     def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API)
         if self.control.poll():
@@ -153,23 +119,23 @@ class ImageBatchCost(pyceres.CostFunction):
 
 
 class PointCost(pyceres.CostFunction):
-    """All observations of one estimated ground point: blocks [point(3), images..., cameras...].
+    """Python path: all observations of one estimated ground point (a point block of
+    :mod:`solver.engine.residual_blocks`): parameter blocks [point(3), images..., cameras..., passes...].
 
     The constants live in shared tables and short per-observation records; the kernel writes
     straight into Ceres' output arrays, so a call costs the trampoline plus one numba dispatch.
     """
 
-    def __init__(self, problem: AdjustmentState, point_index: int, obs_rows: np.ndarray, control: SolveControl, tables):
+    def __init__(self, rec: np.ndarray, sizes: list[int], control: SolveControl, tables):
         pyceres.CostFunction.__init__(self)
         self.img_tab, self.cam_tab = tables
-        self.blocks, img_slot, cam_slot, pass_slot = _slots(problem, obs_rows)
-        self.rec = records(problem, obs_rows, img_slot, cam_slot, pass_slot)
-        k = len(obs_rows)
-        self.scratch = tuple(np.zeros(2 * k * len(b)) for b in self.blocks)
+        self.rec = rec
+        k = len(rec)
+        self.scratch = tuple(np.zeros(2 * k * n) for n in sizes)
         self.scratch_p = np.zeros(2 * k * 3)
         self.control = control
         self.set_num_residuals(2 * k)
-        self.set_parameter_block_sizes([3] + [len(b) for b in self.blocks])
+        self.set_parameter_block_sizes([3] + list(sizes))
 
     def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API)
         if self.control.poll():
@@ -256,11 +222,22 @@ def _loss(options: SolveSettings) -> Any:
 @dataclass
 class CeresProblem:
     """A Ceres problem built from an :class:`AdjustmentState` and the cost functions it
-    references (they must outlive the solve); ``has_points``: estimated ground points (Schur)."""
+    references (they must outlive the solve); ``has_points``: estimated ground points (Schur);
+    ``evaluator``: the compiled path's shared state (None on the Python path); ``python_blocks``:
+    residual blocks evaluated in Python (with any, the solve uses one thread)."""
 
     problem: Any
     keep: list[Any]
     has_points: bool
+    evaluator: Any = None
+    python_blocks: int = 0
+    blocks: list[tuple[Any, list[np.ndarray]]] = field(default_factory=list)
+
+    def add(self, cost: Any, loss: Any, params: list[np.ndarray]) -> None:
+        """Add a residual block (kept alive with the problem, listed in ``blocks``)."""
+        self.keep.append(cost)
+        self.blocks.append((cost, params))
+        self.problem.add_residual_block(cost, loss, params)
 
 
 def _add_parameter_blocks(cp: Any, problem: AdjustmentState) -> None:
@@ -278,64 +255,132 @@ def _add_parameter_blocks(cp: Any, problem: AdjustmentState) -> None:
         cp.add_parameter_block(ps.params, ps.nfree)
 
 
-def _add_fixed_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, control: SolveControl, tables) -> None:
+class _Compiled:
+    """The compiled path's pieces for one problem: the extension, the shared evaluator, the
+    context words and the callbacks' addresses (:mod:`solver.kernels.callbacks`)."""
+
+    def __init__(self, native: Any, tables: tuple[np.ndarray, np.ndarray], out: CeresProblem):
+        from solver.kernels import callbacks  # compiles or loads the C callbacks: compiled path only
+
+        self.native = native
+        self.cb = callbacks
+        img_tab, cam_tab = tables
+        self.evaluator = native.Evaluator(img_tab)
+        ctx = np.zeros(callbacks.N_CONTEXT, dtype=np.int64)
+        ctx[callbacks.C_IMG_ROWS], ctx[callbacks.C_IMG_COLS] = img_tab.shape
+        ctx[callbacks.C_CAM_TAB] = cam_tab.ctypes.data
+        ctx[callbacks.C_CAM_ROWS], ctx[callbacks.C_CAM_COLS] = cam_tab.shape
+        self.context = ctx
+        out.keep += [ctx, cam_tab, img_tab]
+        out.evaluator = self.evaluator
+
+    def descriptors(self, blocks: ResidualBlocks, point: bool, data: np.ndarray | None = None) -> np.ndarray:
+        """One descriptor row per block (layout ``B_*`` of :mod:`solver.kernels.callbacks`)."""
+        cb = self.cb
+        lead = 1 if point else 0
+        nb = len(blocks)
+        desc = np.zeros((nb, cb.B_HEADER + lead + blocks.sizes.shape[1]), dtype=np.int64)
+        desc[:, cb.B_CONTEXT] = self.context.ctypes.data
+        row_bytes = blocks.rec.shape[1] * blocks.rec.itemsize
+        desc[:, cb.B_REC] = blocks.rec.ctypes.data + blocks.start[:-1] * row_bytes
+        desc[:, cb.B_NREC] = np.diff(blocks.start)
+        desc[:, cb.B_NSLOTS] = blocks.n_params
+        desc[:, cb.B_MAXSIZE] = blocks.sizes.max(axis=1) if blocks.sizes.shape[1] else 0
+        if data is not None:
+            desc[:, cb.B_DATA] = data.ctypes.data + blocks.start[:-1] * data.shape[1] * data.itemsize
+        if point:
+            desc[:, cb.B_SIZES] = 3
+        desc[:, cb.B_SIZES + lead :] = blocks.sizes
+        return desc
+
+    def cost(self, callback: Any, address: int, n_residuals: int, sizes: list[int]) -> Any:
+        """A cost function over the descriptor at ``address`` (a row of a table the problem keeps)."""
+        return self.native.CallbackCost(self.evaluator, callback.address, address, n_residuals, sizes)
+
+    @staticmethod
+    def row_addresses(desc: np.ndarray) -> list[int]:
+        return (desc.ctypes.data + np.arange(len(desc)) * desc.strides[0]).tolist()
+
+
+def _add_fixed_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, control: SolveControl, tables, compiled: _Compiled | None) -> None:
     """Observations of fixed ground points: one vectorised block per image."""
-    mask = problem.adjusted_mask
-    obs = problem.obs
-    fixed_obs = np.array(
-        [k for k in range(len(obs.img)) if mask[k] and not problem.points[obs.pt[k]].estimated], dtype=np.int64
-    )
-    for img in problem.images:
-        rows = fixed_obs[obs.img[fixed_obs] == img.index] if len(fixed_obs) else fixed_obs
-        if len(rows):
-            cf = ImageBatchCost(problem, img.index, rows, control, tables)
-            out.keep.append(cf)
-            out.problem.add_residual_block(cf, loss, cf.blocks)
+    blocks = fixed_blocks(problem)
+    if len(blocks) == 0:
+        return
+    pts = fixed_points(problem, blocks)
+    out.keep += [blocks.rec, pts]
+    start = blocks.start.tolist()
+    if compiled is not None:
+        desc = compiled.descriptors(blocks, False, pts)
+        out.keep.append(desc)
+        addresses = compiled.row_addresses(desc)
+    for b, params in enumerate(blocks.params):
+        s, e = start[b], start[b + 1]
+        sizes = [len(a) for a in params]
+        if compiled is not None:
+            cf = compiled.cost(compiled.cb.fixed_block_callback, addresses[b], 2 * (e - s), sizes)
+        else:
+            cf = ImageBatchCost(blocks.rec[s:e], pts[s:e], sizes, control, tables)
+            out.python_blocks += 1
+        out.add(cf, loss, params)
 
 
-def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, control: SolveControl, tables) -> None:
+def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, control: SolveControl, tables, compiled: _Compiled | None) -> None:
     """Each estimated point: one block with all its observations, and the survey prior of a
     weighted control point (Ceres' NormalPrior)."""
-    mask = problem.adjusted_mask
-    obs = problem.obs
-    order = np.argsort(obs.pt, kind="stable")
-    pts_sorted = obs.pt[order]
-    bounds = np.searchsorted(pts_sorted, np.arange(len(problem.points) + 1))
-    for p in problem.points:
-        if not p.estimated:
-            continue
-        rows = order[bounds[p.index] : bounds[p.index + 1]]
-        rows = rows[mask[rows]]
-        if len(rows) == 0:
-            continue
-        out.has_points = True
-        cf = PointCost(problem, p.index, rows, control, tables)
-        out.keep.append(cf)
-        out.problem.add_residual_block(cf, loss, [p.xyz] + cf.blocks)
+    blocks = point_blocks(problem)
+    if len(blocks) == 0:
+        return
+    out.has_points = True
+    out.keep.append(blocks.rec)
+    start = blocks.start.tolist()
+    if compiled is not None:
+        desc = compiled.descriptors(blocks, True)
+        out.keep.append(desc)
+        addresses = compiled.row_addresses(desc)
+    points = problem.points
+    for b, (owner, params) in enumerate(zip(blocks.owner.tolist(), blocks.params)):
+        p = points[owner]
+        s, e = start[b], start[b + 1]
+        sizes = [len(a) for a in params]
+        if compiled is not None:
+            cf = compiled.cost(compiled.cb.point_block_callback, addresses[b], 2 * (e - s), [3] + sizes)
+        else:
+            cf = PointCost(blocks.rec[s:e], sizes, control, tables)
+            out.python_blocks += 1
+        out.add(cf, loss, [p.xyz] + params)
         if p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
-            prior = pyceres.factors.NormalPrior(p.known_lgs.copy(), np.diag(p.sigma_m**2))
-            out.keep.append(prior)
-            out.problem.add_residual_block(prior, None, [p.xyz])
+            out.add(pyceres.factors.NormalPrior(p.known_lgs.copy(), np.diag(p.sigma_m**2)), None, [p.xyz])
 
 
-def _add_family_blocks(out: CeresProblem, problem: AdjustmentState, control: SolveControl) -> None:
-    """The observation families' terms (:mod:`solver.engine.terms`), each on its parameter block."""
+def _add_family_blocks(out: CeresProblem, problem: AdjustmentState, control: SolveControl, compiled: _Compiled | None) -> None:
+    """The observation families' terms (:mod:`solver.engine.terms`), each on its parameter block:
+    a linear term as a compiled ``LinearCost`` (compiled path), any other in Python."""
     for labelled in family_terms(problem):
         owner = block_owner(problem, labelled)
-        cf = ImageTermCost(labelled.term, owner.nfree, control)
-        out.keep.append(cf)
-        out.problem.add_residual_block(cf, None, [owner.params])
+        linear = getattr(labelled.term, "linear_form", None)  # optional in the Term interface
+        form = linear() if compiled is not None and linear is not None else None
+        if form is not None:
+            a, b = form
+            cf = compiled.native.LinearCost(compiled.evaluator, a, b)
+        else:
+            cf = ImageTermCost(labelled.term, owner.nfree, control)
+            out.python_blocks += 1
+        out.add(cf, None, [owner.params])
 
 
 def build_ceres_problem(problem: AdjustmentState, options: SolveSettings, control: SolveControl) -> CeresProblem:
-    """The Ceres problem of ``problem``: parameter blocks, then residual blocks (module doc)."""
+    """The Ceres problem of ``problem``: parameter blocks, then residual blocks (module doc),
+    compiled where the extension is available (:mod:`solver.engine.native`)."""
     out = CeresProblem(pyceres.Problem(), [], False)
     tables = (image_table(problem), camera_table(problem))
+    native_module = native.module()
+    compiled = _Compiled(native_module, tables, out) if native_module is not None else None
     _add_parameter_blocks(out.problem, problem)
     loss = _loss(options)
-    _add_fixed_point_blocks(out, problem, loss, control, tables)
-    _add_point_blocks(out, problem, loss, control, tables)
-    _add_family_blocks(out, problem, control)
+    _add_fixed_point_blocks(out, problem, loss, control, tables, compiled)
+    _add_point_blocks(out, problem, loss, control, tables, compiled)
+    _add_family_blocks(out, problem, control, compiled)
     return out
 
 
@@ -352,7 +397,9 @@ def ceres_options(options: SolveSettings, built: CeresProblem, control: SolveCon
     # iterations along those directions (41 -> 6 iterations on a triplet). Rejected steps still
     # shrink the region when the start is poor.
     so.initial_trust_region_radius = 1e12
-    so.num_threads = 1
+    # Python cost functions take the GIL (more threads only contend) and an exception inside
+    # one with several threads ends the process: one thread unless every block is compiled.
+    so.num_threads = native.solver_threads() if built.evaluator is not None and built.python_blocks == 0 else 1
     so.logging_type = pyceres.LoggingType.SILENT
     so.minimizer_progress_to_stdout = False
     if built.has_points:
@@ -398,6 +445,36 @@ def summarise(summary: Any, control: SolveControl, time_s: float) -> SolveOutcom
     )
 
 
+@contextmanager
+def _cancel_watch(control: SolveControl, evaluator: Any) -> Iterator[None]:
+    """On the compiled path no Python runs inside an evaluation: a thread polls the cancel hook
+    while Ceres works (pyceres releases the GIL) and raises the evaluator's flag, after which
+    every compiled cost function fails its evaluation and the iteration callback stops the solve."""
+    if evaluator is None or control.cancel is None:
+        yield
+        return
+    done = threading.Event()
+
+    def watch() -> None:
+        while not done.wait(control.poll_interval_s):
+            if control.poll():
+                evaluator.cancel()
+                return
+
+    thread = threading.Thread(target=watch, name="pba-cancel-watch", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
+
+
+def evaluation_path() -> str:
+    """"compiled" or "python": how this process evaluates residual blocks (:mod:`solver.engine.native`)."""
+    return native.status().path
+
+
 def solve(problem: AdjustmentState, options: SolveSettings, control: SolveControl) -> SolveOutcome:
     """Build the Ceres problem from ``problem``, set the options, solve (parameters updated in
     place), summarise."""
@@ -405,6 +482,7 @@ def solve(problem: AdjustmentState, options: SolveSettings, control: SolveContro
     built = build_ceres_problem(problem, options, control)
     so = ceres_options(options, built, control)
     summary = pyceres.SolverSummary()
-    pyceres.solve(so, built.problem, summary)
+    with _cancel_watch(control, built.evaluator):
+        pyceres.solve(so, built.problem, summary)
     refresh_segments(problem)  # the images' trajectory segments for the final pass states
     return summarise(summary, control, time.perf_counter() - t0)

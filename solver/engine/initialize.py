@@ -217,7 +217,7 @@ def intersect_estimated_points(problem: AdjustmentState) -> None:
         kcs[im.index, : len(im.kc)] = im.kc
     order = np.argsort(obs.pt, kind="stable")
     bounds = np.searchsorted(obs.pt[order], np.arange(len(problem.points) + 1))
-    xyz = intersect_all(kinds, coefs, kcs, obs.img, obs.oc, order, bounds, which)
+    # NaN (fewer than two rays) is reported by validation; keep a finite start
+    xyz = np.nan_to_num(intersect_all(kinds, coefs, kcs, obs.img, obs.oc, order, bounds, which))
     for q, i in enumerate(which):
-        # NaN (fewer than two rays) is reported by validation; keep a finite start
-        problem.points[i].xyz = np.ascontiguousarray(np.nan_to_num(xyz[q]))
+        problem.points[i].xyz = xyz[q].copy()  # its own contiguous array: a Ceres parameter block

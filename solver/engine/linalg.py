@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 from numba import njit
-from scipy.linalg import solve_triangular
+from scipy.linalg import lapack, solve_triangular
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.engine.packed_tables import current_tables, records
@@ -322,13 +322,39 @@ class RankReport:
     null_parameters: list[tuple[str, float]]  # (image/param, weight in the null direction)
 
 
-def check_rank(parts: SchurParts, names: list[str], tol: float = 1e-15) -> RankReport:
-    """Eigen-analysis of the Jacobi-scaled reduced normal matrix S."""
+FAST_RANK_MARGIN = 1e-2  # the fast test accepts a condition estimate below this fraction of 1/tol
+
+
+def _fast_condition(sn: np.ndarray) -> float | None:
+    """LAPACK's estimate of the 1-norm condition of a symmetric matrix from its Cholesky factor
+    (dpotrf + dpocon: O(n^3/3) and O(n^2), against O(9 n^3) for eigenvectors); None when the
+    factorisation fails (not positive definite)."""
+    factor, info = lapack.dpotrf(sn, lower=1, clean=0)
+    if info != 0:
+        return None
+    rcond, info = lapack.dpocon(factor, float(np.abs(sn).sum(axis=0).max()), uplo="L")
+    return float("inf") if info != 0 or rcond <= 0.0 else 1.0 / float(rcond)
+
+
+def check_rank(parts: SchurParts, names: list[str], tol: float = 1e-15, fast: bool = False) -> RankReport:
+    """Eigen-analysis of the Jacobi-scaled reduced normal matrix S.
+
+    ``fast``: first a Cholesky factorisation with LAPACK's condition estimate; when it succeeds
+    with an estimated condition below ``FAST_RANK_MARGIN / tol`` the matrix is of full rank and
+    that estimate is returned. (The 1-norm condition bounds the 2-norm one from above; LAPACK's
+    estimate of it is a lower bound, in practice within a factor of a few, which the margin of
+    100 covers.) Otherwise, and always without ``fast``, the eigen-analysis decides and names the
+    parameters of the null directions; a block of 300 images takes seconds instead of minutes
+    in the usual case."""
     s = parts.s
     if s.size == 0:
         return RankReport(False, 1.0, [])
     d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
     sn = s / np.outer(d, d)
+    if fast and not (np.diag(s) <= 1e-300).any():
+        estimate = _fast_condition(sn)
+        if estimate is not None and estimate < FAST_RANK_MARGIN / tol:
+            return RankReport(False, estimate, [])
     w, v = np.linalg.eigh(sn)
     wmax = max(w[-1], 1e-300)
     cond = float(wmax / max(w[0], 1e-300)) if w[0] > 0 else float("inf")

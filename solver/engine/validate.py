@@ -354,72 +354,97 @@ def _columns_on_chips(job: Job, images: dict, cameras: dict) -> np.ndarray:
     return on_chip
 
 
-def _observation_problems(job: Job, cameras: dict[str, Camera]) -> tuple[list[Problem], dict[str, set[str]], Counter[str]]:
-    """References, duplicates and image bounds of the image points: (problems, the images
-    that see each point, the adjusted observations per image)."""
-    problems: list[Problem] = []
-    images = {im.id: im for im in job.images}
-    points = {p.id: p for p in job.points}
-    seen_pairs: set[tuple[str, str]] = set()
-    images_of_point: dict[str, set[str]] = defaultdict(set)
-    obs_per_image: Counter[str] = Counter()
-    on_chip = _columns_on_chips(job, images, cameras)
-    for k, o in enumerate(job.observations):
-        loc = ("observations", k)
-        bad = False
-        if o.image not in images:
-            problems.append(Problem("unknown_image", f"observation {k} refers to unknown image {o.image!r}", loc + ("image",)))
-            bad = True
-        if o.point not in points:
-            problems.append(Problem("unknown_point", f"observation {k} refers to unknown point {o.point!r}", loc + ("point",)))
-            bad = True
-        if bad:
-            continue
-        if (o.image, o.point) in seen_pairs:
-            problems.append(
-                Problem("duplicate_observation", f"point {o.point!r} is measured twice in image {o.image!r}", loc)
+def _observation_problems(job: Job, cameras: dict[str, Camera]) -> tuple[list[Problem], dict[str, int], Counter[str]]:
+    """References, duplicates and image bounds of the image points: (problems, the number of
+    images that see each point, the adjusted observations per image).
+
+    Array passes over all observations; only the observations with a problem get a message
+    (the problems come out in the order of the observations, as a sequential check gives them:
+    a measurement repeated in one image is reported from its second occurrence on, even when the
+    first one is outside the image)."""
+    observations = job.observations
+    n = len(observations)
+    image_pos = {im.id: i for i, im in enumerate(job.images)}
+    point_pos = {p.id: j for j, p in enumerate(job.points)}
+    ii = np.fromiter((image_pos.get(o.image, -1) for o in observations), dtype=np.int64, count=n)
+    pp = np.fromiter((point_pos.get(o.point, -1) for o in observations), dtype=np.int64, count=n)
+    found: list[tuple[int, int, Problem]] = []  # (observation, order within it, problem)
+    for k in np.flatnonzero(ii < 0).tolist():
+        o = observations[k]
+        found.append((k, 0, Problem("unknown_image", f"observation {k} refers to unknown image {o.image!r}", ("observations", k, "image"))))
+    for k in np.flatnonzero(pp < 0).tolist():
+        o = observations[k]
+        found.append((k, 1, Problem("unknown_point", f"observation {k} refers to unknown point {o.point!r}", ("observations", k, "point"))))
+    valid = (ii >= 0) & (pp >= 0)
+    pair = ii * max(len(job.points), 1) + pp
+    first = np.full(n, -1, dtype=np.int64)
+    vk = np.flatnonzero(valid)
+    if len(vk):
+        _, first_at, inverse = np.unique(pair[vk], return_index=True, return_inverse=True)
+        first[vk] = vk[first_at][inverse.ravel()]
+    duplicate = valid & (first != np.arange(n))
+    for k in np.flatnonzero(duplicate).tolist():
+        o = observations[k]
+        found.append((k, 0, Problem("duplicate_observation", f"point {o.point!r} is measured twice in image {o.image!r}", ("observations", k))))
+    # bounds: images whose camera says how many lines it has
+    cam_of_image = [cameras.get(im.camera) for im in job.images]
+    lines_of_image = np.array([c.lines if c is not None and c.lines is not None else np.nan for c in cam_of_image] + [np.nan], dtype=float)
+    bounded = valid & ~duplicate & np.isfinite(lines_of_image[ii])
+    line = np.fromiter((o.line for o in observations), dtype=float, count=n)
+    outside = bounded & ~((line >= -0.5) & (line <= lines_of_image[ii] - 0.5))
+    for k in np.flatnonzero(outside).tolist():
+        o = observations[k]
+        cam = cam_of_image[ii[k]]
+        found.append(
+            (
+                k,
+                0,
+                Problem(
+                    "outside_image",
+                    f"observation {k} ({o.point!r} in {o.image!r}): line {o.line} is outside 0..{cam.lines - 1}",
+                    ("observations", k, "line"),
+                ),
             )
-            continue
-        seen_pairs.add((o.image, o.point))
-        cam = cameras.get(images[o.image].camera)
-        if cam is not None and cam.lines is not None:
-            if not (-0.5 <= o.line <= cam.lines - 0.5):
-                problems.append(
-                    Problem(
-                        "outside_image",
-                        f"observation {k} ({o.point!r} in {o.image!r}): line {o.line} is outside "
-                        f"0..{cam.lines - 1}",
-                        loc + ("line",),
-                    )
-                )
-                continue
-            column_issues = [] if on_chip[k] else _column_problems(cam, o, k)
-            if column_issues:
-                problems += column_issues
-                continue
-        images_of_point[o.point].add(o.image)
-        if points[o.point].role != "check":
-            obs_per_image[o.image] += 1
-    return problems, images_of_point, obs_per_image
+        )
+    column_bad = np.zeros(n, dtype=bool)
+    on_chip = _columns_on_chips(job, {im.id: im for im in job.images}, cameras)
+    for k in np.flatnonzero(bounded & ~outside & ~on_chip).tolist():
+        issues = _column_problems(cam_of_image[ii[k]], observations[k], k)
+        if issues:
+            column_bad[k] = True
+            found += [(k, 0, issue) for issue in issues]
+    accepted = valid & ~duplicate & ~outside & ~column_bad
+    found.sort(key=lambda item: (item[0], item[1]))
+    problems = [issue for _, _, issue in found]
+    # distinct images per point; adjusted (not check) observations per image
+    acc = np.flatnonzero(accepted)
+    distinct = np.unique(pair[acc])
+    per_point = np.bincount(distinct % max(len(job.points), 1), minlength=len(job.points)) if len(distinct) else np.zeros(len(job.points), dtype=np.int64)
+    images_per_point = {job.points[j].id: int(c) for j, c in enumerate(per_point.tolist()) if c}
+    not_check = np.array([p.role != "check" for p in job.points] + [False], dtype=bool)
+    adjusted = acc[not_check[pp[acc]]]
+    per_image = np.bincount(ii[adjusted], minlength=len(job.images)) if len(adjusted) else np.zeros(len(job.images), dtype=np.int64)
+    obs_per_image: Counter[str] = Counter({job.images[i].id: int(c) for i, c in enumerate(per_image.tolist()) if c})
+    return problems, images_per_point, obs_per_image
 
 
-def _point_counts(job: Job, images_of_point: dict[str, set[str]]) -> tuple[list[Problem], int, int]:
+def _point_counts(job: Job, images_per_point: dict[str, int]) -> tuple[list[Problem], int, int]:
     """Tie points seen too rarely, and the observations and unknowns of the points:
     (problems, observations, unknowns)."""
     problems: list[Problem] = []
     n_obs = n_unknowns = 0
     weighted = job.options.control == "weighted"
     for j, p in enumerate(job.points):
-        seen = images_of_point.get(p.id, set())
+        seen = images_per_point.get(p.id, 0)
         if p.role != "check":
-            n_obs += 2 * sum(1 for _ in seen)
+            n_obs += 2 * seen
         if p.role == "tie":
             n_unknowns += 3
-            if len(seen) < 2:
+            if seen < 2:
                 problems.append(
                     Problem(
                         "tie_point_underdetermined",
-                        f"tie point {p.id!r} is seen in {len(seen)} image(s); it needs at least two",
+                        f"tie point {p.id!r} is seen in {seen} image(s); it needs at least two",
                         ("points", j),
                     )
                 )
@@ -443,7 +468,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     problems += coordinate_problems(job)
     if job.options.models:
         problems += comparison_problems(job.options.models, ("options", "models"))
-    obs_issues, images_of_point, obs_per_image = _observation_problems(job, cameras)
+    obs_issues, images_per_point, obs_per_image = _observation_problems(job, cameras)
     problems += obs_issues
     n_obs = 0
     datum: set[str] = set()  # how the families' observations define the datum (family.Count)
@@ -454,7 +479,7 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
         n_unknowns += count.n_unknowns
         obs_per_image.update(count.per_image)
         datum |= count.datum
-    point_issues, n_point_obs, n_point_unknowns = _point_counts(job, images_of_point)
+    point_issues, n_point_obs, n_point_unknowns = _point_counts(job, images_per_point)
     problems += point_issues
     n_obs += n_point_obs
     n_unknowns += n_point_unknowns

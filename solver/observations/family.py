@@ -37,6 +37,12 @@ class Term(Protocol):
         """(residuals (m,), jacobian (m, nfree)) at ``params``."""
         ...
 
+    def linear_form(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(A (m, nfree), b (m,)) when the residuals are the constant linear form ``A p - b``
+        (whitened), else None: a linear term is evaluated without Python on the compiled path.
+        Optional: a term without it is treated as nonlinear."""
+        ...
+
 
 ImageTerm = Term  # the name the first families used
 

@@ -85,6 +85,11 @@ class CameraPrior:
         jac[:, self.pos] = self.w
         return self.w @ (params[self.pos] - self.mean), jac
 
+    def linear_form(self) -> tuple[np.ndarray, np.ndarray]:
+        a = np.zeros((len(self.pos), self.nfree))
+        a[:, self.pos] = self.w
+        return a, self.w @ self.mean
+
 
 def camera_priors(cameras: list[CameraState]) -> list[CameraPrior]:
     out = []

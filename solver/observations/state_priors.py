@@ -43,6 +43,9 @@ class StatePrior:
     def evaluate(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.w * (self.a @ params - self.b), self.w[:, None] * self.a
 
+    def linear_form(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.w[:, None] * self.a, self.w * self.b
+
 
 def state_prior(problem: AdjustmentState, img: ImageState) -> StatePrior | None:
     """The weighted state observation of ``img``, or None if the job gives no sigma."""

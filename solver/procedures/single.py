@@ -57,7 +57,7 @@ def assert_full_rank(problem: AdjustmentState) -> None:
                 ("points", p.index),
             )
         )
-    rank = check_rank(parts, parameter_names(problem))
+    rank = check_rank(parts, parameter_names(problem), fast=True)
     if rank.deficient:
         names = ", ".join(n for n, _ in rank.null_parameters) or "(spread over many parameters)"
         issues.append(

@@ -21,6 +21,7 @@ re-adjustments from scratch.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -42,16 +43,18 @@ from solver.state import AdjustmentState
 SINGULAR = 1e-9  # I - U^T Q U below this (relative): without p the orientation is undetermined
 
 
-def _downdated(q_ff: np.ndarray, f_cols: np.ndarray, u: np.ndarray) -> np.ndarray | None:
-    """(S - U U^T)^-1 from Q = S^-1 by Woodbury (U has rows on ``f_cols``); None if singular."""
+def _downdated(q_sub: np.ndarray, u: np.ndarray) -> np.ndarray | None:
+    """The block of (S - U U^T)^-1 on the point's orientation columns, by Woodbury from the same
+    block of Q = S^-1 (``q_sub``; U has its rows on those columns); None if singular. Nothing
+    outside the block is needed: the point is intersected from its own images only."""
     if u.shape[1] == 0:
-        return q_ff
-    qu = q_ff[:, f_cols] @ u
-    core = np.eye(u.shape[1]) - u.T @ qu[f_cols]
+        return q_sub
+    qu = q_sub @ u
+    core = np.eye(u.shape[1]) - u.T @ qu
     w = np.linalg.eigvalsh(0.5 * (core + core.T))
     if w[0] <= SINGULAR * max(w[-1], 1.0):
         return None
-    return q_ff + qu @ np.linalg.solve(core, qu.T)
+    return q_sub + qu @ np.linalg.solve(core, qu.T)
 
 
 def withhold(problem: AdjustmentState, lay: Layout, q_ff: np.ndarray, point_index: int, tables=None) -> dict[str, Any] | None:
@@ -74,12 +77,13 @@ def withhold(problem: AdjustmentState, lay: Layout, q_ff: np.ndarray, point_inde
     w, v = np.linalg.eigh(0.5 * (k + k.T))
     keep = w > 1e-12
     u = f.T @ (v[:, keep] * np.sqrt(w[keep]))
-    q_minus = _downdated(q_ff, blocks.f_cols, u)
+    q_minus = _downdated(q_ff[np.ix_(blocks.f_cols, blocks.f_cols)], u)
     if q_minus is None:
         return None
-    df = q_minus[np.ix_(blocks.f_cols, blocks.f_cols)] @ (f.T @ r)
+    df = q_minus @ (f.T @ r)
     axes = (0, 1, 2) if len(rows) > 1 else (0, 1)
-    q = intersection_cofactor(blocks, q_minus, axes)
+    local = replace(blocks, f_cols=np.arange(len(blocks.f_cols)))  # q_minus is on the point's columns only
+    q = intersection_cofactor(local, q_minus, axes)
     if q is None:
         return None
     ax = list(axes)

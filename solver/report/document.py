@@ -268,33 +268,50 @@ def _correlations(problem: AdjustmentState, cov: Covariance | None, threshold: f
 
 
 def _observations_report(problem: AdjustmentState, lin, cov: Covariance | None) -> list[dict[str, Any]]:
+    """One entry per adjusted image observation: measured pixels, residuals (px) and, with a
+    covariance, the standardized residuals (None where the redundancy is ~0). Computed in array
+    passes; the per-observation loop only builds the dictionaries."""
     obs = problem.obs
-    sel = lin.obs_sel
-    res = lin.res_obs.ravel()
-    lev = cov.leverage if cov is not None else None
+    sel = np.asarray(lin.obs_sel, dtype=np.int64)
+    if len(sel) == 0:
+        return []
+    res = lin.res_obs.reshape(-1, 2)
+    sig = obs.oc[sel, 2]
     s0 = problem.job.options.sigma0_apriori
+    standardized: list[list[Any]] = [[None, None]] * len(sel)
+    if cov is not None and cov.leverage is not None:
+        r = 1.0 - np.asarray(cov.leverage, dtype=float).reshape(-1, 2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = res / (s0 * np.sqrt(np.where(r > 1e-9, r, 1.0)))
+        standardized = [[a if ra > 1e-9 else None, b if rb > 1e-9 else None] for (a, b), (ra, rb) in zip(z.tolist(), r.tolist())]
+    image_ids = [im.id for im in problem.images]
+    point_ids = [p.id for p in problem.points]
+    roles = [p.role for p in problem.points]
     out = []
-    for q, k in enumerate(sel):
-        sig = obs.oc[k, 2]
-        rl, rc = res[2 * q], res[2 * q + 1]
-        item = {
-            "image": problem.images[obs.img[k]].id,
-            "point": problem.points[obs.pt[k]].id,
-            "role": problem.points[obs.pt[k]].role,
-            "line": float(obs.oc[k, 0]),
-            "column": float(obs.oc[k, 1]),
-            "sigma_px": float(sig),
-            "residual_line_px": float(rl * sig),
-            "residual_column_px": float(rc * sig),
-            "standardized_line": None,
-            "standardized_column": None,
-        }
-        if lev is not None:
-            r1 = 1.0 - lev[2 * q]
-            r2 = 1.0 - lev[2 * q + 1]
-            item["standardized_line"] = float(rl / (s0 * math.sqrt(r1))) if r1 > 1e-9 else None
-            item["standardized_column"] = float(rc / (s0 * math.sqrt(r2))) if r2 > 1e-9 else None
-        out.append(item)
+    for img, pt, line, column, sigma, rl, rc, (zl, zc) in zip(
+        obs.img[sel].tolist(),
+        obs.pt[sel].tolist(),
+        obs.oc[sel, 0].tolist(),
+        obs.oc[sel, 1].tolist(),
+        sig.tolist(),
+        (res[:, 0] * sig).tolist(),
+        (res[:, 1] * sig).tolist(),
+        standardized,
+    ):
+        out.append(
+            {
+                "image": image_ids[img],
+                "point": point_ids[pt],
+                "role": roles[pt],
+                "line": line,
+                "column": column,
+                "sigma_px": sigma,
+                "residual_line_px": rl,
+                "residual_column_px": rc,
+                "standardized_line": zl,
+                "standardized_column": zc,
+            }
+        )
     return out
 
 
@@ -302,27 +319,41 @@ def _points_report(problem: AdjustmentState, cov: Covariance | None, var_factor:
     pts = [p for p in problem.points if p.estimated and p.role == role]
     if not pts:
         return []
-    ecef = problem.frame.to_ecef(np.array([p.xyz for p in pts]))
+    xyz = np.array([p.xyz for p in pts])
+    ecef = problem.frame.to_ecef(xyz)
     geo = ecef_to_geodetic(ecef)
+    with_cov = [q for q, p in enumerate(pts) if cov is not None and p.index in cov.points]
+    ellipses: list[Any] = [None] * len(pts)
+    sigmas: list[Any] = [None] * len(pts)
+    if with_cov:
+        c = np.array([cov.points[pts[q].index] for q in with_cov]).reshape(-1, 3, 3) * var_factor
+        for q, e in zip(with_cov, error_ellipses(c[:, :2, :2])):
+            ellipses[q] = e
+        for q, s in zip(with_cov, np.sqrt(np.maximum(np.diagonal(c, axis1=1, axis2=2), 0.0)).tolist()):
+            sigmas[q] = s
+    # bulk conversions to Python floats (one per array, not one per value)
+    lgs_l, ecef_l, geo_l = xyz.tolist(), ecef.tolist(), geo.tolist()
+    corrections: list[Any] = [None] * len(pts)
+    if role == "gcp":
+        known = [q for q, p in enumerate(pts) if p.known_lgs is not None]
+        if known:
+            diff = (xyz[known] - np.array([pts[q].known_lgs for q in known])).tolist()
+            for q, d in zip(known, diff):
+                corrections[q] = d
     out = []
-    with_cov = [p.index for p in pts if cov is not None and p.index in cov.points]
-    ellipses = dict(zip(with_cov, error_ellipses(np.array([cov.points[i][:2, :2] for i in with_cov]).reshape(-1, 2, 2) * var_factor)))
-    for p, e, g in zip(pts, ecef, geo):
-        sigma = None
-        ellipse = ellipses.get(p.index)
-        if ellipse is not None:
-            sigma = [float(math.sqrt(max(v, 0.0) * var_factor)) for v in np.diag(cov.points[p.index])]
+    for q, p in enumerate(pts):
+        g = geo_l[q]
         item = {
             "id": p.id,
-            "lgs_m": [float(x) for x in p.xyz],
-            "sigma_m": sigma,
-            "ecef_m": [float(x) for x in e],
-            "lon_deg": float(g[0]),
-            "lat_deg": float(g[1]),
-            "height_m": float(g[2]),
-            "error_ellipse": ellipse,
+            "lgs_m": lgs_l[q],
+            "sigma_m": sigmas[q],
+            "ecef_m": ecef_l[q],
+            "lon_deg": g[0],
+            "lat_deg": g[1],
+            "height_m": g[2],
+            "error_ellipse": ellipses[q],
         }
-        if role == "gcp" and p.known_lgs is not None:
-            item["correction_m"] = [float(x) for x in (p.xyz - p.known_lgs)]
+        if corrections[q] is not None:
+            item["correction_m"] = corrections[q]
         out.append(item)
     return out

@@ -1,0 +1,148 @@
+"""C callbacks (numba ``@cfunc``) of the compiled residual blocks: the same observation blocks
+as :mod:`solver.kernels.blocks`, called by Ceres through a function pointer from the C++ cost
+function of :mod:`solver.engine.native` (no Python object, no GIL: Ceres may evaluate them on
+every core).
+
+Signature of every callback (C)::
+
+    bool callback(const int64 *block, double *img_tab, const double *const *parameters,
+                  double *residuals, double **jacobians, int want_jacobians)
+
+``block`` is the residual block's descriptor, int64 words at the offsets ``B_*`` below (built
+by :mod:`solver.engine.residual_blocks`); ``img_tab`` the calling thread's copy of the packed
+image table (pass images cache their propagated segment in it); ``parameters`` and
+``jacobians`` Ceres' arrays of pointers, in the block's parameter order; ``jacobians`` is null
+when ``want_jacobians`` is 0, otherwise every entry points to writable storage (the C++ side
+supplies scratch for the blocks Ceres holds constant).
+
+The physics is the one of :func:`solver.kernels.blocks.point_obs_block` and
+:func:`solver.kernels.blocks.fixed_obs_block`, called here with the parameter blocks copied
+into the rows of one padded array instead of a tuple; both paths are tested against each other
+(tests/test_compiled_evaluation.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import carray, cfunc, njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @cfunc)
+from solver.kernels.blocks import fixed_obs_block, point_obs_block
+from solver.kernels.layout import OBS_REC
+
+# descriptor of a residual block (int64 words)
+B_CONTEXT = 0  # address of the context words (C_* below), shared by every block of one solve
+B_REC = 1  # address of the block's first observation record (OBS_REC doubles each)
+B_NREC = 2  # number of observation records
+B_NSLOTS = 3  # parameter blocks the records' slots index (after the point, for point blocks)
+B_MAXSIZE = 4  # largest of those blocks
+B_DATA = 5  # fixed blocks: address of the ground points (NREC x 3, LGS m); pass terms: of the term's data
+B_SIZES = 6  # the sizes of the residual block's parameter blocks, in Ceres' order
+B_HEADER = B_SIZES
+
+# context words
+C_IMG_ROWS = 0  # image table rows
+C_IMG_COLS = 1  # image table columns
+C_CAM_TAB = 2  # address of the camera table
+C_CAM_ROWS = 3
+C_CAM_COLS = 4
+N_CONTEXT = 5
+
+CALLBACK_SIGNATURE = types.boolean(types.voidptr, types.voidptr, types.voidptr, types.voidptr, types.voidptr, types.intc)
+_CFUNC = dict(nopython=True, cache=True, error_model="numpy")
+
+
+@intrinsic
+def _pointer(typingctx, address):
+    """The int64 ``address`` as a ``void *`` (for :func:`numba.carray`)."""
+    sig = types.voidptr(types.int64)
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], cgutils.voidptr_t)
+
+    return sig, codegen
+
+
+@njit(inline="always", error_model="numpy")
+def _doubles(address, n):
+    """The ``n`` doubles at the int64 ``address``."""
+    return carray(_pointer(address), (n,), dtype=np.float64)
+
+
+@njit(inline="always", error_model="numpy")
+def _doubles_at(pointer, n):
+    """The ``n`` doubles at ``pointer`` (a ``void *`` argument)."""
+    return carray(pointer, (n,), dtype=np.float64)
+
+
+@cfunc(CALLBACK_SIGNATURE, **_CFUNC)
+def point_block_callback(block, table, parameters, residuals, jacobians, want):
+    """All observations of one estimated point: parameter blocks [point (3), slots...]."""
+    head = carray(block, (B_HEADER,), dtype=np.int64)
+    nrec = head[B_NREC]
+    nslots = head[B_NSLOTS]
+    width = head[B_MAXSIZE]
+    sizes = carray(block, (B_SIZES + 1 + nslots,), dtype=np.int64)[B_SIZES:]
+    ctx = carray(_pointer(head[B_CONTEXT]), (N_CONTEXT,), dtype=np.int64)
+    img_tab = carray(table, (ctx[C_IMG_ROWS], ctx[C_IMG_COLS]), dtype=np.float64)
+    cam_tab = carray(_pointer(ctx[C_CAM_TAB]), (ctx[C_CAM_ROWS], ctx[C_CAM_COLS]), dtype=np.float64)
+    rec = carray(_pointer(head[B_REC]), (nrec, OBS_REC), dtype=np.float64)
+    pptr = carray(parameters, (nslots + 1,), dtype=np.int64)
+    point = _doubles(pptr[0], 3)
+    params = np.zeros((nslots, width))
+    for s in range(nslots):
+        src = _doubles(pptr[s + 1], sizes[s + 1])
+        for q in range(sizes[s + 1]):
+            params[s, q] = src[q]
+    res = _doubles_at(residuals, 2 * nrec)
+    rows = 2 * nrec
+    if want == 0:
+        scratch_p = np.empty(3 * rows)
+        scratch = np.empty((nslots, rows * width))
+        return point_obs_block(rec, img_tab, cam_tab, point, params, res, scratch_p, scratch, False)
+    jptr = carray(jacobians, (nslots + 1,), dtype=np.int64)
+    jac_p = _doubles(jptr[0], 3 * rows)
+    jacs = np.empty((nslots, rows * width))
+    ok = point_obs_block(rec, img_tab, cam_tab, point, params, res, jac_p, jacs, True)
+    for s in range(nslots):
+        n = rows * sizes[s + 1]
+        dst = _doubles(jptr[s + 1], n)
+        for q in range(n):
+            dst[q] = jacs[s, q]
+    return ok
+
+
+@cfunc(CALLBACK_SIGNATURE, **_CFUNC)
+def fixed_block_callback(block, table, parameters, residuals, jacobians, want):
+    """Observations of fixed ground points in one image (a resection block): parameter blocks [slots...]."""
+    head = carray(block, (B_HEADER,), dtype=np.int64)
+    nrec = head[B_NREC]
+    nslots = head[B_NSLOTS]
+    width = head[B_MAXSIZE]
+    sizes = carray(block, (B_SIZES + nslots,), dtype=np.int64)[B_SIZES:]
+    ctx = carray(_pointer(head[B_CONTEXT]), (N_CONTEXT,), dtype=np.int64)
+    img_tab = carray(table, (ctx[C_IMG_ROWS], ctx[C_IMG_COLS]), dtype=np.float64)
+    cam_tab = carray(_pointer(ctx[C_CAM_TAB]), (ctx[C_CAM_ROWS], ctx[C_CAM_COLS]), dtype=np.float64)
+    rec = carray(_pointer(head[B_REC]), (nrec, OBS_REC), dtype=np.float64)
+    pts = carray(_pointer(head[B_DATA]), (nrec, 3), dtype=np.float64)
+    pptr = carray(parameters, (nslots,), dtype=np.int64)
+    params = np.zeros((nslots, width))
+    for s in range(nslots):
+        src = _doubles(pptr[s], sizes[s])
+        for q in range(sizes[s]):
+            params[s, q] = src[q]
+    res = _doubles_at(residuals, 2 * nrec)
+    rows = 2 * nrec
+    jacs = np.empty((nslots, rows * width))
+    if want == 0:
+        return fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, jacs, False)
+    ok = fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, jacs, True)
+    jptr = carray(jacobians, (nslots,), dtype=np.int64)
+    for s in range(nslots):
+        n = rows * sizes[s]
+        dst = _doubles(jptr[s], n)
+        for q in range(n):
+            dst[q] = jacs[s, q]
+    return ok
