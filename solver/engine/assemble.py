@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from solver.geometry.geodesy import A_WGS84_M, E2_WGS84, LocalFrame, geodetic_to_ecef, to_ecef
+from solver.geometry.geodesy import A_WGS84_M, E2_WGS84, LocalFrame, to_ecef
 from solver.geometry.rpc import RPC
 from solver.geometry.sensor import chip_indices, chip_of_index
 from solver.kernels import N_COEF, N_KEPLER_CONST, N_OBS_CONST
