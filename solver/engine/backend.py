@@ -354,15 +354,22 @@ def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, co
 
 
 def _add_family_blocks(out: CeresProblem, problem: AdjustmentState, control: SolveControl, compiled: _Compiled | None) -> None:
-    """The observation families' terms (:mod:`solver.engine.terms`), each on its parameter block:
-    a linear term as a compiled ``LinearCost`` (compiled path), any other in Python."""
+    """The observation families' terms (:mod:`solver.engine.terms`), each on its parameter block.
+    On the compiled path a linear term is a ``LinearCost`` and a term with a compiled form (the
+    pass states) a C callback; the others (the straight lines) stay Python cost functions, and a
+    problem with any of those is solved on one thread."""
     for labelled in family_terms(problem):
         owner = block_owner(problem, labelled)
-        linear = getattr(labelled.term, "linear_form", None)  # optional in the Term interface
+        linear = getattr(labelled.term, "linear_form", None)  # both optional in the Term interface
+        native_form = getattr(labelled.term, "compiled_form", None)
         form = linear() if compiled is not None and linear is not None else None
         if form is not None:
             a, b = form
             cf = compiled.native.LinearCost(compiled.evaluator, a, b)
+        elif compiled is not None and native_form is not None:
+            name, desc, arrays = native_form()
+            out.keep += [desc, *arrays]
+            cf = compiled.cost(getattr(compiled.cb, name), desc.ctypes.data, labelled.term.n_residuals, [owner.nfree])
         else:
             cf = ImageTermCost(labelled.term, owner.nfree, control)
             out.python_blocks += 1

@@ -31,6 +31,7 @@ from numba.extending import intrinsic
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @cfunc)
 from solver.kernels.blocks import fixed_obs_block, point_obs_block
 from solver.kernels.layout import OBS_REC
+from solver.kernels.propagation import PASS_T_OFF, ensure_segment, pass_state
 
 # descriptor of a residual block (int64 words)
 B_CONTEXT = 0  # address of the context words (C_* below), shared by every block of one solve
@@ -49,6 +50,14 @@ C_CAM_TAB = 2  # address of the camera table
 C_CAM_ROWS = 3
 C_CAM_COLS = 4
 N_CONTEXT = 5
+
+# descriptor of a pass-state term (:class:`solver.observations.passes.PassStateTerm`)
+PS_KC = 0  # address of the term's private trajectory segment (kc, written by ensure_segment)
+PS_KC_LEN = 1
+PS_M = 2  # rows: 3 (position) or 6 (position and velocity)
+PS_B = 3  # address of the observed state (m doubles, ECEF m and m/s)
+PS_W = 4  # address of the weights 1/sigma (m doubles)
+PS_WORDS = 5
 
 CALLBACK_SIGNATURE = types.boolean(types.voidptr, types.voidptr, types.voidptr, types.voidptr, types.voidptr, types.intc)
 _CFUNC = dict(nopython=True, cache=True, error_model="numpy")
@@ -145,4 +154,37 @@ def fixed_block_callback(block, table, parameters, residuals, jacobians, want):
         dst = _doubles(jptr[s], n)
         for q in range(n):
             dst[q] = jacs[s, q]
+    return ok
+
+
+@cfunc(CALLBACK_SIGNATURE, **_CFUNC)
+def pass_state_callback(block, table, parameters, residuals, jacobians, want):
+    """A weighted state vector observing the propagated pass state at its epoch:
+    r = W (S(t; x0) - b) on the pass block x0 (6: ECEF position m, velocity m/s). The segment
+    is the term's own (one residual block is never evaluated by two threads at once)."""
+    d = carray(block, (PS_WORDS,), dtype=np.int64)
+    kc = _doubles(d[PS_KC], d[PS_KC_LEN])
+    m = d[PS_M]
+    b = _doubles(d[PS_B], m)
+    w = _doubles(d[PS_W], m)
+    pptr = carray(parameters, (1,), dtype=np.int64)
+    src = _doubles(pptr[0], 6)
+    x0 = np.empty(6)
+    for i in range(6):
+        x0[i] = src[i]
+    ensure_segment(kc, x0)
+    p, v, _a, ds, dv = pass_state(kc, kc[PASS_T_OFF], True)
+    res = _doubles_at(residuals, m)
+    ok = True
+    for i in range(m):
+        val = p[i] if i < 3 else v[i - 3]
+        res[i] = w[i] * (val - b[i])
+        if not np.isfinite(res[i]):
+            ok = False
+    if want != 0:
+        jptr = carray(jacobians, (1,), dtype=np.int64)
+        jac = _doubles(jptr[0], m * 6)
+        for i in range(m):
+            for j in range(6):
+                jac[i * 6 + j] = w[i] * (ds[i, j] if i < 3 else dv[i - 3, j])
     return ok

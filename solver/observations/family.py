@@ -43,6 +43,12 @@ class Term(Protocol):
         Optional: a term without it is treated as nonlinear."""
         ...
 
+    def compiled_form(self) -> tuple[str, np.ndarray, tuple[np.ndarray, ...]]:
+        """Optional: (the name of its C callback in :mod:`solver.kernels.callbacks`, the
+        callback's descriptor, the arrays the descriptor points into) for the compiled path; a
+        term without it is evaluated in Python there."""
+        ...
+
 
 ImageTerm = Term  # the name the first families used
 

@@ -227,6 +227,15 @@ class PassStateTerm:
     def n_residuals(self) -> int:
         return len(self.b)
 
+    def compiled_form(self) -> tuple[str, np.ndarray, tuple[np.ndarray, ...]]:
+        """The compiled path's form of this term: the C callback's name in
+        :mod:`solver.kernels.callbacks` (``pass_state_callback``), its descriptor (words ``PS_*``)
+        and the arrays the descriptor points into (to keep alive with the problem)."""
+        b = np.ascontiguousarray(self.b, dtype=float)
+        w = np.ascontiguousarray(self.w, dtype=float)
+        desc = np.array([self.kc.ctypes.data, len(self.kc), len(b), b.ctypes.data, w.ctypes.data], dtype=np.int64)
+        return "pass_state_callback", desc, (self.kc, b, w)
+
     def evaluate(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ensure_segment(self.kc, np.ascontiguousarray(params, dtype=float))
         p, v, _a, ds, dv = pass_state(self.kc, self.kc[PASS_T_OFF], True)
