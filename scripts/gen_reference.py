@@ -390,13 +390,28 @@ def settings_page() -> str:
             shown = ""
         kind = getattr(field.annotation, "__name__", None) or str(field.annotation).replace("typing.", "")
         lines.append(f"| `PBA_{name.upper()}` | {_cell(kind)} | {shown} | {unit_of(name)} | {_cell(field.description or '')} |")
+    from solver.engine.native import ENVIRONMENT
+
+    lines += [
+        "",
+        "## Solver environment",
+        "",
+        "Read by every process that solves (`pba run` and the other solver commands, the server's workers),",
+        "from `solver/engine/native/__init__.py`:",
+        "",
+        "| variable | default | meaning |",
+        "|---|---|---|",
+    ]
+    for name, (default, meaning) in ENVIRONMENT.items():
+        lines.append(f"| `{name}` | {_cell(default)} | {_cell(meaning)} |")
     return "\n".join(lines) + "\n"
 
 
 def setting_names() -> list[str]:
     from service.settings import Settings
+    from solver.engine.native import ENVIRONMENT
 
-    return [f"PBA_{name.upper()}" for name in Settings.model_fields]
+    return [f"PBA_{name.upper()}" for name in Settings.model_fields] + list(ENVIRONMENT)
 
 
 # ---------------------------------------------------------------- platform models -----------

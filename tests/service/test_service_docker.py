@@ -73,6 +73,8 @@ def test_dockerfile_runs_pba_as_a_user() -> None:
     assert re.search(r"^FROM python:3\.11", text, re.M)
     ignore = (DOCKER / "Dockerfile.dockerignore").read_text()
     assert "!service/**" in ignore and "!solver/**" in ignore
+    # the image builds the compiled cost functions and fails if it cannot (no silent Python path)
+    assert "scripts/build_native.py --require" in text and "!scripts/build_native.py" in ignore
 
 
 def test_compose_config_validates_where_the_plugin_exists() -> None:

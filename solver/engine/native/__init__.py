@@ -26,6 +26,17 @@ from types import ModuleType
 EVALUATION_ENV = "PBA_EVALUATION"  # auto (default) | compiled | python
 THREADS_ENV = "PBA_SOLVER_THREADS"  # threads of a compiled solve (default: the machine's cores)
 EVALUATION_CHOICES = ("auto", "compiled", "python")
+ENVIRONMENT = {
+    EVALUATION_ENV: (
+        "auto",
+        "how solves evaluate their residual blocks: `compiled` (C++ cost functions calling the numba kernels, "
+        "every core; an error when not built), `python` (Python cost functions, one thread, the same numbers) "
+        "or `auto` (compiled when built)",
+    ),
+    THREADS_ENV: ("the cores the process may use", "threads of a solve on the compiled path"),
+}
+"""The solver's environment variables (read by every process that solves: ``pba run``, the
+server's workers): name -> (default, meaning)."""
 ABI = 2  # the module's ``ABI`` attribute this Python side expects
 SOURCE = Path(__file__).with_name("callback_cost.cpp")
 
