@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 from numba import njit
-from scipy.linalg import lapack, solve_triangular
+from scipy.linalg import lapack
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.engine.packed_tables import current_tables, records
@@ -383,8 +383,8 @@ class Covariance:
 
 def positive_definite_inverse(s: np.ndarray) -> np.ndarray:
     """The inverse of a symmetric positive-definite matrix, as the Gram matrix ``G^T G`` of
-    ``G = L^-1`` (Cholesky factor of the Jacobi-scaled matrix): positive semi-definite by
-    construction, so every correlation derived from it lies in [-1, 1].
+    ``G = L^-1`` (Cholesky factor of the Jacobi-scaled matrix, LAPACK's dpotri): positive
+    semi-definite by construction, so every correlation derived from it lies in [-1, 1].
 
     Raises :class:`numpy.linalg.LinAlgError` when ``s`` is not positive definite (a singular
     or indefinite normal matrix has no covariance).
@@ -396,8 +396,15 @@ def positive_definite_inverse(s: np.ndarray) -> np.ndarray:
         raise np.linalg.LinAlgError("the normal matrix is not positive definite")
     d = np.sqrt(diag)
     lower = np.linalg.cholesky(s / np.outer(d, d))  # LinAlgError when not positive definite
-    g = solve_triangular(lower, np.eye(len(d)), lower=True) / d[None, :]
-    return g.T @ g
+    # LAPACK's dpotri: L^-T L^-1 from the factor (the triangular inverse, then its product with
+    # its transpose exploiting the triangles): n^3 flops instead of 3.3 n^3 for a triangular
+    # solve against the identity and a full product
+    inv, info = lapack.dpotri(lower, lower=1)
+    if info != 0:
+        raise np.linalg.LinAlgError("the normal matrix is not positive definite")
+    inv = np.tril(inv)
+    inv = inv + np.tril(inv, -1).T
+    return inv / np.outer(d, d)
 
 
 def covariance(lin: Linearisation, parts: SchurParts, problem: AdjustmentState) -> Covariance:

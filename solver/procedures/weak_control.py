@@ -99,9 +99,16 @@ def control_extent(job: Job) -> dict[str, dict[str, Any]]:
     return out
 
 
+def _narrow(extent: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """The images whose control spans a band. An image without any control point is not one:
+    its orientation comes from elsewhere (the other images' control through tie points, or the
+    measured orbit and attitude of direct georeferencing)."""
+    return {i: e for i, e in extent.items() if e["lines"] is not None and e["fraction"] < BAND_FRACTION}
+
+
 def _band_warning(job: Job) -> tuple[dict[str, dict[str, Any]], str | None]:
     extent = control_extent(job)
-    narrow = {i: e for i, e in extent.items() if e["fraction"] < BAND_FRACTION}
+    narrow = _narrow(extent)
     if not narrow or not extent:
         return extent, None
     shown = ", ".join(f"{i} {e['fraction']:.0%}" + (f" (lines {e['lines'][0]:.0f}-{e['lines'][1]:.0f})" if e["lines"] else "")
@@ -117,7 +124,7 @@ def weak_control_rule(job: Job, adjust: Adjust, progress) -> dict[str, Any]:
     plain = job.model_copy(update={"options": job.options.model_copy(update={"weak_control": "warn"})})
     report = adjust(plain, (0.0, 0.5))
     extent, band = _band_warning(plain)
-    narrow = {i for i, e in extent.items() if e["fraction"] < BAND_FRACTION}
+    narrow = set(_narrow(extent))
     flagged = [f for f in _undetermined(report) if f["image"] in narrow]
     if not flagged:
         if band:
