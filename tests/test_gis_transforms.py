@@ -19,6 +19,9 @@ from solver.geometry.geodesy import ecef_to_geodetic, from_ecef, to_ecef
 from solver.gis.transforms import ground_to_image_table
 from solver.kernels import project
 
+SIGMA_LINE_REL = 0.01  # a point's line sigma propagated by the module vs J C J^T by hand (linearised at another point)
+CSV_PX = 1e-9  # pixel coordinates written to CSV and read back
+
 # The adjusted model differs from the simulated truth by the adjustment's error (0.05 px
 # measurement noise, 16 control points, the model's approximation of the attitude): < 0.1 px
 # measured for every kind and view. 0.2 px catches any half-pixel convention error.
@@ -123,7 +126,7 @@ def test_propagated_line_sigma_matches_the_kernels_analytic_derivatives():
     jac = np.array([dl_dc[s.index] / s.to_report for s in specs])
     cov = np.array(next(e for e in report["images"] if e["id"] == "cam")["covariance"]["matrix"])
     sigma = float(np.sqrt(jac @ cov @ jac))
-    assert rows[0]["sigma_line_px"] == pytest.approx(sigma, rel=0.01)
+    assert rows[0]["sigma_line_px"] == pytest.approx(sigma, rel=SIGMA_LINE_REL)
     assert sigma > 0.001
 
 
@@ -151,7 +154,7 @@ def test_cli_ground_to_image_and_back_with_another_crs(tmp_path, capsys):
     px = _read_csv(tmp_path / "px.csv")
     assert list(px[0])[:5] == ["lon", "lat", "height", "line", "column"]
     line, col, _ = model.image("cam").ground_to_image(pts)
-    assert np.allclose([float(r["line"]) for r in px], line, atol=1e-9, rtol=0)
+    assert np.allclose([float(r["line"]) for r in px], line, atol=CSV_PX, rtol=0)
     # back to the ground, in UTM 22S (EPSG:32722: columns e, n beside the given height)
     assert main(["image-to-ground", *args, str(tmp_path / "px.csv"), "--crs", "EPSG:32722"]) == 0
     out = capsys.readouterr().out.strip().splitlines()

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tolerances import ROTATION_ABS
 
 from solver.cli import main
 from solver.schema.job import Camera, Image
@@ -19,6 +20,8 @@ from solver.sensors.job_fragment import angles_xyz, fragment, rotation_xyz
 from solver.sensors.linescan import lagrange
 from solver.sensors.maxar import read_maxar
 from solver.simulate.attitude import opk_from_matrix
+
+FILE_TIME_S = 1e-6  # times read from the file's text (microseconds written)
 
 DATA = Path(__file__).parent / "data" / "vendor" / "stereopipeline"
 FILES = ["wv_test1", "wv_test2", "wv_mvp_1", "wv_mvp_2"]
@@ -94,8 +97,8 @@ def test_attitude_angles_are_the_solvers_rx_ry_rz() -> None:
     rng = np.random.default_rng(5)
     ang = rng.uniform(-0.6, 0.6, (20, 3))
     r = rotation_xyz(ang)
-    assert np.allclose([opk_from_matrix(m) for m in r], ang, atol=1e-12)
-    assert np.allclose(angles_xyz(r), ang, atol=1e-12)
+    assert np.allclose([opk_from_matrix(m) for m in r], ang, atol=ROTATION_ABS)
+    assert np.allclose(angles_xyz(r), ang, atol=ROTATION_ABS)
 
 
 def test_job_fragment_is_schema_valid_and_close_to_the_exact_model(products) -> None:
@@ -111,7 +114,7 @@ def test_job_fragment_is_schema_valid_and_close_to_the_exact_model(products) -> 
     assert first.ephemeris[0].time_s < first.first_line_time_s and first.ephemeris[-1].time_s > t_last
     assert first.attitude[0].time_s < first.first_line_time_s and first.attitude[-1].time_s > t_last
     # the pair shares one time scale: 69.0178 s between the first lines (FIRSTLINETIME)
-    assert images[1].first_line_time_s - images[0].first_line_time_s == pytest.approx(69.0178, abs=1e-6)
+    assert images[1].first_line_time_s - images[0].first_line_time_s == pytest.approx(69.0178, abs=FILE_TIME_S)
     for note in notes:
         assert note["difference_px"]["rms"] < 0.5, note
 
@@ -256,7 +259,7 @@ def test_pba_job_composes_a_pair_from_its_metadata(tmp_path, products, capsys) -
     assert [c["id"] for c in job["cameras"]] == ["L", "R"]
     assert [i["model"]["name"] for i in job["images"]] == ["OA-J2", "OA-J2"]
     assert {"ephemeris", "attitude"} <= set(job["options"])
-    assert job["images"][1]["first_line_time_s"] - job["images"][0]["first_line_time_s"] == pytest.approx(69.0178, abs=1e-6)
+    assert job["images"][1]["first_line_time_s"] - job["images"][0]["first_line_time_s"] == pytest.approx(69.0178, abs=FILE_TIME_S)
 
 
 def test_pba_job_names_a_bad_sensor_file(tmp_path, capsys) -> None:

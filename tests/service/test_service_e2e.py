@@ -19,6 +19,7 @@ from typing import Any
 import httpx
 import pytest
 from pba_service_harness import FINISHED, Server, execute_body, submit_async, wait_status
+from tolerances import SAME_NUMBER_REL
 
 from service.states import JobStatus
 
@@ -114,7 +115,7 @@ def test_triplet_same_numbers_as_the_solver(
         for image in direct["images"]:
             for p in image["parameters"]:
                 assert float(by_name[(image["id"], p["name"])]["value"]) == pytest.approx(
-                    p["value"], rel=1e-12
+                    p["value"], rel=SAME_NUMBER_REL
                 )
         obs = c.get(f"/jobs/{job_id}/results/observations.csv")
         assert obs.headers["content-type"].startswith("text/csv")
