@@ -181,15 +181,19 @@ def helper_folders(new_place: dict[str, Path]) -> list[str]:
 def conftest_block(folders: list[str]) -> str:
     lines = [
         SYS_PATH_BEGIN,
-        "# Test helpers are imported by their module name from any folder (pytest's prepend mode puts",
-        "# only a test file's own folder on sys.path): their folders, written by scripts/mirror_tests.py.",
-        "import sys  # noqa: E402",
-        "from pathlib import Path  # noqa: E402",
+        "def _helper_folders_on_sys_path() -> None:",
+        '    """Test helpers imported by their module name from any folder: pytest (prepend mode) puts',
+        '    only a test file\'s own folder on sys.path; their folders, from scripts/mirror_tests.py."""',
+        "    import sys",
+        "    from pathlib import Path",
         "",
-        f"for _folder in {tuple(folders)!r}:",
-        "    _path = str(Path(__file__).resolve().parent / _folder)",
-        "    if _path not in sys.path:",
-        "        sys.path.insert(0, _path)",
+        f"    for folder in {tuple(folders)!r}:",
+        "        path = str(Path(__file__).resolve().parent / folder)",
+        "        if path not in sys.path:",
+        "            sys.path.insert(0, path)",
+        "",
+        "",
+        "_helper_folders_on_sys_path()",
         SYS_PATH_END,
     ]
     return "\n".join(lines) + "\n"
@@ -201,8 +205,11 @@ def text_files() -> list[Path]:
 
 
 def rewrite_references(moves: dict[str, str], dry: bool) -> list[str]:
-    """``tests/<name>`` (not already deeper) -> ``tests/<folder>/<name>`` in every tracked text file."""
+    """``tests/<name>`` (not already deeper) -> ``tests/<folder>/<name>``, and the dotted module
+    ``tests.<stem>`` -> ``tests.<folder dotted>.<stem>``, in every tracked text file."""
     pattern = re.compile(r"(?<![\w/.])tests/(" + "|".join(re.escape(n) for n in moves) + r")\b")
+    stems = {Path(n).stem: d for n, d in moves.items()}
+    dotted = re.compile(r"(?<![\w.])tests\.(" + "|".join(re.escape(s) for s in stems) + r")\b")
     changed = []
     for f in text_files():
         try:
@@ -210,6 +217,7 @@ def rewrite_references(moves: dict[str, str], dry: bool) -> list[str]:
         except UnicodeDecodeError:
             continue
         new = pattern.sub(lambda m: f"tests/{moves[m.group(1)]}/{m.group(1)}", text)
+        new = dotted.sub(lambda m: f"tests.{stems[m.group(1)].replace('/', '.')}.{m.group(1)}", new)
         if new != text:
             changed.append(str(f.relative_to(ROOT)))
             if not dry:
@@ -244,6 +252,8 @@ def main(argv: list[str] | None = None) -> int:
     if folders:
         text = text.rstrip("\n") + "\n\n\n" + conftest_block(folders)
     conftest.write_text(text)
+    # the dotted imports rewritten above may need re-sorting (ruff's isort rules, as make test runs them)
+    subprocess.run([sys.executable, "-m", "ruff", "check", "--fix", "--select", "I", "tests"], cwd=ROOT, check=False)
     print("done: run `python -m pytest --collect-only -q | tail -1` and compare with the count before the move")
     return 0
 
