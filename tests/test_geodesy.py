@@ -90,7 +90,7 @@ def test_local_frame_round_trip_and_axes():
     np.testing.assert_allclose(f.to_lgs(up), [0, 0, 100.0], atol=ATOL_DIST)
     # a point slightly north has positive north and ~zero east
     north = f.to_lgs(geodetic_to_ecef(np.array([[-51.39, -22.11, 450.0]]))[0])
-    assert north[1] > 1000 and abs(north[0]) < 1e-6
+    assert north[1] > 1000 and abs(north[0]) < ATOL_DIST
     r = enu_rotation(0.3, -0.4)
     np.testing.assert_allclose(r @ r.T, np.eye(3), atol=ORTHONORMAL_ABS)
     assert np.linalg.det(r) == pytest.approx(1.0)

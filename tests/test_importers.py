@@ -27,6 +27,8 @@ from solver.importers.measurements_csv import read_measurements, write_measureme
 from solver.importers.points_csv import read_points, write_points
 from solver.importers.qgis_points import read_qgis_points, write_qgis_points
 
+UTM_WRITTEN_M = 1e-3  # map coordinates written by QGIS to the millimetre
+
 EXAMPLE_PX = 1e-4  # the example's measurements, written with four decimals
 SIGMA_ABS = 1e-12  # survey sigmas read from text stay the numbers written
 GEO_DEG = 1e-9  # 0.1 mm: a UTM point written to ASP's GCP format and read back as lon/lat
@@ -128,7 +130,7 @@ def test_qgis_rows_match_the_survey_point_pyproj_puts_there(triplet: dict[str, A
     obs, _ = read_qgis_points(data, "nadir.points", "N", triplet["points"], "EPSG:4326")
     for row, o in zip(rows, obs, strict=True):
         e, n = to_utm.transform(*pts[o["point"]]["coordinates"][:2])
-        assert abs(e - float(row[0])) < 1e-3 and abs(n - float(row[1])) < 1e-3
+        assert abs(e - float(row[0])) < UTM_WRITTEN_M and abs(n - float(row[1])) < UTM_WRITTEN_M
 
 
 def test_qgis_2x_file_needs_its_crs() -> None:

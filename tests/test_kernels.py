@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+from tolerances import ROUND_TRIP_PX
 
 from solver.adjust import prepare
 from solver.kernels import (
@@ -187,7 +188,7 @@ def test_ray_inverts_projection(model):
         p = s + 700e3 * d
         ok, line, col, *_ = project(img.kind, coef, img.kc, p, oc, False)
         assert ok
-        assert abs(line - oc[0]) < 1e-6 and abs(col - oc[1]) < 1e-6
+        assert abs(line - oc[0]) < ROUND_TRIP_PX and abs(col - oc[1]) < ROUND_TRIP_PX
 
 
 def test_point_block_matches_single_projections_and_layout():

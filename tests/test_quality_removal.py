@@ -264,7 +264,7 @@ def test_an_ephemeris_sample_blunder_is_found_and_removed() -> None:
     t = epochs[1]
     for im in job["images"]:
         for s in im["ephemeris"]:
-            if abs(s["time_s"] - t) < 1e-6:
+            if abs(s["time_s"] - t) < SAMPLE_TIME_S:
                 s["position_ecef_m"][0] += 50.0
     rep = run(job)
     (r,) = rep["quality"]["rejected"]

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tolerances import ROTATION_ABS
+from tolerances import ROTATION_ABS, SAME_RPC_PX
 
 from solver.cli import main
 from solver.schema.job import Camera, Image
@@ -20,6 +20,9 @@ from solver.sensors.job_fragment import angles_xyz, fragment, rotation_xyz
 from solver.sensors.linescan import lagrange
 from solver.sensors.maxar import read_maxar
 from solver.simulate.attitude import opk_from_matrix
+
+INVERSE_PX = 1e-4  # px: the exact model's ground-to-image iteration stops at 1e-6
+LAGRANGE_M = 1e-3  # held-out samples with the neighbours twice as far apart as in use (file values: 1e-9 m digits)
 
 FILE_TIME_S = 1e-6  # times read from the file's text (microseconds written)
 
@@ -80,7 +83,7 @@ def test_ground_to_image_inverts_image_to_ground(products) -> None:
     rng = np.random.default_rng(3)
     lc = np.column_stack([rng.uniform(0, m.lines - 1, 30), rng.uniform(0, m.columns - 1, 30)])
     g = m.image_to_ground(lc[:, 0], lc[:, 1], rng.uniform(2500, 4000, 30))
-    assert np.max(np.abs(m.ground_to_image(g) - lc)) < 1e-4  # px: the iteration's tolerance is 1e-6
+    assert np.max(np.abs(m.ground_to_image(g) - lc)) < INVERSE_PX
 
 
 def test_lagrange_interpolates_held_out_ephemeris_samples(products) -> None:
@@ -88,7 +91,7 @@ def test_lagrange_interpolates_held_out_ephemeris_samples(products) -> None:
     t, p = m.ephemeris_times_s, m.positions_ecef_m
     even, odd = slice(0, None, 2), slice(1, -1, 2)
     err = np.linalg.norm(lagrange(t[odd], t[even], p[even]) - p[odd], axis=1)
-    assert err.max() < 1e-3  # 1 mm with the neighbours twice as far apart as in use (file values: 1e-9 m digits)
+    assert err.max() < LAGRANGE_M
 
 
 def test_attitude_angles_are_the_solvers_rx_ry_rz() -> None:
@@ -201,7 +204,7 @@ def test_import_rpc_reads_a_bare_maxar_xml_as_gdal_reads_it_beside_a_raster(tmp_
     lat = gdal.lat_off + gdal.lat_scale * np.linspace(-1, 1, 5)
     h = gdal.height_off + gdal.height_scale * np.linspace(-1, 1, 5)
     a, b = np.array(gdal.project(lon, lat, h)), np.array(ours.project(lon, lat, h))
-    assert np.max(np.abs(a - b)) < 1e-6  # px: the same coefficients and offsets
+    assert np.max(np.abs(a - b)) < SAME_RPC_PX
 
 
 def test_import_rpc_names_the_element_of_a_bad_maxar_xml(tmp_path, capsys) -> None:

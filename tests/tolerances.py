@@ -23,3 +23,16 @@ GEODESY_M = 1e-6
 # Elements of rotation matrices, and angles (rad), rebuilt another way: rounding of products of
 # unit-size terms; a wrong sign, axis or order of rotations is of order one.
 ROTATION_ABS = 1e-12
+
+# A pixel taken to the ground and back (a ray or image_to_ground, then the projection): the
+# line searches and Newton steps stop below 1e-8 line; a wrong line time, convention or chip is
+# half a pixel or more.
+ROUND_TRIP_PX = 1e-6
+
+# The same RPC evaluated by GDAL and by us (GDAL's ground-to-image iterates): a convention error
+# (pixel corner vs centre, line vs sample) is half a pixel or more.
+SAME_RPC_PX = 1e-6
+
+# A ground point through an image or a CRS and back: the intersection's and the CRS's own
+# tolerances; a wrong height, datum or axis order is metres.
+GROUND_ROUND_TRIP_M = 1e-3
