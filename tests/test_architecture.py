@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import ast
+import dataclasses
 import importlib
 import re
 import sys
@@ -100,7 +101,7 @@ def test_documented_layers_are_the_checked_layers() -> None:
 def test_every_path_and_module_the_page_names_exists() -> None:
     """The job's path and the 'where new code goes' list name files and modules that exist."""
     text = (ROOT / "docs" / "architecture.md").read_text()
-    paths = set(re.findall(r"\b((?:solver|service)/[\w/]*\w(?:\.py|\.cpp)?)", text))
+    paths = set(re.findall(r"(?<![\w/])((?:solver|service)/[\w/]*\w(?:\.py|\.cpp)?)", text))  # not tests/solver/...
     missing = [p for p in sorted(paths) if not (ROOT / p).exists()]
     modules = set(re.findall(r"`((?:solver|service)(?:\.\w+)+)", text))
     for name in sorted(modules):  # a module, or a module and an attribute path in it
@@ -194,3 +195,83 @@ def test_documented_families_are_the_registry() -> None:
 
     want = [(f.name, type(f).__module__.replace(".", "/") + ".py") for f in registry.FAMILIES]
     assert _documented_families() == want
+
+
+# ---- platform models: the checklist of docs/architecture.md holds ------------------------------
+
+def _platform_checklist() -> str:
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    block = re.search(r"- \*\*A platform model\*\*(.*?)\n- \*\*An observation family\*\*", text, re.S)
+    assert block, "docs/architecture.md has lost its platform-model checklist"
+    return block.group(1)
+
+
+def kind_interface(cls: type) -> set[str]:
+    """The public fields, properties and methods of a kind class (and its bases), but its name."""
+    names = {f.name for f in dataclasses.fields(cls)} - {"name"}
+    for klass in cls.__mro__:
+        if klass is object:
+            continue
+        names |= {n for n, v in vars(klass).items() if not n.startswith("_") and (callable(v) or isinstance(v, property))}
+    return names
+
+
+def test_the_kind_answers_what_the_checklist_says() -> None:
+    """Step 2 names everything the kind answers: exactly the public interface of PlatformKind."""
+    from solver.platforms.kinds import PlatformKind
+
+    block = re.search(r"<!-- kind: begin -->(.*?)<!-- kind: end -->", _platform_checklist(), re.S)
+    assert block, "the checklist has lost its list of what a kind answers"
+    assert set(re.findall(r"`(\w+)`", block.group(1))) == kind_interface(PlatformKind)
+
+
+def registering_modules(package: Path, root: Path = ROOT) -> set[str]:
+    """Modules of ``package`` (a directory under ``root``) that call ``register(...)`` at import."""
+    out = set()
+    for file in package.glob("*.py"):
+        todo: list[ast.AST] = [ast.parse(file.read_text())]
+        while todo:  # module-level statements, loops included, functions' bodies not
+            node = todo.pop()
+            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "register":
+                out.add(".".join(file.relative_to(root).with_suffix("").parts))
+            todo += [c for c in ast.iter_child_nodes(node) if not isinstance(c, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda))]
+    return out
+
+
+def test_every_model_module_is_one_import_line_and_the_registry_imports_none() -> None:
+    """Step 1: a model module registers itself and is imported by one line of the package's
+    ``__init__``; the registry imports no model module."""
+    package = ROOT / "solver" / "platforms"
+    models = registering_modules(package)
+    assert {"solver.platforms.polynomial", "solver.platforms.rpc_bias"} <= models
+    init = {m for m, _ in imported_names((package / "__init__.py").read_text())}
+    assert models <= init, models - init
+    registry_imports = {m for m, _ in imported_names((package / "registry.py").read_text())}
+    assert not registry_imports & models
+
+
+def test_the_registering_scan_has_teeth(tmp_path) -> None:
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "model_a.py").write_text("from x import register\nregister(Model('A'))\n")
+    (pkg / "model_b.py").write_text("M = register(Model('B'))\nfor n in 'CD':\n    register(Model(n))\n")
+    (pkg / "helper.py").write_text("def f():\n    register(1)\nregister_kind(K)\n")
+    assert registering_modules(pkg, tmp_path) == {"pkg.model_a", "pkg.model_b"}
+
+
+def test_every_kind_has_its_kernel_branch() -> None:
+    """Step 3: each registered kind names a ``KIND_*`` code of solver/kernels/layout.py, and that
+    code is branched on where the checklist says: platform evaluation (solver/kernels/platform.py)
+    for a kind with a camera, the projection's dispatch (solver/kernels/projection.py) without."""
+    from solver.kernels import layout
+    from solver.platforms.kinds import all_kinds
+
+    codes = {getattr(layout, n): n for n in dir(layout) if n.startswith("KIND_")}
+    sources = {w: (ROOT / "solver" / "kernels" / f"{w}.py").read_text() for w in ("platform", "projection")}
+    missing = []
+    for kind in all_kinds():
+        assert kind.kernel in codes, kind.name
+        where = "platform" if kind.has_camera else "projection"
+        if not re.search(rf"kind [!=]= {codes[kind.kernel]}\b", sources[where]):
+            missing.append(f"{kind.name}: {codes[kind.kernel]} in solver/kernels/{where}.py")
+    assert missing == []

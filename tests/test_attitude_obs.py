@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 from test_orbit_pass import _exact_projections, _pass_job, _with_noise
+from tolerances import ROTATION_ABS
 
 from solver.adjust import adjust_job, prepare
 from solver.api import validate
@@ -68,7 +69,7 @@ def test_observation_equation_is_the_kernels_angle_polynomial(model):
         for s, sample in enumerate(doc["attitude"]):
             ang, rate = np.empty(3), np.empty(3)
             _attitude_angles(coef, _attitude_time(img.kind, img.kc, sample["time_s"] - doc["first_line_time_s"]), ang, rate)
-            np.testing.assert_allclose(angles[3 * s : 3 * s + 3], ang, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(angles[3 * s : 3 * s + 3], ang, rtol=0, atol=ROTATION_ABS)
         np.testing.assert_allclose(term.w[:3], 1.0 / np.radians([0.01, 0.02, 0.03]))
         np.testing.assert_allclose(jac, term.w[:, None] * term.a)
 
@@ -199,7 +200,7 @@ def test_simulated_attitude_samples_use_the_models_convention():
             frame, _ds, _dv = _orbital_frame(r[k], v[k], np.zeros(3))
             rot = np.empty((4, 3, 3))
             _rotation_into(angles[k, 0], angles[k, 1], angles[k, 2], rot)
-            np.testing.assert_allclose(rot[0] @ frame, body[k], atol=1e-12)
+            np.testing.assert_allclose(rot[0] @ frame, body[k], atol=ROTATION_ABS)
         second_order = 2 * np.abs(law.angles(t)).max() ** 2
         np.testing.assert_allclose(angles, -law.angles(t), rtol=0, atol=second_order)  # -phi to first order
 

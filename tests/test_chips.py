@@ -25,6 +25,8 @@ from solver.simulate.camera import CameraSpec, ChipSpec, prism_camera
 from solver.simulate.iop import CameraIOP
 from solver.simulate.scene import Settings
 
+SAME_FORMULA_MM = 1e-9  # 1e-9 mm = 1.4e-7 px: the same focal-plane formula evaluated twice
+
 # two chips of 100 columns overlapping by 32 columns (68..99), the first starting 10 columns
 # before the image and the second ending 10 columns after it (image columns 0..147)
 TWO = {
@@ -168,8 +170,7 @@ def test_simulator_and_solver_map_overlap_columns_to_the_same_focal_plane_point(
         chips_seen.add(k)
         oc = np.array([0.0, col, 1.0, cam.focal_mm, cam.pixel_mm, dx, dy, centre, 0.0])
         xi, yi = camera_model(oc, vec, k, spec.chips[k].columns * cam.pixel_mm, float(col), False)[:2]
-        # 1e-9 mm = 1.4e-7 px: the same formula evaluated twice, only rounding differs
-        assert abs(xi - xs) < 1e-9 and abs(yi - ys) < 1e-9, col
+        assert abs(xi - xs) < SAME_FORMULA_MM and abs(yi - ys) < SAME_FORMULA_MM, col
     assert chips_seen == {0, 1, 2, 3}
 
 

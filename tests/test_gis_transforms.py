@@ -13,11 +13,18 @@ import json
 import numpy as np
 import pytest
 from gis_scenes import MODEL_KINDS, VIEWS, prism_butted, single_chip
+from tolerances import GROUND_ROUND_TRIP_M, ROUND_TRIP_PX
 
 from solver.cli import main
 from solver.geometry.geodesy import ecef_to_geodetic, from_ecef, to_ecef
 from solver.gis.transforms import ground_to_image_table
 from solver.kernels import project
+
+RESIDUAL_PX = 1e-6  # a report's residual is observed - projected: the projection recomputed here
+INTERSECTION_HEIGHT_M = 1e-5  # image_to_ground at a height returns that height (intersection tolerance 1e-6 m)
+
+SIGMA_LINE_REL = 0.01  # a point's line sigma propagated by the module vs J C J^T by hand (linearised at another point)
+CSV_PX = 1e-9  # pixel coordinates written to CSV and read back
 
 # The adjusted model differs from the simulated truth by the adjustment's error (0.05 px
 # measurement noise, 16 control points, the model's approximation of the attitude): < 0.1 px
@@ -70,8 +77,8 @@ def test_projection_reproduces_the_reports_residuals():
         if o["role"] != "gcp":
             continue
         line, col, _ = img.ground_to_image(known[o["point"]])
-        assert abs((o["line"] - line[0]) - o["residual_line_px"]) < 1e-6
-        assert abs((o["column"] - col[0]) - o["residual_column_px"]) < 1e-6
+        assert abs((o["line"] - line[0]) - o["residual_line_px"]) < RESIDUAL_PX
+        assert abs((o["column"] - col[0]) - o["residual_column_px"]) < RESIDUAL_PX
         n += 1
     assert n >= 10
 
@@ -84,10 +91,10 @@ def test_round_trip_ground_image_ground(kind):
     line, col = rng.uniform(0, 2399, 50), rng.uniform(0, 2399, 50)
     h = rng.uniform(200, 700, 50)
     ground = img.image_to_ground(line, col, h)
-    assert np.max(np.abs(ecef_to_geodetic(ground)[:, 2] - h)) < 1e-5  # intersection tolerance 1e-6 m
+    assert np.max(np.abs(ecef_to_geodetic(ground)[:, 2] - h)) < INTERSECTION_HEIGHT_M
     line2, col2, _ = img.ground_to_image(ground)
-    assert np.max(np.abs(line2 - line)) < 1e-6  # Newton steps stop below 1e-8 line
-    assert np.max(np.abs(col2 - col)) < 1e-6
+    assert np.max(np.abs(line2 - line)) < ROUND_TRIP_PX
+    assert np.max(np.abs(col2 - col)) < ROUND_TRIP_PX
 
 
 def test_multi_chip_image_round_trip_and_chip_assignment():
@@ -102,7 +109,7 @@ def test_multi_chip_image_round_trip_and_chip_assignment():
     assert np.max(np.abs(col - expected.column)) < TRUTH_TOL_PX
     h = ecef_to_geodetic(pts)[:, 2]
     back = img.image_to_ground(line, col, h)
-    assert np.max(np.linalg.norm(back - pts, axis=1)) < 1e-3
+    assert np.max(np.linalg.norm(back - pts, axis=1)) < GROUND_ROUND_TRIP_M
 
 
 def test_propagated_line_sigma_matches_the_kernels_analytic_derivatives():
@@ -123,7 +130,7 @@ def test_propagated_line_sigma_matches_the_kernels_analytic_derivatives():
     jac = np.array([dl_dc[s.index] / s.to_report for s in specs])
     cov = np.array(next(e for e in report["images"] if e["id"] == "cam")["covariance"]["matrix"])
     sigma = float(np.sqrt(jac @ cov @ jac))
-    assert rows[0]["sigma_line_px"] == pytest.approx(sigma, rel=0.01)
+    assert rows[0]["sigma_line_px"] == pytest.approx(sigma, rel=SIGMA_LINE_REL)
     assert sigma > 0.001
 
 
@@ -151,14 +158,14 @@ def test_cli_ground_to_image_and_back_with_another_crs(tmp_path, capsys):
     px = _read_csv(tmp_path / "px.csv")
     assert list(px[0])[:5] == ["lon", "lat", "height", "line", "column"]
     line, col, _ = model.image("cam").ground_to_image(pts)
-    assert np.allclose([float(r["line"]) for r in px], line, atol=1e-9, rtol=0)
+    assert np.allclose([float(r["line"]) for r in px], line, atol=CSV_PX, rtol=0)
     # back to the ground, in UTM 22S (EPSG:32722: columns e, n beside the given height)
     assert main(["image-to-ground", *args, str(tmp_path / "px.csv"), "--crs", "EPSG:32722"]) == 0
     out = capsys.readouterr().out.strip().splitlines()
     rows = list(csv.DictReader(out))
     en = np.array([[float(r["e"]), float(r["n"])] for r in rows])
     expected = from_ecef(pts, "EPSG:32722")[:, :2]
-    assert np.max(np.abs(en - expected)) < 1e-3  # round trip to 1 mm
+    assert np.max(np.abs(en - expected)) < GROUND_ROUND_TRIP_M
 
 
 def test_cli_image_to_ground_with_a_dem(tmp_path):

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 from pyproj import Transformer
+from tolerances import GEODESY_M
 
 from solver.importers.asp_gcp import read_asp_gcp, write_asp_gcp
 from solver.importers.attitude_csv import read_attitude, write_attitude
@@ -25,6 +26,12 @@ from solver.importers.errors import SourceError
 from solver.importers.measurements_csv import read_measurements, write_measurements
 from solver.importers.points_csv import read_points, write_points
 from solver.importers.qgis_points import read_qgis_points, write_qgis_points
+
+UTM_WRITTEN_M = 1e-3  # map coordinates written by QGIS to the millimetre
+
+EXAMPLE_PX = 1e-4  # the example's measurements, written with four decimals
+SIGMA_ABS = 1e-12  # survey sigmas read from text stay the numbers written
+GEO_DEG = 1e-9  # 0.1 mm: a UTM point written to ASP's GCP format and read back as lon/lat
 
 FIXTURES = Path(__file__).parent / "fixtures" / "importers"
 EXAMPLE = Path(__file__).parent.parent / "examples" / "prism-triplet.json"
@@ -110,8 +117,8 @@ def test_qgis_points_with_crs_line_and_negated_rows(triplet: dict[str, Any]) -> 
     assert obs[0]["line"] == pytest.approx(481.7275 - 0.5, abs=PX_TOL)
     # the example's own measurement of P01 in the nadir image (these are it, to 1e-4 px)
     truth = next(o for o in triplet["observations"] if o["image"] == "prism-nadir" and o["point"] == "P01")
-    assert obs[0]["line"] == pytest.approx(truth["line"], abs=1e-4)
-    assert obs[0]["column"] == pytest.approx(truth["column"], abs=1e-4)
+    assert obs[0]["line"] == pytest.approx(truth["line"], abs=EXAMPLE_PX)
+    assert obs[0]["column"] == pytest.approx(truth["column"], abs=EXAMPLE_PX)
 
 
 def test_qgis_rows_match_the_survey_point_pyproj_puts_there(triplet: dict[str, Any]) -> None:
@@ -123,7 +130,7 @@ def test_qgis_rows_match_the_survey_point_pyproj_puts_there(triplet: dict[str, A
     obs, _ = read_qgis_points(data, "nadir.points", "N", triplet["points"], "EPSG:4326")
     for row, o in zip(rows, obs, strict=True):
         e, n = to_utm.transform(*pts[o["point"]]["coordinates"][:2])
-        assert abs(e - float(row[0])) < 1e-3 and abs(n - float(row[1])) < 1e-3
+        assert abs(e - float(row[0])) < UTM_WRITTEN_M and abs(n - float(row[1])) < UTM_WRITTEN_M
 
 
 def test_qgis_2x_file_needs_its_crs() -> None:
@@ -173,7 +180,7 @@ def test_asp_gcp_file() -> None:
     pts, obs, notes = read_asp_gcp((FIXTURES / "forward.gcp").read_bytes(), "forward.gcp")
     assert [p["id"] for p in pts] == ["1", "2"]
     assert pts[0]["coordinates"] == [-51.194604705745675, -21.998144431236785, 449.7939511369914]
-    assert pts[0]["sigma_m"] == pytest.approx([0.2, 0.2, 0.2], abs=1e-12)  # equal sigmas stay equal
+    assert pts[0]["sigma_m"] == pytest.approx([0.2, 0.2, 0.2], abs=SIGMA_ABS)  # equal sigmas stay equal
     assert [(o["image"], o["point"]) for o in obs] == [("prism-forward", "1"), ("prism-nadir", "1"), ("prism-forward", "2")]
     assert (obs[0]["line"], obs[0]["column"]) == (477.2163, 13394.6983)  # ASP: centre origin, as ours
     assert obs[2]["sigma_px"] == 0.8 and len(notes) == 1  # 0.5 / 0.8 px: the larger, noted
@@ -182,7 +189,7 @@ def test_asp_gcp_file() -> None:
 def test_asp_ecef_sigmas_rotate_into_east_north_up() -> None:
     """At (0 E, 0 N): east = ECEF y, north = ECEF z, up = ECEF x."""
     pts, _, _ = read_asp_gcp("1 0 0 10 1 2 3 a.tif 1 2 0.5 0.5\n", "z.gcp")
-    assert pts[0]["sigma_m"] == pytest.approx([2.0, 3.0, 1.0], abs=1e-12)
+    assert pts[0]["sigma_m"] == pytest.approx([2.0, 3.0, 1.0], abs=SIGMA_ABS)
     pts, _, _ = read_asp_gcp("1 0 0 10 1 2 3 a.tif 1 2 0.5 0.5\n", "z.gcp", sigma_frame="lon-lat-height")
     assert pts[0]["sigma_m"] == [2.0, 1.0, 3.0]  # (lat, lon, h) -> (east, north, up)
 
@@ -226,8 +233,8 @@ def test_asp_export_of_projected_points_goes_through_wgs84() -> None:
     text, _ = write_asp_gcp([p], [o], "EPSG:32722")
     pts, _, _ = read_asp_gcp(text, "u.gcp")
     lon, lat = to_geo.transform(479912.4486, 7567365.6496)
-    assert np.allclose(pts[0]["coordinates"][:2], [lon, lat], atol=1e-9)  # 0.1 mm
-    assert pts[0]["coordinates"][2] == pytest.approx(449.79, abs=1e-6)
+    assert np.allclose(pts[0]["coordinates"][:2], [lon, lat], atol=GEO_DEG)
+    assert pts[0]["coordinates"][2] == pytest.approx(449.79, abs=GEODESY_M)
 
 
 # -- ephemeris, state, attitude --------------------------------------------------------------

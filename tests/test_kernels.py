@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+from tolerances import ROUND_TRIP_PX
 
 from solver.adjust import prepare
 from solver.kernels import (
@@ -19,6 +20,16 @@ from solver.platforms import get_model, model_names
 from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.schema.job import load_job
 from solver.synthetic import block_job, single_image_job
+
+ELEMENTARY_ABS = 1e-15  # the closed-form rotation vs the product of three elementary rotations: an ulp
+ORTHONORMAL_ABS = 1e-14  # M M^T = I for a kernel rotation: a few ulps
+ROTATION_FD_ABS = 1e-9  # dM/dangle vs central differences with h = 1e-6 rad: truncation h^2 ~ 1e-12, rounding 1e-10
+GRAVITY_FD_REL, GRAVITY_FD_ABS = 1e-6, 1e-15  # the gravity gradient vs central differences with 1-m steps on 7e6-m radii (m/s^2 per m)
+POTENTIAL_FD_REL = 1e-7  # J2 acceleration vs the numeric gradient of its potential (0.5-m steps)
+PACKED_RESIDUAL_ABS = 1e-9  # the packed block's whitened residual vs the plain kernel's: the same arithmetic
+PACKED_JACOBIAN_REL = 1e-12  # the packed block's Jacobian rows vs the plain kernel's divided by sigma
+ZERO_IOP_PX = 1e-7  # project_cam with every IOP zero vs project: the same ray, iterated separately
+ZERO_IOP_REL, ZERO_IOP_ABS = 1e-6, 1e-9  # their derivatives wrt the point, same iterations
 
 # the pass-propagated models need passes (several images, epochs) that the per-image synthetic
 # scenes here do not have; tests/test_orbit_pass.py covers their Jacobians and projections;
@@ -43,8 +54,8 @@ def test_rotation_matches_product_of_elementary_rotations_and_fd():
     om, ph, ka = 0.3, -0.41, 2.2
     m, dmo, dmp, dmk = rotation_and_derivatives(om, ph, ka)
     expected = _elementary(0, om) @ _elementary(1, ph) @ _elementary(2, ka)
-    np.testing.assert_allclose(m, expected, atol=1e-15)
-    np.testing.assert_allclose(m @ m.T, np.eye(3), atol=1e-14)
+    np.testing.assert_allclose(m, expected, atol=ELEMENTARY_ABS)
+    np.testing.assert_allclose(m @ m.T, np.eye(3), atol=ORTHONORMAL_ABS)
     h = 1e-6
     for k, dm in enumerate((dmo, dmp, dmk)):
         a = [om, ph, ka]
@@ -52,7 +63,7 @@ def test_rotation_matches_product_of_elementary_rotations_and_fd():
         a[k] += h
         b[k] -= h
         fd = (rotation_and_derivatives(*a)[0] - rotation_and_derivatives(*b)[0]) / (2 * h)
-        np.testing.assert_allclose(dm, fd, atol=1e-9)
+        np.testing.assert_allclose(dm, fd, atol=ROTATION_FD_ABS)
 
 
 def test_backward_camera_has_negative_phi():
@@ -72,7 +83,7 @@ def test_gravity_gradient_fd(j2):
         e = np.zeros(3)
         e[j] = h
         fd = (gravity_and_gradient(r + e, GM_M3_S2, j2, AE_M)[0] - gravity_and_gradient(r - e, GM_M3_S2, j2, AE_M)[0]) / (2 * h)
-        np.testing.assert_allclose(gg[:, j], fd, rtol=1e-6, atol=1e-15)
+        np.testing.assert_allclose(gg[:, j], fd, rtol=GRAVITY_FD_REL, atol=GRAVITY_FD_ABS)
 
 
 def test_j2_acceleration_is_gradient_of_potential():
@@ -86,7 +97,7 @@ def test_j2_acceleration_is_gradient_of_potential():
     g, _ = gravity_and_gradient(r, GM_M3_S2, J2, AE_M)
     h = 0.5
     num = np.array([(potential(r + h * e) - potential(r - h * e)) / (2 * h) for e in np.eye(3)])
-    np.testing.assert_allclose(g, num, rtol=1e-7)
+    np.testing.assert_allclose(g, num, rtol=POTENTIAL_FD_REL)
 
 
 def test_kepler_position_is_second_order_taylor_of_the_rotating_frame_orbit():
@@ -177,7 +188,7 @@ def test_ray_inverts_projection(model):
         p = s + 700e3 * d
         ok, line, col, *_ = project(img.kind, coef, img.kc, p, oc, False)
         assert ok
-        assert abs(line - oc[0]) < 1e-6 and abs(col - oc[1]) < 1e-6
+        assert abs(line - oc[0]) < ROUND_TRIP_PX and abs(col - oc[1]) < ROUND_TRIP_PX
 
 
 def test_point_block_matches_single_projections_and_layout():
@@ -205,11 +216,11 @@ def test_point_block_matches_single_projections_and_layout():
     for i, (r, im) in enumerate(zip(rows, imgs)):
         ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp = project(im.kind, im.coef(), im.kc, p.xyz, problem.obs.oc[r], True)
         sig = problem.obs.oc[r, 2]
-        assert res[2 * i] == pytest.approx((problem.obs.oc[r, 0] - line) / sig, abs=1e-9)
+        assert res[2 * i] == pytest.approx((problem.obs.oc[r, 0] - line) / sig, abs=PACKED_RESIDUAL_ABS)
         jp = jacs[0].reshape(2 * k, 3)
-        np.testing.assert_allclose(jp[2 * i], -dl_dp / sig, rtol=1e-12)
+        np.testing.assert_allclose(jp[2 * i], -dl_dp / sig, rtol=PACKED_JACOBIAN_REL)
         ji = jacs[1 + i].reshape(2 * k, im.nfree)
-        np.testing.assert_allclose(ji[2 * i + 1], -dc_dc[im.free_idx] / sig, rtol=1e-12)
+        np.testing.assert_allclose(ji[2 * i + 1], -dc_dc[im.free_idx] / sig, rtol=PACKED_JACOBIAN_REL)
         other = np.delete(ji, [2 * i, 2 * i + 1], axis=0)
         assert np.all(other == 0.0)
 
@@ -230,8 +241,8 @@ def test_projection_with_interior_orientation_jacobian_and_zero_limit(model):
         oc = problem.obs.oc[k]
         a = project(img.kind, coef, img.kc, p, oc, True)
         b = project_cam(img.kind, coef, img.kc, p, oc, np.zeros(N_IOP), chip, chip_len, True)
-        assert abs(a[1] - b[1]) < 1e-7 and abs(a[2] - b[2]) < 1e-7
-        np.testing.assert_allclose(b[5], a[5], rtol=1e-6, atol=1e-9)
+        assert abs(a[1] - b[1]) < ZERO_IOP_PX and abs(a[2] - b[2]) < ZERO_IOP_PX
+        np.testing.assert_allclose(b[5], a[5], rtol=ZERO_IOP_REL, atol=ZERO_IOP_ABS)
     iop = np.zeros(N_IOP)
     iop[: len(IOP_OPTICAL)] = [0.004, -0.003, 1.5, 2e-6, 3e-10, 1e-4]
     b0 = 6 + 5 * chip

@@ -28,6 +28,12 @@ from solver.schema.job import load_job
 from solver.synthetic import single_image_job, truth_parameters
 from solver.synthetic_lines import lines_job
 
+LINE_FIT_PX = 1e-9  # a fitted line's points lie on it: one multiplication and addition
+CURVED_LINE_PX = 2e-3  # distances to a curved image line 40 px long: ~1e-3 px of curvature
+DISTANCE_ABS = 1e-9  # the same distances whatever earlier evaluations left: rounding
+SEARCH_PARAMETER = 1e-6  # where the search along the ground line stops (a parameter of the segment, 0..1)
+LGS_ORIGIN_M = 1e-3  # the LGS origin at the control lines' centroid, recomputed from ECEF points
+
 # the pass-propagated models need passes (several images, epochs) that the per-image synthetic
 # scenes here do not have; tests/test_orbit_pass.py covers their Jacobians and projections;
 # the RPC bias models have no camera (tests/test_rpc_models.py)
@@ -128,9 +134,9 @@ def test_equivalent_planes_is_the_frame_projection_of_the_line():
         for t in (-0.3, 0.4, 1.7):
             x, y = frame_xy(img.kind, coef, img.kc, tau, gl.p1 + t * (gl.p2 - gl.p1), img.camera.focal_mm)
             if li.form == FORM_Y:
-                assert y == pytest.approx(ab[0] * x + ab[1], abs=1e-9)
+                assert y == pytest.approx(ab[0] * x + ab[1], abs=LINE_FIT_PX)
             else:
-                assert x == pytest.approx(ab[0] * y + ab[1], abs=1e-9)
+                assert x == pytest.approx(ab[0] * y + ab[1], abs=LINE_FIT_PX)
 
 
 @pytest.mark.parametrize("model", PER_IMAGE_MODELS)
@@ -172,8 +178,8 @@ def test_rigorous_distance_is_zero_on_the_projected_line_and_perpendicular():
     s = np.full(3, 0.3)
     ok, d, _jc, _jp = line_distances(img.kind, coef, img.kc, gl.p1, gl.p2, ocs, s, False)
     assert ok
-    np.testing.assert_allclose(d, [0.0, 2.5, 2.5], atol=2e-3)  # 40 px along a curved image line: ~1e-3 px
-    assert s[0] == pytest.approx(0.37, abs=1e-6)
+    np.testing.assert_allclose(d, [0.0, 2.5, 2.5], atol=CURVED_LINE_PX)
+    assert s[0] == pytest.approx(0.37, abs=SEARCH_PARAMETER)
 
 
 def test_distances_do_not_depend_on_where_earlier_evaluations_left_the_search():
@@ -197,7 +203,7 @@ def test_distances_do_not_depend_on_where_earlier_evaluations_left_the_search():
     for starts in (s, np.full_like(s, 40.0), np.full_like(s, np.nan)):
         ok, d1, _jc, _jp = line_distances(img.kind, coef, img.kc, gl.p1, gl.p2, li.ocs, starts, False)
         assert ok
-        np.testing.assert_allclose(d1, d0, atol=1e-9)
+        np.testing.assert_allclose(d1, d0, atol=DISTANCE_ABS)
 
 
 @pytest.mark.parametrize("model", ["K2", "ON2", "MT8", "P1"])
@@ -271,7 +277,7 @@ def test_lines_alone_recover_the_truth_within_3_sigma(model, line_model, fitted,
     assert report["lines"]["model"] == line_model
     assert not report["lines"]["warnings"]
     # the LGS is at the centroid of the control lines' points (no control points)
-    assert np.allclose(report["frames"]["lgs"]["origin_ecef_m"], truth["frame_origin_ecef"], atol=1e-3)
+    assert np.allclose(report["frames"]["lgs"]["origin_ecef_m"], truth["frame_origin_ecef"], atol=LGS_ORIGIN_M)
 
 
 @pytest.mark.parametrize("model", PER_IMAGE_MODELS)

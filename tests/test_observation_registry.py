@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 from pydantic import BaseModel, ConfigDict, Field
+from tolerances import SAME_NUMBER_REL
 
 from solver.adjust import adjust_job, prepare
 from solver.engine.linalg import linearise
@@ -28,6 +29,9 @@ from solver.errors import Problem
 from solver.observations import registry
 from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled, ObservationFamily, ReportContext
 from solver.schema.job import Job, load_job
+
+BLUNDER_ESTIMATE_REL = 0.3  # the estimated error of a rejected fix vs the blunder: the other fixes and the rays hold the parameter
+WRITTEN_OFFSET_SIGMA = 1e-6  # offsets of the values as written, in sigmas (rounding of large values)
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 HOOKS = ("check", "terms", "refresh", "groups", "report", "without", "removal_details", "flag")
@@ -174,10 +178,10 @@ def test_a_fake_family_is_validated_counted_solved_snooped_and_reported(with_fak
     report = adjust_job(job)
     rejected = [r for r in report["quality"]["rejected"] if r["kind"] == "fix"]
     assert len(rejected) == 1 and rejected[0]["removed"]
-    assert math.isclose(rejected[0]["value"], value + BLUNDER_SIGMAS * sigma, rel_tol=1e-12)
+    assert math.isclose(rejected[0]["value"], value + BLUNDER_SIGMAS * sigma, rel_tol=SAME_NUMBER_REL)
     assert rejected[0]["w"] > rejected[0]["critical"]
     # the estimated error: about the blunder (the other fixes and the rays hold the parameter)
-    assert rejected[0]["estimated_error"][0] == pytest.approx(BLUNDER_SIGMAS * sigma, rel=0.3)
+    assert rejected[0]["estimated_error"][0] == pytest.approx(BLUNDER_SIGMAS * sigma, rel=BLUNDER_ESTIMATE_REL)
     groups = [g for g in report["quality"]["reliability"]["groups"] if g["kind"] == "fix"]
     assert len(groups) == 3  # the remaining fixes have their reliability numbers
     assert all(0.0 < g["redundancy"][0] < 1.0 for g in groups)
@@ -185,7 +189,7 @@ def test_a_fake_family_is_validated_counted_solved_snooped_and_reported(with_fak
     # reported and flagged: its section has the three fixes left, small residuals, the flag
     section = report["fixes"]
     offsets = [(f["value"] - value) / sigma for f in section["items"]]
-    assert offsets == pytest.approx([0.3, -0.5, 0.2], abs=1e-6)  # the values as written (rounding of large values)
+    assert offsets == pytest.approx([0.3, -0.5, 0.2], abs=WRITTEN_OFFSET_SIGMA)
     assert all(abs(f["residual"]) < 2 * sigma for f in section["items"])
     assert section["rejected"] == [{"image": image["id"], "value": value + BLUNDER_SIGMAS * sigma}]
     assert report["adjustment"]["n_observations"] == plain["adjustment"]["n_observations"] + 3

@@ -22,6 +22,8 @@ from solver.kernels import project
 from solver.platforms import get_model
 from solver.schema.job import load_job
 
+TIME_SCALE_REL = 1e-15  # tau per line is a copy of the line time or a division by 1000: one ulp
+
 F_MM = 2000.0
 PX_MM = 0.01
 LINES, COLUMNS = 2000, 1000
@@ -131,5 +133,5 @@ def test_line_time_convention(model: str) -> None:
     L line_time_s (seconds since first_line_time_s) for orbital ones (docs/models.md)."""
     m = get_model(model)
     expected = LINE_TIME_S if m.kind.earth_fixed else 1.0 / 1000.0
-    assert m.tau_per_line(LINE_TIME_S) == pytest.approx(expected, rel=1e-15)  # a copy or a division by 1000
+    assert m.tau_per_line(LINE_TIME_S) == pytest.approx(expected, rel=TIME_SCALE_REL)
     assert ("line_time" in m.time_variable) is m.kind.earth_fixed

@@ -25,6 +25,8 @@ from solver.observations.state_priors import all_state_priors
 from solver.schema.job import load_job
 from solver.synthetic import block_job
 
+JSON_DEGREES_SIGMA = 1e-6  # whitened attitude residuals from degrees written to and read from JSON
+
 # the residuals are linear in p up to the kernel's own rounding: central differences with steps
 # of 1e-3 of a parameter's scale agree to ~1e-9 of the largest entry; a wrong row, scale or sign
 # is off by the whole entry
@@ -113,7 +115,7 @@ def test_measured_attitude_is_the_kernels_angles_at_each_sample():
 
         p = img.params + rng.normal(0.0, 1e-3, img.nfree)
         r, jac = term.evaluate(p)
-        np.testing.assert_allclose(r, residual(p), rtol=0, atol=1e-6)  # 1e-6 sigma: degrees read back from JSON
+        np.testing.assert_allclose(r, residual(p), rtol=0, atol=JSON_DEGREES_SIGMA)
         _assert_jacobian(jac, _central_differences(residual, p, _steps(p)))
 
 

@@ -17,6 +17,11 @@ from solver.errors import JobError
 from solver.schema.job import load_job
 from solver.synthetic import block_job
 
+# pre-analysis of a plan vs the adjustment of the same scene, a-posteriori scale taken out: the
+# geometry of the linearisation point differs (truth vs solution); a wrong cofactor is a factor
+PLAN_VS_ADJUSTMENT_REL = 0.03
+PLANNED_LINES_REL = 0.25  # pre-analysis with planned lines vs the adjustment with them: nominal vs measured line geometry
+
 # the acceptance: within 25%. Measured 1-3% here (the adjusted report scales by its
 # sigma0 a posteriori, about 1 +- 0.1 with 150 degrees of freedom; the pre-analysis by the
 # a-priori 1), so 10% catches a missing term (the orientation part is most of the sigma)
@@ -54,7 +59,7 @@ def test_preanalysis_predicts_the_adjusted_precision(n_gcp):
     s0 = rep["adjustment"]["sigma0_aposteriori"]
     for a in "enu":
         # the RMS over the check points, with the a-posteriori scale taken out
-        assert pre["checkpoints"]["predicted_rmse_m"][a] == pytest.approx(rep["checkpoints"]["predicted_rmse_m"][a] / s0, rel=0.03)
+        assert pre["checkpoints"]["predicted_rmse_m"][a] == pytest.approx(rep["checkpoints"]["predicted_rmse_m"][a] / s0, rel=PLAN_VS_ADJUSTMENT_REL)
     ties = {p["id"]: p for p in rep["tie_points"]}
     for p in pre["points"]:
         if p["role"] == "tie":
@@ -107,4 +112,4 @@ def test_planned_control_lines_improve_the_prediction_and_match_the_adjustment(s
     for k in ("e", "n"):  # mono check points: east, north
         # planned lines add information: at least 20 % better (measured 1.6-2.4x)
         assert a[k] < 0.8 * b[k], (a, b)
-        assert a[k] == pytest.approx(c[k], rel=0.25), (a, c)
+        assert a[k] == pytest.approx(c[k], rel=PLANNED_LINES_REL), (a, c)

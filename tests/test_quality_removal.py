@@ -9,6 +9,7 @@ import copy
 
 import numpy as np
 import pytest
+from tolerances import SAME_NUMBER_REL
 
 from solver.adjust import adjust_once
 from solver.api import run
@@ -16,6 +17,15 @@ from solver.quality.removal import INFLATE, with_candidates
 from solver.quality.snooping import predicted_test, snoop
 from solver.schema.job import BlunderDetection, load_job
 from solver.synthetic import block_job
+
+# the predicted w of a removed observation vs the test inside the adjustment: the nonlinearity of
+# a 6-px error (the statistics are evaluated at solutions 6 px apart); a cofactor without the
+# parameters' covariance (I instead of I + J Q_xx J^T) is off by 1 / sqrt(r) ~ 20-40 %
+PREDICTED_W_REL = 0.02
+BLUNDER_ESTIMATE_PX = 1.5  # the estimate of a 6-px error: 0.5 px noise over redundancy ~0.5
+ATTITUDE_ESTIMATE_DEG = 0.006  # three sigmas of a sample (0.002 deg) over its redundancy (~0.9)
+STATE_ESTIMATE_M = 3.0  # ECEF m: 1.5 sigma of a state sample over its redundancy (~0.4-0.7)
+SAMPLE_TIME_S = 1e-6  # a rejected sample's epoch as the report writes it back
 
 DEFAULTS = BlunderDetection()
 
@@ -44,13 +54,10 @@ def test_test_outside_the_adjustment_equals_the_w_test_inside(block) -> None:
     n = len(without.observations)
     t = next(t for t in sn.tests if t.group.removal == ("observation", n))
     out = predicted_test(sn, t, INFLATE)
-    # 2 %: the nonlinearity of a 6-px error (the two statistics are evaluated at solutions 6 px
-    # apart in this observation); a cofactor without the parameters' covariance (I instead of
-    # I + J Q_xx J^T) is off by 1 / sqrt(r) ~ 20-40 % here
-    assert out["w"] == pytest.approx(inside.w, rel=0.02)
-    assert out["critical"] == pytest.approx(inside.critical, rel=1e-12)
-    np.testing.assert_allclose(out["estimated_error"], inside.error, atol=0.02 * 6.0)
-    assert out["estimated_error"][1] == pytest.approx(6.0, abs=1.5)  # px; noise 0.5 px over r ~ 0.5
+    assert out["w"] == pytest.approx(inside.w, rel=PREDICTED_W_REL)
+    assert out["critical"] == pytest.approx(inside.critical, rel=SAME_NUMBER_REL)
+    np.testing.assert_allclose(out["estimated_error"], inside.error, atol=PREDICTED_W_REL * 6.0)
+    assert out["estimated_error"][1] == pytest.approx(6.0, abs=BLUNDER_ESTIMATE_PX)
 
 
 def test_a_check_point_image_blunder_is_named(block) -> None:
@@ -161,8 +168,7 @@ def test_an_attitude_sample_blunder_is_found_and_removed() -> None:
     rep = run(job)
     (r,) = rep["quality"]["rejected"]
     assert (r["kind"], r["time_s"], r["removed"]) == ("attitude_sample", sample["time_s"], True)
-    # deg; 0.006: three sigmas of the sample (0.002 deg) over its redundancy (~0.9)
-    np.testing.assert_allclose(r["estimated_error"], [0.0, 0.02, 0.0], atol=0.006)
+    np.testing.assert_allclose(r["estimated_error"], [0.0, 0.02, 0.0], atol=ATTITUDE_ESTIMATE_DEG)
     # flagged in the attitude section: the block of that image lists the removed epoch
     blocks = {tuple(b["images"]): b["rejected_samples_s"] for b in rep["attitude"]}
     assert [v for k, v in blocks.items() if job["images"][1]["id"] in k] == [[sample["time_s"]]]
@@ -202,7 +208,7 @@ def test_a_point_removed_whole_is_tested_against_the_final_orientation() -> None
     # 2 %: nonlinearity over a 3-px error; the formula for a point determined by the rest
     # (whole=False) gives w = 0.02 here: the inflated survey leaves the ray nothing to test
     assert out["dof"] == inside.dof
-    assert out["w"] == pytest.approx(inside.w, rel=0.02)
+    assert out["w"] == pytest.approx(inside.w, rel=PREDICTED_W_REL)
 
 
 @pytest.fixture(scope="module")
@@ -258,19 +264,18 @@ def test_an_ephemeris_sample_blunder_is_found_and_removed() -> None:
     t = epochs[1]
     for im in job["images"]:
         for s in im["ephemeris"]:
-            if abs(s["time_s"] - t) < 1e-6:
+            if abs(s["time_s"] - t) < SAMPLE_TIME_S:
                 s["position_ecef_m"][0] += 50.0
     rep = run(job)
     (r,) = rep["quality"]["rejected"]
     assert (r["kind"], r["time_s"], r["removed"]) == ("ephemeris_sample", t, True)
-    # m (ECEF x, y, z); 3 m: 1.5 sigma of the sample over its redundancy (~0.4-0.7)
-    np.testing.assert_allclose(r["estimated_error"][:3], [50.0, 0.0, 0.0], atol=3.0)
+    np.testing.assert_allclose(r["estimated_error"][:3], [50.0, 0.0, 0.0], atol=STATE_ESTIMATE_M)
     assert rep["adjustment"]["chi2"]["passed"]
     # flagged in the ephemeris section of every image that carried the sample
-    carried = {im["id"] for im in job["images"] if any(abs(s["time_s"] - t) < 1e-6 for s in im["ephemeris"])}
+    carried = {im["id"] for im in job["images"] if any(abs(s["time_s"] - t) < SAMPLE_TIME_S for s in im["ephemeris"])}
     flagged = {e["image"]: e["rejected_samples_s"] for e in rep["ephemeris"]["images"]}
     assert carried and {k for k, v in flagged.items() if v} == carried
-    assert all(v == [pytest.approx(t, abs=1e-6)] for k, v in flagged.items() if k in carried)
+    assert all(v == [pytest.approx(t, abs=SAMPLE_TIME_S)] for k, v in flagged.items() if k in carried)
     assert rep["ephemeris"]["rejected_states"] == []
 
 

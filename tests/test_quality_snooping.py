@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 from scipy import stats
+from tolerances import RECOMPUTED_REL, REDUNDANCY_SUM_ABS, SAME_NUMBER_REL
 
 from solver.adjust import adjust_once
 from solver.api import run, validate
@@ -19,6 +20,20 @@ from solver.quality.reliability import minimal_detectable_bias, noncentrality, r
 from solver.quality.snooping import snoop
 from solver.schema.job import BlunderDetection, load_job
 from solver.synthetic import block_job, single_image_job
+
+NONCENTRALITY_ABS = 0.02  # Baarda's tabled 17.07 is given to two decimals
+# the cofactor blocks of the snooping structure against a dense inverse (QR path ~1e-11): a
+# missing coupling term (image point or prior) changes entries by 1e-2 or more
+COFACTOR_ABS = 1e-5
+# the statistic a bias of MDB / 8 produces, against its linear prediction (and the estimated
+# error against the injected bias): the linearisation error is ~1 %; a wrong cofactor (the
+# leverage instead of the redundancy, a missing prior row) is off by a factor
+LINEAR_PREDICTION_REL = 0.03
+POWER_ABS = 1e-6  # the power beta recovered from lambda0: brentq's tolerance on lambda0
+BLUNDER_ESTIMATE_M = 2.5  # the 3-D test's estimate of a 20 m survey error: 0.5 m noise over redundancy ~0.1
+BLUNDER_ESTIMATE_PX = 1.5  # px: 3 sigma of the estimated error of a -12 px blunder
+CLEAN_RMSE_REL = 0.10  # check-point RMSE after removing the blunder vs the clean job's: the noise of one removed point
+WEAKEST_REL = 1e-6  # lambda0 / 64 along the weakest direction: an eigen-decomposition of a small cofactor
 
 DEFAULTS = BlunderDetection()
 
@@ -35,7 +50,7 @@ def weighted_block():
 
 def test_noncentrality_matches_the_textbook_value() -> None:
     # Baarda: alpha0 = 0.001, beta = 0.8, one dimension: (3.29 + 0.84)^2 = 17.07
-    assert noncentrality(0.001, 0.8, 1) == pytest.approx(17.07, abs=0.02)
+    assert noncentrality(0.001, 0.8, 1) == pytest.approx(17.07, abs=NONCENTRALITY_ABS)
     # more dimensions need a larger non-centrality for the same power
     assert noncentrality(0.001, 0.8, 2) > noncentrality(0.001, 0.8, 1)
 
@@ -55,11 +70,11 @@ def test_redundancy_blocks_equal_the_dense_hat_matrix(weighted_block) -> None:
         # 1e-5: the Schur path inverts S (Jacobi-scaled condition ~1e10: errors up to ~1e-6,
         # the QR path ~1e-11);
         # a missing coupling term (image-point or prior) changes entries by 1e-2 or more
-        np.testing.assert_allclose(blk.q, q_dense[np.ix_(blk.rows, blk.rows)], atol=1e-5)
+        np.testing.assert_allclose(blk.q, q_dense[np.ix_(blk.rows, blk.rows)], atol=COFACTOR_ABS)
     total = sum(float(redundancy(sn.structure, g).sum()) for g in sn.structure.groups)
     # 1e-3: the sum of ~200 entries each within ~1e-6; a group left out is worth 0.01-2
-    assert total == pytest.approx(len(hat) - n, abs=1e-3)
-    assert total == pytest.approx(report["adjustment"]["dof"], abs=1e-3)
+    assert total == pytest.approx(len(hat) - n, abs=REDUNDANCY_SUM_ABS)
+    assert total == pytest.approx(report["adjustment"]["dof"], abs=REDUNDANCY_SUM_ABS)
     kinds = {g.kind for g in sn.structure.groups}
     assert kinds == {"image_point", "control_point"}
 
@@ -128,13 +143,13 @@ def test_mdb_is_the_bias_the_test_detects_with_power_beta(weighted_block) -> Non
     predicted = float((v0 + q @ b) @ np.linalg.solve(q, v0 + q @ b))
     # 3 %: the linearisation error at MDB / 8 (0.8 px); a wrong cofactor (e.g. the leverage
     # instead of the redundancy, or a missing prior row) is off by a factor
-    assert t2.statistic == pytest.approx(predicted, rel=0.03)
+    assert t2.statistic == pytest.approx(predicted, rel=LINEAR_PREDICTION_REL)
     mdb = minimal_detectable_bias(sn.structure, target.group, sn.lam0(2))
-    assert mdb[0] == pytest.approx(mdb_line, rel=1e-9)
+    assert mdb[0] == pytest.approx(mdb_line, rel=RECOMPUTED_REL)
     # the estimated error moves by the injected bias
-    assert t2.error[0] - target.error[0] == pytest.approx(bias, rel=0.03)
-    assert t2.error[1] - target.error[1] == pytest.approx(0.0, abs=0.03 * bias)
-    assert stats.ncx2.sf(stats.chi2.ppf(1 - DEFAULTS.alpha0, 2), 2, sn.lam0(2)) == pytest.approx(DEFAULTS.beta, abs=1e-6)
+    assert t2.error[0] - target.error[0] == pytest.approx(bias, rel=LINEAR_PREDICTION_REL)
+    assert t2.error[1] - target.error[1] == pytest.approx(0.0, abs=LINEAR_PREDICTION_REL * bias)
+    assert stats.ncx2.sf(stats.chi2.ppf(1 - DEFAULTS.alpha0, 2), 2, sn.lam0(2)) == pytest.approx(DEFAULTS.beta, abs=POWER_ABS)
 
 
 def _key(entry: dict) -> tuple:
@@ -182,16 +197,16 @@ def test_blunders_are_rejected_or_grouped_through_run(weighted_block) -> None:
     moved = next(r for r in q["rejected"] if r["kind"] == "control_point")
     # estimated error: the error in the observation (the survey was moved +20 m north);
     # 2.5 m: the 3-D test's estimate carries the survey noise (0.5 m) over redundancy ~0.1
-    assert moved["estimated_error"][1] == pytest.approx(20.0, abs=2.5)
+    assert moved["estimated_error"][1] == pytest.approx(20.0, abs=BLUNDER_ESTIMATE_M)
     assert rep["adjustment"]["chi2"]["passed"]
     rms = lambda r: np.hypot(r["checkpoints"]["rmse_m"]["planimetric"], r["checkpoints"]["rmse_m"]["u"])  # noqa: E731
-    assert rms(rep) == pytest.approx(rms(clean), rel=0.10)
+    assert rms(rep) == pytest.approx(rms(clean), rel=CLEAN_RMSE_REL)
     # the removed image points stay listed, flagged
     flagged = [o for o in rep["observations"] if o["rejected"]]
     assert {(o["image"], o["point"]) for o in flagged} >= {b[1:] for b in injected[1:3]}
     assert len(rep["observations"]) == len(clean["observations"])
     rel = q["reliability"]
-    assert rel["total_redundancy"] == pytest.approx(rel["dof"], abs=1e-3)
+    assert rel["total_redundancy"] == pytest.approx(rel["dof"], abs=REDUNDANCY_SUM_ABS)
 
 
 def test_report_only_and_default_report_unchanged(weighted_block) -> None:
@@ -205,7 +220,7 @@ def test_report_only_and_default_report_unchanged(weighted_block) -> None:
     bad["options"] = {"blunder_detection": {"action": "report"}}
     rep = run(bad)
     assert rep["quality"]["blunder_detection"]["n_removed"] == 0
-    assert rep["adjustment"]["sigma0_aposteriori"] == pytest.approx(plain["adjustment"]["sigma0_aposteriori"], rel=1e-9)
+    assert rep["adjustment"]["sigma0_aposteriori"] == pytest.approx(plain["adjustment"]["sigma0_aposteriori"], rel=RECOMPUTED_REL)
     flagged = rep["quality"]["rejected"] + [m for g in rep["quality"]["not_identifiable"] for m in g["members"]]
     assert any(m["point"] == bad["observations"][0]["point"] and not m["removed"] for m in flagged)
 
@@ -275,7 +290,7 @@ def test_every_observation_kind_is_tested() -> None:
         job.setdefault("options", {})["blunder_detection"] = {"action": "report"}
         rel = run(job)["quality"]["reliability"]
         assert {g["kind"] for g in rel["groups"]} == kinds
-        assert rel["total_redundancy"] == pytest.approx(rel["dof"], abs=1e-3)
+        assert rel["total_redundancy"] == pytest.approx(rel["dof"], abs=REDUNDANCY_SUM_ABS)
         att = [g for g in rel["groups"] if g["kind"] == "attitude_sample"]
         # attitude samples: MDB of the order of a few sigmas (0.002 deg) in degrees
         assert all(0.002 < m < 0.05 for g in att for m in g["mdb"])
@@ -300,7 +315,7 @@ def test_max_rejections_stops_and_reports_the_rest(weighted_block) -> None:
     assert (kept[0]["image"], kept[0]["point"]) == (culprit["image"], culprit["point"])
     ratios = [r["w"] / r["critical"] for r in kept]
     assert ratios == sorted(ratios, reverse=True) and ratios[-1] > 1.0
-    assert kept[0]["estimated_error"][1] == pytest.approx(-12.0, abs=1.5)  # px, 3 sigma of the estimate
+    assert kept[0]["estimated_error"][1] == pytest.approx(-12.0, abs=BLUNDER_ESTIMATE_PX)
     assert any("max_rejections" in w for w in rep["warnings"])
 
 
@@ -320,7 +335,7 @@ def test_weakest_direction_mdb_is_the_largest_over_directions(weighted_block) ->
     lam0 = sn.lam0(2)
     weakest = weakest_direction(sn.structure, target.group, lam0)
     u = np.asarray(weakest["direction"])
-    assert np.linalg.norm(u) == pytest.approx(1.0, abs=1e-12)
+    assert np.linalg.norm(u) == pytest.approx(1.0, abs=SAME_NUMBER_REL)
     mdb = minimal_detectable_bias(sn.structure, target.group, lam0)
     # the per-component MDBs are biases along two particular directions: none exceeds the max
     assert all(m <= weakest["value"] * (1 + 1e-9) for m in mdb)
@@ -339,10 +354,10 @@ def test_weakest_direction_mdb_is_the_largest_over_directions(weighted_block) ->
         b = bias / sigma
         predicted = float((v0 + q @ b) @ np.linalg.solve(q, v0 + q @ b))
         # 3 %: the linearisation error at MDB / 8, as in the per-component MDB test above
-        assert t2.statistic == pytest.approx(predicted, rel=0.03)
+        assert t2.statistic == pytest.approx(predicted, rel=LINEAR_PREDICTION_REL)
         stat[name] = float(b @ q @ b)
     # the weakest direction's non-centrality is lambda0 at mdb_max (here / 64), the other larger
-    assert stat["weakest"] == pytest.approx(lam0 / 64.0, rel=1e-6)
+    assert stat["weakest"] == pytest.approx(lam0 / 64.0, rel=WEAKEST_REL)
     assert stat["across"] >= stat["weakest"]
 
 

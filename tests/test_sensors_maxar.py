@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tolerances import ROTATION_ABS, SAME_RPC_PX
 
 from solver.cli import main
 from solver.schema.job import Camera, Image
@@ -19,6 +20,11 @@ from solver.sensors.job_fragment import angles_xyz, fragment, rotation_xyz
 from solver.sensors.linescan import lagrange
 from solver.sensors.maxar import read_maxar
 from solver.simulate.attitude import opk_from_matrix
+
+INVERSE_PX = 1e-4  # px: the exact model's ground-to-image iteration stops at 1e-6
+LAGRANGE_M = 1e-3  # held-out samples with the neighbours twice as far apart as in use (file values: 1e-9 m digits)
+
+FILE_TIME_S = 1e-6  # times read from the file's text (microseconds written)
 
 DATA = Path(__file__).parent / "data" / "vendor" / "stereopipeline"
 FILES = ["wv_test1", "wv_test2", "wv_mvp_1", "wv_mvp_2"]
@@ -77,7 +83,7 @@ def test_ground_to_image_inverts_image_to_ground(products) -> None:
     rng = np.random.default_rng(3)
     lc = np.column_stack([rng.uniform(0, m.lines - 1, 30), rng.uniform(0, m.columns - 1, 30)])
     g = m.image_to_ground(lc[:, 0], lc[:, 1], rng.uniform(2500, 4000, 30))
-    assert np.max(np.abs(m.ground_to_image(g) - lc)) < 1e-4  # px: the iteration's tolerance is 1e-6
+    assert np.max(np.abs(m.ground_to_image(g) - lc)) < INVERSE_PX
 
 
 def test_lagrange_interpolates_held_out_ephemeris_samples(products) -> None:
@@ -85,7 +91,7 @@ def test_lagrange_interpolates_held_out_ephemeris_samples(products) -> None:
     t, p = m.ephemeris_times_s, m.positions_ecef_m
     even, odd = slice(0, None, 2), slice(1, -1, 2)
     err = np.linalg.norm(lagrange(t[odd], t[even], p[even]) - p[odd], axis=1)
-    assert err.max() < 1e-3  # 1 mm with the neighbours twice as far apart as in use (file values: 1e-9 m digits)
+    assert err.max() < LAGRANGE_M
 
 
 def test_attitude_angles_are_the_solvers_rx_ry_rz() -> None:
@@ -94,8 +100,8 @@ def test_attitude_angles_are_the_solvers_rx_ry_rz() -> None:
     rng = np.random.default_rng(5)
     ang = rng.uniform(-0.6, 0.6, (20, 3))
     r = rotation_xyz(ang)
-    assert np.allclose([opk_from_matrix(m) for m in r], ang, atol=1e-12)
-    assert np.allclose(angles_xyz(r), ang, atol=1e-12)
+    assert np.allclose([opk_from_matrix(m) for m in r], ang, atol=ROTATION_ABS)
+    assert np.allclose(angles_xyz(r), ang, atol=ROTATION_ABS)
 
 
 def test_job_fragment_is_schema_valid_and_close_to_the_exact_model(products) -> None:
@@ -111,7 +117,7 @@ def test_job_fragment_is_schema_valid_and_close_to_the_exact_model(products) -> 
     assert first.ephemeris[0].time_s < first.first_line_time_s and first.ephemeris[-1].time_s > t_last
     assert first.attitude[0].time_s < first.first_line_time_s and first.attitude[-1].time_s > t_last
     # the pair shares one time scale: 69.0178 s between the first lines (FIRSTLINETIME)
-    assert images[1].first_line_time_s - images[0].first_line_time_s == pytest.approx(69.0178, abs=1e-6)
+    assert images[1].first_line_time_s - images[0].first_line_time_s == pytest.approx(69.0178, abs=FILE_TIME_S)
     for note in notes:
         assert note["difference_px"]["rms"] < 0.5, note
 
@@ -198,7 +204,7 @@ def test_import_rpc_reads_a_bare_maxar_xml_as_gdal_reads_it_beside_a_raster(tmp_
     lat = gdal.lat_off + gdal.lat_scale * np.linspace(-1, 1, 5)
     h = gdal.height_off + gdal.height_scale * np.linspace(-1, 1, 5)
     a, b = np.array(gdal.project(lon, lat, h)), np.array(ours.project(lon, lat, h))
-    assert np.max(np.abs(a - b)) < 1e-6  # px: the same coefficients and offsets
+    assert np.max(np.abs(a - b)) < SAME_RPC_PX
 
 
 def test_import_rpc_names_the_element_of_a_bad_maxar_xml(tmp_path, capsys) -> None:
@@ -256,7 +262,7 @@ def test_pba_job_composes_a_pair_from_its_metadata(tmp_path, products, capsys) -
     assert [c["id"] for c in job["cameras"]] == ["L", "R"]
     assert [i["model"]["name"] for i in job["images"]] == ["OA-J2", "OA-J2"]
     assert {"ephemeris", "attitude"} <= set(job["options"])
-    assert job["images"][1]["first_line_time_s"] - job["images"][0]["first_line_time_s"] == pytest.approx(69.0178, abs=1e-6)
+    assert job["images"][1]["first_line_time_s"] - job["images"][0]["first_line_time_s"] == pytest.approx(69.0178, abs=FILE_TIME_S)
 
 
 def test_pba_job_names_a_bad_sensor_file(tmp_path, capsys) -> None:

@@ -9,11 +9,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tolerances import SAME_NUMBER_REL
 
 from solver.cli import main
 from solver.schema.job import Camera, Image
 from solver.sensors.dimap_spot5 import read_spot5, tie_point_check
 from solver.sensors.job_fragment import fragment
+
+FILE_TIME_S = 1e-6  # times read from the file's text (microseconds written)
+LOOK_ANGLE_ABS = 0.01  # the first detector's look angle, tan(20 deg) as the product's nominal field states it
 
 FILE = Path(__file__).parent / "data" / "vendor" / "stereopipeline" / "spot_example1.xml"
 TIE_POINT_M = 0.2  # the tie points' 6 decimals of a degree are 0.11 m of latitude; measured 0.03 and 0.04 m
@@ -27,10 +31,10 @@ def product():
 def test_reads_the_segment(product) -> None:
     m = product.model
     assert (m.lines, m.columns) == (96168, 300)
-    assert product.line_period_s == pytest.approx(7.5199705115e-04, rel=1e-12)
+    assert product.line_period_s == pytest.approx(7.5199705115e-04, rel=SAME_NUMBER_REL)
     # scene centre line 48085 (1-based) at 12:31:39.349737: line 48084 (0-based) there
     t = m.line_time(np.array([48084.0]))[0]
-    assert t == pytest.approx((39.349737 - 27.0) + 3 * 60, abs=1e-6)  # seconds after the first ephemeris point 12:28:27
+    assert t == pytest.approx((39.349737 - 27.0) + 3 * 60, abs=FILE_TIME_S)  # seconds after the first ephemeris point 12:28:27
 
 
 def test_exact_model_meets_the_products_tie_points(product) -> None:
@@ -60,7 +64,7 @@ def test_job_fragment(product) -> None:
     assert note["difference_px"]["rms"] < 0.5, note
     # HRS1 looks forward by ~20 deg: an along-track chip offset of f tan(20 deg)
     cam = doc["cameras"][0]
-    assert cam["chips"][0]["dx_mm"] / cam["focal_mm"] == pytest.approx(np.tan(np.radians(20.0)), abs=0.01)
+    assert cam["chips"][0]["dx_mm"] / cam["focal_mm"] == pytest.approx(np.tan(np.radians(20.0)), abs=LOOK_ANGLE_ABS)
 
 
 def test_import_sensor_command_on_spot5(tmp_path, capsys) -> None:

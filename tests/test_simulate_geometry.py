@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.optimize import brentq
+from tolerances import GEODESY_M, ROTATION_ABS
 
 from solver.geometry.geodesy import ecef_to_geodetic
 from solver.simulate.attitude import AttitudeModel, Platform, opk_from_matrix, rx, ry, rz
@@ -12,6 +13,10 @@ from solver.simulate.camera import CameraSpec, ChipSpec, cbers_camera, prism_cam
 from solver.simulate.orbit import EarthModel, Orbit, circular_state_over, sun_synchronous_semi_major_axis
 from solver.simulate.projection import ImageGeometry
 from solver.simulate.terrain import Terrain
+
+ONE_LINE_REL = 0.05  # 100 m on the ground is ~40 lines or columns (2.5 m GSD): terrain and obliquity
+GSD_REL = 5e-3  # the distance between adjacent pixels' ground points vs the camera's nominal GSD
+PITCH_DEG = 1e-9  # the angle between nadir and boresight equals the pitch: arccos of unit vectors
 
 ATOL_PX = 1e-6  # image closure, pixels
 ATOL_M = 1e-4  # ground closure, 0.1 mm
@@ -76,7 +81,7 @@ def test_ground_image_ground_round_trip(view: str):
     assert np.max(np.linalg.norm(again - ground[keep], axis=1)) < ATOL_M
     # the point really is on the terrain
     llh = ecef_to_geodetic(ground)
-    np.testing.assert_allclose(llh[:, 2], TERRAIN.height(llh[:, 0], llh[:, 1]), atol=1e-6)
+    np.testing.assert_allclose(llh[:, 2], TERRAIN.height(llh[:, 0], llh[:, 1]), atol=GEODESY_M)
 
 
 def test_line_solution_agrees_with_an_independent_root_finder():
@@ -102,9 +107,9 @@ def test_line_grows_along_track_and_column_along_camera_y():
     base = img.ground_to_image(p0[None])
     ahead = img.ground_to_image((p0 + 100 * x_c)[None])
     right = img.ground_to_image((p0 + 100 * y_c)[None])
-    assert ahead.line[0] - base.line[0] == pytest.approx(40, rel=0.05)  # 100 m / 2.5 m per line
+    assert ahead.line[0] - base.line[0] == pytest.approx(40, rel=ONE_LINE_REL)
     assert abs(ahead.column[0] - base.column[0]) < 1.0
-    assert right.column[0] - base.column[0] == pytest.approx(40, rel=0.05)
+    assert right.column[0] - base.column[0] == pytest.approx(40, rel=ONE_LINE_REL)
     assert abs(right.line[0] - base.line[0]) < 1.0
 
 
@@ -114,12 +119,12 @@ def test_mounting_pitch_tilts_the_boresight_along_track():
     for pitch in (23.8, -23.8):
         r, v, m = PLATFORM.camera_frames(t, pitch)
         cosang = np.einsum("ni,ni->n", nadir[:, 2], m[:, 2])
-        np.testing.assert_allclose(np.degrees(np.arccos(cosang)), abs(pitch), atol=1e-9)
+        np.testing.assert_allclose(np.degrees(np.arccos(cosang)), abs(pitch), atol=PITCH_DEG)
         # forward (+) looks ahead along the velocity, backward (-) behind it
         ahead = np.einsum("ni,ni->n", -m[:, 2], v / np.linalg.norm(v, axis=1, keepdims=True))
         assert np.all(np.sign(ahead) == np.sign(pitch))
         # camera frames are right-handed rotations
-        np.testing.assert_allclose(np.linalg.det(m), 1.0, atol=1e-12)
+        np.testing.assert_allclose(np.linalg.det(m), 1.0, atol=ROTATION_ABS)
 
 
 def test_yaw_steering_keeps_the_ccd_across_the_ground_track():
@@ -144,13 +149,13 @@ def test_nadir_gsd_matches_pixel_over_focal_times_height():
     g = img.image_to_ground(np.array([8000.0, 8000.0]), np.array([7000.0, 7001.0]), height_m=450.0)
     r, _, _ = img.frames(np.array([img.time_of_line(8000.0)]))
     height = ecef_to_geodetic(r)[0, 2] - 450.0
-    assert np.linalg.norm(g[1] - g[0]) == pytest.approx(img.camera.gsd_nadir_m(height), rel=5e-3)
+    assert np.linalg.norm(g[1] - g[0]) == pytest.approx(img.camera.gsd_nadir_m(height), rel=GSD_REL)
 
 
 def test_omega_phi_kappa_round_trip():
     rng = np.random.default_rng(2)
     for w, p, k in rng.uniform(-1.2, 1.2, (20, 3)):
-        np.testing.assert_allclose(opk_from_matrix(rx(w) @ ry(p) @ rz(k)), (w, p, k), atol=1e-12)
+        np.testing.assert_allclose(opk_from_matrix(rx(w) @ ry(p) @ rz(k)), (w, p, k), atol=ROTATION_ABS)
 
 
 def test_terrain_stays_in_its_height_range():

@@ -22,6 +22,11 @@ from solver.simulate.projection import ImageGeometry
 from solver.simulate.scene import Settings
 from solver.simulate.terrain import Terrain
 
+SOLVER_PX = 1e-7  # the 2-D (time, scan line) solution vs the nominal projection: both solved to ~1e-9 px
+SHIFT_PX = 1e-6  # a chip's b0 shift seen in its columns: the projection's iterations (~1e-8 px)
+UNTOUCHED_PX = 1e-9  # the other chips do not move: the same arithmetic
+FOCAL_SCALE_PX = 2e-3  # df scales every focal-plane y by (f + df) / f: to first order in the ground offset
+
 ATOL_PX = 1e-6  # image closure, pixels
 ATOL_M = 1e-4  # ground closure, 0.1 mm
 PIXEL_MM = 0.0071
@@ -85,8 +90,8 @@ def test_zero_iop_errors_leave_the_documents_unchanged():
     for k, chip in enumerate(img.camera.chips):
         on = nominal.inside & (nominal.chip == k)
         t, y_s = img.solve_time_and_scanline(ground[on], k)
-        np.testing.assert_allclose(img.line_of_time(t), nominal.line[on], atol=1e-7)
-        np.testing.assert_allclose(chip.centre_column + y_s / PIXEL_MM, nominal.column[on], atol=1e-7)
+        np.testing.assert_allclose(img.line_of_time(t), nominal.line[on], atol=SOLVER_PX)
+        np.testing.assert_allclose(chip.centre_column + y_s / PIXEL_MM, nominal.column[on], atol=SOLVER_PX)
 
 
 @pytest.mark.parametrize("view", ["backward", "nadir", "forward"])
@@ -113,9 +118,9 @@ def test_a_chip_shift_moves_the_image_point_by_shift_over_pixel():
     on3 = p0.inside & (p0.chip == 2) & shifted.inside
     others = p0.inside & (p0.chip != 2) & shifted.inside
     assert on3.sum() > 20 and others.sum() > 20
-    np.testing.assert_allclose(shifted.column[on3] - p0.column[on3], -0.03 / PIXEL_MM, atol=1e-6)
-    np.testing.assert_allclose(shifted.line[on3], p0.line[on3], atol=1e-6)
-    np.testing.assert_allclose(shifted.column[others], p0.column[others], atol=1e-9)
+    np.testing.assert_allclose(shifted.column[on3] - p0.column[on3], -0.03 / PIXEL_MM, atol=SHIFT_PX)
+    np.testing.assert_allclose(shifted.line[on3], p0.line[on3], atol=SHIFT_PX)
+    np.testing.assert_allclose(shifted.column[others], p0.column[others], atol=UNTOUCHED_PX)
     # along track: the chip's pixels move forward by a0 in the focal plane
     along = _with_iop("nadir", {"a0@3": 0.03}).ground_to_image(ground)
     dl = along.line[on3] - p0.line[on3]
@@ -134,7 +139,7 @@ def test_a_focal_length_change_scales_the_columns_about_the_principal_point():
     # y = -(f + df) Y / Z: the focal-plane y of every point grows by (f + df) / f
     y0 = np.array([cam.chips[c].dy_mm for c in p0.chip[k]]) + (p0.column[k] - np.array([cam.chips[c].centre_column for c in p0.chip[k]])) * PIXEL_MM
     y1 = np.array([cam.chips[c].dy_mm for c in p1.chip[k]]) + (p1.column[k] - np.array([cam.chips[c].centre_column for c in p1.chip[k]])) * PIXEL_MM
-    np.testing.assert_allclose(y1, y0 * (cam.focal_mm + df) / cam.focal_mm, atol=2e-3 * PIXEL_MM)
+    np.testing.assert_allclose(y1, y0 * (cam.focal_mm + df) / cam.focal_mm, atol=FOCAL_SCALE_PX * PIXEL_MM)
 
 
 def test_default_preset_values_and_truth_file(tmp_path, capsys):

@@ -17,6 +17,14 @@ from solver.simulate.orbit import (
     sun_synchronous_semi_major_axis,
 )
 
+POTENTIAL_GRADIENT_M_S2 = 1e-8  # gravity vs the central-difference gradient of the potential
+ZONAL_GRADIENT_REL = 1e-6  # the zonal part alone (~1e-2 m/s^2), relative to its size
+
+J2_FORM_REL, J2_FORM_ABS = 1e-12, 1e-15  # the J2 acceleration vs its closed form: the same terms in another order
+PRECESSION_REL = 0.01  # the nodal precession vs its first-order theory: higher zonal terms and averaging over 400 epochs
+SITE_DEG = 1e-8  # the default orbit passes over the site: ~1 mm on the ground
+INCLINATION_DEG = 1e-9  # the inclination of the default state: arccos of a unit vector's component
+
 EARTH = EarthModel()
 LON, LAT, INC = -51.39, -22.12, 98.16
 A_SSO = sun_synchronous_semi_major_axis(EARTH, INC)
@@ -51,8 +59,8 @@ def test_gravity_is_the_gradient_of_the_potential():
     # the zonal part alone (~1e-2 m/s^2) must match too, not only the dominant central term
     zonal = acc - gravity(EARTH.point_mass(), pts)
     zonal_num = num - gravity(EARTH.point_mass(), pts)
-    assert np.max(np.abs(acc - num)) < 1e-8
-    assert np.max(np.abs(zonal - zonal_num)) / np.max(np.abs(zonal)) < 1e-6
+    assert np.max(np.abs(acc - num)) < POTENTIAL_GRADIENT_M_S2
+    assert np.max(np.abs(zonal - zonal_num)) / np.max(np.abs(zonal)) < ZONAL_GRADIENT_REL
 
 
 def test_j2_acceleration_matches_the_textbook_formula():
@@ -65,7 +73,7 @@ def test_j2_acceleration_matches_the_textbook_formula():
     k = -1.5 * e2.zonal[2] * e2.gm_m3_s2 * e2.radius_m**2 / r**5
     expect = np.column_stack([k * x * (1 - 5 * z**2 / r**2), k * y * (1 - 5 * z**2 / r**2), k * z * (3 - 5 * z**2 / r**2)])
     got = gravity(e2, pts) - gravity(e2.point_mass(), pts)
-    np.testing.assert_allclose(got, expect, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(got, expect, rtol=J2_FORM_REL, atol=J2_FORM_ABS)
 
 
 def test_jacobi_integral_conserved_with_full_force_model():
@@ -116,17 +124,17 @@ def test_j2_nodal_precession_matches_theory_and_is_sun_synchronous():
     rate = (node(t1 + day - PERIOD_S) - node(t1)) / (day - PERIOD_S)
     n = np.sqrt(e2.gm_m3_s2 / A_SSO**3)
     theory = -1.5 * n * e2.zonal[2] * (e2.radius_m / A_SSO) ** 2 * np.cos(np.radians(INC))
-    assert rate == pytest.approx(theory, rel=0.01)
-    assert np.degrees(rate) * day == pytest.approx(360 / 365.2422, rel=0.01)
+    assert rate == pytest.approx(theory, rel=PRECESSION_REL)
+    assert np.degrees(rate) * day == pytest.approx(360 / 365.2422, rel=PRECESSION_REL)
 
 
 def test_default_orbit_is_alos_like_and_descending_over_the_site():
     orbit = Orbit(EARTH, STATE0, -30.0, 30.0)
     r, v = orbit.state(np.array([-10.0, 0.0, 10.0]))
     llh = ecef_to_geodetic(r)
-    assert llh[1, 0] == pytest.approx(LON, abs=1e-8) and llh[1, 1] == pytest.approx(LAT, abs=1e-8)  # ~1 mm
+    assert llh[1, 0] == pytest.approx(LON, abs=SITE_DEG) and llh[1, 1] == pytest.approx(LAT, abs=SITE_DEG)
     assert 685e3 < llh[1, 2] < 705e3  # ~692 km
     assert llh[2, 1] < llh[1, 1] < llh[0, 1]  # descending
     ri, vi = ecef_to_eci(EARTH, np.zeros(1), r[1:2], v[1:2])
     h = np.cross(ri, vi)[0]
-    assert np.degrees(np.arccos(h[2] / np.linalg.norm(h))) == pytest.approx(INC, abs=1e-9)
+    assert np.degrees(np.arccos(h[2] / np.linalg.norm(h))) == pytest.approx(INC, abs=INCLINATION_DEG)

@@ -21,6 +21,7 @@ from typing import Any, Iterator
 
 import pytest
 from pba_service_harness import FINISHED, PBA
+from tolerances import RECOMPUTED_REL
 
 from service.store import JobRecord, Store
 
@@ -28,6 +29,8 @@ PG_ADMIN_URL = os.environ.get(
     "PBA_TEST_POSTGRES_ADMIN", "postgresql://postgres@127.0.0.1:5432/postgres"
 )
 REDIS_URL = os.environ.get("PBA_TEST_REDIS_URL", "redis://127.0.0.1:6379")
+# report numbers that may be ~0 (means, offsets): the relative bound alone would demand equality there
+NEAR_ZERO_ABS = 1e-12
 RUN_ID = uuid.uuid4().hex[:10]
 REDIS_DB = 1 + int(RUN_ID, 16) % 15  # 1..15; db 0 is left to people's own servers
 KEY_PREFIX = f"pba-test-{RUN_ID}:"
@@ -291,6 +294,6 @@ def same_numbers(a: Any, b: Any, path: str = "") -> None:
         for i, (x, y) in enumerate(zip(a, b, strict=True)):
             same_numbers(x, y, f"{path}/{i}")
     elif isinstance(a, float) and isinstance(b, (int, float)):
-        assert math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12), f"{path}: {a} != {b}"
+        assert math.isclose(a, b, rel_tol=RECOMPUTED_REL, abs_tol=NEAR_ZERO_ABS), f"{path}: {a} != {b}"
     else:
         assert a == b, f"{path}: {a!r} != {b!r}"

@@ -22,6 +22,8 @@ from service import plots
 from service.plots import PLOT_KINDS, NoSuchSelection, PlotNotApplicable
 from solver import api
 
+CORRELATION_ABS = 1e-12  # the heat map shows the covariance normalised: the same division, values in [-1, 1]
+
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PROBLEM = "application/problem+json"
 ADJUSTMENT_KINDS = {k for k, spec in PLOT_KINDS.items() if spec.scope == "adjustment"}
@@ -117,7 +119,7 @@ def test_correlation_heat_map_is_the_covariance_normalised(triplet_report: dict[
     shown = np.asarray(fig.axes[0].images[0].get_array())
     c = np.array(im["covariance"]["matrix"])
     s = np.sqrt(np.diag(c))
-    np.testing.assert_allclose(shown, c / np.outer(s, s), atol=1e-12)
+    np.testing.assert_allclose(shown, c / np.outer(s, s), atol=CORRELATION_ABS)
     assert np.allclose(np.diag(shown), 1.0)
 
 
