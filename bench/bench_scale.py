@@ -55,6 +55,27 @@ def tiled(base: dict[str, Any], copies: int) -> dict[str, Any]:
     return doc
 
 
+def strip_for(n_obs: int, model: str, seed: int) -> dict[str, Any]:
+    """A strip of the independent simulator (``pba simulate strip``: consecutive PRISM triplets
+    along one pass, ephemeris weighted 10 m / 0.05 m/s) with every image under ``model``: the
+    same block for every platform model (the PASS models need the ephemeris, which
+    ``block_job`` does not make), at about ``n_obs`` observations."""
+    from solver.simulate import presets
+    from solver.simulate.scene import Settings
+
+    cache = Path(tempfile.gettempdir()) / f"pba-bench-strip-{n_obs}-{seed}.json"
+    if cache.is_file():
+        doc = json.loads(cache.read_text())
+    else:
+        triplets = max(1, round(n_obs / (3 * OBS_PER_IMAGE)))
+        doc = presets.strip(Settings(preset="strip", seed=seed), triplets, round(n_obs / 3)).job()
+        cache.write_text(json.dumps(doc))
+    for image in doc["images"]:
+        image["model"] = {"name": model}
+    doc.setdefault("options", {})["ephemeris"] = {"sigma_position_m": 10.0, "sigma_velocity_m_s": 0.05}
+    return doc
+
+
 def block_for(n_obs: int, model: str, seed: int) -> dict[str, Any]:
     """A model-consistent strip with about ``n_obs`` image observations (each point in 3 images),
     cached in the temporary directory; above GENERATED_MAX observations, copies of that block."""
@@ -92,14 +113,14 @@ def _timed(table: dict[str, float], name: str, fn: Callable) -> Callable:
     return wrapper
 
 
-def child(n_obs: int, model: str, seed: int) -> dict[str, Any]:
+def child(n_obs: int, model: str, seed: int, strip: bool = False) -> dict[str, Any]:
     """One size in this process: generate, adjust end to end, return the measurements."""
     import solver.procedures.single as single
     from solver.api import run
     from solver.engine import backend
 
     t0 = time.perf_counter()
-    doc = block_for(n_obs, model, seed)
+    doc = strip_for(n_obs, model, seed) if strip else block_for(n_obs, model, seed)
     generation_s = time.perf_counter() - t0
     stages: dict[str, float] = {}
     single.prepare = _timed(stages, "prepare", single.prepare)
@@ -143,16 +164,19 @@ def main() -> None:
     ap.add_argument("--model", default="P2")
     ap.add_argument("--repeat", type=int, default=3, help="runs per size (medians printed)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--strip", action="store_true", help="the independent simulator's strip with its ephemeris weighted "
+                    "(any model, PASS ones included) instead of the model-consistent block")
     ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child is not None:
-        print(json.dumps(child(args.child, args.model, args.seed)))
+        print(json.dumps(child(args.child, args.model, args.seed, args.strip)))
         return
     for n in [int(x) for x in args.observations.split(",")]:
         runs = []
         for _ in range(args.repeat):
             out = subprocess.run(
-                [sys.executable, __file__, "--child", str(n), "--model", args.model, "--seed", str(args.seed)],
+                [sys.executable, __file__, "--child", str(n), "--model", args.model, "--seed", str(args.seed)]
+                + (["--strip"] if args.strip else []),
                 check=True,
                 capture_output=True,
                 text=True,

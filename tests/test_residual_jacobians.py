@@ -14,6 +14,7 @@ scene here fails :func:`test_the_scenes_hold_every_family_and_every_cost_functio
 from __future__ import annotations
 
 import copy
+import os
 
 import numpy as np
 import pytest
@@ -22,7 +23,7 @@ from test_orbit_pass import _pass_job
 from test_rpc_models import _triplet
 
 from solver.adjust import prepare
-from solver.engine import backend
+from solver.engine import backend, native
 from solver.engine.linalg import linearise
 from solver.engine.terms import family_terms
 from solver.observations import registry
@@ -157,8 +158,10 @@ class _Recorder:
         self.blocks.append((cost, list(params)))
 
 
-def _ceres_blocks(problem, monkeypatch) -> list[tuple]:
+def _ceres_blocks(problem, monkeypatch, path: str = "python") -> list[tuple]:
+    """The residual blocks the backend builds on evaluation ``path`` ("python" or "compiled")."""
     monkeypatch.setattr(backend.pyceres, "Problem", _Recorder)
+    monkeypatch.setenv("PBA_EVALUATION", path)
     settings = Settings.from_options(problem.job.options).solve
     built = backend.build_ceres_problem(problem, settings, backend.SolveControl(None, None, 10))
     return [(c, p) for c, p in built.problem.blocks if isinstance(c, backend.pyceres.CostFunction) and not _is_ceres_own(c)]
@@ -170,23 +173,37 @@ def _is_ceres_own(cost) -> bool:
     return type(cost).__module__.startswith("pyceres")
 
 
-def test_every_ceres_residual_block_matches_finite_differences(scene, monkeypatch):
-    """Each cost function the backend gives Ceres, each of its parameter blocks, against central
-    differences of its own residuals (copies of the blocks: the problem is not touched)."""
+def _evaluate(cost, params: list[np.ndarray], n: int, with_jacobians: bool):
+    """(residuals, Jacobians or None) of a Python cost function (its ``Evaluate``) or a compiled
+    one (pyceres' ``evaluate``, which calls the C++ ``Evaluate`` with every Jacobian asked for)."""
+    if isinstance(cost, backend.pyceres.CostFunction) and hasattr(cost, "Evaluate"):
+        res = np.zeros(n)
+        jacs = [np.full(n * len(p), np.nan) for p in params] if with_jacobians else None
+        assert cost.Evaluate(params, res, jacs), type(cost).__name__
+        return res, jacs
+    res, jacs = cost.evaluate(*params)
+    assert res is not None, type(cost).__name__
+    return np.asarray(res).ravel(), [np.asarray(j).ravel() for j in jacs] if with_jacobians else None
+
+
+@pytest.mark.parametrize("path", ["python", "compiled"])
+def test_every_ceres_residual_block_matches_finite_differences(scene, monkeypatch, path):
+    """Each cost function the backend gives Ceres, on both evaluation paths, each of its
+    parameter blocks, against central differences of its own residuals (copies of the blocks:
+    the problem is not touched)."""
+    if path == "compiled" and native.status().path != "compiled":
+        assert os.environ.get("PBA_REQUIRE_NATIVE") != "1", native.status().reason
+        pytest.skip(f"compiled cost functions not built here: {native.status().reason}")
     name, problem = scene
-    blocks = _ceres_blocks(problem, monkeypatch)
+    blocks = _ceres_blocks(problem, monkeypatch, path)
     assert blocks
     for cost, params in blocks:
         params = [np.array(p, dtype=float) for p in params]
         n = cost.num_residuals()
-        res = np.zeros(n)
-        jacs = [np.full(n * len(p), np.nan) for p in params]
-        assert cost.Evaluate(params, res, jacs), (name, type(cost).__name__)
+        res, jacs = _evaluate(cost, params, n, True)
 
         def residual(cost=cost, params=params, n=n):
-            out = np.zeros(n)
-            assert cost.Evaluate(params, out, None)
-            return out
+            return _evaluate(cost, params, n, False)[0]
 
         np.testing.assert_array_equal(residual(), res)  # the Jacobian call wrote the same residuals
         for b, (p, jac) in enumerate(zip(params, jacs)):
@@ -198,9 +215,14 @@ def test_the_scenes_hold_every_family_and_every_cost_function(monkeypatch):
     has terms in some scene, and every cost function class of the backend appears."""
     families: set[str] = set()
     costs: set[str] = set()
+    compiled: set[str] = set()
     for make in SCENES.values():
         problem = prepare(load_job(make()))
         families |= {t.family.name for t in family_terms(problem)}
         costs |= {type(c).__name__ for c, _ in _ceres_blocks(problem, monkeypatch)}
+        if native.status().path == "compiled":
+            compiled |= {type(c).__name__ for c, _ in _ceres_blocks(problem, monkeypatch, "compiled")}
     assert families == {f.name for f in registry.FAMILIES}
     assert costs == {"PointCost", "ImageBatchCost", "ImageTermCost"}
+    if native.status().path == "compiled":  # the lines' terms stay Python cost functions
+        assert compiled == {"CallbackCost", "LinearCost", "ImageTermCost"}

@@ -271,6 +271,7 @@ class _Compiled:
         ctx[callbacks.C_CAM_TAB] = cam_tab.ctypes.data
         ctx[callbacks.C_CAM_ROWS], ctx[callbacks.C_CAM_COLS] = cam_tab.shape
         self.context = ctx
+        self.shared = (ctx, cam_tab)  # what every descriptor's context words point into
         out.keep += [ctx, cam_tab, img_tab]
         out.evaluator = self.evaluator
 
@@ -293,9 +294,10 @@ class _Compiled:
         desc[:, cb.B_SIZES + lead :] = blocks.sizes
         return desc
 
-    def cost(self, callback: Any, address: int, n_residuals: int, sizes: list[int]) -> Any:
-        """A cost function over the descriptor at ``address`` (a row of a table the problem keeps)."""
-        return self.native.CallbackCost(self.evaluator, callback.address, address, n_residuals, sizes)
+    def cost(self, callback: Any, address: int, n_residuals: int, sizes: list[int], memory: Any) -> Any:
+        """A cost function over the descriptor at ``address``; ``memory`` holds the arrays the
+        descriptor points into (the cost function keeps it alive)."""
+        return self.native.CallbackCost(self.evaluator, callback.address, address, n_residuals, sizes, memory)
 
     @staticmethod
     def row_addresses(desc: np.ndarray) -> list[int]:
@@ -314,11 +316,12 @@ def _add_fixed_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: A
         desc = compiled.descriptors(blocks, False, pts)
         out.keep.append(desc)
         addresses = compiled.row_addresses(desc)
+        memory = (desc, blocks.rec, pts, compiled.shared)
     for b, params in enumerate(blocks.params):
         s, e = start[b], start[b + 1]
         sizes = [len(a) for a in params]
         if compiled is not None:
-            cf = compiled.cost(compiled.cb.fixed_block_callback, addresses[b], 2 * (e - s), sizes)
+            cf = compiled.cost(compiled.cb.fixed_block_callback, addresses[b], 2 * (e - s), sizes, memory)
         else:
             cf = ImageBatchCost(blocks.rec[s:e], pts[s:e], sizes, control, tables)
             out.python_blocks += 1
@@ -338,13 +341,14 @@ def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, co
         desc = compiled.descriptors(blocks, True)
         out.keep.append(desc)
         addresses = compiled.row_addresses(desc)
+        memory = (desc, blocks.rec, compiled.shared)
     points = problem.points
-    for b, (owner, params) in enumerate(zip(blocks.owner.tolist(), blocks.params)):
-        p = points[owner]
+    for b, (point_index, params) in enumerate(zip(blocks.owner.tolist(), blocks.params)):
+        p = points[point_index]
         s, e = start[b], start[b + 1]
         sizes = [len(a) for a in params]
         if compiled is not None:
-            cf = compiled.cost(compiled.cb.point_block_callback, addresses[b], 2 * (e - s), [3] + sizes)
+            cf = compiled.cost(compiled.cb.point_block_callback, addresses[b], 2 * (e - s), [3] + sizes, memory)
         else:
             cf = PointCost(blocks.rec[s:e], sizes, control, tables)
             out.python_blocks += 1
@@ -368,8 +372,7 @@ def _add_family_blocks(out: CeresProblem, problem: AdjustmentState, control: Sol
             cf = compiled.native.LinearCost(compiled.evaluator, a, b)
         elif compiled is not None and native_form is not None:
             name, desc, arrays = native_form()
-            out.keep += [desc, *arrays]
-            cf = compiled.cost(getattr(compiled.cb, name), desc.ctypes.data, labelled.term.n_residuals, [owner.nfree])
+            cf = compiled.cost(getattr(compiled.cb, name), desc.ctypes.data, labelled.term.n_residuals, [owner.nfree], (desc, arrays))
         else:
             cf = ImageTermCost(labelled.term, owner.nfree, control)
             out.python_blocks += 1

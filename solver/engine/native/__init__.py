@@ -37,7 +37,7 @@ ENVIRONMENT = {
 }
 """The solver's environment variables (read by every process that solves: ``pba run``, the
 server's workers): name -> (default, meaning)."""
-ABI = 2  # the module's ``ABI`` attribute this Python side expects
+ABI = 3  # the module's ``ABI`` attribute this Python side expects
 SOURCE = Path(__file__).with_name("callback_cost.cpp")
 
 

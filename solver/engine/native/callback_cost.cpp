@@ -77,13 +77,15 @@ class Evaluator {
 
 class CallbackCost : public ceres::CostFunction {
  public:
-  // ``block``: the address of the block's descriptor; the caller keeps its memory alive for as
-  // long as the cost function lives (solver/engine/backend.py keeps the descriptor table).
+  // ``block``: the address of the block's descriptor; ``owner``: a Python object holding every
+  // array the descriptor points into (directly or through the context), referenced for as long as
+  // the cost function lives, so no address can outlive its memory.
   CallbackCost(std::shared_ptr<Evaluator> evaluator, std::uintptr_t fn, std::uintptr_t block,
-               int num_residuals, const std::vector<int>& block_sizes)
+               int num_residuals, const std::vector<int>& block_sizes, py::object owner)
       : evaluator_(std::move(evaluator)),
         fn_(reinterpret_cast<BlockFn>(fn)),
         block_(reinterpret_cast<const void*>(block)),
+        owner_(std::move(owner)),
         jacobian_size_(0) {
     set_num_residuals(num_residuals);
     for (int s : block_sizes) {
@@ -120,6 +122,7 @@ class CallbackCost : public ceres::CostFunction {
   std::shared_ptr<Evaluator> evaluator_;
   BlockFn fn_;
   const void* block_;
+  py::object owner_;
   std::size_t jacobian_size_;
 };
 
@@ -174,12 +177,12 @@ PYBIND11_MODULE(callback_cost, m) {
       .def_property_readonly("cancelled", &Evaluator::cancelled)
       .def_property_readonly("threads_used", &Evaluator::threads_used);
   py::class_<CallbackCost, ceres::CostFunction, py::smart_holder>(m, "CallbackCost")
-      .def(py::init<std::shared_ptr<Evaluator>, std::uintptr_t, std::uintptr_t, int, const std::vector<int>&>(),
+      .def(py::init<std::shared_ptr<Evaluator>, std::uintptr_t, std::uintptr_t, int, const std::vector<int>&, py::object>(),
            py::arg("evaluator"), py::arg("function_address"), py::arg("block_address"),
-           py::arg("num_residuals"), py::arg("block_sizes"));
+           py::arg("num_residuals"), py::arg("block_sizes"), py::arg("owner"));
   py::class_<LinearCost, ceres::CostFunction, py::smart_holder>(m, "LinearCost")
       .def(py::init<std::shared_ptr<Evaluator>, py::array_t<double, py::array::c_style | py::array::forcecast>,
                     py::array_t<double, py::array::c_style | py::array::forcecast>>(),
            py::arg("evaluator"), py::arg("a"), py::arg("b"));
-  m.attr("ABI") = 2;
+  m.attr("ABI") = 3;
 }
