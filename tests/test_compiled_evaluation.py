@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from solver.engine import native
+from solver.engine import backend, native
 from solver.engine.backend import SolveControl, build_ceres_problem
 from solver.errors import Cancelled
 from solver.procedures.single import prepare
@@ -174,6 +174,7 @@ def _solve(job: dict[str, Any], path: str, monkeypatch: pytest.MonkeyPatch, thre
 
     monkeypatch.setenv(native.EVALUATION_ENV, path)
     monkeypatch.setenv(native.THREADS_ENV, str(threads))
+    monkeypatch.setattr(backend, "PARALLEL_MIN_RESIDUAL_BLOCKS", 0)  # these small blocks too on several threads
     return run(copy.deepcopy(job))
 
 
@@ -192,6 +193,8 @@ def _assert_same_solution(a: dict[str, Any], b: dict[str, Any]) -> None:
 @requires_native
 @pytest.mark.parametrize("scene", ["PASS-J2 with ephemeris, self-calibrating", "RPC-DRIFT beside a rigorous image", "P2 fixed control, weighted states"])
 def test_both_paths_reach_the_same_adjustment(scene: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The compiled path on two threads (pass images then cache their segments in per-thread
+    tables), on one thread and the Python path reach one solution."""
     job = SCENES[scene]()
     compiled = _solve(job, "compiled", monkeypatch, threads=2)
     python = _solve(job, "python", monkeypatch)

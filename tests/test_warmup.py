@@ -9,6 +9,7 @@ import pytest
 
 from solver.api import run
 from solver.cli import main
+from solver.engine import native
 from solver.platforms import get_model, model_names
 from solver.warmup import warmup_jobs
 
@@ -42,5 +43,8 @@ def test_pba_warmup_reports_each_job(capsys) -> None:
     assert main(["warmup"]) == 0
     out = capsys.readouterr().out.splitlines()
     labels = [label for label, _ in warmup_jobs()]
-    assert [line.split(":")[0] for line in out[:-1]] == labels
+    # first which evaluation path solves take (a warning when it is not the compiled one)
+    assert out[0].split(": ")[0] in ("residual evaluation", "WARNING: residual evaluation"), out[0]
+    assert ("compiled" in out[0]) == (native.status().path == "compiled"), out[0]
+    assert [line.split(":")[0] for line in out[1:-1]] == labels
     assert out[-1].startswith("kernels compiled or loaded from the cache in")

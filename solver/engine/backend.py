@@ -394,6 +394,22 @@ def build_ceres_problem(problem: AdjustmentState, options: SolveSettings, contro
     return out
 
 
+PARALLEL_MIN_RESIDUAL_BLOCKS = 2000
+"""Fewer residual blocks than this are evaluated on one thread: threads gain nothing there, and
+Ceres sums the cost and gradient of the threads' shares in the order they finish, so a threaded
+solve's last digits (relative 1e-9 in sigmas, the iteration at which a tolerance is met) can
+change from run to run. Small jobs stay reproducible to the bit; large ones gain the cores."""
+
+
+def solve_threads(built: CeresProblem) -> int:
+    """Threads of the solve: Python cost functions take the GIL (more threads only contend) and
+    an exception inside one with several threads ends the process, so one thread unless every
+    block is compiled and there are enough of them (:data:`PARALLEL_MIN_RESIDUAL_BLOCKS`)."""
+    if built.evaluator is None or built.python_blocks or len(built.blocks) < PARALLEL_MIN_RESIDUAL_BLOCKS:
+        return 1
+    return native.solver_threads()
+
+
 def ceres_options(options: SolveSettings, built: CeresProblem, control: SolveControl) -> Any:
     """A fresh ``pyceres.SolverOptions`` (assigning callbacks to a used one appends) for
     ``options``; the iteration callback is kept alive with ``built``'s cost functions."""
@@ -407,9 +423,7 @@ def ceres_options(options: SolveSettings, built: CeresProblem, control: SolveCon
     # iterations along those directions (41 -> 6 iterations on a triplet). Rejected steps still
     # shrink the region when the start is poor.
     so.initial_trust_region_radius = 1e12
-    # Python cost functions take the GIL (more threads only contend) and an exception inside
-    # one with several threads ends the process: one thread unless every block is compiled.
-    so.num_threads = native.solver_threads() if built.evaluator is not None and built.python_blocks == 0 else 1
+    so.num_threads = solve_threads(built)
     so.logging_type = pyceres.LoggingType.SILENT
     so.minimizer_progress_to_stdout = False
     if built.has_points:

@@ -563,6 +563,21 @@ def handed_validation(job: Job, record: dict[str, Any] | None) -> Iterator[bool]
             _handed.pop(id(job), None)
 
 
+@contextmanager
+def handed_like(original: Job, copy: Job) -> Iterator[None]:
+    """Within the block, a ``copy`` of ``original`` that differs only in what validation does not
+    look at (e.g. a procedure's own option) takes the counts handed for ``original``, if any."""
+    handed = _handed.get(id(original))
+    if handed is None or handed[0] is not original or id(copy) in _handed:
+        yield
+        return
+    _handed[id(copy)] = (copy, handed[1])
+    try:
+        yield
+    finally:
+        _handed.pop(id(copy), None)
+
+
 def require_valid(job: Job) -> dict[str, Any]:
     """Raise :class:`JobError` with every problem, or return the counts (those handed for
     this job object by :func:`handed_validation`, without checking again)."""

@@ -18,6 +18,8 @@ from solver.kernels.rotation import (
     _orbital_frame,
     _orbital_frame_rate,
     _rotation_into,
+    mat_mat,
+    mat_vec,
     ro_offset,
     rotation_and_derivatives,
 )
@@ -62,12 +64,12 @@ def platform_state(kind: int, coef, kc, tau: float):
     org = kc[9:12]
     if kind == KIND_PASS:
         pe, ve, _ae, dse6, _dv6 = pass_state(kc, kc[PASS_T_OFF] + tau, True)
-        s = rot @ (pe - org)
-        ds6 = rot @ dse6
+        s = mat_vec(rot, pe - org)
+        ds6 = mat_mat(rot, dse6)
         for q in range(6):
             for i in range(3):
                 ds_dc[i, PASS_COEF_INDEX[q]] = ds6[i, q]
-        ds_dt = rot @ ve
+        ds_dt = mat_vec(rot, ve)
         return s, ds_dc, ds_dt, ang, da_dc, da_dt
     # Kepler / J2 in the Earth-fixed frame
     r0 = np.array([coef[0], coef[4], coef[8]])
@@ -84,9 +86,9 @@ def platform_state(kind: int, coef, kc, tau: float):
         for j in range(3):
             dse[i, j * 4] = (1.0 if i == j else 0.0) + h * da_dr[i, j]
             dse[i, j * 4 + 1] = (tau if i == j else 0.0) + h * da_du[i, j]
-    s = rot @ (se - org)
-    ds_dc = rot @ dse
-    ds_dt = rot @ sdt
+    s = mat_vec(rot, se - org)
+    ds_dc = mat_mat(rot, dse)
+    ds_dt = mat_vec(rot, sdt)
     return s, ds_dc, ds_dt, ang, da_dc, da_dt
 
 
@@ -163,14 +165,14 @@ def _orbit_pos(kind, coef, kc, acc, tau, s, sdot, vdot):
         pe, ve, ae, _ds, _dv = pass_state(kc, kc[PASS_T_OFF] + tau, False)
         for i in range(3):
             pe[i] -= kc[9 + i]
-        s[:] = r0 @ pe
-        sdot[:] = r0 @ ve
-        vdot[:] = r0 @ ae
+        s[:] = mat_vec(r0, pe)
+        sdot[:] = mat_vec(r0, ve)
+        vdot[:] = mat_vec(r0, ae)
         return
     ang = np.empty(3)
     angdot = np.empty(3)
     _pose(KIND_KEPLER, coef, kc, acc, tau, s, sdot, ang, angdot)
-    vdot[:] = r0 @ acc
+    vdot[:] = mat_vec(r0, acc)
 
 
 @njit(**_JIT)
@@ -182,18 +184,18 @@ def _orbit_jac(kind, kc, da_dr, tau):
     dv_dth = np.empty((3, 6))
     if kind == KIND_PASS:
         _p, _v, _a, ds, dv = pass_state(kc, kc[PASS_T_OFF] + tau, True)
-        ds_dth[:, :] = r0 @ ds
-        dv_dth[:, :] = r0 @ dv
+        ds_dth[:, :] = mat_mat(r0, ds)
+        dv_dth[:, :] = mat_mat(r0, dv)
         return ds_dth, dv_dth
     # S_lgs = R0 (S0 + u t + a h - O), V_lgs = R0 (u + a t); a = a(S0, u)
     h = 0.5 * tau * tau
     da_du = np.zeros((3, 3))
     da_du[0, 1] = 2.0 * kc[13]
     da_du[1, 0] = -2.0 * kc[13]
-    ds_dth[:, 0:3] = r0 @ (np.eye(3) + h * da_dr)
-    ds_dth[:, 3:6] = r0 @ (tau * np.eye(3) + h * da_du)
-    dv_dth[:, 0:3] = r0 @ (tau * da_dr)
-    dv_dth[:, 3:6] = r0 @ (np.eye(3) + tau * da_du)
+    ds_dth[:, 0:3] = mat_mat(r0, np.eye(3) + h * da_dr)
+    ds_dth[:, 3:6] = mat_mat(r0, tau * np.eye(3) + h * da_du)
+    dv_dth[:, 0:3] = mat_mat(r0, tau * da_dr)
+    dv_dth[:, 3:6] = mat_mat(r0, np.eye(3) + tau * da_du)
     return ds_dth, dv_dth
 
 
@@ -212,11 +214,11 @@ def _oa_pose(kind, coef, kc, acc, tau, rot):
     _rotation_into(ang[0], ang[1], ang[2], rot)
     ro, dro_dt = _orbital_frame_rate(s, sdot, ro_offset(kc), sdot, vdot)
     mnt = _mount(kc[16])
-    a_att = mnt @ rot[0]
-    m = a_att @ ro
-    dm_dt = a_att @ dro_dt
+    a_att = mat_mat(mnt, rot[0])
+    m = mat_mat(a_att, ro)
+    dm_dt = mat_mat(a_att, dro_dt)
     datt = rot[1] * angdot[0] + rot[2] * angdot[1] + rot[3] * angdot[2]
-    dm_dt += mnt @ datt @ ro
+    dm_dt += mat_mat(mat_mat(mnt, datt), ro)
     return s, sdot, m, dm_dt, a_att, mnt, ro
 
 
@@ -231,7 +233,7 @@ def _state_directions(kind, kc, da_dr, tau, s, sdot, a_att, m, v):
         dro = np.zeros((3, 3))
         for k in range(3):
             dro += d_s[:, :, k] * ds_dth[k, q] + d_v[:, :, k] * dv_dth[k, q]
-        out[q] = a_att @ dro @ v - m @ np.ascontiguousarray(ds_dth[:, q])
+        out[q] = mat_vec(mat_mat(a_att, dro), v) - mat_vec(m, ds_dth[:, q])
     return out
 
 
@@ -252,8 +254,8 @@ def _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, ang, angdot, v, d, 
         ro[:, :] = ro1
         for i in range(3):
             v[i] = p[i] - s[i]
-        d[:] = m @ v
-        ddt[:] = dm_dt @ v - m @ sdot
+        d[:] = mat_vec(m, v)
+        ddt[:] = mat_vec(dm_dt, v) - mat_vec(m, sdot)
         return
     _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot)
     _rotation_into(ang[0], ang[1], ang[2], rot)
@@ -282,10 +284,10 @@ def _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, g
     oa = kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS
     # angles: dd/d(angle) = dM/d(angle) v (orbit-attitude: Ry(mount) dR_att R_orbit v), x t^k
     ta = _attitude_time(kind, kc, tau)
-    rov = ro @ v if oa else v
+    rov = mat_vec(ro, v) if oa else v
     for e in range(3):
         if oa:
-            dd = mnt @ (rot[1 + e] @ rov)
+            dd = mat_vec(mnt, mat_vec(rot[1 + e], rov))
             d0, d1, d2 = dd[0], dd[1], dd[2]
         else:  # scalar form: this runs for every observation of the per-image models
             d0 = rot[1 + e, 0, 0] * v[0] + rot[1 + e, 0, 1] * v[1] + rot[1 + e, 0, 2] * v[2]

@@ -12,6 +12,35 @@ from solver.kernels.layout import JIT as _JIT
 
 
 @njit(**_JIT)
+def mat_mat(a, b):
+    """``a @ b`` for the small matrices of the kernels (3 x 3, 3 x 6) by plain loops: numba's
+    ``@`` calls BLAS, whose call overhead (about half a microsecond) dominated the orbit-attitude
+    and pass projections, which multiply a dozen 3 x 3 matrices per Newton step."""
+    n, m, k = a.shape[0], b.shape[1], a.shape[1]
+    out = np.empty((n, m))
+    for i in range(n):
+        for j in range(m):
+            acc = 0.0
+            for q in range(k):
+                acc += a[i, q] * b[q, j]
+            out[i, j] = acc
+    return out
+
+
+@njit(**_JIT)
+def mat_vec(a, v):
+    """``a @ v`` for a small matrix and vector by plain loops (see :func:`mat_mat`)."""
+    n, k = a.shape[0], a.shape[1]
+    out = np.empty(n)
+    for i in range(n):
+        acc = 0.0
+        for q in range(k):
+            acc += a[i, q] * v[q]
+        out[i] = acc
+    return out
+
+
+@njit(**_JIT)
 def rotation_and_derivatives(om: float, ph: float, ka: float):
     """Return M, dM/domega, dM/dphi, dM/dkappa for M = Rx(om) Ry(ph) Rz(ka) (each 3x3)."""
     out = np.empty((4, 3, 3))
@@ -89,19 +118,19 @@ def _orbital_frame(s, v, c):
     dR[row, col, var].
     """
     g = s + c
-    gn = np.sqrt(g @ g)
+    gn = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
     z = g / gn
     dz = (np.eye(3) - np.outer(z, z)) / gn  # dz/ds
-    vz = v @ z
+    vz = v[0] * z[0] + v[1] * z[1] + v[2] * z[2]
     h = v - vz * z
-    hn = np.sqrt(h @ h)
+    hn = np.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
     x = h / hn
     px = (np.eye(3) - np.outer(x, x)) / hn
     # dh/ds = -(z v^T + vz I) dz/ds ; dh/dv = I - z z^T
-    dh_ds = -(np.outer(z, v) + vz * np.eye(3)) @ dz
+    dh_ds = mat_mat(-(np.outer(z, v) + vz * np.eye(3)), dz)
     dh_dv = np.eye(3) - np.outer(z, z)
-    dx_ds = px @ dh_ds
-    dx_dv = px @ dh_dv
+    dx_ds = mat_mat(px, dh_ds)
+    dx_dv = mat_mat(px, dh_dv)
     y = np.cross(z, x)
     r = np.empty((3, 3))
     r[0] = x
@@ -163,4 +192,4 @@ def _orbital_frame_rate(s, v, c, sdot, vdot):
 def ro_offset(kc):
     """R_ecef->lgs @ LGS origin: added to an LGS position it gives the geocentric position in
     LGS axes (the orbital frame's radial direction)."""
-    return kc[0:9].reshape(3, 3) @ kc[9:12]
+    return mat_vec(kc[0:9].reshape(3, 3), kc[9:12])

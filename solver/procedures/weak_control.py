@@ -38,6 +38,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from solver.engine.validate import handed_like
 from solver.errors import JobError
 from solver.platforms import ELEMENTS, get_model
 from solver.procedures.single import Adjust
@@ -122,7 +123,8 @@ def weak_control_rule(job: Job, adjust: Adjust, progress) -> dict[str, Any]:
     """Adjust ``job`` under the rule of the module docstring (``adjust``: the adjustment with the
     rule off) and return the last report, with ``quality.weak_control`` when it acted."""
     plain = job.model_copy(update={"options": job.options.model_copy(update={"weak_control": "warn"})})
-    report = adjust(plain, (0.0, 0.5))
+    with handed_like(job, plain):  # only the rule's own option differs: validated as the job was
+        report = adjust(plain, (0.0, 0.5))
     extent, band = _band_warning(plain)
     narrow = set(_narrow(extent))
     flagged = [f for f in _undetermined(report) if f["image"] in narrow]

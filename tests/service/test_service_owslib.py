@@ -19,7 +19,7 @@ def test_owslib_lists_executes_and_reads_results(
     client = Processes(server.url, headers={"X-API-Key": keys["alice"]}, timeout=60)
     assert client.conformance()["conformsTo"]
     ids = [p["id"] for p in client.processes()]
-    assert ids == ["bundle-adjustment", "model-comparison", "preanalysis"]
+    assert ids == ["bundle-adjustment", "model-comparison", "preanalysis", "match"]
     desc = client.process("bundle-adjustment")
     assert set(desc["inputs"]) == {"job"} and set(desc["outputs"]) == {"report"}
 
