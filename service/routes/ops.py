@@ -22,8 +22,7 @@ router = APIRouter(tags=["operations"])
 
 @router.get("/healthz", response_model=Health)
 def healthz() -> Health:
-    """Liveness: the server process answers; ``checks.evaluation`` says whether solves use the
-    compiled cost functions or, slower, the Python ones (and why)."""
+    """Liveness: the server process answers; `checks.evaluation` says whether solves use the compiled cost functions."""
     return Health(status="ok", checks={"evaluation": evaluation_check()})
 
 
