@@ -48,6 +48,8 @@ MAPPING: dict[str, str] = {
     "test_linalg.py": "solver/engine",
     "test_residual_jacobians.py": "solver/engine",
     "test_solve_outcomes.py": "solver/engine",
+    "test_compiled_evaluation.py": "solver/engine",
+    "test_handed_validation.py": "solver/engine",
     # kernels
     "test_kernels.py": "solver/kernels",
     "test_kernel_cache.py": "solver/kernels",
@@ -77,6 +79,9 @@ MAPPING: dict[str, str] = {
     "test_quality_removal.py": "solver/quality",
     "test_quality_snooping.py": "solver/quality",
     "test_montecarlo.py": "solver/quality",
+    "test_tie_pairs.py": "solver/quality",
+    # procedures that adjust more than once
+    "test_weak_control.py": "solver/procedures",
     # report
     "test_report_statistics.py": "solver/report",
     # geometry
@@ -95,9 +100,16 @@ MAPPING: dict[str, str] = {
     "test_importers.py": "solver/importers",
     "test_importers_rpc.py": "solver/importers",
     "test_job_command.py": "solver/importers",
+    "test_import_rpc_vendor_files.py": "solver/importers",
+    "test_job_named_measurements.py": "solver/importers",
     # vendors' sensor metadata
     "test_sensors_maxar.py": "solver/sensors",
     "test_sensors_spot5.py": "solver/sensors",
+    "test_sensors_spot1to4.py": "solver/sensors",
+    "test_sensors_dimap_v2.py": "solver/sensors",
+    "test_sensors_cbers.py": "solver/sensors",
+    "test_sensor_simulated.py": "solver/sensors",
+    "simulated_dimap.py": "solver/sensors",
     # the simulator
     "test_simulate_experiments.py": "solver/simulate",
     "test_simulate_geometry.py": "solver/simulate",
@@ -108,8 +120,11 @@ MAPPING: dict[str, str] = {
     "test_simulate_rpc.py": "solver/simulate",
     "test_simulate_scene.py": "solver/simulate",
     "test_simulate_selfcal.py": "solver/simulate",
+    "test_simulate_small_triplet.py": "solver/simulate",
     # matching
     "test_matching.py": "solver/matching",
+    "test_matching_gcp.py": "solver/matching",
+    "test_matching_real.py": "solver/matching",
 }
 
 # stay at the top of tests/: cross-cutting tests and the helpers several packages share
