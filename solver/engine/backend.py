@@ -5,11 +5,9 @@ costs a trampoline call, so
 
 * observations of *fixed* ground points of one image form one vectorised block per image
   (resection block: one call for all of them);
-* each *estimated* point (tie point, weighted control point): on the Python path one block
-  holding all its observations, with the point and the images that see it as parameter blocks
-  (one trampoline call for k observations; Schur elimination keeps working: one e-block per
-  residual block); on the compiled path, where a call costs nothing, one block per observation
-  (no zero-padded image columns in Ceres' Jacobian blocks: a third of their memory);
+* each *estimated* point (tie point, weighted control point) has one block holding all its
+  observations, with the point and the images that see it as parameter blocks (Schur
+  elimination keeps working: one e-block per residual block);
 * survey priors of weighted control points are Ceres' built-in ``NormalPrior`` (no trampoline).
 
 The arithmetic is in :mod:`solver.kernels` (numba). Cancellation: the cost functions return
@@ -333,7 +331,7 @@ def _add_fixed_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: A
 def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, control: SolveControl, tables, compiled: _Compiled | None) -> None:
     """Each estimated point: one block with all its observations, and the survey prior of a
     weighted control point (Ceres' NormalPrior)."""
-    blocks = point_blocks(problem, per_observation=compiled is not None)
+    blocks = point_blocks(problem)
     if len(blocks) == 0:
         return
     out.has_points = True
@@ -345,7 +343,6 @@ def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, co
         addresses = compiled.row_addresses(desc)
         memory = (desc, blocks.rec, compiled.shared)
     points = problem.points
-    previous = -1
     for b, (point_index, params) in enumerate(zip(blocks.owner.tolist(), blocks.params)):
         p = points[point_index]
         s, e = start[b], start[b + 1]
@@ -356,9 +353,7 @@ def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, co
             cf = PointCost(blocks.rec[s:e], sizes, control, tables)
             out.python_blocks += 1
         out.add(cf, loss, [p.xyz] + params)
-        first = b == 0 or point_index != previous
-        previous = point_index
-        if first and p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
+        if p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
             out.add(pyceres.factors.NormalPrior(p.known_lgs.copy(), np.diag(p.sigma_m**2)), None, [p.xyz])
 
 

@@ -126,18 +126,12 @@ def layout(problem: AdjustmentState, rows: np.ndarray, block: np.ndarray, owner:
     return ResidualBlocks(rows, start, np.asarray(owner, dtype=np.int64), rec, params, sizes, n_params)
 
 
-def point_blocks(problem: AdjustmentState, per_observation: bool = False) -> ResidualBlocks:
-    """The observations of the estimated points (points in index order): one block per point
-    with all its observations, or (``per_observation``) one block per observation, ``owner``
-    then repeating the point. Per point suits the Python path (one trampoline call for k
-    observations); per observation the compiled one, where a call costs nothing and Ceres'
-    Jacobian blocks then carry no zero padding (the image columns of the other observations)."""
+def point_blocks(problem: AdjustmentState) -> ResidualBlocks:
+    """One block per estimated point that has adjusted observations (points in index order)."""
     obs = problem.obs
     estimated = np.array([p.estimated for p in problem.points], dtype=bool)
     rows = np.flatnonzero(problem.adjusted_mask & estimated[obs.pt] if len(obs.pt) else np.zeros(0, dtype=bool))
     rows = rows[np.argsort(obs.pt[rows], kind="stable")]
-    if per_observation:
-        return layout(problem, rows, np.arange(len(rows)), obs.pt[rows])
     owner, block = np.unique(obs.pt[rows], return_inverse=True)
     return layout(problem, rows, block.ravel(), owner)
 
