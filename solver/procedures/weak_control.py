@@ -84,19 +84,24 @@ BAND_FRACTION = 0.5  # control spanning less than this fraction of an image's li
 
 def control_extent(job: Job) -> dict[str, dict[str, Any]]:
     """Per image with a camera: the first and last line of its control-point observations and
-    the fraction of its lines between them."""
+    the fraction of its lines between them (one pass over the observations)."""
     gcps = {p.id for p in job.points if p.role == "gcp"}
     cams = {c.id: c for c in job.cameras}
+    lo: dict[str, float] = {}
+    hi: dict[str, float] = {}
+    for o in job.observations:
+        if o.point in gcps:
+            lo[o.image] = min(lo.get(o.image, o.line), o.line)
+            hi[o.image] = max(hi.get(o.image, o.line), o.line)
     out: dict[str, dict[str, Any]] = {}
     for im in job.images:
         cam = cams.get(im.camera) if im.camera else None
         if cam is None or not cam.lines:
             continue
-        lines = [o.line for o in job.observations if o.image == im.id and o.point in gcps]
-        if not lines:
+        if im.id not in lo:
             out[im.id] = {"lines": None, "fraction": 0.0}
             continue
-        out[im.id] = {"lines": [float(min(lines)), float(max(lines))], "fraction": (max(lines) - min(lines)) / cam.lines}
+        out[im.id] = {"lines": [float(lo[im.id]), float(hi[im.id])], "fraction": (hi[im.id] - lo[im.id]) / cam.lines}
     return out
 
 

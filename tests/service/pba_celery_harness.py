@@ -127,7 +127,9 @@ class Worker:
     """A ``pba worker`` subprocess in its own process group, logging to a file."""
 
     def __init__(self, env: dict[str, str], log_dir: Path, name: str, concurrency: int = 1):
-        self.env = {**os.environ, **env}
+        # the Celery workers solve on the Python evaluation path (the local pool's on the compiled
+        # one), so the service runs both; and the test strips then take seconds, time to cancel
+        self.env = {**os.environ, "PBA_EVALUATION": "python", **env}
         self.name = name
         self.concurrency = concurrency
         self.log_path = Path(log_dir) / f"worker-{name}.log"

@@ -37,6 +37,7 @@ from pba_celery_harness import (
 )
 from pba_service_harness import PBA, Server, execute_body, load_example, submit_async, wait_status
 
+from service.errors import failed_job_status
 from service.queue.celery_backend import CeleryBackend
 from service.store import Store, open_store
 
@@ -120,7 +121,7 @@ def test_jobs_run_on_celery_workers(
         assert rec.progress == 100 and rec.attempts == 1
         same_numbers(direct, rec.results)
         rec = wait_job(store, wrong, {"failed"})
-        assert rec.error is not None and rec.error["status"] == 422, rec.error
+        assert rec.error is not None and failed_job_status(rec.error) == 422, rec.error
         assert "no-such-image" in json.dumps(rec.error)
 
         # progress while solving, then a cancel stops the solve within an iteration
