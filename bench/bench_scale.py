@@ -101,6 +101,13 @@ def block_for(n_obs: int, model: str, seed: int) -> dict[str, Any]:
     return doc
 
 
+PEAK_AFTER: dict[str, float] = {}  # stage -> peak RSS (MB) when it ended
+
+
+def _peak_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 def _timed(table: dict[str, float], name: str, fn: Callable) -> Callable:
     @wraps(fn)
     def wrapper(*args, **kwargs):
@@ -109,6 +116,7 @@ def _timed(table: dict[str, float], name: str, fn: Callable) -> Callable:
             return fn(*args, **kwargs)
         finally:
             table[name] = table.get(name, 0.0) + time.perf_counter() - t0
+            PEAK_AFTER[name] = _peak_mb()
 
     return wrapper
 
@@ -119,9 +127,11 @@ def child(n_obs: int, model: str, seed: int, strip: bool = False) -> dict[str, A
     from solver.api import run
     from solver.engine import backend
 
+    PEAK_AFTER["start"] = _peak_mb()
     t0 = time.perf_counter()
     doc = strip_for(n_obs, model, seed) if strip else block_for(n_obs, model, seed)
     generation_s = time.perf_counter() - t0
+    PEAK_AFTER["generation"] = _peak_mb()
     stages: dict[str, float] = {}
     single.prepare = _timed(stages, "prepare", single.prepare)
     single.assert_full_rank = _timed(stages, "rank_check", single.assert_full_rank)
@@ -154,7 +164,8 @@ def child(n_obs: int, model: str, seed: int, strip: bool = False) -> dict[str, A
         "solve_time_s": adj["solve_time_s"],
         "per_iteration_s": adj["solve_time_s"] / max(adj["iterations"], 1),
         "sigma0": adj["sigma0_aposteriori"],
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "peak_rss_mb": _peak_mb(),
+        "peak_after_stage_mb": dict(PEAK_AFTER),
     }
 
 
@@ -185,6 +196,7 @@ def main() -> None:
             runs.append(r)
             stages = " ".join(f"{k} {v:.2f}" for k, v in r["stages_s"].items())
             stages += "; in Ceres: " + " ".join(f"{k} {v:.2f}" for k, v in r["ceres_s"].items())
+            stages += "; peak RSS after: " + " ".join(f"{k} {v:.0f}" for k, v in r["peak_after_stage_mb"].items())
             print(
                 f"  {r['observations']:>8} obs {r['images']:>4} images [{r['evaluation']}]: run {r['run_s']:.2f} s "
                 f"({stages}), {r['iterations']} iterations, {r['per_iteration_s']:.3f} s/iteration, "
