@@ -123,7 +123,10 @@ def _timed(table: dict[str, float], name: str, fn: Callable) -> Callable:
 
 def child(n_obs: int, model: str, seed: int, strip: bool = False) -> dict[str, Any]:
     """One size in this process: generate, adjust end to end, return the measurements."""
-    import solver.procedures.single as single
+    try:
+        import solver.procedures.single as single
+    except ImportError:  # an older tree (before the procedures package), for alternated runs
+        import solver.adjust as single
     from solver.api import run
     from solver.engine import backend
 
@@ -138,7 +141,7 @@ def child(n_obs: int, model: str, seed: int, strip: bool = False) -> dict[str, A
     single.solve_problem = _timed(stages, "solve", single.solve_problem)
     single.assess = _timed(stages, "report", single.assess)
     ceres: dict[str, float] = {}
-    summarise = backend.summarise
+    summarise = getattr(backend, "summarise", None)  # absent in older trees
 
     def summarise_and_keep(*args, **kwargs):
         outcome = summarise(*args, **kwargs)
@@ -146,7 +149,8 @@ def child(n_obs: int, model: str, seed: int, strip: bool = False) -> dict[str, A
             ceres[k] = ceres.get(k, 0.0) + v
         return outcome
 
-    backend.summarise = summarise_and_keep
+    if summarise is not None:
+        backend.summarise = summarise_and_keep
     t0 = time.perf_counter()
     report = run(doc)
     total_s = time.perf_counter() - t0
