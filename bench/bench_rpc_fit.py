@@ -1,6 +1,6 @@
 """RPC fit residuals per model kind (fit grid and independent check grid, RMS and max, px), and
 through GDAL (rasterio's RPC transformer, corner convention corrected), on the GIS test scenes
-(tests/gis_scenes.py: 2400 x 2400 single-chip camera, nadir and 20 deg tilted, seed 5) and a
+(tests/solver/gis/gis_scenes.py: 2400 x 2400 single-chip camera, nadir and 20 deg tilted, seed 5) and a
 PRISM-like 4-chip butted nadir image (whole-image RPC and per-chip RPCs). Run by hand:
 
     .venv/bin/python bench/bench_rpc_fit.py

@@ -1,5 +1,5 @@
 """Simulator benchmark: generating a strip of 20 PRISM triplets (60 images) with 30000 tie
-points and writing its job document (the time tests/test_simulate_scene.py used to assert,
+points and writing its job document (the time tests/solver/simulate/test_simulate_scene.py used to assert,
 < 30 s, now measured here). Run by hand: python bench/bench_simulate.py
 """
 

@@ -36,7 +36,7 @@ def _rmse(report) -> float:
 
 
 # --ephemeris: the simulated state vectors weighted (2 m, 0.01 m/s), as a satellite's on-board
-# ephemeris would be (tests/test_quality_defaults.py uses the same)
+# ephemeris would be (tests/solver/quality/test_quality_defaults.py uses the same)
 EPHEMERIS_WEIGHTS = {"ephemeris": {"sigma_position_m": 2.0, "sigma_velocity_m_s": 0.01}}
 
 

@@ -16,3 +16,20 @@ def _kernels_compiled() -> None:
     from solver.warmup import compile_kernels
 
     compile_kernels()
+
+
+# ---- mirror_tests: helper folders on sys.path (begin) ----
+def _helper_folders_on_sys_path() -> None:
+    """Test helpers imported by their module name from any folder: pytest (prepend mode) puts
+    only a test file's own folder on sys.path; their folders, from scripts/mirror_tests.py."""
+    import sys
+    from pathlib import Path
+
+    for folder in ('service', 'solver/importers', 'solver/matching', 'solver/observations', 'solver/platforms', 'solver/sensors'):
+        path = str(Path(__file__).resolve().parent / folder)
+        if path not in sys.path:
+            sys.path.insert(0, path)
+
+
+_helper_folders_on_sys_path()
+# ---- mirror_tests: helper folders on sys.path (end) ----

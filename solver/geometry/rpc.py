@@ -11,7 +11,7 @@ of each cubic in the RPC00B order :data:`TERMS`; line and sample are normalised 
 Pixel convention. Image coordinates of an :class:`RPC` are those of the **centre** of the
 top-left pixel at (0, 0): the solver's convention and RPC00B's (what the files hold). GDAL's
 RPC transformer works with the top-left pixel's **corner** at (0, 0) and adds half a pixel to
-what the polynomials give: GDAL's (line, column) = ours + 0.5 (tests/test_gis_rpc.py checks
+what the polynomials give: GDAL's (line, column) = ours + 0.5 (tests/solver/gis/test_gis_rpc.py checks
 this through GDAL). The job's ``images[].rpc`` object (:meth:`RPC.to_job`, :meth:`RPC.from_job`)
 says which convention its offsets are in (``pixel_convention``: ``"center"``, the default, or
 ``"gdal"``, where ``line_off`` and ``samp_off`` are half a pixel larger); :meth:`RPC.from_job`

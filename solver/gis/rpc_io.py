@@ -6,7 +6,7 @@ the files hold exactly what :class:`solver.gis.rpc_fit.RPC` holds. GDAL's RPC tr
 (``GDALCreateRPCTransformer``, rasterio's ``RPCTransformer``, ``gdalwarp -rpc``) works in GDAL's
 raster convention, where (0, 0) is the top-left **corner** of the top-left pixel: it adds half
 a pixel to what the polynomials give (a point at our (line, column) is at GDAL's
-(line + 0.5, column + 0.5)). tests/test_gis_rpc.py checks this through GDAL itself.
+(line + 0.5, column + 0.5)). tests/solver/gis/test_gis_rpc.py checks this through GDAL itself.
 
 GDAL finds a sidecar beside ``NAME.tif`` as ``NAME_RPC.TXT`` (or ``NAME_rpc.txt``) and
 ``NAME.RPB``.

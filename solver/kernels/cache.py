@@ -21,7 +21,7 @@ numba writes each cache file to a temporary name and renames it into place, and 
 that compile the same kernel write the same content.
 
 Every module that defines ``@njit`` functions imports this module before its first decorator
-(tests/test_kernel_cache.py checks it). ``NUMBA_CACHE_LOCATOR_CLASSES``, when set, replaces
+(tests/solver/kernels/test_kernel_cache.py checks it). ``NUMBA_CACHE_LOCATOR_CLASSES``, when set, replaces
 numba's locator list and with it this mechanism.
 """
 

@@ -18,7 +18,7 @@ supplies scratch for the blocks Ceres holds constant).
 The physics is the one of :func:`solver.kernels.blocks.point_obs_block` and
 :func:`solver.kernels.blocks.fixed_obs_block`, called here with the parameter blocks copied
 into the rows of one padded array instead of a tuple; both paths are tested against each other
-(tests/test_compiled_evaluation.py).
+(tests/solver/engine/test_compiled_evaluation.py).
 """
 
 from __future__ import annotations

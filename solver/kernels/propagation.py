@@ -15,7 +15,7 @@ diag(Omega^2, Omega^2, 0), W = [[0, 2 Omega, 0], [-2 Omega, 0, 0], [0, 0, 0]], P
 Integrator: classical fixed-step Runge-Kutta 4 applied to the augmented system (state and
 Phi): Phi is then the *exact* derivative of the discrete RK4 map (the chain rule through every
 stage), so the Jacobians the adjustment uses are exact for the trajectory it evaluates. Step
-1 s: the truncation is ~1e-8 m over 100 s (tests/test_orbit_pass.py checks the state against an
+1 s: the truncation is ~1e-8 m over 100 s (tests/solver/platforms/test_orbit_pass.py checks the state against an
 independent DOP853 integration in the inertial frame).
 
 Between nodes (every ``NODE_STEP_S``) the state is a quintic Hermite polynomial through the

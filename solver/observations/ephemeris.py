@@ -17,7 +17,7 @@ mean node position before solving the confluent Vandermonde system (8 x 8), so t
 stays at the micrometre level.
 
 Why four nodes (measured on the simulator's DOP853 J2-J4 orbit, 60 s sampling; tests in
-``tests/test_ephemeris.py``): the two-node cubic Hermite is 0.21 m RMS (0.33 m worst) in
+``tests/solver/observations/test_ephemeris.py``): the two-node cubic Hermite is 0.21 m RMS (0.33 m worst) in
 position and 12 mm/s in velocity, far from the paper's 6 mm; three nodes 0.05 mm; four nodes
 0.003 mm RMS / 0.01 mm worst and 0.06 um/s, at the accuracy of the reference integration itself.
 Using the gravity field for the accelerations (a quintic Hermite on two nodes) was not needed.

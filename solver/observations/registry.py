@@ -21,7 +21,7 @@ passes family adds to). The stages read ``registry.FAMILIES`` when they run, nev
 
 Adding a family (the checklist): its module in ``solver/observations/`` (the interface above,
 with :class:`solver.observations.family.FamilyDefaults` for the parts it does not need), its
-fields in ``solver/schema/job.py``, one line below; tests/test_observation_registry.py adds a
+fields in ``solver/schema/job.py``, one line below; tests/solver/observations/test_observation_registry.py adds a
 fake family this way and follows it through every stage.
 """
 

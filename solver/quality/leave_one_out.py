@@ -15,7 +15,7 @@ and p is intersected from its rays with the orientation f + df (one Gauss-Newton
 its adjusted, or known, position). Its predicted covariance is that of a check point
 (:mod:`solver.quality.precision`) with ``Q_-p`` in place of ``Q``. The cross-validation RMSE
 over the control points is the honest accuracy figure when the few control points are all
-there is. Linearised at the solution: tests/test_quality_precision.py compares it with
+there is. Linearised at the solution: tests/solver/quality/test_quality_precision.py compares it with
 re-adjustments from scratch.
 """
 

@@ -36,7 +36,7 @@ from solver.state import AdjustmentState
 
 # a redundancy component below this is "nothing checks it": no finite detectable bias. Not
 # larger: a survey of 0.2 m seen in a 20-m-GSD image has r ~ 3e-4 and an MDB of ~50 m, weak but
-# finite; not smaller: the Schur path computes Q_vv to ~1e-6 (tests/test_quality_snooping.py)
+# finite; not smaller: the Schur path computes Q_vv to ~1e-6 (tests/solver/quality/test_quality_snooping.py)
 REDUNDANCY_NEAR_ZERO = 1e-5
 
 

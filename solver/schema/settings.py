@@ -15,7 +15,7 @@ at the boundary, onto four objects whose names collide with nothing of pyceres':
   (:mod:`solver.procedures`, pre-analysis, model comparison).
 
 The outcome of a solve is the library's own Summary (:class:`solver.engine.backend.SolveOutcome`).
-Every field of ``options`` maps to exactly one of the four (tests/test_settings.py), except the
+Every field of ``options`` maps to exactly one of the four (tests/solver/schema/test_settings.py), except the
 deprecated ``kernel``, which nothing reads.
 """
 

@@ -22,7 +22,7 @@ pytestmark = pytest.mark.browser
 DATA = ROOT / "tests" / "data" / "matching"
 LEFT, RIGHT = "ventoux_left", "ventoux_right"
 MATCH_MS = 300_000
-MIN_TIE_POINTS = 20  # the grid of 16 cells finds ~90 on this pair (tests/test_matching_real.py)
+MIN_TIE_POINTS = 20  # the grid of 16 cells finds ~90 on this pair (tests/solver/matching/test_matching_real.py)
 
 
 @pytest.fixture(scope="module")

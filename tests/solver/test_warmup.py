@@ -31,7 +31,7 @@ def test_warmup_jobs_cover_every_model_kind_and_both_line_models(jobs) -> None:
 def test_warmup_jobs_are_sound_adjustments(jobs) -> None:
     """Each gives a usable solution whose sigma0 is that of the simulated noise (0.5 px
     observations, 0.5 px sigmas): the 10-line scene once ended at its initial values with a
-    NaN sigma0 (failed closest-point searches, tests/test_lines.py)."""
+    NaN sigma0 (failed closest-point searches, tests/solver/observations/test_lines.py)."""
     for label, job in jobs:
         adj = run(job)["adjustment"]
         sigma0 = adj["sigma0_aposteriori"]

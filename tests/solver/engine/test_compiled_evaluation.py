@@ -36,7 +36,7 @@ from solver.schema.job import load_job
 from solver.schema.settings import Settings
 from solver.synthetic import block_job
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 SAME_PHYSICS_RTOL = 1e-10  # one kernel behind both paths: only summation order may differ
 SAME_PHYSICS_ATOL = 1e-10  # whitened residuals / Jacobian entries (residuals are ~1)
 FD_RESIDUAL_STEP = 0.1

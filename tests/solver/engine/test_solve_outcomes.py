@@ -23,7 +23,7 @@ import solver.errors as errors
 from solver.api import compare, run
 from solver.errors import JobError
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 OBSERVATION_COSTS = (backend.ImageBatchCost, backend.PointCost)
 
 

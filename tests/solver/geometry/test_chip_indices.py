@@ -2,7 +2,7 @@
 
 :func:`solver.geometry.sensor.chip_indices` must give, for every column and chip name,
 what :func:`solver.geometry.sensor.camera_chip` gives one observation at a time (its chip, or
--1 where it raises KeyError); tests/test_chips.py pins that rule itself (the seam, the tie to
+-1 where it raises KeyError); tests/solver/observations/test_chips.py pins that rule itself (the seam, the tie to
 the later centre, named chips) against the simulator.
 """
 
@@ -13,7 +13,7 @@ import numpy as np
 from solver.geometry.sensor import camera_chip, chip_indices, chip_of_index
 from solver.schema.job import Camera
 
-# two chips of 100 columns overlapping by 32 (as in tests/test_chips.py), image columns 0..147
+# two chips of 100 columns overlapping by 32 (as in tests/solver/observations/test_chips.py), image columns 0..147
 TWO = {
     "id": "two",
     "focal_mm": 1000.0,

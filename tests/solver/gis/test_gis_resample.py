@@ -82,7 +82,7 @@ def test_targets_sit_where_the_ideal_geometry_puts_them(resampled):
         dist.append(np.hypot((w * rr).sum() / w.sum() - line[0], (w * cc).sum() / w.sum() - col[0]))
     assert len(dist) >= 10
     # the raster shows the true geometry, the ideal image's mapping the adjusted one (~0.1 px
-    # apart, tests/test_gis_transforms.py), plus the centroid's texture bias
+    # apart, tests/solver/gis/test_gis_transforms.py), plus the centroid's texture bias
     # (0.06-0.29 px measured); an ideal geometry that kept the chips' 3-line offset would be 1.5 px off
     assert max(dist) < 0.35, dist
 

@@ -33,8 +33,8 @@ EXAMPLE_PX = 1e-4  # the example's measurements, written with four decimals
 SIGMA_ABS = 1e-12  # survey sigmas read from text stay the numbers written
 GEO_DEG = 1e-9  # 0.1 mm: a UTM point written to ASP's GCP format and read back as lon/lat
 
-FIXTURES = Path(__file__).parent / "fixtures" / "importers"
-EXAMPLE = Path(__file__).parent.parent / "examples" / "prism-triplet.json"
+FIXTURES = Path(__file__).parents[2] / "fixtures" / "importers"
+EXAMPLE = Path(__file__).parents[3] / "examples" / "prism-triplet.json"
 PX_TOL = 1e-9  # px: the +-0.5 pixel shifts of a round trip cost at most a few ulps of 1e4
 
 

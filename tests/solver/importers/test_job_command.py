@@ -23,7 +23,7 @@ from solver.schema.job import Camera, load_job
 CHIP_PLACE_MM = 1e-9  # nominal chip places symmetric about the principal point: sums of column counts x pixel size
 SAME_ADJUSTMENT_REL = 1e-6  # the same job written and read back adjusts to the same check-point RMSE
 
-ROOT = Path(__file__).parent.parent
+ROOT = Path(__file__).parents[3]
 SOURCES = ROOT / "examples" / "prism-triplet-sources"
 EXAMPLE = ROOT / "examples" / "prism-triplet.json"
 PX_TOL = 1e-9  # px: QGIS's +-0.5 px shifts, a few ulps of 1e4

@@ -12,7 +12,7 @@ import pytest
 
 from solver.cli import main
 
-ROOT = Path(__file__).parent.parent
+ROOT = Path(__file__).parents[3]
 SOURCES = ROOT / "examples" / "prism-triplet-sources"
 IMAGES = ("prism-backward", "prism-nadir", "prism-forward")
 

@@ -32,8 +32,8 @@ ZERO_IOP_PX = 1e-7  # project_cam with every IOP zero vs project: the same ray, 
 ZERO_IOP_REL, ZERO_IOP_ABS = 1e-6, 1e-9  # their derivatives wrt the point, same iterations
 
 # the pass-propagated models need passes (several images, epochs) that the per-image synthetic
-# scenes here do not have; tests/test_orbit_pass.py covers their Jacobians and projections;
-# the RPC bias models have no camera (tests/test_rpc_models.py)
+# scenes here do not have; tests/solver/platforms/test_orbit_pass.py covers their Jacobians and projections;
+# the RPC bias models have no camera (tests/solver/platforms/test_rpc_models.py)
 PER_IMAGE_MODELS = [m for m in model_names() if get_model(m).kind.position_from_image_state]
 
 REL_TOL = 2e-5  # finite differences (central) vs analytic, relative to the column scale

@@ -1,5 +1,5 @@
 """``pba match-gcp`` against simulated truth: the backward/nadir/forward triplet of
-tests/test_matching.py (20 m GSD, terrain 200-1200 m, rich texture) and a true orthophoto of
+tests/solver/matching/test_matching.py (20 m GSD, terrain 200-1200 m, rich texture) and a true orthophoto of
 the same ground with its DEM (``solver.simulate.raster.render_ortho``: the ground texture on a
 geographic grid, radiometry of its own), at orthophoto pixels finer and coarser than the
 images'.

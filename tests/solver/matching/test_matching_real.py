@@ -25,7 +25,7 @@ from solver.importers.measurements_csv import read_measurements
 
 pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")]
 
-DATA = Path(__file__).parent / "data" / "matching"
+DATA = Path(__file__).parents[2] / "data" / "matching"
 # sigma0 of the adjustment of the matched ties within this band around 1: the stated sigma_px
 # agrees with the scatter of the matches (the chi-square test's own bounds at ~100-500 dof
 # are about 0.85-1.15)

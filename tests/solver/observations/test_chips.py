@@ -180,7 +180,7 @@ def test_simulated_overlap_points_carry_the_rule_s_chip():
     column, and both chips of each overlap image some."""
     from solver.simulate.iop import default_iop
     from solver.simulate.projection import ImageGeometry
-    from tests.test_simulate_geometry import PLATFORM, TERRAIN
+    from tests.solver.simulate.test_simulate_geometry import PLATFORM, TERRAIN
 
     spec = prism_camera("nadir", "butted")
     spec = CameraSpec(

@@ -35,8 +35,8 @@ SEARCH_PARAMETER = 1e-6  # where the search along the ground line stops (a param
 LGS_ORIGIN_M = 1e-3  # the LGS origin at the control lines' centroid, recomputed from ECEF points
 
 # the pass-propagated models need passes (several images, epochs) that the per-image synthetic
-# scenes here do not have; tests/test_orbit_pass.py covers their Jacobians and projections;
-# the RPC bias models have no camera (tests/test_rpc_models.py)
+# scenes here do not have; tests/solver/platforms/test_orbit_pass.py covers their Jacobians and projections;
+# the RPC bias models have no camera (tests/solver/platforms/test_rpc_models.py)
 PER_IMAGE_MODELS = [m for m in model_names() if get_model(m).kind.position_from_image_state]
 
 REL_TOL = 2e-5  # central differences vs analytic, relative to the largest derivative of the column

@@ -11,7 +11,7 @@ import pytest
 
 from solver.api import run
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "experiments_seed002.py"
+SCRIPT = Path(__file__).resolve().parents[3] / "scripts" / "experiments_seed002.py"
 
 
 @pytest.fixture(scope="module")

@@ -33,7 +33,7 @@ from solver.schema.job import Job, load_job
 BLUNDER_ESTIMATE_REL = 0.3  # the estimated error of a rejected fix vs the blunder: the other fixes and the rays hold the parameter
 WRITTEN_OFFSET_SIGMA = 1e-6  # offsets of the values as written, in sigmas (rounding of large values)
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 HOOKS = ("check", "terms", "refresh", "groups", "report", "without", "removal_details", "flag")
 
 

@@ -1,4 +1,4 @@
-"""A platform kind that exists only for tests/test_platform_kinds.py: LGS polynomials of the
+"""A platform kind that exists only for tests/solver/platforms/test_platform_kinds.py: LGS polynomials of the
 time in seconds since the first line (``tau = L * line_time``) instead of the line number.
 
 Everything a new kind brings is here: its kind object (time scale, parameter names and units),
@@ -50,7 +50,7 @@ def install() -> PlatformModel:
             kind=kind,
             frame="LGS",
             orders=(2, 2, 2, 0, 0, 1),
-            reference="tests/fake_platform_kind.py",
+            reference="tests/solver/platforms/fake_platform_kind.py",
             equations="X(t) = X0 + X1 t + X2 t^2 (Y, Z alike); kappa(t) = kappa0 + kappa1 t",
         )
     )

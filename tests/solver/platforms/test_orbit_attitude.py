@@ -11,7 +11,7 @@ import numpy as np
 from solver.adjust import adjust_job
 from solver.schema.job import load_job
 
-_spec = importlib.util.spec_from_file_location("exp", Path(__file__).parents[1] / "scripts" / "experiments_orbit_models.py")
+_spec = importlib.util.spec_from_file_location("exp", Path(__file__).parents[3] / "scripts" / "experiments_orbit_models.py")
 exp = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(exp)
 

@@ -41,7 +41,7 @@ COLUMN_FD_REL = 1e-4  # the adjustment's Jacobian columns vs central differences
 COLUMN_FD_ABS = 1e-9
 PASS_KERNEL_FD_REL, PASS_KERNEL_FD_ABS = 1e-5, 1e-10  # dL/dx0, dC/dx0 vs differences of rebuilt segments
 
-_spec = importlib.util.spec_from_file_location("exp", Path(__file__).parents[1] / "scripts" / "experiments_orbit_models.py")
+_spec = importlib.util.spec_from_file_location("exp", Path(__file__).parents[3] / "scripts" / "experiments_orbit_models.py")
 exp = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(exp)
 

@@ -4,7 +4,7 @@
   model kind: no ``KIND_*`` code, no ``.orbital`` / ``.propagated`` / ``.is_rpc`` (the flags
   the kind object replaced), no comparison or ``isinstance`` of a ``.kind`` with anything but an
   observation group's string kind. The scan is checked on the forms it replaced.
-- A new kind is its module, its kernel and the registry lines: tests/fake_platform_kind.py adds
+- A new kind is its module, its kernel and the registry lines: tests/solver/platforms/fake_platform_kind.py adds
   one (nothing in solver/ changes) and a job with it is validated, solved and reported, with the
   same adjusted trajectory as the line-time model P1 on the same scene.
 """
@@ -23,7 +23,7 @@ import solver.platforms.registry as registry
 from solver.api import run, validate
 from solver.synthetic import single_image_job, truth_parameters
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 ALLOWED = (ROOT / "solver" / "platforms", ROOT / "solver" / "kernels")
 FLAGS = {"orbital", "propagated", "is_rpc"}  # the kind tests the kind object replaced
 SAME_TRAJECTORY_SIGMAS = 1e-3  # two parametrisations of one model solve to one minimum: far below its sigma

@@ -158,7 +158,7 @@ def test_an_attitude_sample_blunder_is_found_and_removed() -> None:
     import json
     from pathlib import Path
 
-    job = json.loads((Path(__file__).resolve().parents[1] / "examples" / "prism-triplet-direct.json").read_text())
+    job = json.loads((Path(__file__).resolve().parents[3] / "examples" / "prism-triplet-direct.json").read_text())
     job["options"]["blunder_detection"] = {}
     clean = run(copy.deepcopy(job))
     assert clean["quality"]["rejected"] == [] and clean["quality"]["not_identifiable"] == []
@@ -254,7 +254,7 @@ def test_an_ephemeris_sample_blunder_is_found_and_removed() -> None:
     import json
     from pathlib import Path
 
-    job = json.loads((Path(__file__).resolve().parents[1] / "examples" / "prism-triplet-direct.json").read_text())
+    job = json.loads((Path(__file__).resolve().parents[3] / "examples" / "prism-triplet-direct.json").read_text())
     job["options"]["ephemeris"]["sigma_position_m"] = 2.0
     job["options"]["blunder_detection"] = {}
     clean = run(copy.deepcopy(job))
@@ -287,7 +287,7 @@ def test_a_weighted_line_0_state_blunder_is_found_and_removed() -> None:
     import json
     from pathlib import Path
 
-    job = json.loads((Path(__file__).resolve().parents[1] / "examples" / "prism-triplet-direct.json").read_text())
+    job = json.loads((Path(__file__).resolve().parents[3] / "examples" / "prism-triplet-direct.json").read_text())
     for im in job["images"]:
         im["model"] = {"name": "OA-J2"}
     job["options"]["ephemeris"]["sigma_position_m"] = 2.0

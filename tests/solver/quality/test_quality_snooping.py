@@ -284,7 +284,7 @@ def test_every_observation_kind_is_tested() -> None:
 
     from solver.synthetic_lines import lines_job
 
-    direct = json.loads((Path(__file__).resolve().parents[1] / "examples" / "prism-triplet-direct.json").read_text())
+    direct = json.loads((Path(__file__).resolve().parents[3] / "examples" / "prism-triplet-direct.json").read_text())
     lines, _ = lines_job(seed=2)
     for job, kinds in ((direct, {"image_point", "attitude_sample", "ephemeris_sample"}), (lines, {"line_point"})):
         job.setdefault("options", {})["blunder_detection"] = {"action": "report"}

@@ -16,7 +16,7 @@ from solver.commands import summary_text
 from solver.quality.tie_pairs import tie_pairs
 from solver.schema.job import load_job
 
-JOB = json.loads((Path(__file__).parent.parent / "examples" / "prism-triplet.json").read_text())
+JOB = json.loads((Path(__file__).parents[3] / "examples" / "prism-triplet.json").read_text())
 B, N, F = "prism-backward", "prism-nadir", "prism-forward"
 N_TIES = 40
 BLUNDER_PX = 8.0  # far beyond the example's 0.5 px noise: snooping must remove it

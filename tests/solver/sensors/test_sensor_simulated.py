@@ -25,7 +25,7 @@ from solver.sensors.job_fragment import fragment
 from solver.sensors.maxar import read_maxar
 from solver.sensors.simulated import height_range, simulate_measurements
 
-DATA = Path(__file__).parent / "data" / "vendor" / "stereopipeline"
+DATA = Path(__file__).parents[2] / "data" / "vendor" / "stereopipeline"
 IDS = ["L", "R"]
 
 TRUTH_M = 0.01  # noise-free measurements intersected by the exact models land on the truth (Gauss-Newton converged to mm)

@@ -25,7 +25,7 @@ from solver.sensors.job_fragment import fragment
 from solver.sensors.linescan import matrix_to_quaternion, quaternion_matrices
 from solver.sensors.timescales import UnknownLeapSeconds, gps_minus_utc_s, gps_to_utc, leap_seconds_between
 
-DATA = Path(__file__).parent / "data" / "vendor" / "cbers-2-stac"
+DATA = Path(__file__).parents[2] / "data" / "vendor" / "cbers-2-stac"
 MUX4 = DATA / "CBERS_4_MUX_20170528_090_084_L2_BAND6.xml"
 PAN5 = DATA / "CBERS_4_PAN5M_20161009_219_050_L2_BAND1.xml"
 MUX4A = DATA / "CBERS_4A_MUX_20220810_222_116_L4_BAND6.xml"

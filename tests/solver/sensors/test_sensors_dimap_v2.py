@@ -1,5 +1,5 @@
 """DIMAP v2 (SPOT 6/7, Pleiades 1A/1B, Pleiades Neo): the reader against simulated products with
-known truth (tests/simulated_dimap.py: an independent orbit, attitude and look-angle scene; no
+known truth (tests/solver/sensors/simulated_dimap.py: an independent orbit, attitude and look-angle scene; no
 public DIMAP v2 product with its geometric model may be committed, docs/sensor-metadata.md),
 the exact model against an RPC of the product beside it, the job fragment, and refusals."""
 

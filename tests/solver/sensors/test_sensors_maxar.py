@@ -26,7 +26,7 @@ LAGRANGE_M = 1e-3  # held-out samples with the neighbours twice as far apart as 
 
 FILE_TIME_S = 1e-6  # times read from the file's text (microseconds written)
 
-DATA = Path(__file__).parent / "data" / "vendor" / "stereopipeline"
+DATA = Path(__file__).parents[2] / "data" / "vendor" / "stereopipeline"
 FILES = ["wv_test1", "wv_test2", "wv_mvp_1", "wv_mvp_2"]
 PAIRS = [("wv_test1", "wv_test2"), ("wv_mvp_1", "wv_mvp_2")]
 

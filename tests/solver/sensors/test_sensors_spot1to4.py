@@ -6,7 +6,7 @@ docs/sensor-metadata.md gives the numbers measured on them), so the public SPOT 
 
 - truth: the same segment in SPOT 5's form, its corrected yaw, pitch and roll replaced by the
   analytic angles sampled every 20 ms (the SPOT 5 path meets the product's own tie points,
-  tests/test_sensors_spot5.py);
+  tests/solver/sensors/test_sensors_spot5.py);
 - SPOT 1-4 form: no corrected attitude; ``Aocs_Attitude/Angles_List`` with the analytic angles
   at the first and last time, ``Angular_Speeds_List`` with their analytic derivatives at 8 Hz;
 - both: the look angles of detectors 1 and 300 only.
@@ -23,7 +23,7 @@ import pytest
 from solver.cli import main
 from solver.sensors.dimap_spot5 import read_spot5
 
-FILE = __import__("pathlib").Path(__file__).parent / "data" / "vendor" / "stereopipeline" / "spot_example1.xml"
+FILE = __import__("pathlib").Path(__file__).parents[2] / "data" / "vendor" / "stereopipeline" / "spot_example1.xml"
 T0 = datetime(2008, 3, 4, 12, 31, 3)  # before the segment's first line (12:31:03.19)
 SPAN_S = 73.0
 GROUND_M = 0.05  # integrated speeds vs the truth (trapezoids at 8 Hz of these angles: below 1e-8 rad, 1 cm at 830 km)

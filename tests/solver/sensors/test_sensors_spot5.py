@@ -19,7 +19,7 @@ from solver.sensors.job_fragment import fragment
 FILE_TIME_S = 1e-6  # times read from the file's text (microseconds written)
 LOOK_ANGLE_ABS = 0.01  # the first detector's look angle, tan(20 deg) as the product's nominal field states it
 
-FILE = Path(__file__).parent / "data" / "vendor" / "stereopipeline" / "spot_example1.xml"
+FILE = Path(__file__).parents[2] / "data" / "vendor" / "stereopipeline" / "spot_example1.xml"
 TIE_POINT_M = 0.2  # the tie points' 6 decimals of a degree are 0.11 m of latitude; measured 0.03 and 0.04 m
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "experiments_seed000.py"
+SCRIPT = Path(__file__).resolve().parents[3] / "scripts" / "experiments_seed000.py"
 
 
 def _load():

@@ -10,10 +10,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-SIMULATE = Path(__file__).resolve().parents[1] / "solver" / "simulate"
+SIMULATE = Path(__file__).resolve().parents[3] / "solver" / "simulate"
 # the geometry shared by design (issue 14): CRS plumbing and the chip-of-a-column rule; (issue 17)
 # the RPC00B polynomial, its least-squares fit and the bias equations of RPC images (the
-# simulated RPC images' truth is checked through GDAL, tests/test_simulate_rpc.py)
+# simulated RPC images' truth is checked through GDAL, tests/solver/simulate/test_simulate_rpc.py)
 ALLOWED = {"solver.geometry", "solver.geometry.geodesy", "solver.geometry.sensor", "solver.geometry.rpc"}
 
 
