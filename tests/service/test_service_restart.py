@@ -35,8 +35,10 @@ def test_graceful_restart_with_queued_jobs(
     try:
         with first.client() as c:  # local single-user mode: no key
             running = submit_async(c, medium_doc)
-            queued = [submit_async(c, small_doc) for _ in range(3)]
             wait_status(c, running, {"running"}, min_progress=5)
+            # queued behind the running job once it holds the only worker: submitted together,
+            # the small-job lane would run them first
+            queued = [submit_async(c, small_doc) for _ in range(3)]
     finally:
         # uvicorn re-raises SIGTERM after its graceful shutdown, hence -15
         assert first.stop() in (0, -15)
