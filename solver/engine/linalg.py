@@ -17,7 +17,7 @@ factor where a report needs it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -107,6 +107,14 @@ class Linearisation:
         parts += [r for r, _ in self.point_prior.values()]
         parts += [r for r, _ in self.term_eval]
         return np.concatenate(parts) if parts else np.zeros(0)
+
+    def without_jacobians(self) -> "Linearisation":
+        """The same residuals without the observations' Jacobian blocks (emptied), for readers
+        of residuals only; the largest arrays of a big block."""
+        def empty(a: np.ndarray) -> np.ndarray:
+            return np.empty((0, *a.shape[1:]), dtype=a.dtype)  # not a view: a view keeps the buffer
+
+        return replace(self, jf=empty(self.jf), fcol=empty(self.fcol), jpt=empty(self.jpt))
 
     def sparse_jacobian(self) -> sp.csr_matrix:
         """The full weighted Jacobian (rows as :attr:`residuals`), for tests and diagnostics."""
@@ -328,11 +336,12 @@ FAST_RANK_MARGIN = 1e-2  # the fast test accepts a condition estimate below this
 def _fast_condition(sn: np.ndarray) -> float | None:
     """LAPACK's estimate of the 1-norm condition of a symmetric matrix from its Cholesky factor
     (dpotrf + dpocon: O(n^3/3) and O(n^2), against O(9 n^3) for eigenvectors); None when the
-    factorisation fails (not positive definite)."""
-    factor, info = lapack.dpotrf(sn, lower=1, clean=0)
+    factorisation fails (not positive definite). ``sn`` is overwritten by the factor."""
+    norm1 = max(float(np.abs(sn[:, k : k + 512]).sum(axis=0).max()) for k in range(0, sn.shape[1], 512))
+    factor, info = lapack.dpotrf(sn.T, lower=1, clean=0, overwrite_a=1)  # in place (sn is symmetric)
     if info != 0:
         return None
-    rcond, info = lapack.dpocon(factor, float(np.abs(sn).sum(axis=0).max()), uplo="L")
+    rcond, info = lapack.dpocon(factor, norm1, uplo="L")
     return float("inf") if info != 0 or rcond <= 0.0 else 1.0 / float(rcond)
 
 
@@ -350,11 +359,11 @@ def check_rank(parts: SchurParts, names: list[str], tol: float = 1e-15, fast: bo
     if s.size == 0:
         return RankReport(False, 1.0, [])
     d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
-    sn = s / np.outer(d, d)
     if fast and not (np.diag(s) <= 1e-300).any():
-        estimate = _fast_condition(sn)
+        estimate = _fast_condition(_jacobi_scaled(s, d))
         if estimate is not None and estimate < FAST_RANK_MARGIN / tol:
             return RankReport(False, estimate, [])
+    sn = _jacobi_scaled(s, d)
     w, v = np.linalg.eigh(sn)
     wmax = max(w[-1], 1e-300)
     cond = float(wmax / max(w[0], 1e-300)) if w[0] > 0 else float("inf")
@@ -381,10 +390,32 @@ class Covariance:
     leverage: np.ndarray  # (n_obs_rows,) h_ii of the observation rows
 
 
+def _jacobi_scaled(s: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``s / outer(d, d)`` in one new array (the outer product of a 5,400-parameter block alone
+    is 233 MB)."""
+    a = s / d[:, None]
+    a /= d[None, :]
+    return a
+
+
+def _mirror_lower(a: np.ndarray, block: int = 512) -> None:
+    """Copy the lower triangle of the square ``a`` onto its upper one, in place (column strips,
+    so no full-size temporary)."""
+    n = a.shape[0]
+    for k in range(0, n, block):
+        e = min(k + block, n)
+        a[k:e, e:] = a[e:, k:e].T
+        diag = a[k:e, k:e]
+        diag[np.triu_indices(e - k, 1)] = diag.T[np.triu_indices(e - k, 1)]
+
+
 def positive_definite_inverse(s: np.ndarray) -> np.ndarray:
     """The inverse of a symmetric positive-definite matrix, as the Gram matrix ``G^T G`` of
     ``G = L^-1`` (Cholesky factor of the Jacobi-scaled matrix, LAPACK's dpotri): positive
     semi-definite by construction, so every correlation derived from it lies in [-1, 1].
+
+    One matrix beside ``s``: the scaling, the factor, the inverse and its symmetric completion
+    happen in place (a 300-image block's 5,400-square matrix is 233 MB a copy).
 
     Raises :class:`numpy.linalg.LinAlgError` when ``s`` is not positive definite (a singular
     or indefinite normal matrix has no covariance).
@@ -395,16 +426,22 @@ def positive_definite_inverse(s: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(s)) or np.any(diag <= 0.0):
         raise np.linalg.LinAlgError("the normal matrix is not positive definite")
     d = np.sqrt(diag)
-    lower = np.linalg.cholesky(s / np.outer(d, d))  # LinAlgError when not positive definite
+    # the transpose of the symmetric, C-ordered scaled matrix is the same matrix in Fortran
+    # order: LAPACK then works in place instead of on a copy
+    work = _jacobi_scaled(s, d).T
+    factor, info = lapack.dpotrf(work, lower=1, clean=0, overwrite_a=1)
+    if info != 0:
+        raise np.linalg.LinAlgError("the normal matrix is not positive definite")
     # LAPACK's dpotri: L^-T L^-1 from the factor (the triangular inverse, then its product with
     # its transpose exploiting the triangles): n^3 flops instead of 3.3 n^3 for a triangular
     # solve against the identity and a full product
-    inv, info = lapack.dpotri(lower, lower=1)
+    inv, info = lapack.dpotri(factor, lower=1, overwrite_c=1)
     if info != 0:
         raise np.linalg.LinAlgError("the normal matrix is not positive definite")
-    inv = np.tril(inv)
-    inv = inv + np.tril(inv, -1).T
-    return inv / np.outer(d, d)
+    _mirror_lower(inv)
+    inv /= d[:, None]
+    inv /= d[None, :]
+    return inv.T  # symmetric: the C-ordered view of the same array
 
 
 def covariance(lin: Linearisation, parts: SchurParts, problem: AdjustmentState) -> Covariance:

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from solver.engine.assemble import parameter_names
-from solver.engine.linalg import Covariance, covariance, linearise, schur
+from solver.engine.linalg import Covariance, Linearisation, covariance, linearise, schur
 from solver.geometry.geodesy import ecef_to_geodetic
 from solver.kernels import platform_state
 from solver.kernels.rpc import RPC_START, rpc_image_to_ground
@@ -38,6 +38,20 @@ SECTION_ORDER = (
 )
 
 
+def _covariance(lin: Linearisation, problem: AdjustmentState, warnings: list[str]) -> Covariance | None:
+    """The covariance at the solution, or None with a warning when the normal matrix is not
+    positive definite (the reduced normal matrix is dropped on return)."""
+    parts = schur(lin, problem)
+    try:
+        return covariance(lin, parts, problem)
+    except np.linalg.LinAlgError:
+        warnings.append(
+            "the normal matrix is not positive definite at the solution: no covariance, "
+            "sigmas or correlation coefficients"
+        )
+        return None
+
+
 def assess(problem: AdjustmentState, outcome) -> dict[str, Any]:
     """Statistics, covariance, check points and the report, at the current parameters."""
     job = problem.job
@@ -52,16 +66,8 @@ def assess(problem: AdjustmentState, outcome) -> dict[str, Any]:
     if dof == 0:
         warnings.append("zero degrees of freedom: no a-posteriori variance; sigmas use sigma0 a priori")
     var_factor = (sigma0**2) if sigma0 is not None else stats.sigma0_apriori**2
-    cov: Covariance | None = None
-    if stats.covariance and outcome.usable:
-        parts = schur(lin, problem)
-        try:
-            cov = covariance(lin, parts, problem)
-        except np.linalg.LinAlgError:
-            warnings.append(
-                "the normal matrix is not positive definite at the solution: no covariance, "
-                "sigmas or correlation coefficients"
-            )
+    cov = _covariance(lin, problem, warnings) if stats.covariance and outcome.usable else None
+    lin = lin.without_jacobians()  # the report reads residuals only: a million observations' Jacobians are ~0.5 GB
     if not lin.ok.all():
         warnings.append(f"{int((~lin.ok).sum())} projections did not converge at the solution")
     if not outcome.converged:
