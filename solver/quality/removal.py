@@ -103,7 +103,7 @@ def with_candidates(current: Job, original: Job, items: list[dict]) -> Job:
             p = p.model_copy(update={"role": "tie", "coordinates": None, "sigma_m": None, "crs": None})
         points.append(p)
     obs = list(current.observations) + [
-        it["obs"].model_copy(update={"sigma_px": it["obs"].sigma_px * INFLATE}) for it in items if it["kind"] == "image_point"
+        it["obs"].reweighted(it["obs"].sigma_px * INFLATE) for it in items if it["kind"] == "image_point"
     ]
     return current.model_copy(update={"points": points, "observations": obs})
 

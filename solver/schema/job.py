@@ -17,11 +17,13 @@ so that every problem in a document is reported at once.
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationInfo, field_validator, model_validator
+from pydantic.dataclasses import dataclass as pydantic_dataclass
 from typing_extensions import TypedDict
 
 from solver.schema.iop_names import camera_iop_names
@@ -413,7 +415,14 @@ class GroundPoint(_Strict):
         return self
 
 
-class ImageObservation(_Strict):
+_ObservationId = Annotated[str, Field(min_length=1, max_length=64)]
+
+
+# A slotted pydantic dataclass, not a model: a job holds up to millions of these, and a model
+# instance carries a dict and a set of its fields (about 1.1 kB each, 1.1 GB per million
+# observations, and 3x the validation time); validation, errors and the schema are the same.
+@pydantic_dataclass(slots=True, config=ConfigDict(extra="forbid", allow_inf_nan=False))
+class ImageObservation:
     """A measured image point: (line, column) in pixels with its standard deviation.
 
     ``chip`` optionally names the CCD chip (its ``id`` in the camera's ``chips``; "1" for a camera
@@ -422,12 +431,19 @@ class ImageObservation(_Strict):
     chip whose centre column is nearest).
     """
 
-    image: str = Field(min_length=1, max_length=64)
-    point: str = Field(min_length=1, max_length=64)
+    image: _ObservationId
+    point: _ObservationId
     line: _num(ge=-MAX_LINES, le=MAX_LINES)
     column: _num(ge=-MAX_COLUMNS, le=MAX_COLUMNS)
     sigma_px: SigmaPx = 0.5
-    chip: str | None = Field(default=None, min_length=1, max_length=64)
+    chip: _ObservationId | None = None
+
+    def reweighted(self, sigma_px: float) -> ImageObservation:
+        """A copy with standard deviation ``sigma_px``, not validated (an inflated weight may pass
+        the document's bound)."""
+        out = copy.copy(self)
+        out.sigma_px = sigma_px
+        return out
 
 
 LineRole = Literal["control", "check"]
