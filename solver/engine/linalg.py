@@ -337,7 +337,7 @@ def _fast_condition(sn: np.ndarray) -> float | None:
     """LAPACK's estimate of the 1-norm condition of a symmetric matrix from its Cholesky factor
     (dpotrf + dpocon: O(n^3/3) and O(n^2), against O(9 n^3) for eigenvectors); None when the
     factorisation fails (not positive definite). ``sn`` is overwritten by the factor."""
-    norm1 = max(float(np.abs(sn[:, k : k + 512]).sum(axis=0).max()) for k in range(0, sn.shape[1], 512))
+    norm1 = max(float(np.abs(sn[:, k : k + STRIP]).sum(axis=0).max()) for k in range(0, sn.shape[1], STRIP))
     factor, info = lapack.dpotrf(sn.T, lower=1, clean=0, overwrite_a=1)  # in place (sn is symmetric)
     if info != 0:
         return None
@@ -390,20 +390,29 @@ class Covariance:
     leverage: np.ndarray  # (n_obs_rows,) h_ii of the observation rows
 
 
+STRIP = 512  # rows per strip of the dense matrices' scaling and completion
+
+
+def _divide_by_outer(src: np.ndarray, d: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out = src / outer(d, d)`` in row strips: no full-size temporary (the outer product of a
+    5,400-parameter block alone is 233 MB), and exactly symmetric for a symmetric ``src``
+    (each entry divided by the one product d_i d_j); ``out`` may be ``src``."""
+    for k in range(0, len(d), STRIP):
+        out[k : k + STRIP] = src[k : k + STRIP] / np.outer(d[k : k + STRIP], d)
+    return out
+
+
 def _jacobi_scaled(s: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """``s / outer(d, d)`` in one new array (the outer product of a 5,400-parameter block alone
-    is 233 MB)."""
-    a = s / d[:, None]
-    a /= d[None, :]
-    return a
+    """``s / outer(d, d)`` in one new array."""
+    return _divide_by_outer(s, d, np.empty_like(s))
 
 
-def _mirror_lower(a: np.ndarray, block: int = 512) -> None:
+def _mirror_lower(a: np.ndarray) -> None:
     """Copy the lower triangle of the square ``a`` onto its upper one, in place (column strips,
     so no full-size temporary)."""
     n = a.shape[0]
-    for k in range(0, n, block):
-        e = min(k + block, n)
+    for k in range(0, n, STRIP):
+        e = min(k + STRIP, n)
         a[k:e, e:] = a[e:, k:e].T
         diag = a[k:e, k:e]
         diag[np.triu_indices(e - k, 1)] = diag.T[np.triu_indices(e - k, 1)]
@@ -439,9 +448,8 @@ def positive_definite_inverse(s: np.ndarray) -> np.ndarray:
     if info != 0:
         raise np.linalg.LinAlgError("the normal matrix is not positive definite")
     _mirror_lower(inv)
-    inv /= d[:, None]
-    inv /= d[None, :]
-    return inv.T  # symmetric: the C-ordered view of the same array
+    inv = inv.T  # symmetric: the C-ordered view of the same array
+    return _divide_by_outer(inv, d, inv)
 
 
 def covariance(lin: Linearisation, parts: SchurParts, problem: AdjustmentState) -> Covariance:

@@ -151,3 +151,20 @@ def test_correlations_stay_within_one_when_every_observation_is_at_one_pixel() -
     assert all(-1.0 <= r <= 1.0 for r in rhos), max(map(abs, rhos))
     if not rhos:
         assert any("not positive definite" in w for w in rep["warnings"]), rep["warnings"]
+
+
+def test_positive_definite_inverse_of_a_matrix_wider_than_its_strips() -> None:
+    """The symmetric completion runs in column strips (512 wide): a size of two strips and a
+    remainder, against numpy's general inverse, symmetric to rounding, ``s`` left unchanged."""
+    rng = np.random.default_rng(7)
+    a = rng.normal(size=(1200, 1100)) * np.geomspace(1e-3, 1e3, 1100)
+    s = a.T @ a
+    before = s.copy()
+    inv = linalg.positive_definite_inverse(s)
+    ref = np.linalg.inv(s)
+    assert np.array_equal(s, before)  # the caller's matrix is not the work space
+    assert np.array_equal(inv, inv.T)  # completed by copying, so exactly symmetric
+    # condition ~1e2 after Jacobi scaling: both inverses agree to ~1e-12 of the largest entry; 1e-9
+    # guards against a strip copied from the wrong place (errors of the size of the entries)
+    scale = np.sqrt(np.outer(np.diag(ref), np.diag(ref)))
+    assert np.max(np.abs(inv - ref) / scale) < 1e-9

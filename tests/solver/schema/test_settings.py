@@ -35,3 +35,14 @@ def test_the_kernel_option_is_deprecated_but_accepted() -> None:
     assert SolverOptions.model_validate({"kernel": "python"}).model_dump()["kernel"] == "python"
     prop = SolverOptions.model_json_schema()["properties"]["kernel"]
     assert prop["deprecated"] is True and "ignored" in prop["description"]
+
+
+def test_reweighted_observation_is_a_copy_beyond_the_documents_bound() -> None:
+    """Data snooping inflates a candidate's sigma a thousandfold, past the document's 1e6 px
+    bound: the copy is not validated, and the original keeps its weight."""
+    from solver.schema.job import ImageObservation
+
+    o = ImageObservation(image="a", point="b", line=1.0, column=2.0, sigma_px=5e5)
+    r = o.reweighted(5e8)
+    assert (r.sigma_px, o.sigma_px) == (5e8, 5e5)
+    assert (r.image, r.point, r.line, r.column, r.chip) == (o.image, o.point, o.line, o.column, o.chip)
