@@ -414,8 +414,8 @@ def _mirror_lower(a: np.ndarray) -> None:
     for k in range(0, n, STRIP):
         e = min(k + STRIP, n)
         a[k:e, e:] = a[e:, k:e].T
-        diag = a[k:e, k:e]
-        diag[np.triu_indices(e - k, 1)] = diag.T[np.triu_indices(e - k, 1)]
+        upper = np.triu_indices(e - k, 1)
+        a[k:e, k:e][upper] = a[k:e, k:e].T[upper]
 
 
 def positive_definite_inverse(s: np.ndarray) -> np.ndarray:

@@ -115,6 +115,9 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
+_Id = Annotated[str, Field(min_length=1, max_length=64)]  # an id or a reference to one
+
+
 class Chip(_Strict):
     """One CCD chip of the focal plane (seed 001 eqs 1-3).
 
@@ -265,7 +268,7 @@ ModelOptions = TypedDict(
         "omega_deg": AngleDeg,
         "phi_deg": AngleDeg,
         "kappa_deg": AngleDeg,
-        "pass": Annotated[str, Field(min_length=1, max_length=64)],
+        "pass": _Id,
         "attitude": Annotated[str, Field(min_length=1, max_length=32)],
     },
     total=False,
@@ -415,13 +418,10 @@ class GroundPoint(_Strict):
         return self
 
 
-_ObservationId = Annotated[str, Field(min_length=1, max_length=64)]
-
-
 # A slotted pydantic dataclass, not a model: a job holds up to millions of these, and a model
 # instance carries a dict and a set of its fields (about 1.1 kB each, 1.1 GB per million
 # observations, and 3x the validation time); validation, errors and the schema are the same.
-@pydantic_dataclass(slots=True, config=ConfigDict(extra="forbid", allow_inf_nan=False))
+@pydantic_dataclass(slots=True, config=_Strict.model_config)
 class ImageObservation:
     """A measured image point: (line, column) in pixels with its standard deviation.
 
@@ -431,12 +431,12 @@ class ImageObservation:
     chip whose centre column is nearest).
     """
 
-    image: _ObservationId
-    point: _ObservationId
+    image: _Id
+    point: _Id
     line: _num(ge=-MAX_LINES, le=MAX_LINES)
     column: _num(ge=-MAX_COLUMNS, le=MAX_COLUMNS)
     sigma_px: SigmaPx = 0.5
-    chip: _ObservationId | None = None
+    chip: _Id | None = None
 
     def reweighted(self, sigma_px: float) -> ImageObservation:
         """A copy with standard deviation ``sigma_px``, not validated (an inflated weight may pass
