@@ -21,6 +21,7 @@ from service.auth import local_user
 from service.cameras import ensure_presets
 from service.deps import Services
 from service.errors import install_error_handlers, problem_responses
+from service.gis_process import GisProcess
 from service.jobs import JobService
 from service.metrics import Metrics
 from service.middleware import (
@@ -72,6 +73,7 @@ def _start_services(settings: Settings) -> Services:
         jobs=JobService(settings, store, backend),
         metrics=Metrics(store, backend),
         local_user=None if settings.auth_required else local_user(store),
+        gis=GisProcess(settings.resolved_database_url),
     )
     backend.start()
     return services
@@ -103,6 +105,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         if retention is not None:
             retention.stop()
         services.backend.stop()
+        services.gis.stop()
         services.store.close()
         log.info("server stopped")
 

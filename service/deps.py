@@ -24,6 +24,7 @@ from fastapi.security import APIKeyHeader, APIKeyQuery, HTTPAuthorizationCredent
 
 from service.auth import user_for_key
 from service.errors import NotReady, Unauthorized, UnsupportedMediaType
+from service.gis_process import GisProcess
 from service.jobs import JobService
 from service.metrics import Metrics
 from service.queue import QueueBackend
@@ -41,6 +42,7 @@ class Services:
     jobs: JobService
     metrics: Metrics
     local_user: UserRecord | None
+    gis: GisProcess  # the process the GIS result endpoints compute in
 
 
 _current: ContextVar[Services | None] = ContextVar("pba_services", default=None)

@@ -41,7 +41,7 @@ PROBLEM_DESCRIPTIONS = {
     422: "Invalid input; each entry of errors points at the offending field",
     429: "Too many queued jobs for this user",
     500: "The job failed on the server side (worker crash, time limit)",
-    503: "Not ready",
+    503: "Service unavailable: not ready yet, or a computation process stopped (retry)",
 }
 
 

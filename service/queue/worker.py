@@ -44,7 +44,12 @@ def warm_up() -> None:
 
     try:
         import solver.adjust  # noqa: F401
-    except ImportError as exc:
+        import solver.kernels.lines  # noqa: F401  (loaded lazily by a solve: here from the disk cache, before the first job)
+        from solver.engine import native
+
+        if native.module() is not None:
+            import solver.kernels.callbacks  # noqa: F401  (the compiled path's C callbacks)
+    except (ImportError, RuntimeError) as exc:  # RuntimeError: PBA_EVALUATION=compiled without the extension
         log.warning("solver engine not importable yet: %s", exc)
 
 

@@ -32,7 +32,7 @@ import numpy as np
 from solver.geometry.geodesy import ecef_to_geodetic
 from solver.geometry.sensor import camera_chip, chip_index_of_column
 from solver.gis.rpc_image import RpcImage, rpc_image
-from solver.kernels import OBS_REC, REC_CAM_SLOT, REC_CAMERA, REC_CHIP, REC_CHIP_LEN, REC_IMAGE, REC_IMG_SLOT, REC_OC, REC_PASS_SLOT, _eval_record, ray, ray_cam
+from solver.kernels.layout import OBS_REC, REC_CAM_SLOT, REC_CAMERA, REC_CHIP, REC_CHIP_LEN, REC_IMAGE, REC_IMG_SLOT, REC_OC, REC_PASS_SLOT
 from solver.schema.job import Job, load_job
 from solver.state import AdjustmentState, ImageState
 
@@ -149,6 +149,8 @@ class AdjustedImage:
     def project_chip(self, ecef: np.ndarray, k: int, line_guess: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(line, column, converged) of ECEF points (n, 3) on chip ``k`` (its line of pixels
         extended as far as needed: the column may fall outside the chip)."""
+        from solver.kernels import _eval_record  # numba (here and in rays): loaded by the first transform, not by importing
+
         lgs = self.model.problem.frame.to_lgs(np.atleast_2d(ecef))
         n = len(lgs)
         line = np.empty(n)
@@ -195,6 +197,8 @@ class AdjustedImage:
     def rays(self, line: np.ndarray, column: np.ndarray, chip: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Perspective centres and unit directions (ECEF) of image points (pixel centres);
         the chip follows the column (:mod:`solver.geometry.sensor`) unless ``chip`` is given."""
+        from solver.kernels import ray, ray_cam
+
         line = np.atleast_1d(np.asarray(line, float))
         column = np.atleast_1d(np.asarray(column, float))
         frame = self.model.problem.frame

@@ -19,6 +19,11 @@ these functions, so a compiled C++ kernel could replace this package behind the 
 :mod:`solver.kernels.cache` is the disk cache of the compiled kernels, keyed on their sources
 (every module with ``@njit`` imports it first).
 
+Importing the package loads no kernel and not numba: the layout's numbers are plain attributes,
+and a kernel's name imports its module on first use (PEP 562). Validation, the job schema and
+the server's API process use only the numbers, so they never load numba (about 125 MB of a
+process's memory; tests/solver/kernels/test_lazy_kernels.py pins it).
+
 Conventions (see docs/models.md):
 
 * Rotation object -> camera: ``M(omega, phi, kappa) = Rx(omega) Ry(phi) Rz(kappa)`` with
@@ -43,15 +48,9 @@ Conventions (see docs/models.md):
 
 from __future__ import annotations
 
-import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
-from solver.kernels.blocks import (
-    _eval_record,
-    _fill,
-    _put_rows,
-    all_observation_blocks,
-    fixed_obs_block,
-    point_obs_block,
-)
+import importlib
+from typing import Any
+
 from solver.kernels.layout import (
     CAM_TAB,
     IMG_TAB,
@@ -70,6 +69,9 @@ from solver.kernels.layout import (
     N_KEPLER_CONST,
     N_OBS_CONST,
     OBS_REC,
+    PASS_ATT_OFF,
+    PASS_INDEX,
+    PASS_T_OFF,
     REC_CAM_SLOT,
     REC_CAMERA,
     REC_CHIP,
@@ -82,52 +84,39 @@ from solver.kernels.layout import (
     REC_PASS_SLOT,
     REC_SIGMA,
 )
-from solver.kernels.platform import (
-    _attitude_angles,
-    _attitude_time,
-    _camera_state,
-    _coef_gradients,
-    _kepler_terms,
-    _kepler_terms_for,
-    _oa_pose,
-    _orbit_jac,
-    _orbit_pos,
-    _pose,
-    _state_directions,
-    assemble,
-    object_to_camera,
-    platform_state,
-)
-from solver.kernels.projection import (
-    _line_newton_step,
-    camera_model,
-    ideal_direction,
-    intersect_all,
-    project,
-    project_cam,
-    project_observation,
-    ray,
-    ray_cam,
-)
-from solver.kernels.propagation import (
-    PASS_ATT_OFF,
-    PASS_COEF_INDEX,
-    PASS_INDEX,
-    PASS_T_OFF,
-    ensure_segment,
-    gravity_and_gradient,
-    pass_state,
-)
-from solver.kernels.rotation import (
-    _mount,
-    _orbital_frame,
-    _orbital_frame_rate,
-    _rotation_into,
-    ro_offset,
-    rotation_and_derivatives,
-)
-from solver.kernels.rpc import rpc_project, rpc_ray
 from solver.schema.iop_names import IOP_CHIP, IOP_OPTICAL, MAX_CHIPS
+
+# the compiled kernels' names and the module of each, imported on first use
+_KERNEL_MODULES = {
+    "blocks": ("_eval_record", "_fill", "_put_rows", "all_observation_blocks", "fixed_obs_block", "point_obs_block"),
+    "platform": (
+        "_attitude_angles", "_attitude_time", "_camera_state", "_coef_gradients", "_kepler_terms", "_kepler_terms_for",
+        "_oa_pose", "_orbit_jac", "_orbit_pos", "_pose", "_state_directions", "assemble", "object_to_camera", "platform_state",
+    ),
+    "projection": (
+        "_line_newton_step", "camera_model", "ideal_direction", "intersect_all", "project", "project_cam",
+        "project_observation", "ray", "ray_cam",
+    ),
+    "propagation": ("PASS_COEF_INDEX", "ensure_segment", "gravity_and_gradient", "pass_state"),
+    "rotation": ("_mount", "_orbital_frame", "_orbital_frame_rate", "_rotation_into", "ro_offset", "rotation_and_derivatives"),
+    "rpc": ("rpc_project", "rpc_ray"),
+}
+_HOME = {name: module for module, names in _KERNEL_MODULES.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    """A kernel's name: import its module (and numba) now, keep the name here for next time."""
+    module = _HOME.get(name)
+    if module is None:
+        raise AttributeError(f"module 'solver.kernels' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"solver.kernels.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_HOME))
+
 
 __all__ = [
     "CAM_TAB", "IMG_TAB", "IOP_CHIP", "IOP_OPTICAL", "IT_BASE", "IT_FREE", "IT_KIND", "IT_NFREE",

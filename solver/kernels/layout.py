@@ -50,3 +50,24 @@ REC_COLUMN = REC_OC + 1  # observed column (px)
 REC_SIGMA = REC_OC + 2  # sigma (px)
 REC_PASS_SLOT = REC_OC + N_OBS_CONST  # pass parameter slot (-1: constant or no pass)
 OBS_REC = REC_PASS_SLOT + 1
+
+# ---- image-line forms of the straight-line kernels (solver.kernels.lines) ------------------
+FORM_Y = 0  # y = a x + b
+FORM_X = 1  # x = a' y + b'
+
+# ---- pass segment inside an image's kc (solver.kernels.propagation writes and reads it) ----
+PASS_T_OFF = 17  # line-0 epoch minus the pass reference epoch (s)
+PASS_INDEX = 18
+PASS_NODES = 19
+PASS_T0 = 20
+PASS_STEP = 21
+PASS_X0 = 22  # 6 values
+PASS_ATT_OFF = 28  # added to t (s since the image's first line) for the attitude polynomials
+PASS_NODE0 = 29
+NODE_SIZE = 63
+NODE_STEP_S = 1.0
+
+
+def segment_length(n_nodes: int) -> int:
+    """Length of the pass part of ``kc`` (header and nodes) for ``n_nodes`` nodes."""
+    return PASS_NODE0 - PASS_T_OFF + n_nodes * NODE_SIZE

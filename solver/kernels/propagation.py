@@ -40,21 +40,24 @@ import numpy as np
 from numba import njit
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+from solver.kernels.layout import (  # noqa: F401  (the segment layout, defined with the other offsets; re-exported)
+    NODE_SIZE,
+    NODE_STEP_S,
+    PASS_ATT_OFF,
+    PASS_INDEX,
+    PASS_NODE0,
+    PASS_NODES,
+    PASS_STEP,
+    PASS_T0,
+    PASS_T_OFF,
+    PASS_X0,
+    segment_length,
+)
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
 # kc layout (indices into an image's constant vector)
 KC_GM, KC_OMEGA, KC_J2, KC_AE = 12, 13, 14, 15
-PASS_T_OFF = 17
-PASS_INDEX = 18
-PASS_NODES = 19
-PASS_T0 = 20
-PASS_STEP = 21
-PASS_X0 = 22  # 6 values
-PASS_ATT_OFF = 28  # added to t (s since the image's first line) for the attitude polynomials
-PASS_NODE0 = 29
-NODE_SIZE = 63
-NODE_STEP_S = 1.0
 RK_STEP_S = 1.0
 # coefficient slots (solver.kernels: element * 4 + power) that carry d/dx0 in the kernels' outputs
 PASS_COEF_INDEX = np.array([0, 4, 8, 1, 5, 9], dtype=np.int64)
@@ -258,7 +261,3 @@ def pass_state(kc, t: float, want_jac: bool):
                 dv[i, c] = b[1, 0] * p0 + b[1, 1] * v0 + b[1, 2] * a0 + b[1, 3] * p1 + b[1, 4] * v1 + b[1, 5] * a1
     return pos, vel, acc, ds, dv
 
-
-def segment_length(n_nodes: int) -> int:
-    """Length of the pass part of ``kc`` (header and nodes) for ``n_nodes`` nodes."""
-    return PASS_NODE0 - PASS_T_OFF + n_nodes * NODE_SIZE

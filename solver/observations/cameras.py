@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.kernels import IOP_CHIP, IOP_OPTICAL, N_IOP
+from solver.kernels.layout import IOP_CHIP, IOP_OPTICAL, N_IOP
 from solver.schema.iop_names import camera_iop_names
 from solver.schema.job import Camera, Job
 

@@ -38,7 +38,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from solver.errors import Problem
-from solver.kernels import platform_state
 from solver.schema.job import ApproxState, Image, SolverOptions
 from solver.state import is_kepler
 
@@ -246,6 +245,7 @@ def ephemeris_problems(image: Image, index: int) -> list[Problem]:
 
 def line0_state_ecef(problem: "AdjustmentState", image_index: int) -> tuple[np.ndarray, np.ndarray]:
     """The adjusted model's perspective centre position (m) and velocity (m/s) at line 0, ECEF."""
+    from solver.kernels import platform_state  # numba: validation never comes here
 
     img = problem.images[image_index]
     s, _, ds_dtau, *_ = platform_state(img.kind, img.coef(), img.kc, 0.0)

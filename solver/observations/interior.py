@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from solver.errors import Problem
-from solver.kernels import MAX_CHIPS
+from solver.kernels.layout import MAX_CHIPS
 from solver.observations.cameras import CameraState, build_cameras, chip_ids, default_master_chip, expand_estimate
 from solver.observations.family import Count, FamilyDefaults, Labelled, ReportContext
 from solver.schema.job import Job

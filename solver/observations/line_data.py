@@ -12,10 +12,8 @@ import numpy as np
 
 from solver.geometry.geodesy import UnknownCRSError, to_ecef
 from solver.geometry.sensor import camera_chip
-from solver.kernels import N_OBS_CONST
+from solver.kernels.layout import FORM_X, FORM_Y, N_OBS_CONST
 
-FORM_Y = 0  # y = a x + b
-FORM_X = 1  # x = a' y + b'
 FORM_NAMES = ("y=ax+b", "x=a'y+b'")
 
 

@@ -17,8 +17,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from solver.errors import Problem
-from solver.kernels import N_KEPLER_CONST
-from solver.kernels.propagation import (
+from solver.kernels.layout import (
+    N_KEPLER_CONST,
     NODE_STEP_S,
     PASS_ATT_OFF,
     PASS_INDEX,
@@ -27,9 +27,6 @@ from solver.kernels.propagation import (
     PASS_T0,
     PASS_T_OFF,
     PASS_X0,
-    ensure_segment,
-    pass_state,
-    propagate,
     segment_length,
 )
 from solver.observations.ephemeris import image_state, usable
@@ -172,6 +169,7 @@ def attitude_groups(problem: "AdjustmentState") -> dict[int, list[str]]:
 
 def refresh_segments(problem: "AdjustmentState") -> None:
     """Bring every pass image's trajectory segment up to its pass's current state."""
+    from solver.kernels.propagation import ensure_segment  # numba (here and below): kernels load where a solve needs them
     for ps in getattr(problem, "passes", []):
         for i in ps.images:
             ensure_segment(problem.images[i].kc, ps.params)
@@ -179,6 +177,8 @@ def refresh_segments(problem: "AdjustmentState") -> None:
 
 def state_at(problem: "AdjustmentState", image_index: int, line: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """ECEF position and velocity of a pass image's platform at ``line`` (segments current)."""
+    from solver.kernels.propagation import pass_state
+
     img = problem.images[image_index]
     t = img.kc[PASS_T_OFF] + line * img.camera.line_time_s
     p, v, _a, _ds, _dv = pass_state(img.kc, t, False)
@@ -189,6 +189,8 @@ def initialise_passes(problem: "AdjustmentState", states: dict[int, Any]) -> lis
     """Initial pass states: the weighted or header state of the image whose first line is nearest
     the reference epoch, propagated there with the pass's own force model. ``states`` maps image
     index -> ApproxState (or None)."""
+    from solver.kernels.propagation import propagate
+
     issues = []
     for ps in problem.passes:
         cands = [(abs(problem.images[i].kc[PASS_T_OFF]), i) for i in ps.images if states.get(i) is not None]
@@ -237,6 +239,8 @@ class PassStateTerm:
         return "pass_state_callback", desc, (self.kc, b, w)
 
     def evaluate(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        from solver.kernels.propagation import ensure_segment, pass_state
+
         ensure_segment(self.kc, np.ascontiguousarray(params, dtype=float))
         p, v, _a, ds, dv = pass_state(self.kc, self.kc[PASS_T_OFF], True)
         m = len(self.b)

@@ -33,8 +33,7 @@ from typing import Protocol
 
 import numpy as np
 
-from solver.kernels.layout import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL, KIND_RPC
-from solver.kernels.propagation import PASS_ATT_OFF
+from solver.kernels.layout import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL, KIND_RPC, PASS_ATT_OFF
 
 ELEMENTS = ("X", "Y", "Z", "omega", "phi", "kappa")
 ANGLES = ("omega", "phi", "kappa")

@@ -28,7 +28,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from solver.geometry.geodesy import geodetic_to_ecef
 
@@ -232,6 +231,8 @@ class Orbit:
         return np.concatenate([y[3:], acc])
 
     def _integrate(self, t_end: float, rtol: float, atol: np.ndarray):
+        from scipy.integrate import solve_ivp  # scipy here, not at import: the pba command line (and the server) loads this module
+
         sol = solve_ivp(
             self._rhs, (0.0, t_end), self.state0, method="DOP853", rtol=rtol, atol=atol, dense_output=True
         )

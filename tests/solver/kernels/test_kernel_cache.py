@@ -100,7 +100,7 @@ def test_every_kernel_module_registers_the_locator_before_its_first_kernel() -> 
     modules = [p for p in SOLVER.rglob("*.py") if kernel_cache.defines_kernels(ast.parse(p.read_text()))]
     assert {p.relative_to(SOLVER).as_posix() for p in modules} >= {
         "kernels/rotation.py", "kernels/platform.py", "kernels/projection.py", "kernels/blocks.py",
-        "kernels/propagation.py", "observations/lines.py", "engine/linalg.py",
+        "kernels/propagation.py", "kernels/lines.py", "engine/linalg.py",
     }
     for path in modules:
         lines = path.read_text().splitlines()

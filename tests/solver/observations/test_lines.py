@@ -14,15 +14,9 @@ from solver.api import run, validate
 from solver.engine.terms import family_terms
 from solver.errors import JobError
 from solver.kernels import project
-from solver.observations.lines import (
-    FORM_X,
-    FORM_Y,
-    LineTerm,
-    line_distances,
-    planes_model,
-    pushbroom_line,
-    two_point_line,
-)
+from solver.kernels.layout import FORM_X, FORM_Y
+from solver.kernels.lines import line_distances, planes_model, pushbroom_line, two_point_line
+from solver.observations.lines import LineTerm
 from solver.platforms import get_model, model_names
 from solver.schema.job import load_job
 from solver.synthetic import single_image_job, truth_parameters
@@ -122,7 +116,7 @@ def test_equivalent_planes_jacobian_matches_finite_differences(model, pitch):
 
 def test_equivalent_planes_is_the_frame_projection_of_the_line():
     """Eqs 3-4 give the image line through the frame-camera projections of any two object points."""
-    from solver.observations.lines import frame_xy
+    from solver.kernels.lines import frame_xy
 
     problem, _job, _truth = _problem("K2", n_lines=8, line_model="equivalent_planes", seed=2)
     img = problem.images[0]

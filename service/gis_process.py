@@ -1,0 +1,122 @@
+"""The process the GIS result endpoints compute in: RPC fits, GeoJSON and ground <-> image
+transforms of finished jobs, outside the API process.
+
+Those use cases (:mod:`service.gis_results`) rebuild a job's adjusted model and evaluate the
+solver's compiled kernels: numba alone is about 125 MB of a process, an adjusted model and its
+fitted RPCs tens of MB more. The API process must stay small and predictable whatever a user
+asks (a hostile or merely large request may not grow it), so the endpoints hand the job's id and
+the request's arguments to one ``spawn``-started process (started on the first GIS request,
+stopped with the server) that opens the same store, loads the job itself and keeps the caches
+of :mod:`service.gis_results` (adjusted models, one fit per job, image and chip). A problem it
+raises (404, 409, 422) comes back as the same problem document; a crash of that process is a 503
+and the next request starts a new one.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import multiprocessing as mp
+import threading
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any
+
+from service.errors import NoSuchJob, ServiceError
+
+log = logging.getLogger("pba.gis")
+
+PROCESS_NAME = "pba-gis"
+USE_CASES = ("rpc_document", "geojson", "ground_to_image", "image_to_ground")
+
+
+class GisUnavailable(ServiceError):
+    status, code, title = 503, "gis-unavailable", "The GIS computation process stopped"
+
+
+# ---- in the GIS process ------------------------------------------------------------------
+_store: Any = None
+
+
+def _open(database_url: str) -> None:
+    """Initializer of the GIS process: its name (``ps`` shows ``pba-gis``) and the store it
+    reads jobs from."""
+    global _store
+    from service.store import open_store
+
+    try:
+        with open("/proc/self/comm", "w") as comm:  # Linux; elsewhere the name stays python
+            comm.write(PROCESS_NAME)
+    except OSError:
+        pass
+    _store = open_store(database_url, create=False)
+
+
+def _problem_fields(exc: ServiceError) -> dict[str, Any]:
+    return {k: getattr(exc, k) for k in ("status", "code", "title", "detail", "errors", "type_uri", "headers")}
+
+
+def _run(use_case: str, job_id: str, args: tuple[Any, ...]) -> tuple[str, Any]:
+    """One use case of :mod:`service.gis_results` on the stored job: ``("ok", result)`` or
+    ``("problem", fields)`` (problems travel as plain fields: their classes need not pickle)."""
+    from service import gis_results
+
+    try:
+        rec = _store.get_job(job_id)
+        if rec is None:
+            raise NoSuchJob(job_id)
+        return "ok", getattr(gis_results, use_case)(rec, *args)
+    except ServiceError as exc:
+        return "problem", _problem_fields(exc)
+
+
+# ---- in the API process ------------------------------------------------------------------
+def _rebuilt(fields: dict[str, Any]) -> ServiceError:
+    """The problem raised in the GIS process, as a ServiceError of the same status and code."""
+    exc = ServiceError(fields["detail"], fields["errors"], fields["type_uri"], fields["headers"])
+    exc.status, exc.code, exc.title = fields["status"], fields["code"], fields["title"]
+    return exc
+
+
+class GisProcess:
+    """The GIS computation process of one server (started lazily, restarted after a crash)."""
+
+    def __init__(self, database_url: str) -> None:
+        self.database_url = database_url
+        self._lock = threading.Lock()
+        self._pool: ProcessPoolExecutor | None = None
+
+    def _executor(self) -> ProcessPoolExecutor:
+        with self._lock:
+            if self._pool is None:
+                self._pool = ProcessPoolExecutor(
+                    max_workers=1, mp_context=mp.get_context("spawn"), initializer=_open, initargs=(self.database_url,)
+                )
+            return self._pool
+
+    def _discard(self, pool: ProcessPoolExecutor) -> None:
+        with self._lock:
+            if self._pool is pool:
+                self._pool = None
+        pool.shutdown(wait=False, cancel_futures=True)
+
+    async def call(self, use_case: str, job_id: str, *args: Any) -> Any:
+        """Run ``service.gis_results.<use_case>(job, *args)`` in the GIS process."""
+        if use_case not in USE_CASES:
+            raise ValueError(f"unknown GIS use case {use_case!r}")
+        pool = self._executor()
+        try:
+            status, value = await asyncio.get_running_loop().run_in_executor(pool, _run, use_case, job_id, args)
+        except BrokenProcessPool as exc:
+            log.error("the GIS process stopped during %s of job %s; the next request starts a new one", use_case, job_id)
+            self._discard(pool)
+            raise GisUnavailable("the process computing RPCs and transforms stopped; retry the request") from exc
+        if status == "problem":
+            raise _rebuilt(value)
+        return value
+
+    def stop(self) -> None:
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
