@@ -85,6 +85,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings: Settings = app.state.settings
     services = _start_services(settings)
     app.state.services = services
+    if getattr(app.state, "start_gis_early", False):  # pba serve: the GIS process loads while the server starts
+        services.gis.start()
     retention = None
     if settings.job_retention_days > 0:
         retention = RetentionLoop(

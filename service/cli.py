@@ -128,6 +128,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     app = create_app(settings)
+    app.state.start_gis_early = True
     uvicorn.run(
         app,
         host=settings.host,

@@ -5,8 +5,8 @@ Those use cases (:mod:`service.gis_results`) rebuild a job's adjusted model and 
 solver's compiled kernels: numba alone is about 125 MB of a process, an adjusted model and its
 fitted RPCs tens of MB more. The API process must stay small and predictable whatever a user
 asks (a hostile or merely large request may not grow it), so the endpoints hand the job's id and
-the request's arguments to one ``spawn``-started process (started on the first GIS request,
-stopped with the server) that opens the same store, loads the job itself and keeps the caches
+the request's arguments to one ``spawn``-started process (started with ``pba serve``, or by
+the first GIS request of an app run otherwise; stopped with the server) that opens the same store, loads the job itself and keeps the caches
 of :mod:`service.gis_results` (adjusted models, one fit per job, image and chip). A problem it
 raises (404, 409, 422) comes back as the same problem document; a crash of that process is a 503
 and the next request starts a new one.
@@ -18,7 +18,7 @@ import asyncio
 import logging
 import multiprocessing as mp
 import threading
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
@@ -39,11 +39,16 @@ _store: Any = None
 
 
 def _open(database_url: str) -> None:
-    """Initializer of the GIS process: its name (``ps`` shows ``pba-gis``) and the store it
-    reads jobs from."""
+    """Initializer of the GIS process: its name (``ps`` shows ``pba-gis``), one BLAS thread, and
+    the store it reads jobs from."""
     global _store
+    from threadpoolctl import threadpool_limits
+
     from service.store import open_store
 
+    # Small least-squares problems (RPC fits) on one BLAS thread: with OpenBLAS's threads competing
+    # for the cores the workers' solves use, a 0.6 s fit took 17-25 s (measured on 2 cores).
+    threadpool_limits(limits=1)
     try:
         with open("/proc/self/comm", "w") as comm:  # Linux; elsewhere the name stays python
             comm.write(PROCESS_NAME)
@@ -68,6 +73,14 @@ def _run(use_case: str, job_id: str, args: tuple[Any, ...]) -> tuple[str, Any]:
         return "ok", getattr(gis_results, use_case)(rec, *args)
     except ServiceError as exc:
         return "problem", _problem_fields(exc)
+
+
+def _warm() -> None:
+    """Load what the use cases need (the kernels from their disk cache) before the first request."""
+    import solver.gis.model  # noqa: F401
+    import solver.gis.rpc_export  # noqa: F401
+    import solver.kernels.blocks  # noqa: F401
+    from service import gis_results  # noqa: F401
 
 
 # ---- in the API process ------------------------------------------------------------------
@@ -99,6 +112,15 @@ class GisProcess:
             if self._pool is pool:
                 self._pool = None
         pool.shutdown(wait=False, cancel_futures=True)
+
+    def start(self) -> None:
+        """Start the process now and load its libraries in the background (``pba serve`` does,
+        so that the first GIS request does not wait for them)."""
+        def report(future: Future) -> None:
+            if not future.cancelled() and future.exception() is not None:
+                log.warning("the GIS process did not warm up: %s", future.exception())
+
+        self._executor().submit(_warm).add_done_callback(report)
 
     async def call(self, use_case: str, job_id: str, *args: Any) -> Any:
         """Run ``service.gis_results.<use_case>(job, *args)`` in the GIS process."""

@@ -113,7 +113,7 @@ def test_digest_covers_the_kernel_modules_and_the_constants_they_read() -> None:
     names = {p.relative_to(SOLVER).as_posix() for p in kernel_cache.kernel_sources()}
     # kernels/propagation.py holds kernels that kernels/platform.py inlines, and the PASS_* layout
     # constants; kernels/layout.py the KIND_* codes and table offsets frozen into the compiled code
-    assert {"kernels/platform.py", "kernels/propagation.py", "kernels/layout.py", "engine/linalg.py", "observations/lines.py"} <= names
+    assert {"kernels/platform.py", "kernels/propagation.py", "kernels/layout.py", "engine/linalg.py", "kernels/lines.py"} <= names
     # modules that cannot reach compiled code keep the cache when edited
     assert not names & {"engine/assemble.py", "adjust.py", "report/statistics.py", "report/checkpoints.py", "kernels/cache.py"}
     assert not any(n.startswith("simulate/") for n in names)
