@@ -16,11 +16,26 @@ Each attitude block (one image, or the images sharing one) uses each *distinct* 
 epoch) of its images once, when the epoch lies within the block's lines: a sample carried by
 three images of a shared block is one observation, not three, and the polynomials are not
 asked to extrapolate outside the time they describe.
+
+Correlated errors (``options.attitude.bias_sigma_deg``): telemetry errs mostly by one bias per
+block and angle plus a small white noise, so the n samples of one block and angle have the
+covariance ``Sigma = sigma_w^2 I + sigma_b^2 11^T`` (``sigma_w``: ``sigma_deg``). The residuals
+are whitened by its symmetric inverse square root, in closed form (:func:`bias_shrink`)::
+
+    Sigma^(-1/2) = (I - c/n 11^T) / sigma_w,   c = 1 - sigma_w / sqrt(sigma_w^2 + n sigma_b^2)
+
+so a sample's whitened residual is its residual minus the fraction c of the block's mean
+residual for that angle, in units of sigma_w: the least-squares cost is ``r^T Sigma^-1 r``, and
+the covariance, redundancy numbers and global test follow from the whitened rows as for every
+other term. Each sample's three whitened rows stay its test group (data snooping): the test of
+a sample is of its departure from the block's common error (the component in the direction of
+one sample's bias deviates from it by about 1/sqrt(n)), its sigma ``sigma_w``.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -36,6 +51,40 @@ if TYPE_CHECKING:
     from solver.state import AdjustmentState
 
 ANGLES = ("omega", "phi", "kappa")  # the coefficient slots of roll, pitch, yaw
+
+
+def bias_shrink(n: int, sigma_w: float, sigma_b: float) -> float:
+    """c of the whitening ``Sigma^(-1/2) = (I - c/n 11^T) / sigma_w`` of n samples with the
+    covariance ``sigma_w^2 I + sigma_b^2 11^T`` (module doc); 0 without a bias."""
+    return 1.0 - sigma_w / math.sqrt(sigma_w**2 + n * sigma_b**2)
+
+
+@dataclass
+class AttitudeTerm(StatePrior):
+    """The attitude samples of one block, ``r = Sigma^(-1/2) (A p - b)``: rows sample by sample
+    (roll, pitch, yaw), ``w`` = 1/sigma_w per row and ``shrink`` = c/n per angle (module doc;
+    None: independent samples, ``r = W (A p - b)`` exactly)."""
+
+    shrink: np.ndarray | None = None  # (3,)
+
+    def whiten(self, x: np.ndarray) -> np.ndarray:
+        """``Sigma^(-1/2) x`` for ``x`` (m,) or (m, k) in the term's row order."""
+        w = self.w if x.ndim == 1 else self.w[:, None]
+        if self.shrink is None:
+            return w * x
+        y = x.reshape(-1, 3, *x.shape[1:])
+        s = self.shrink.reshape(1, 3, *([1] * (x.ndim - 1)))
+        return w * (y - s * y.sum(axis=0, keepdims=True)).reshape(x.shape)
+
+    def evaluate(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.whiten(self.a @ params - self.b), self.whiten(self.a)
+
+    def linear_form(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.whiten(self.a), self.whiten(self.b)
+
+    def raw(self, params: np.ndarray) -> np.ndarray:
+        """``A p - b`` (rad): model minus measured, sample by sample."""
+        return self.a @ params - self.b
 
 
 def block_samples(job: "Job", images: list[int]) -> list["AttitudeSample"]:
@@ -93,7 +142,7 @@ def attitude_problems(job: "Job") -> list[tuple[str, str, tuple]]:
     return out
 
 
-def _block_terms(problem: "AdjustmentState") -> list[tuple[list[int], StatePrior]]:
+def _block_terms(problem: "AdjustmentState") -> list[tuple[list[int], AttitudeTerm]]:
     """(image indices of the block, its term) per attitude block with samples: one linear term
     of 3 rows per sample on the block's parameters (those of its first image)."""
     job = problem.job
@@ -101,6 +150,7 @@ def _block_terms(problem: "AdjustmentState") -> list[tuple[list[int], StatePrior
     if opts is None:
         return []
     w_angle = [1.0 / math.radians(s) for s in opts.sigma_deg]
+    bias = opts.bias_sigma_deg
     out = []
     for block in image_attitude_blocks(problem.images):
         samples = block_samples(job, block)
@@ -126,28 +176,33 @@ def _block_terms(problem: "AdjustmentState") -> list[tuple[list[int], StatePrior
                 rows_a.append(row)
                 rows_b.append(b)
                 rows_w.append(w_angle[e])
-        out.append((block, StatePrior(img.index, np.array(rows_a), np.array(rows_b), np.array(rows_w))))
+        shrink = None
+        if bias is not None:
+            n = len(samples)
+            shrink = np.array([bias_shrink(n, sw, sb) / n for sw, sb in zip(opts.sigma_deg, bias)])
+        out.append((block, AttitudeTerm(img.index, np.array(rows_a), np.array(rows_b), np.array(rows_w), shrink)))
     return out
 
 
-def attitude_terms(problem: "AdjustmentState") -> list[StatePrior]:
+def attitude_terms(problem: "AdjustmentState") -> list[AttitudeTerm]:
     """The weighted attitude observations: one term per attitude block with samples."""
     return [term for _block, term in _block_terms(problem)]
 
 
 def attitude_report(problem: "AdjustmentState") -> list[dict]:
     """The report's ``attitude`` section: per attitude block with weighted samples, its images,
-    the number of samples, the sigmas and the residuals (measured - adjusted, deg) at the
-    current parameters: RMS and largest absolute value per angle (roll, pitch, yaw)."""
+    the number of samples, the sigmas (with ``bias_sigma_deg``: the white part) and the
+    residuals (measured - adjusted, deg) at the current parameters: RMS and largest absolute
+    value per angle (roll, pitch, yaw)."""
     out = []
+    opts = problem.job.options.attitude
     for block, term in _block_terms(problem):
-        r, _jac = term.evaluate(problem.images[term.image_index].params)
-        resid = -np.degrees(r / term.w).reshape(-1, 3)  # measured - model
+        resid = -np.degrees(term.raw(problem.images[term.image_index].params)).reshape(-1, 3)  # measured - model
         out.append(
             {
                 "images": [problem.images[i].id for i in block],
                 "n_samples": int(resid.shape[0]),
-                "sigma_deg": [float(s) for s in problem.job.options.attitude.sigma_deg],
+                "sigma_deg": [float(s) for s in opts.sigma_deg],
                 "rms_residual_deg": [float(x) for x in np.sqrt(np.mean(resid**2, axis=0))],
                 "max_abs_residual_deg": [float(x) for x in np.abs(resid).max(axis=0)],
             }
@@ -200,7 +255,7 @@ class MeasuredAttitude(FamilyDefaults):
             cols = np.flatnonzero(np.any(term.a != 0.0, axis=0))
             if cols.size == 0:
                 continue
-            fitted = np.linalg.lstsq(term.w[:, None] * term.a[:, cols], term.w * term.b, rcond=None)[0]
+            fitted = np.linalg.lstsq(term.whiten(term.a[:, cols]), term.whiten(term.b), rcond=None)[0]
             for i in block:  # a shared block's images share one parameter vector
                 img = problem.images[i]
                 img.base[img.free_idx[cols]] = fitted

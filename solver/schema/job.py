@@ -508,10 +508,19 @@ class GroundLine(_Strict):
 class AttitudeOptions(_Strict):
     """Use the images' ``attitude`` samples as weighted observations of the attitude angles
     (orbit-attitude and pass models): each distinct sample within the time span of the images
-    sharing an attitude block observes roll, pitch and yaw at its own epoch."""
+    sharing an attitude block observes roll, pitch and yaw at its own epoch. Telemetry errs
+    mostly by one bias per block and angle: ``bias_sigma_deg`` models it (docs/models.md
+    section 10), ``sigma_deg`` is then the white noise of each sample."""
 
     sigma_deg: tuple[_num(ge=1e-9, le=360), _num(ge=1e-9, le=360), _num(ge=1e-9, le=360)] = Field(
-        description="roll, pitch, yaw standard deviations (deg)"
+        description="roll, pitch, yaw standard deviations (deg); with bias_sigma_deg, of the white "
+        "part of each sample's error"
+    )
+    bias_sigma_deg: tuple[_num(ge=0, le=360), _num(ge=0, le=360), _num(ge=0, le=360)] | None = Field(
+        default=None,
+        description="roll, pitch, yaw standard deviations (deg) of an error common to every sample "
+        "of an attitude block (one bias per block and angle): the samples of one block and angle "
+        "then have the covariance sigma^2 I + bias_sigma^2 11^T; null: independent samples",
     )
 
 

@@ -24,6 +24,18 @@ Mapping (docs/models.md sections 1, 9, 10):
   straight chip (:func:`look_angle_source`).
 - Model: OA-J2 for Maxar's, SPOT 6/7's and Pleiades' short images, PASS-J2 for SPOT 1-5's long
   segments (it uses every ephemeris sample), with cubic attitude polynomials.
+- Attitude weights. Maxar's file states the *absolute* accuracy of its attitude (the
+  quaternion covariance, 0.0009-0.001 deg on the WorldView-2 products); that error is mostly
+  one bias per image and angle (star-tracker alignment and the fused estimate's slow drift),
+  not independent noise at 50 Hz. The fragment weights Maxar samples with that accuracy as a
+  common error per image and angle (``bias_sigma_deg``) and, as the white part
+  (``sigma_deg``), the samples' own scatter about the model's cubic polynomials within each
+  image's lines (per angle, pooled over the products, degrees-of-freedom corrected; at least
+  :data:`MAXAR_ATTITUDE_WHITE_DEG`): jitter, quaternion rounding and what a cubic cannot
+  follow, which is noise to the model. On the four WorldView-2 products of tests/data/vendor
+  it is 2e-6 to 1.2e-5 deg per angle (6.7e-6 overall); a fixed value cannot serve both pairs
+  (their scatter differs by a factor of two). Other formats keep their single (independent)
+  sigma.
 - Line times: a constant ``line_time_s = 1 / AVGLINERATE`` from the first line's time; a
   TLC table that departs from it is counted in the difference.
 - Times: seconds since 00:00 UTC of the product's first ephemeris date (``time_origin_utc``),
@@ -57,6 +69,9 @@ LONG_STRIP_MODEL = "PASS-J2"
 # default orders (with them the adjustment is off by hundreds of metres).
 DEFAULT_ORDERS = {"omega": 3, "phi": 3, "kappa": 3}
 DEFAULT_SIGMA_VELOCITY_M_S = 0.01  # Maxar EPH carries no velocity covariance
+# the floor of the white part of Maxar's attitude error (module doc; the samples' scatter about a
+# cubic within the lines, 2e-6 to 1.2e-5 deg per angle on the four WorldView-2 products)
+MAXAR_ATTITUDE_WHITE_DEG = 1e-6
 MIN_ATTITUDE_SPACING_S = 0.015  # the job's attitude samples: Maxar's 50 Hz kept, a 100 Hz sampling thinned to 50 Hz
 # at most this many attitude samples per image in the job (each costs a fit of the effective
 # rotation, about 3.5 ms: a composition on the server stays within seconds); the public SPOT 5
@@ -120,6 +135,7 @@ class SensorSource:
     mean_height_m: float  # height of the effective rotations' fit
     sigma_position_m: float | None
     sigma_attitude_rad: float | None
+    attitude_white: bool = False  # sigma_attitude_rad is a common error per image and angle; the white part from the samples
     default_model: str = DEFAULT_MODEL
     warnings: list[str] = field(default_factory=list)  # the reader's, for the note and standard error
 
@@ -142,7 +158,8 @@ def maxar_source(p: MaxarProduct) -> SensorSource:
     cov = p.position_covariance_m2
     sigma_p = float(np.sqrt(np.mean(cov[:, [0, 3, 5]].sum(axis=1) / 3.0))) if cov.shape[1] == 6 and np.all(cov[:, [0, 3, 5]] >= 0) else None
     return SensorSource(p.file, p.satellite, p.band, m, cam_to_body @ axes.T, camera,
-                        p.rpc.height_off if p.rpc is not None else 0.0, sigma_p, p.attitude_sigma_rad)
+                        p.rpc.height_off if p.rpc is not None else 0.0, sigma_p, p.attitude_sigma_rad,
+                        attitude_white=p.attitude_sigma_rad is not None)
 
 
 SPOT5_PIXEL_MM = 0.0065  # HRG/HRS detector pitch: nominal; only its ratio to the focal length matters
@@ -194,7 +211,7 @@ def look_angle_source(file: str, satellite: str, band: str, model: LinescanModel
     chips = look_angle_chips(focal * turn * along, focal * turn * s * across, pixel_mm)
     camera = {"focal_mm": float(focal), "pixel_mm": pixel_mm, "line_time_s": line_period_s, "lines": model.lines,
               "columns": model.columns, "chips": chips}
-    return SensorSource(file, satellite, band, model, body_from_ours, camera, mean_height_m, None, None, default_model)
+    return SensorSource(file, satellite, band, model, body_from_ours, camera, mean_height_m, None, None, default_model=default_model)
 
 
 def spot5_source(p: Spot5Product) -> SensorSource:
@@ -227,7 +244,7 @@ def cbers_source(p: CbersProduct) -> SensorSource:
     }
     name = f"{p.satellite} {p.instrument}" + (f" {p.camera}" if p.camera else "")
     return SensorSource(p.file, name, p.instrument, m, pointing_rotation(p), camera, 0.0, None, None,
-                        LONG_STRIP_MODEL, list(p.warnings))
+                        default_model=LONG_STRIP_MODEL, warnings=list(p.warnings))
 
 
 def _time_origin(sources: list[SensorSource]) -> datetime:
@@ -261,6 +278,7 @@ def fragment(
     sources = [source(p) for p in products]
     origin = _time_origin(sources)
     cameras, images, notes = [], [], []
+    scatter_sq, scatter_dof = np.zeros(3), 0  # the samples about a cubic within the lines (white part)
     for src, image_id in zip(sources, image_ids):
         m = src.model
         shift = (datetime.fromisoformat(m.epoch_utc.replace("Z", "+00:00")) - origin).total_seconds()
@@ -291,6 +309,13 @@ def fragment(
             "attitude": [{"time_s": float(t + shift), "roll_deg": float(r[0]), "pitch_deg": float(r[1]), "yaw_deg": float(r[2])}
                          for t, r in zip(at, ang)],
         }
+        within = (at >= lo) & (at <= hi)
+        if within.sum() > 8:
+            tc = at[within] - at[within].mean()
+            v = np.vander(tc, 4)
+            fit = ang[within] - v @ np.linalg.lstsq(v, ang[within], rcond=None)[0]
+            scatter_sq += np.sum(fit**2, axis=0)
+            scatter_dof += int(within.sum()) - 4
         cameras.append(camera)
         images.append(image)
         notes.append({"image": image_id, "file": src.file, "satellite": src.satellite, "band": src.band,
@@ -299,10 +324,15 @@ def fragment(
                       **({"warnings": src.warnings} if src.warnings else {})})
     sig_p = [s.sigma_position_m for s in sources if s.sigma_position_m is not None]
     sig_a = [s.sigma_attitude_rad for s in sources if s.sigma_attitude_rad is not None]
+    absolute = max(float(np.degrees(max(sig_a))), 1e-5) if sig_a else DEFAULT_SIGMA_ATTITUDE_DEG
+    attitude: dict[str, Any] = {"sigma_deg": [absolute] * 3}
+    if all(s.attitude_white for s in sources) and scatter_dof > 0:  # a common error and the samples' white part (Maxar)
+        white = np.maximum(np.sqrt(scatter_sq / scatter_dof), MAXAR_ATTITUDE_WHITE_DEG)
+        attitude = {"sigma_deg": [float(x) for x in white], "bias_sigma_deg": [absolute] * 3}
     options: dict[str, Any] = {
         "ephemeris": {"sigma_position_m": max(max(sig_p), 0.01) if sig_p else DEFAULT_SIGMA_POSITION_M,
                       "sigma_velocity_m_s": DEFAULT_SIGMA_VELOCITY_M_S},
-        "attitude": {"sigma_deg": [max(float(np.degrees(max(sig_a))), 1e-5) if sig_a else DEFAULT_SIGMA_ATTITUDE_DEG] * 3},
+        "attitude": attitude,
     }
     return {"cameras": cameras, "images": images, "options": options, "sensor_metadata": notes}
 
