@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from monte_carlo import direct_georeferencing, imaged_points
 from tolerances import ROTATION_ABS, SAME_RPC_PX
 
 from solver.cli import main
@@ -363,10 +364,6 @@ def test_direct_georeferencing_predicted_precision_by_monte_carlo(products) -> N
     sample independently by the attitude sigma). The empirical 3-D check-point RMSE over the runs
     must match the RMSE the reports predict. (Perturbed instead by one bias per image and angle,
     the realistic error of attitude telemetry, the ratio is 7.8: docs/sensor-metadata.md.)"""
-    import copy
-
-    from solver.api import run
-
     a, b = products["wv_test1"], products["wv_test2"]
     base = fragment([a, b], ["L", "R"])
     base.pop("sensor_metadata")
@@ -376,31 +373,8 @@ def test_direct_georeferencing_predicted_precision_by_monte_carlo(products) -> N
     ground = np.column_stack([r.long_off + 0.4 * r.long_scale * rng.uniform(-1, 1, n),
                               r.lat_off + 0.4 * r.lat_scale * rng.uniform(-1, 1, n),
                               r.height_off + 0.5 * r.height_scale * rng.uniform(-1, 1, n)])
-    obs = []
-    for image_id, p in (("L", a), ("R", b)):
-        lc = p.model.ground_to_image(ground)
-        obs += [{"image": image_id, "point": f"C{k}", "line": float(lc[k, 0]), "column": float(lc[k, 1]), "sigma_px": 0.05}
-                for k in range(n)]
-    points = [{"id": f"C{k}", "role": "check", "coordinates": [float(v) for v in ground[k]]} if k % 2 == 0
-              else {"id": f"C{k}", "role": "tie"} for k in range(n)]
-    o = base["options"]
-    sp, sv, sa = o["ephemeris"]["sigma_position_m"], o["ephemeris"]["sigma_velocity_m_s"], o["attitude"]["sigma_deg"][0]
-    emp, pred = [], []
-    for run_k in range(MC_RUNS):
-        doc = copy.deepcopy(base)
-        g = np.random.default_rng(100 + run_k)
-        for im in doc["images"]:
-            dp, dv = g.normal(0, sp, 3), g.normal(0, sv, 3)
-            for e in im["ephemeris"]:
-                e["position_ecef_m"] = [float(x) for x in np.array(e["position_ecef_m"]) + dp]
-                e["velocity_ecef_m_s"] = [float(x) for x in np.array(e["velocity_ecef_m_s"]) + dv]
-            for s in im["attitude"]:
-                d = g.normal(0, sa, 3)
-                s["roll_deg"] += float(d[0])
-                s["pitch_deg"] += float(d[1])
-                s["yaw_deg"] += float(d[2])
-        cp = run({"schema_version": "1.0", "name": "mc", "crs": "EPSG:4326", **doc, "points": points, "observations": obs})["checkpoints"]
-        emp.append(cp["rmse_m"]["3d"])
-        pred.append(cp["predicted_rmse_m"]["3d"])
-    ratio = np.sqrt(np.mean(np.square(emp))) / np.sqrt(np.mean(np.square(pred)))
-    assert MC_RATIO[0] <= ratio <= MC_RATIO[1], (ratio, emp, pred)
+    points, obs = imaged_points({"L": a.model, "R": b.model}, ground)
+    assert len(points) == n
+    mc = direct_georeferencing(base, points, obs, MC_RUNS)
+    ratio = mc["ratio"]
+    assert MC_RATIO[0] <= ratio <= MC_RATIO[1], mc
