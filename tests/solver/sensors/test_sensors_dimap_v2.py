@@ -219,3 +219,46 @@ def test_self_calibration_of_a_look_angle_camera(tmp_path) -> None:
     (df,) = [p for p in calibrated["cameras"][0]["parameters"] if p["name"] == "df" and p["estimated"]]
     assert abs(df["value"] - doc["cameras"][0]["focal_mm"] * eps) < 3 * df["sigma"], df
     assert calibrated["checkpoints"]["rmse_m"]["planimetric"] < 0.1 * plain["checkpoints"]["rmse_m"]["planimetric"]
+
+
+def _many_chip_job(tmp_path, n: int = 30) -> tuple[dict, Scene]:
+    """The simulated product's fragment (its along-track look angle changes across the swath:
+    64 chips, more than the 8 the interior orientation holds), 6 control points and check points
+    imaged by the truth."""
+    scene = Scene()
+    path, _ = _write(tmp_path, scene, "spot6")
+    doc = fragment([read_dimap_v2(path)], ["S"])
+    doc.pop("sensor_metadata")
+    rng = np.random.default_rng(4)
+    L, C, H = rng.uniform(0, scene.lines - 1, n), rng.uniform(0, scene.columns - 1, n), rng.uniform(0, 800, n)
+    g = scene.geodetic(scene.ground(L, C, H))
+    points = [{"id": f"P{k}", "role": "gcp" if k < 6 else "check", "coordinates": [float(v) for v in g[k]],
+               **({"sigma_m": [0.05, 0.05, 0.05]} if k < 6 else {})} for k in range(n)]
+    obs = [{"image": "S", "point": f"P{k}", "line": float(L[k]), "column": float(C[k]), "sigma_px": 0.1} for k in range(n)]
+    return {"schema_version": "1.0", "name": "many chips", "crs": "EPSG:4979", **doc, "points": points, "observations": obs}, scene
+
+
+def test_check_points_on_a_camera_with_more_chips_than_the_interior_orientation_holds(tmp_path) -> None:
+    """The check points' rays of a camera without interior orientation come from the
+    observations' own constants, as the adjustment's projections do: they once went through the
+    interior-orientation vector, which holds 8 chips, and read beyond it for the 9th chip on
+    (check points then missed by metres to hundreds of km, differently from one process to the next)."""
+    from solver.api import run
+
+    job, _ = _many_chip_job(tmp_path)
+    chips = job["cameras"][0]["chips"]
+    assert len(chips) > 8
+    assert any(o["column"] >= chips[8]["first_column"] for o in job["observations"][6:])
+    cp = run(job)["checkpoints"]
+    assert cp["rmse_m"]["planimetric"] < 0.05, cp["rmse_m"]  # the job form is 0.02 px from the truth (GSD 0.7 m)
+
+
+def test_interior_orientation_values_need_at_most_8_chips(tmp_path) -> None:
+    from solver.engine.validate import validate_job
+    from solver.schema.job import load_job
+
+    job, _ = _many_chip_job(tmp_path, 8)
+    job["cameras"][0]["iop"] = {"k1": 1e-9}
+    result = validate_job(load_job(job))
+    assert not result["valid"]
+    assert "too_many_chips" in {p["code"] for p in result["problems"]}, result["problems"]
