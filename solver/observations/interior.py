@@ -33,7 +33,10 @@ def validate_self_calibration(job: Job) -> list[tuple[str, str, tuple]]:
     out = []
     sc = job.options.self_calibration
     if sc is None:
-        return out
+        # the kernels' IOP vector holds MAX_CHIPS chips: a camera with more chips can be used
+        # without interior orientation only (its chips' offsets are in each observation's constants)
+        return [("too_many_chips", f"camera {cam.id!r} has interior-orientation values (iop) and more than {MAX_CHIPS} chips",
+                 ("cameras",)) for cam in job.cameras if cam.iop and len(chip_ids(cam)) > MAX_CHIPS]
     ids = {c.id for c in job.cameras}
     for cid in sc.cameras or []:
         if cid not in ids:

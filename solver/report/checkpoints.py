@@ -29,6 +29,8 @@ def _ray(problem: AdjustmentState, r: int):
     if img.camera is None:  # RPC image: the line of sight through the RPC's height range
         return ray(img.kind, img.coef(), img.kc, obs.oc[r])
     cam = problem.cameras[obs.cam[r]]
+    if not cam.has_iop:  # as the adjustment's kernels: the chip's offsets are in oc, and a camera
+        return ray(img.kind, img.coef(), img.kc, obs.oc[r])  # beyond MAX_CHIPS chips has no IOP vector for the rest
     k = obs.chip_idx[r]
     return ray_cam(img.kind, img.coef(), img.kc, obs.oc[r], cam.values(), int(k), cam.chip_len_mm[k])
 

@@ -10,6 +10,7 @@ import re
 
 import numpy as np
 import pytest
+from monte_carlo import direct_georeferencing, imaged_points
 from simulated_dimap import Scene, dimap_v2_xml
 from test_importers_rpc import _dimap_xml
 
@@ -219,3 +220,101 @@ def test_self_calibration_of_a_look_angle_camera(tmp_path) -> None:
     (df,) = [p for p in calibrated["cameras"][0]["parameters"] if p["name"] == "df" and p["estimated"]]
     assert abs(df["value"] - doc["cameras"][0]["focal_mm"] * eps) < 3 * df["sigma"], df
     assert calibrated["checkpoints"]["rmse_m"]["planimetric"] < 0.1 * plain["checkpoints"]["rmse_m"]["planimetric"]
+
+
+def _many_chip_job(tmp_path, n: int = 30) -> tuple[dict, Scene]:
+    """The simulated product's fragment (its along-track look angle changes across the swath:
+    64 chips, more than the 8 the interior orientation holds), 6 control points and check points
+    imaged by the truth."""
+    scene = Scene()
+    path, _ = _write(tmp_path, scene, "spot6")
+    doc = fragment([read_dimap_v2(path)], ["S"])
+    doc.pop("sensor_metadata")
+    rng = np.random.default_rng(4)
+    L, C, H = rng.uniform(0, scene.lines - 1, n), rng.uniform(0, scene.columns - 1, n), rng.uniform(0, 800, n)
+    g = scene.geodetic(scene.ground(L, C, H))
+    points = [{"id": f"P{k}", "role": "gcp" if k < 6 else "check", "coordinates": [float(v) for v in g[k]],
+               **({"sigma_m": [0.05, 0.05, 0.05]} if k < 6 else {})} for k in range(n)]
+    obs = [{"image": "S", "point": f"P{k}", "line": float(L[k]), "column": float(C[k]), "sigma_px": 0.1} for k in range(n)]
+    return {"schema_version": "1.0", "name": "many chips", "crs": "EPSG:4979", **doc, "points": points, "observations": obs}, scene
+
+
+def test_check_points_on_a_camera_with_more_chips_than_the_interior_orientation_holds(tmp_path) -> None:
+    """The check points' rays of a camera without interior orientation come from the
+    observations' own constants, as the adjustment's projections do: they once went through the
+    interior-orientation vector, which holds 8 chips, and read beyond it for the 9th chip on
+    (check points then missed by metres to hundreds of km, differently from one process to the next)."""
+    from solver.api import run
+
+    job, _ = _many_chip_job(tmp_path)
+    chips = job["cameras"][0]["chips"]
+    assert len(chips) > 8
+    assert any(o["column"] >= chips[8]["first_column"] for o in job["observations"][6:])
+    cp = run(job)["checkpoints"]
+    assert cp["rmse_m"]["planimetric"] < 0.05, cp["rmse_m"]  # the job form is 0.02 px from the truth (GSD 0.7 m)
+
+
+def test_interior_orientation_values_need_at_most_8_chips(tmp_path) -> None:
+    from solver.engine.validate import validate_job
+    from solver.schema.job import load_job
+
+    job, _ = _many_chip_job(tmp_path, 8)
+    job["cameras"][0]["iop"] = {"k1": 1e-9}
+    result = validate_job(load_job(job))
+    assert not result["valid"]
+    assert "too_many_chips" in {p["code"] for p in result["problems"]}, result["problems"]
+
+
+def stereo_mate(scene: Scene, pitch_deg: float = 16.0) -> Scene:
+    """A second simulated product of the same ground at the same instants: the orbit phased
+    (argument of latitude) and the roll changed so that, pitched by ``pitch_deg``, the scene's
+    centre sees the first scene's centre at height 0 (a base-to-height ratio of about 0.36
+    against the first scene's -4 degrees)."""
+    from dataclasses import replace
+
+    from scipy.optimize import least_squares
+
+    def centre(s: Scene) -> np.ndarray:
+        return s.ground(np.array([s.lines / 2.0]), np.array([s.columns / 2.0]), np.array([0.0]))[0]
+
+    target = centre(scene)
+
+    def mate(x: np.ndarray) -> Scene:
+        return replace(scene, anomaly_rad=scene.anomaly_rad + x[0], roll0_rad=scene.roll0_rad + x[1],
+                       pitch_rad=np.radians(pitch_deg))
+
+    x = least_squares(lambda x: centre(mate(x)) - target, [0.0, 0.0], x_scale=[1e-2, 1e-2]).x
+    return mate(x)
+
+
+MC_RUNS = 200
+# empirical / predicted 3-D check-point RMSE over the runs: 1 +- 0.03 expected from sampling
+# alone at 200 runs (one standard deviation, from the runs' scatter); measured 0.96
+# (52.5 m against 54.7 m predicted)
+MC_RATIO = (0.8, 1.25)
+
+
+@pytest.mark.slow
+def test_direct_georeferencing_predicted_precision_by_monte_carlo(tmp_path, scene) -> None:
+    """A simulated SPOT 6 stereo pair (:func:`stereo_mate`; OA-J2, cubic attitude, 64 chips)
+    without control: 12 tie and 12 check points imaged by the exact models, the metadata
+    perturbed in each run as the job's weights say it errs (each image's line-0 state, every
+    attitude sample independently, tests/solver/sensors/monte_carlo.py). The empirical 3-D
+    check-point RMSE over the runs must match the RMSE the reports predict."""
+    paths = []
+    for name, s in (("A", scene), ("B", stereo_mate(scene))):
+        paths.append(tmp_path / f"DIM_{name}.XML")
+        paths[-1].write_text(dimap_v2_xml(s)[0])
+    a, b = (read_dimap_v2(p) for p in paths)
+    base = fragment([a, b], ["A", "B"])
+    base.pop("sensor_metadata")
+    rng = np.random.default_rng(3)
+    n = 60
+    ground = a.model.image_to_ground(rng.uniform(0, scene.lines - 1, n), rng.uniform(0, scene.columns - 1, n),
+                                     rng.uniform(0, 500, n))
+    points, obs = imaged_points({"A": a.model, "B": b.model}, ground)
+    points = points[:24]
+    obs = [o for o in obs if int(o["point"][1:]) < 24]
+    assert len(points) == 24
+    mc = direct_georeferencing(base, points, obs, MC_RUNS)
+    assert MC_RATIO[0] <= mc["ratio"] <= MC_RATIO[1], mc
