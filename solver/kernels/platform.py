@@ -12,11 +12,10 @@ from numba import njit
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.kernels.layout import JIT as _JIT
 from solver.kernels.layout import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL, N_COEF
-from solver.kernels.propagation import PASS_ATT_OFF, PASS_COEF_INDEX, PASS_T_OFF, gravity_and_gradient, pass_state
+from solver.kernels.propagation import PASS_ATT_OFF, PASS_COEF_INDEX, PASS_T_OFF, gravity_and_gradient, pass_state, pass_values_into
 from solver.kernels.rotation import (
-    _mount,
-    _orbital_frame,
-    _orbital_frame_rate,
+    _mount_into,
+    _orbital_frame_rate_into,
     _rotation_into,
     mat_mat,
     mat_vec,
@@ -157,22 +156,23 @@ def _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot):
 
 
 @njit(**_JIT)
-def _orbit_pos(kind, coef, kc, acc, tau, s, sdot, vdot):
-    """Position (LGS), velocity and acceleration (LGS axes) of the orbit-attitude kinds at tau:
-    the Kepler/J2 quadratic (KIND_ORBIT_ATTITUDE) or the propagated pass (KIND_PASS)."""
-    r0 = kc[0:9].reshape(3, 3)
+def _orbit_pos_into(kind, coef, kc, acc, tau, s, sdot, vdot, b, vecs) -> None:
+    """Position (LGS), velocity and acceleration (LGS axes) of the orbit-attitude kinds at tau,
+    into ``s``, ``sdot``, ``vdot``: the Kepler/J2 quadratic (KIND_ORBIT_ATTITUDE) or the
+    propagated pass (KIND_PASS). ``b`` (3 x 6) and ``vecs`` (>= 3 x 3) are scratch."""
     if kind == KIND_PASS:
-        pe, ve, ae, _ds, _dv = pass_state(kc, kc[PASS_T_OFF] + tau, False)
+        pe, ve, ae = vecs[0], vecs[1], vecs[2]
+        pass_values_into(kc, kc[PASS_T_OFF] + tau, b, pe, ve, ae)
         for i in range(3):
             pe[i] -= kc[9 + i]
-        s[:] = mat_vec(r0, pe)
-        sdot[:] = mat_vec(r0, ve)
-        vdot[:] = mat_vec(r0, ae)
+        for i in range(3):
+            s[i] = kc[3 * i] * pe[0] + kc[3 * i + 1] * pe[1] + kc[3 * i + 2] * pe[2]
+            sdot[i] = kc[3 * i] * ve[0] + kc[3 * i + 1] * ve[1] + kc[3 * i + 2] * ve[2]
+            vdot[i] = kc[3 * i] * ae[0] + kc[3 * i + 1] * ae[1] + kc[3 * i + 2] * ae[2]
         return
-    ang = np.empty(3)
-    angdot = np.empty(3)
-    _pose(KIND_KEPLER, coef, kc, acc, tau, s, sdot, ang, angdot)
-    vdot[:] = mat_vec(r0, acc)
+    _pose(KIND_KEPLER, coef, kc, acc, tau, s, sdot, vecs[0], vecs[1])  # (its angles are not these: scratch)
+    for i in range(3):
+        vdot[i] = kc[3 * i] * acc[0] + kc[3 * i + 1] * acc[1] + kc[3 * i + 2] * acc[2]
 
 
 @njit(**_JIT)
@@ -200,40 +200,86 @@ def _orbit_jac(kind, kc, da_dr, tau):
 
 
 @njit(**_JIT)
-def _oa_pose(kind, coef, kc, acc, tau, rot):
-    """What the orbit-attitude projection needs at tau: S, Sdot, M = A R_orbit, dM/dtau, the
-    attitude part A = Ry(mount) R_att, the mounting and R_orbit (``rot`` receives R_att and its
-    angle derivatives)."""
-    s = np.empty(3)
-    sdot = np.empty(3)
-    vdot = np.empty(3)
-    ang = np.empty(3)
-    angdot = np.empty(3)
-    _orbit_pos(kind, coef, kc, acc, tau, s, sdot, vdot)
+def _oa_pose_into(kind, coef, kc, acc, tau, rot, s, sdot, m, dm_dt, a_att, mnt, ro, b, vecs, mats) -> None:
+    """What the orbit-attitude projection needs at tau, in place and without allocating: S,
+    Sdot, M = A R_orbit, dM/dtau, the attitude part A = Ry(mount) R_att, the mounting and
+    R_orbit (``rot`` receives R_att and its angle derivatives). ``b`` (3 x 6), ``vecs``
+    (6 x 3) and ``mats`` (3 x 3 x 3) are scratch."""
+    vdot, ang, angdot = vecs[3], vecs[4], vecs[5]
+    _orbit_pos_into(kind, coef, kc, acc, tau, s, sdot, vdot, b, vecs)
     _attitude_angles(coef, _attitude_time(kind, kc, tau), ang, angdot)
     _rotation_into(ang[0], ang[1], ang[2], rot)
-    ro, dro_dt = _orbital_frame_rate(s, sdot, ro_offset(kc), sdot, vdot)
-    mnt = _mount(kc[16])
-    a_att = mat_mat(mnt, rot[0])
-    m = mat_mat(a_att, ro)
-    dm_dt = mat_mat(a_att, dro_dt)
-    datt = rot[1] * angdot[0] + rot[2] * angdot[1] + rot[3] * angdot[2]
-    dm_dt += mat_mat(mat_mat(mnt, datt), ro)
-    return s, sdot, m, dm_dt, a_att, mnt, ro
+    # R_ecef->lgs @ LGS origin (ro_offset, in scalars)
+    c0 = kc[0] * kc[9] + kc[1] * kc[10] + kc[2] * kc[11]
+    c1 = kc[3] * kc[9] + kc[4] * kc[10] + kc[5] * kc[11]
+    c2 = kc[6] * kc[9] + kc[7] * kc[10] + kc[8] * kc[11]
+    dro, datt, md = mats[0], mats[1], mats[2]
+    _orbital_frame_rate_into(s, sdot, c0, c1, c2, sdot, vdot, ro, dro)
+    _mount_into(kc[16], mnt)
+    for i in range(3):
+        for j in range(3):
+            a_att[i, j] = mnt[i, 0] * rot[0, 0, j] + mnt[i, 1] * rot[0, 1, j] + mnt[i, 2] * rot[0, 2, j]
+            datt[i, j] = rot[1, i, j] * angdot[0] + rot[2, i, j] * angdot[1] + rot[3, i, j] * angdot[2]
+    for i in range(3):
+        for j in range(3):
+            md[i, j] = mnt[i, 0] * datt[0, j] + mnt[i, 1] * datt[1, j] + mnt[i, 2] * datt[2, j]
+    for i in range(3):
+        for j in range(3):
+            m[i, j] = a_att[i, 0] * ro[0, j] + a_att[i, 1] * ro[1, j] + a_att[i, 2] * ro[2, j]
+            dm_dt[i, j] = (a_att[i, 0] * dro[0, j] + a_att[i, 1] * dro[1, j] + a_att[i, 2] * dro[2, j]) + (
+                md[i, 0] * ro[0, j] + md[i, 1] * ro[1, j] + md[i, 2] * ro[2, j]
+            )
+
+
+@njit(**_JIT)
+def _oa_pose(kind, coef, kc, acc, tau, rot):
+    """:func:`_oa_pose_into` returning (S, Sdot, M, dM/dtau, A, mounting, R_orbit)."""
+    s = np.empty(3)
+    sdot = np.empty(3)
+    fac = np.empty((5, 3, 3))
+    _oa_pose_into(kind, coef, kc, acc, tau, rot, s, sdot, fac[0], fac[1], fac[2], fac[3], fac[4],
+                  np.empty((3, 6)), np.empty((6, 3)), np.empty((3, 3, 3)))
+    return s, sdot, fac[0], fac[1], fac[2], fac[3], fac[4]
 
 
 @njit(**_JIT)
 def _state_directions(kind, kc, da_dr, tau, s, sdot, a_att, m, v):
     """dd/d(state_q) (6 x 3) of the camera vector d = A R_orbit(S, V) (P - S) for the
-    orbit-attitude kinds: through S(t) and through the orbital frame's dependence on S and V."""
+    orbit-attitude kinds: through S(t) and through the orbital frame's dependence on S and V,
+
+        dd_q = A (dR_orbit/dstate_q) v - M dS/dstate_q,   v = P - S,
+
+    where dR_orbit/dstate_q is the frame's directional derivative along (dS, dV)_q: the
+    formulas of :func:`solver.kernels.rotation._orbital_frame_rate` with the state's
+    derivatives in place of the time rates, in scalars (this runs for every observation)."""
     ds_dth, dv_dth = _orbit_jac(kind, kc, da_dr, tau)
-    _ro, d_s, d_v = _orbital_frame(s, sdot, ro_offset(kc))
+    c = ro_offset(kc)
+    g0, g1, g2 = s[0] + c[0], s[1] + c[1], s[2] + c[2]
+    gn = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+    z0, z1, z2 = g0 / gn, g1 / gn, g2 / gn
+    vz = sdot[0] * z0 + sdot[1] * z1 + sdot[2] * z2
+    h0, h1, h2 = sdot[0] - vz * z0, sdot[1] - vz * z1, sdot[2] - vz * z2
+    hn = np.sqrt(h0 * h0 + h1 * h1 + h2 * h2)
+    x0, x1, x2 = h0 / hn, h1 / hn, h2 / hn
     out = np.empty((6, 3))
     for q in range(6):
-        dro = np.zeros((3, 3))
-        for k in range(3):
-            dro += d_s[:, :, k] * ds_dth[k, q] + d_v[:, :, k] * dv_dth[k, q]
-        out[q] = mat_vec(mat_mat(a_att, dro), v) - mat_vec(m, ds_dth[:, q])
+        s0, s1, s2 = ds_dth[0, q], ds_dth[1, q], ds_dth[2, q]
+        u0, u1, u2 = dv_dth[0, q], dv_dth[1, q], dv_dth[2, q]
+        zs = z0 * s0 + z1 * s1 + z2 * s2
+        dz0, dz1, dz2 = (s0 - zs * z0) / gn, (s1 - zs * z1) / gn, (s2 - zs * z2) / gn
+        dvz = u0 * z0 + u1 * z1 + u2 * z2 + sdot[0] * dz0 + sdot[1] * dz1 + sdot[2] * dz2
+        dh0, dh1, dh2 = u0 - dvz * z0 - vz * dz0, u1 - dvz * z1 - vz * dz1, u2 - dvz * z2 - vz * dz2
+        xd = x0 * dh0 + x1 * dh1 + x2 * dh2
+        dx0, dx1, dx2 = (dh0 - xd * x0) / hn, (dh1 - xd * x1) / hn, (dh2 - xd * x2) / hn
+        # y = z x x
+        dy0 = dz1 * x2 - dz2 * x1 + z1 * dx2 - z2 * dx1
+        dy1 = dz2 * x0 - dz0 * x2 + z2 * dx0 - z0 * dx2
+        dy2 = dz0 * x1 - dz1 * x0 + z0 * dx1 - z1 * dx0
+        w0 = dx0 * v[0] + dx1 * v[1] + dx2 * v[2]  # (dR_orbit/dstate_q) v
+        w1 = dy0 * v[0] + dy1 * v[1] + dy2 * v[2]
+        w2 = dz0 * v[0] + dz1 * v[1] + dz2 * v[2]
+        for i in range(3):
+            out[q, i] = a_att[i, 0] * w0 + a_att[i, 1] * w1 + a_att[i, 2] * w2 - (m[i, 0] * s0 + m[i, 1] * s1 + m[i, 2] * s2)
     return out
 
 
@@ -245,17 +291,16 @@ def _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, ang, angdot, v, d, 
     ``a_att``, ``mnt``, ``ro`` the factors A = Ry(mount) R_att, Ry(mount) and R_orbit (left as
     they are for the other kinds)."""
     if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
-        s1, sdot1, m, dm_dt, a1, mnt1, ro1 = _oa_pose(kind, coef, kc, acc, tau, rot)
-        s[:] = s1
-        sdot[:] = sdot1
-        mm[:, :] = m
-        a_att[:, :] = a1
-        mnt[:, :] = mnt1
-        ro[:, :] = ro1
+        mats = np.empty((4, 3, 3))  # dM/dtau, then scratch
+        vecs = np.empty((6, 3))
+        b = np.empty((3, 6))
+        dm_dt = mats[3]
+        _oa_pose_into(kind, coef, kc, acc, tau, rot, s, sdot, mm, dm_dt, a_att, mnt, ro, b, vecs, mats)
         for i in range(3):
             v[i] = p[i] - s[i]
-        d[:] = mat_vec(m, v)
-        ddt[:] = mat_vec(dm_dt, v) - mat_vec(m, sdot)
+        for i in range(3):
+            d[i] = mm[i, 0] * v[0] + mm[i, 1] * v[1] + mm[i, 2] * v[2]
+            ddt[i] = (dm_dt[i, 0] * v[0] + dm_dt[i, 1] * v[1] + dm_dt[i, 2] * v[2]) - (mm[i, 0] * sdot[0] + mm[i, 1] * sdot[1] + mm[i, 2] * sdot[2])
         return
     _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot)
     _rotation_into(ang[0], ang[1], ang[2], rot)

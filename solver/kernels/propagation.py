@@ -199,12 +199,10 @@ def ensure_segment(kc, x0) -> None:
 
 
 @njit(**_JIT)
-def pass_state(kc, t: float, want_jac: bool):
-    """ECEF position, velocity and acceleration at ``t`` (s after the pass reference epoch) from
-    the segment in ``kc``, and (want_jac) dS/dx0 and dV/dx0 (3 x 6).
-
-    Outside the node range the end interval's polynomial is extended (Newton iterates only).
-    """
+def _hermite_basis(kc, t: float, b) -> int:
+    """Fill ``b`` (3 x 6) with the quintic Hermite basis at ``t`` (values, first and second time
+    derivatives, over the two nodes' position, velocity and acceleration) and return the index
+    of the interval's first node. Outside the node range the end interval is extended."""
     n = int(kc[PASS_NODES])
     h = kc[PASS_STEP]
     u = (t - kc[PASS_T0]) / h
@@ -219,7 +217,6 @@ def pass_state(kc, t: float, want_jac: bool):
     s4 = s3 * s
     s5 = s4 * s
     # quintic Hermite basis (values, first and second derivatives in s)
-    b = np.empty((3, 6))
     b[0, 0] = 1.0 - 10.0 * s3 + 15.0 * s4 - 6.0 * s5
     b[0, 1] = (s - 6.0 * s3 + 8.0 * s4 - 3.0 * s5) * h
     b[0, 2] = (0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5) * h * h
@@ -238,17 +235,40 @@ def pass_state(kc, t: float, want_jac: bool):
     b[2, 3] = (60.0 * s - 180.0 * s2 + 120.0 * s3) / (h * h)
     b[2, 4] = (-24.0 * s + 84.0 * s2 - 60.0 * s3) / h
     b[2, 5] = 3.0 * s - 12.0 * s2 + 10.0 * s3
+    return k
+
+
+@njit(**_JIT)
+def pass_values_into(kc, t: float, b, pos, vel, acc) -> int:
+    """ECEF position, velocity and acceleration at ``t`` into ``pos``, ``vel``, ``acc`` (no
+    allocation: the Newton iterations of the projection call this); ``b`` (3 x 6) is scratch
+    left holding the basis. Returns the interval's first node index."""
+    k = _hermite_basis(kc, t, b)
     b0 = PASS_NODE0 + k * NODE_SIZE
     b1 = b0 + NODE_SIZE
-    pos = np.zeros(3)
-    vel = np.zeros(3)
-    acc = np.zeros(3)
     for i in range(3):
         p0, v0, a0 = kc[b0 + i], kc[b0 + 3 + i], kc[b0 + 6 + i]
         p1, v1, a1 = kc[b1 + i], kc[b1 + 3 + i], kc[b1 + 6 + i]
         pos[i] = b[0, 0] * p0 + b[0, 1] * v0 + b[0, 2] * a0 + b[0, 3] * p1 + b[0, 4] * v1 + b[0, 5] * a1
         vel[i] = b[1, 0] * p0 + b[1, 1] * v0 + b[1, 2] * a0 + b[1, 3] * p1 + b[1, 4] * v1 + b[1, 5] * a1
         acc[i] = b[2, 0] * p0 + b[2, 1] * v0 + b[2, 2] * a0 + b[2, 3] * p1 + b[2, 4] * v1 + b[2, 5] * a1
+    return k
+
+
+@njit(**_JIT)
+def pass_state(kc, t: float, want_jac: bool):
+    """ECEF position, velocity and acceleration at ``t`` (s after the pass reference epoch) from
+    the segment in ``kc``, and (want_jac) dS/dx0 and dV/dx0 (3 x 6).
+
+    Outside the node range the end interval's polynomial is extended (Newton iterates only).
+    """
+    b = np.empty((3, 6))
+    pos = np.empty(3)
+    vel = np.empty(3)
+    acc = np.empty(3)
+    k = pass_values_into(kc, t, b, pos, vel, acc)
+    b0 = PASS_NODE0 + k * NODE_SIZE
+    b1 = b0 + NODE_SIZE
     ds = np.zeros((3, 6))
     dv = np.zeros((3, 6))
     if want_jac:

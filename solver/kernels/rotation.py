@@ -97,14 +97,18 @@ def _rotation_into(om: float, ph: float, ka: float, out):
 
 
 @njit(**_JIT)
-def _mount(angle: float):
+def _mount_into(angle: float, m) -> None:
+    """The camera mounting Ry(angle) into ``m`` (3 x 3)."""
     c, s = np.cos(angle), np.sin(angle)
-    m = np.zeros((3, 3))
-    m[0, 0] = c
-    m[0, 2] = s
-    m[1, 1] = 1.0
-    m[2, 0] = -s
-    m[2, 2] = c
+    m[0, 0], m[0, 1], m[0, 2] = c, 0.0, s
+    m[1, 0], m[1, 1], m[1, 2] = 0.0, 1.0, 0.0
+    m[2, 0], m[2, 1], m[2, 2] = -s, 0.0, c
+
+
+@njit(**_JIT)
+def _mount(angle: float):
+    m = np.empty((3, 3))
+    _mount_into(angle, m)
     return m
 
 
@@ -154,37 +158,43 @@ def _orbital_frame(s, v, c):
 
 
 @njit(**_JIT)
-def _orbital_frame_rate(s, v, c, sdot, vdot):
-    """Orbital frame (as :func:`_orbital_frame`) and its time derivative along the trajectory
-    (position rate ``sdot``, velocity rate ``vdot``), without the state derivatives: the cheap
-    form for the Newton iterations on the line."""
-    g0, g1, g2 = s[0] + c[0], s[1] + c[1], s[2] + c[2]
+def _orbital_frame_rate_into(s, v, c0: float, c1: float, c2: float, sdot, vdot, r, dr) -> None:
+    """Orbital frame (as :func:`_orbital_frame`) into ``r`` and its time derivative along the
+    trajectory (position rate ``sdot``, velocity rate ``vdot``) into ``dr``, without the state
+    derivatives and without allocating: the form for the Newton iterations on the line.
+    (c0, c1, c2) is ``c`` of :func:`_orbital_frame`."""
+    g0, g1, g2 = s[0] + c0, s[1] + c1, s[2] + c2
     gn = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
-    z = np.array([g0 / gn, g1 / gn, g2 / gn])
-    zs = z[0] * sdot[0] + z[1] * sdot[1] + z[2] * sdot[2]
-    dz = (sdot - zs * z) / gn
-    vz = v[0] * z[0] + v[1] * z[1] + v[2] * z[2]
-    h = v - vz * z
-    hn = np.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
-    x = h / hn
-    dvz = vdot[0] * z[0] + vdot[1] * z[1] + vdot[2] * z[2] + v[0] * dz[0] + v[1] * dz[1] + v[2] * dz[2]
-    dh = vdot - dvz * z - vz * dz
-    xd = x[0] * dh[0] + x[1] * dh[1] + x[2] * dh[2]
-    dx = (dh - xd * x) / hn
+    z0, z1, z2 = g0 / gn, g1 / gn, g2 / gn
+    zs = z0 * sdot[0] + z1 * sdot[1] + z2 * sdot[2]
+    dz0, dz1, dz2 = (sdot[0] - zs * z0) / gn, (sdot[1] - zs * z1) / gn, (sdot[2] - zs * z2) / gn
+    vz = v[0] * z0 + v[1] * z1 + v[2] * z2
+    h0, h1, h2 = v[0] - vz * z0, v[1] - vz * z1, v[2] - vz * z2
+    hn = np.sqrt(h0 * h0 + h1 * h1 + h2 * h2)
+    x0, x1, x2 = h0 / hn, h1 / hn, h2 / hn
+    dvz = vdot[0] * z0 + vdot[1] * z1 + vdot[2] * z2 + v[0] * dz0 + v[1] * dz1 + v[2] * dz2
+    dh0, dh1, dh2 = vdot[0] - dvz * z0 - vz * dz0, vdot[1] - dvz * z1 - vz * dz1, vdot[2] - dvz * z2 - vz * dz2
+    xd = x0 * dh0 + x1 * dh1 + x2 * dh2
+    dx0, dx1, dx2 = (dh0 - xd * x0) / hn, (dh1 - xd * x1) / hn, (dh2 - xd * x2) / hn
+    r[0, 0], r[0, 1], r[0, 2] = x0, x1, x2
+    r[2, 0], r[2, 1], r[2, 2] = z0, z1, z2
+    dr[0, 0], dr[0, 1], dr[0, 2] = dx0, dx1, dx2
+    dr[2, 0], dr[2, 1], dr[2, 2] = dz0, dz1, dz2
+    # y = z x x
+    r[1, 0] = z1 * x2 - z2 * x1
+    r[1, 1] = z2 * x0 - z0 * x2
+    r[1, 2] = z0 * x1 - z1 * x0
+    dr[1, 0] = dz1 * x2 - dz2 * x1 + z1 * dx2 - z2 * dx1
+    dr[1, 1] = dz2 * x0 - dz0 * x2 + z2 * dx0 - z0 * dx2
+    dr[1, 2] = dz0 * x1 - dz1 * x0 + z0 * dx1 - z1 * dx0
+
+
+@njit(**_JIT)
+def _orbital_frame_rate(s, v, c, sdot, vdot):
+    """:func:`_orbital_frame_rate_into` returning (R, dR/dt)."""
     r = np.empty((3, 3))
     dr = np.empty((3, 3))
-    for i in range(3):
-        r[0, i] = x[i]
-        r[2, i] = z[i]
-        dr[0, i] = dx[i]
-        dr[2, i] = dz[i]
-    # y = z x x
-    r[1, 0] = z[1] * x[2] - z[2] * x[1]
-    r[1, 1] = z[2] * x[0] - z[0] * x[2]
-    r[1, 2] = z[0] * x[1] - z[1] * x[0]
-    dr[1, 0] = dz[1] * x[2] - dz[2] * x[1] + z[1] * dx[2] - z[2] * dx[1]
-    dr[1, 1] = dz[2] * x[0] - dz[0] * x[2] + z[2] * dx[0] - z[0] * dx[2]
-    dr[1, 2] = dz[0] * x[1] - dz[1] * x[0] + z[0] * dx[1] - z[1] * dx[0]
+    _orbital_frame_rate_into(s, v, c[0], c[1], c[2], sdot, vdot, r, dr)
     return r, dr
 
 
