@@ -360,8 +360,9 @@ def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, co
 def _add_family_blocks(out: CeresProblem, problem: AdjustmentState, control: SolveControl, compiled: _Compiled | None) -> None:
     """The observation families' terms (:mod:`solver.engine.terms`), each on its parameter block.
     On the compiled path a linear term is a ``LinearCost`` and a term with a compiled form (the
-    pass states) a C callback; the others (the straight lines) stay Python cost functions, and a
-    problem with any of those is solved on one thread."""
+    pass states, the straight lines) a C callback; a term with neither (a family added without
+    one) stays a Python cost function there, and a problem with any such term is solved on one
+    thread."""
     for labelled in family_terms(problem):
         owner = block_owner(problem, labelled)
         linear = getattr(labelled.term, "linear_form", None)  # both optional in the Term interface

@@ -30,7 +30,29 @@ from numba.extending import intrinsic
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @cfunc)
 from solver.kernels.blocks import fixed_obs_block, point_obs_block
-from solver.kernels.layout import OBS_REC
+from solver.kernels.layout import (
+    LT_BASE,
+    LT_DISTANCES,
+    LT_FREE,
+    LT_KC,
+    LT_KC_LEN,
+    LT_KIND,
+    LT_M,
+    LT_MODE,
+    LT_NFREE,
+    LT_OCS,
+    LT_P1,
+    LT_P2,
+    LT_PLANES,
+    LT_S,
+    LT_SCAL,
+    LT_TARGET,
+    LT_W,
+    LT_WORDS,
+    OBS_REC,
+    PIXEL_MAP,
+)
+from solver.kernels.lines import line_distances, planes_model, pushbroom_line
 from solver.kernels.propagation import PASS_T_OFF, ensure_segment, pass_state
 
 # descriptor of a residual block (int64 words)
@@ -188,3 +210,69 @@ def pass_state_callback(block, table, parameters, residuals, jacobians, want):
             for j in range(6):
                 jac[i * 6 + j] = w[i] * (ds[i, j] if i < 3 else dv[i - 3, j])
     return ok
+
+
+@cfunc(CALLBACK_SIGNATURE, **_CFUNC)
+def line_term_callback(block, table, parameters, residuals, jacobians, want):
+    """A straight-line term on one image's parameter block (:class:`solver.observations.lines.LineTerm`):
+    the equivalent planes model, the rigorous distances of measured points, or the rigorous
+    line through the projected endpoints against a fitted image line, whitened by the term's
+    matrix W: r = W (observed - model), J = W d(observed - model)/dp. Non-finite residuals fail
+    the evaluation (as on the Python path). ``table`` is unused: a line image is never a pass
+    image, its constants are the term's own."""
+    d = carray(block, (LT_WORDS,), dtype=np.int64)
+    mode = d[LT_MODE]
+    kind = d[LT_KIND]
+    nf = d[LT_NFREE]
+    m = d[LT_M]
+    kc = _doubles(d[LT_KC], d[LT_KC_LEN])
+    coef = _doubles(d[LT_BASE], 24).copy()
+    free = carray(_pointer(d[LT_FREE]), (nf,), dtype=np.int64)
+    p1 = _doubles(d[LT_P1], 3)
+    p2 = _doubles(d[LT_P2], 3)
+    w = carray(_pointer(d[LT_W]), (m, m), dtype=np.float64)
+    scal = _doubles(d[LT_SCAL], 3)
+    form = int(scal[2])
+    pptr = carray(parameters, (1,), dtype=np.int64)
+    x = _doubles(pptr[0], nf)
+    for j in range(nf):
+        coef[free[j]] = x[j]
+    wantj = want != 0
+    r = np.empty(m)
+    if mode == LT_DISTANCES:
+        ocs = carray(_pointer(d[LT_OCS]), (m, 9), dtype=np.float64)
+        s = _doubles(d[LT_S], m)
+        ok, dist, jc, _jp = line_distances(kind, coef, kc, p1, p2, ocs, s, wantj)
+        for i in range(m):
+            r[i] = dist[i]
+        sign = 1.0
+    else:
+        target = _doubles(d[LT_TARGET], 2)
+        if mode == LT_PLANES:
+            ab, jc, _jp = planes_model(kind, coef, kc, p1, p2, scal[0], scal[1], form, wantj)
+            ok = True
+        else:
+            eo = carray(_pointer(d[LT_OCS]), (2, 9), dtype=np.float64)
+            pm = np.array(PIXEL_MAP)
+            ok, ab, jc, _jp = pushbroom_line(kind, coef, kc, p1, p2, eo[0].copy(), eo[1].copy(), pm, pm, form, wantj)
+        for i in range(2):
+            r[i] = target[i] - ab[i]
+        sign = -1.0
+    res = _doubles_at(residuals, m)
+    good = ok
+    for i in range(m):
+        acc = 0.0
+        for k in range(m):
+            acc += w[i, k] * r[k]
+        res[i] = acc if ok else np.nan
+        good = good and np.isfinite(res[i])
+    if wantj:
+        jptr = carray(jacobians, (1,), dtype=np.int64)
+        jac = _doubles(jptr[0], m * nf)
+        for i in range(m):
+            for j in range(nf):
+                acc = 0.0
+                for k in range(m):
+                    acc += w[i, k] * jc[k, free[j]]
+                jac[i * nf + j] = sign * acc
+    return good

@@ -55,6 +55,28 @@ OBS_REC = REC_PASS_SLOT + 1
 FORM_Y = 0  # y = a x + b
 FORM_X = 1  # x = a' y + b'
 
+# the pseudo-frame map of fitted image lines given in pixels (x = line, y = column)
+PIXEL_MAP = (0.0, 0.0, 1.0, 0.0, 0.0, 1.0)
+
+# ---- descriptor of a straight-line term (solver.observations.lines.LineTerm; int64 words) ---
+LT_PLANES, LT_DISTANCES, LT_FITTED = 0, 1, 2  # the term's model (LT_MODE)
+LT_MODE = 0
+LT_KIND = 1  # the image's platform kind
+LT_NFREE = 2  # the image's free coefficients (the parameter block's size)
+LT_M = 3  # residual rows
+LT_KC = 4  # address of the image's constants kc
+LT_KC_LEN = 5
+LT_BASE = 6  # address of the image's full coefficient vector (24 doubles)
+LT_FREE = 7  # address of the free coefficients' indices (LT_NFREE int64)
+LT_P1 = 8  # addresses of the object line's endpoints (3 doubles each, LGS m)
+LT_P2 = 9
+LT_W = 10  # address of the whitening matrix (LT_M x LT_M, row-major)
+LT_TARGET = 11  # address of the observed (a, b) less the correction (planes) or the fitted (a, b)
+LT_OCS = 12  # address of the points' constants (LT_M x 9; fitted: the endpoints' 2 x 9)
+LT_S = 13  # address of the closest points' parameters (LT_M doubles; updated in place)
+LT_SCAL = 14  # address of (tau, focal length mm, form) of the planes model and the fitted form
+LT_WORDS = 15
+
 # ---- pass segment inside an image's kc (solver.kernels.propagation writes and reads it) ----
 PASS_T_OFF = 17  # line-0 epoch minus the pass reference epoch (s)
 PASS_INDEX = 18

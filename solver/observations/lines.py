@@ -76,6 +76,28 @@ import numpy as np
 
 from solver.errors import JobError, Problem
 from solver.geometry.geodesy import UnknownCRSError, parse_crs
+from solver.kernels.layout import (
+    LT_BASE,
+    LT_DISTANCES,
+    LT_FITTED,
+    LT_FREE,
+    LT_KC,
+    LT_KC_LEN,
+    LT_KIND,
+    LT_M,
+    LT_MODE,
+    LT_NFREE,
+    LT_OCS,
+    LT_P1,
+    LT_P2,
+    LT_PLANES,
+    LT_S,
+    LT_SCAL,
+    LT_TARGET,
+    LT_W,
+    LT_WORDS,
+    PIXEL_MAP,
+)
 from solver.observations.family import (
     REFRESH_TOL,
     Count,
@@ -224,7 +246,7 @@ def _pseudo_maps(problem, li: LineImage) -> tuple[np.ndarray, np.ndarray]:
     return tuple(np.array([oc[5], li.ref_line, k, oc[6], oc[7], px]) for oc in li.end_ocs)  # type: ignore[return-value]
 
 
-_PIXEL_MAP = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 1.0])
+_PIXEL_MAP = np.array(PIXEL_MAP)
 
 
 def _endpoint_cov(gl: GroundLineState) -> np.ndarray | None:
@@ -315,6 +337,36 @@ class LineTerm:
             img.kind, coef, img.kc, gl.p1, gl.p2, li.end_ocs[0], li.end_ocs[1], _PIXEL_MAP, _PIXEL_MAP, form, want_jac
         )
         return ab_obs - ab, -jc[:, img.free_idx], bool(ok)
+
+    def compiled_form(self) -> tuple[str, np.ndarray, tuple[np.ndarray, ...]]:
+        """The compiled path's form: ``line_term_callback`` of :mod:`solver.kernels.callbacks`
+        (the same kernels as :meth:`raw` and the same whitening as :meth:`evaluate`), its
+        descriptor (words ``LT_*`` of :mod:`solver.kernels.layout`) and the arrays it points
+        into. The closest points' parameters are the term's own array, updated in place as here."""
+        img, gl, li = self.img, self.gl, self.li
+        f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+        kc, base, p1, p2 = f64(img.kc), f64(img.base), f64(gl.p1), f64(gl.p2)
+        free = np.ascontiguousarray(img.free_idx, dtype=np.int64)
+        w = f64(np.atleast_2d(li.whiten))
+        scal = np.array([getattr(self, "tau", 0.0), img.camera.focal_mm, float(li.form)])
+        ocs = s = np.zeros(1)
+        if self.model == "equivalent_planes":
+            mode, target = LT_PLANES, f64(li.ab_obs - li.correction)
+        elif li.n_points:
+            mode, target = LT_DISTANCES, np.zeros(2)
+            li.s = f64(li.s)  # the term's own array: the callback updates it as raw() does
+            ocs, s = f64(li.ocs), li.s
+        else:
+            form, ab_obs, _cov = li.fitted  # type: ignore[misc]
+            mode, target, ocs = LT_FITTED, f64(ab_obs), f64(np.stack([li.end_ocs[0], li.end_ocs[1]]))
+            scal[2] = float(form)
+        desc = np.zeros(LT_WORDS, dtype=np.int64)
+        desc[LT_MODE], desc[LT_KIND], desc[LT_NFREE], desc[LT_M] = mode, img.kind, len(free), self.n_residuals
+        desc[LT_KC], desc[LT_KC_LEN] = kc.ctypes.data, len(kc)
+        arrays = (kc, base, free, p1, p2, w, target, ocs, s, scal)
+        for word, a in zip((LT_BASE, LT_FREE, LT_P1, LT_P2, LT_W, LT_TARGET, LT_OCS, LT_S, LT_SCAL), arrays[1:]):
+            desc[word] = a.ctypes.data
+        return "line_term_callback", desc, arrays
 
     def evaluate(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r, j, ok = self.raw(params)

@@ -86,6 +86,14 @@ def _fixed_control_job() -> dict[str, Any]:
     return job
 
 
+def _lines_job(line_model: str, fitted: bool) -> dict[str, Any]:
+    """Straight-line control with points (solver.synthetic_lines): the line terms' three forms."""
+    from solver.synthetic_lines import lines_job
+
+    job, _truth = lines_job("P1", n_lines=8, line_model=line_model, fitted=fitted, endpoint_sigma_m=0.3, seed=4)
+    return job
+
+
 EPHEMERIS = {"ephemeris": {"sigma_position_m": 10.0, "sigma_velocity_m_s": 0.05}}
 SCENES = {
     "P2 fixed control, weighted states": _fixed_control_job,
@@ -95,6 +103,9 @@ SCENES = {
         "PASS-J2", **EPHEMERIS, self_calibration={"estimate": ["df", "a0", "b0"]}
     ),
     "RPC-DRIFT beside a rigorous image": _rpc_job,
+    "P1 lines, rigorous, measured points": lambda: _lines_job("rigorous", False),
+    "P1 lines, rigorous, fitted image lines": lambda: _lines_job("rigorous", True),
+    "P1 lines, equivalent planes": lambda: _lines_job("equivalent_planes", False),
 }
 
 
@@ -136,7 +147,7 @@ def test_both_paths_give_the_same_normal_equations(scene: str, monkeypatch: pyte
     job = SCENES[scene]()
     problem_c, compiled = _built(job, "compiled", monkeypatch)
     problem_p, python = _built(job, "python", monkeypatch)
-    assert compiled.python_blocks == 0 < python.python_blocks  # no straight lines here: nothing left in Python
+    assert compiled.python_blocks == 0 < python.python_blocks  # nothing left in Python, straight lines included
     assert any(type(c).__name__ == "CallbackCost" for c, _ in compiled.blocks)
     rng = np.random.default_rng(1)
     for scale in (0.0, 1e-6):

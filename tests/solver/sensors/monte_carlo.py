@@ -53,6 +53,19 @@ def imaged_points(models: dict[str, Any], ground: np.ndarray, sigma_px: float = 
     return points, obs
 
 
+def stereo_points(models: dict[str, Any], keep: int = 24, seed: int = 3, tries: int = 40) -> tuple[list[dict], list[dict]]:
+    """``keep`` points seen by every image (alternately check and tie, :func:`imaged_points`):
+    the ground under ``tries`` random pixels of the first image at random heights (0-1000 m),
+    imaged by the exact models ``{image id: LinescanModel}``."""
+    m = next(iter(models.values()))
+    rng = np.random.default_rng(seed)
+    ground = m.image_to_ground(rng.uniform(0, m.lines - 1, tries), rng.uniform(0, m.columns - 1, tries), rng.uniform(0, 1000, tries))
+    points, obs = imaged_points(models, ground)
+    points = points[:keep]
+    kept = {p["id"] for p in points}
+    return points, [o for o in obs if o["point"] in kept]
+
+
 def perturbed(base: dict[str, Any], obs: list[dict], g: np.random.Generator,
               attitude_white: bool = True) -> tuple[dict[str, Any], list[dict]]:
     """A copy of the fragment ``base`` and of ``obs`` with every observed quantity perturbed as

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from monte_carlo import direct_georeferencing, imaged_points
+from monte_carlo import direct_georeferencing, stereo_points
 
 import solver.sensors.inpe_cbers as inpe_cbers
 from solver.cli import main
@@ -262,12 +262,7 @@ def test_direct_georeferencing_predicted_precision_by_monte_carlo() -> None:
     base.pop("sensor_metadata")
     assert [im["model"]["name"] for im in base["images"]] == ["PASS-J2", "PASS-J2"]
     m = a.model
-    rng = np.random.default_rng(3)
-    n = 40
-    ground = m.image_to_ground(rng.uniform(0, m.lines - 1, n), rng.uniform(0, m.columns - 1, n), rng.uniform(0, 1000, n))
-    points, obs = imaged_points({"A": m, "B": b.model}, ground)
-    points = points[:24]
-    obs = [o for o in obs if int(o["point"][1:]) < 24]
+    points, obs = stereo_points({"A": m, "B": b.model})
     assert len(points) == 24
     mc = direct_georeferencing(base, points, obs, MC_RUNS)
     assert MC_RATIO[0] <= mc["ratio"] <= MC_RATIO[1], mc

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from monte_carlo import direct_georeferencing, imaged_points
+from monte_carlo import direct_georeferencing, stereo_points
 from tolerances import SAME_NUMBER_REL
 
 from solver.cli import main
@@ -169,12 +169,7 @@ def test_direct_georeferencing_predicted_precision_by_monte_carlo(product) -> No
     base.pop("sensor_metadata")
     assert [im["model"]["name"] for im in base["images"]] == ["PASS-J2", "PASS-J2"]
     m = product.model
-    rng = np.random.default_rng(3)
-    n = 40
-    ground = m.image_to_ground(rng.uniform(0, m.lines - 1, n), rng.uniform(0, m.columns - 1, n), rng.uniform(0, 1000, n))
-    points, obs = imaged_points({"F": m, "B": b.model}, ground)
-    points = points[:24]
-    obs = [o for o in obs if int(o["point"][1:]) < 24]
+    points, obs = stereo_points({"F": m, "B": b.model})
     assert len(points) == 24
     mc = direct_georeferencing(base, points, obs, MC_RUNS)
     assert MC_RATIO[0] <= mc["ratio"] <= MC_RATIO[1], mc
