@@ -164,7 +164,7 @@ def _run_adjustment(document: dict[str, Any], progress: Progress, cancel: Cancel
 def _compared_models(job: Job, inputs: ExecuteInputs) -> list[str]:
     """The models a comparison compares (``inputs.models``, else the job's options.models),
     checked; InvalidInput pointing at whichever gave them."""
-    from solver.compare import comparison_problems
+    from solver.engine.validate import comparison_problems  # not solver.compare: that loads the adjustment (numba)
 
     models = list(inputs.models or job.options.models)
     if not models:

@@ -153,6 +153,6 @@ def preanalyse(job: Job | dict[str, Any] | str | bytes) -> dict[str, Any]:
 def preanalysis_problems(job: Job | dict[str, Any] | str | bytes) -> list[Problem]:
     """What makes a job unusable as a pre-analysis before any computation (planned points
     without coordinates); the rest is found when it runs."""
-    from solver.quality.preanalysis import planning_problems
+    from solver.engine.validate import planning_problems  # light: the server checks pre-analyses in its API process
 
     return planning_problems(_as_job(job))

@@ -589,3 +589,18 @@ def require_valid(job: Job) -> dict[str, Any]:
         raise JobError(problems)
     return counts
 
+
+def planning_problems(job: Job) -> list[Problem]:
+    """Planned points without coordinates (a pre-analysis projects every point)."""
+    out = [
+        Problem(
+            "planned_point_without_coordinates",
+            f"point {p.id!r}: a pre-analysis needs the planned coordinates of every point",
+            ("points", i, "coordinates"),
+        )
+        for i, p in enumerate(job.points)
+        if p.coordinates is None
+    ]
+    if not job.points:
+        out.append(Problem("no_planned_points", "a pre-analysis needs planned points", ("points",)))
+    return out

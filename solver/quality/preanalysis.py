@@ -24,7 +24,7 @@ from solver.engine.assemble import build_problem, parameter_names
 from solver.engine.initialize import angles_from_matrix, initialise
 from solver.engine.linalg import check_rank, covariance, linearise, schur
 from solver.engine.packed_tables import current_tables, records
-from solver.engine.validate import require_valid
+from solver.engine.validate import planning_problems, require_valid
 from solver.errors import JobError, Problem
 from solver.geometry.geodesy import ecef_to_geodetic, enu_rotation
 from solver.geometry.rpc import RPC
@@ -112,22 +112,6 @@ def level_nominal_attitude(problem: AdjustmentState, images: list[int]) -> None:
         for e, v in zip(ANGLES, angles_from_matrix(m)):
             img.base[coef_index(e, 0)] = v
         img.params[:] = img.base[img.free_idx]
-
-
-def planning_problems(job: Job) -> list[Problem]:
-    """Planned points without coordinates (a pre-analysis projects every point)."""
-    out = [
-        Problem(
-            "planned_point_without_coordinates",
-            f"point {p.id!r}: a pre-analysis needs the planned coordinates of every point",
-            ("points", i, "coordinates"),
-        )
-        for i, p in enumerate(job.points)
-        if p.coordinates is None
-    ]
-    if not job.points:
-        out.append(Problem("no_planned_points", "a pre-analysis needs planned points", ("points",)))
-    return out
 
 
 def _projections(job: Job, level: bool) -> tuple[dict[tuple[str, str], tuple[float, float]], dict[tuple[str, str], bool]]:

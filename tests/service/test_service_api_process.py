@@ -13,7 +13,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import pytest
 from pba_service_harness import Server, execute_body, load_example
@@ -40,6 +40,23 @@ def _children(pid: int) -> set[int]:
 
 
 @pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    """A server of its own (local mode, one worker): what its API process maps comes from this
+    module's requests alone, whatever other modules asked of the shared one."""
+    srv = Server(tmp_path_factory.mktemp("api-process"), workers=1)
+    srv.start()
+    try:
+        yield srv
+    finally:
+        srv.stop()
+
+
+@pytest.fixture(scope="module")
+def keys() -> dict[str, str | None]:
+    return {"alice": None}  # local mode: no key
+
+
+@pytest.fixture(scope="module")
 def solved(server: Server, keys: dict[str, str]) -> str:
     with server.client(keys["alice"]) as c:
         r = c.post("/processes/bundle-adjustment/execution", json=execute_body(load_example("prism-nadir.json")))
@@ -59,6 +76,12 @@ def test_the_api_process_never_loads_the_numerical_libraries(server: Server, key
         )
         assert r.status_code == 200, r.text[:500]
         assert c.get("/cameras").status_code == 200
+        # the checks of a pre-analysis and of a model comparison run in the API process too
+        job = load_example("prism-nadir.json")
+        r = c.post("/processes/model-comparison/execution", json=execute_body(job, models=["P2", "NO-SUCH-MODEL"]))
+        assert r.status_code == 422 and "/inputs/models" in r.text, r.text[:500]
+        r = c.post("/processes/preanalysis/execution", json=execute_body(job))  # checked here, run by the worker
+        assert r.status_code == 200 and r.json()["kind"] == "preanalysis", r.text[:500]
         assert c.get("/cameras/shared/prism-nadir/versions").status_code == 200
         rpc = c.get(f"/jobs/{solved}/results/rpc/prism-nadir", params={"chip": "2"})
         assert rpc.status_code == 200 and "LINE_OFF" in rpc.text
