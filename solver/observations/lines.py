@@ -76,28 +76,7 @@ import numpy as np
 
 from solver.errors import JobError, Problem
 from solver.geometry.geodesy import UnknownCRSError, parse_crs
-from solver.kernels.layout import (
-    LT_BASE,
-    LT_DISTANCES,
-    LT_FITTED,
-    LT_FREE,
-    LT_KC,
-    LT_KC_LEN,
-    LT_KIND,
-    LT_M,
-    LT_MODE,
-    LT_NFREE,
-    LT_OCS,
-    LT_P1,
-    LT_P2,
-    LT_PLANES,
-    LT_S,
-    LT_SCAL,
-    LT_TARGET,
-    LT_W,
-    LT_WORDS,
-    PIXEL_MAP,
-)
+from solver.kernels import layout as lt  # the line-term descriptor words (no kernel: numba stays unloaded)
 from solver.observations.family import (
     REFRESH_TOL,
     Count,
@@ -246,7 +225,7 @@ def _pseudo_maps(problem, li: LineImage) -> tuple[np.ndarray, np.ndarray]:
     return tuple(np.array([oc[5], li.ref_line, k, oc[6], oc[7], px]) for oc in li.end_ocs)  # type: ignore[return-value]
 
 
-_PIXEL_MAP = np.array(PIXEL_MAP)
+_PIXEL_MAP = np.array(lt.PIXEL_MAP)
 
 
 def _endpoint_cov(gl: GroundLineState) -> np.ndarray | None:
@@ -351,20 +330,20 @@ class LineTerm:
         scal = np.array([getattr(self, "tau", 0.0), img.camera.focal_mm, float(li.form)])
         ocs = s = np.zeros(1)
         if self.model == "equivalent_planes":
-            mode, target = LT_PLANES, f64(li.ab_obs - li.correction)
+            mode, target = lt.LT_PLANES, f64(li.ab_obs - li.correction)
         elif li.n_points:
-            mode, target = LT_DISTANCES, np.zeros(2)
+            mode, target = lt.LT_DISTANCES, np.zeros(2)
             li.s = f64(li.s)  # the term's own array: the callback updates it as raw() does
             ocs, s = f64(li.ocs), li.s
         else:
             form, ab_obs, _cov = li.fitted  # type: ignore[misc]
-            mode, target, ocs = LT_FITTED, f64(ab_obs), f64(np.stack([li.end_ocs[0], li.end_ocs[1]]))
+            mode, target, ocs = lt.LT_FITTED, f64(ab_obs), f64(np.stack([li.end_ocs[0], li.end_ocs[1]]))
             scal[2] = float(form)
-        desc = np.zeros(LT_WORDS, dtype=np.int64)
-        desc[LT_MODE], desc[LT_KIND], desc[LT_NFREE], desc[LT_M] = mode, img.kind, len(free), self.n_residuals
-        desc[LT_KC], desc[LT_KC_LEN] = kc.ctypes.data, len(kc)
+        desc = np.zeros(lt.LT_WORDS, dtype=np.int64)
+        desc[lt.LT_MODE], desc[lt.LT_KIND], desc[lt.LT_NFREE], desc[lt.LT_M] = mode, img.kind, len(free), self.n_residuals
+        desc[lt.LT_KC], desc[lt.LT_KC_LEN] = kc.ctypes.data, len(kc)
         arrays = (kc, base, free, p1, p2, w, target, ocs, s, scal)
-        for word, a in zip((LT_BASE, LT_FREE, LT_P1, LT_P2, LT_W, LT_TARGET, LT_OCS, LT_S, LT_SCAL), arrays[1:]):
+        for word, a in zip((lt.LT_BASE, lt.LT_FREE, lt.LT_P1, lt.LT_P2, lt.LT_W, lt.LT_TARGET, lt.LT_OCS, lt.LT_S, lt.LT_SCAL), arrays[1:]):
             desc[word] = a.ctypes.data
         return "line_term_callback", desc, arrays
 
