@@ -1,12 +1,13 @@
 """DIMAP v2 (SPOT 6/7, Pleiades 1A/1B, Pleiades Neo): the reader against simulated products with
-known truth (tests/solver/sensors/simulated_dimap.py: an independent orbit, attitude and look-angle scene; no
-public DIMAP v2 product with its geometric model may be committed, docs/sensor-metadata.md),
-the exact model against an RPC of the product beside it, the job fragment, and refusals."""
+known truth (tests/solver/sensors/simulated_dimap.py: an independent orbit, attitude and look-angle
+scene), the exact model against an RPC of the product beside it, the job fragment, refusals, and
+a real Pleiades 1A product's metadata against its extent corners (its RPC is not public)."""
 
 from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -318,3 +319,36 @@ def test_direct_georeferencing_predicted_precision_by_monte_carlo(tmp_path, scen
     assert len(points) == 24
     mc = direct_georeferencing(base, points, obs, MC_RUNS)
     assert MC_RATIO[0] <= mc["ratio"] <= MC_RATIO[1], mc
+
+
+# A real Pleiades 1A product's metadata (tests/data/vendor/README.md, pyrugged/): its RPC is not
+# public, so the evidence is its four extent corners. Measured at their fitted common height
+# (34 m): 0.72 px RMS, 0.95 px max; the corners' own heights are not given (each alone fits
+# 9-124 m, 0.4-0.7 px from its ray). A wrong quaternion order or time origin, line period unit or
+# look-angle column offset puts them tens of pixels or more away (aberration alone: 35 px).
+REAL_PHR1A = Path(__file__).parents[2] / "data" / "vendor" / "pyrugged" / "DIM_PHR1A_P_201202250025599_SEN_PRG_FC_5847-001.XML"
+REAL_CORNER_RMS_PX = 1.0
+REAL_CORNER_MAX_PX = 1.2
+
+
+def _corner_px(model, corners: np.ndarray, h: float) -> np.ndarray:
+    ground = np.column_stack([corners[:, 2], corners[:, 3], np.full(len(corners), h)])
+    return np.linalg.norm(model.ground_to_image(ground) - corners[:, :2], axis=1)
+
+
+def test_a_real_pleiades_1a_product_meets_its_extent_corners(tmp_path, capsys) -> None:
+    p = read_dimap_v2(REAL_PHR1A)
+    assert p.profile == "PHR_SENSOR" and p.satellite == "Pleiades"
+    assert p.pixel_mm == pytest.approx(0.013, rel=1e-12)  # DETECTOR_SIZE_COL 13e-06 (metres)
+    assert p.line_period_s == pytest.approx(7.35e-5, rel=1e-12)  # LINE_PERIOD 0.0735 without a unit: ms
+    c = extent_check(p)
+    assert c["points"] == 4, c  # the Center, the vertices' mean, left out
+    d = _corner_px(p.model, p.corners, c["height_m"])
+    assert np.sqrt(np.mean(d**2)) < REAL_CORNER_RMS_PX and d.max() < REAL_CORNER_MAX_PX, d
+    aberrated = _corner_px(p.model.with_corrections(aberration=True), p.corners, c["height_m"])
+    assert np.sqrt(np.mean(aberrated**2)) > 10 * REAL_CORNER_RMS_PX, aberrated  # the refined model absorbs it
+    assert main(["import-sensor", str(REAL_PHR1A), "--image-id", "PHR", "--check-rpc", "-o", str(tmp_path / "f.json")]) == 0
+    err = capsys.readouterr().err
+    assert "job form vs exact model 0.000 px RMS" in err and "4 extent corners at their common height" in err, err
+    doc = json.loads((tmp_path / "f.json").read_text())
+    assert doc["images"][0]["id"] == "PHR" and doc["cameras"][0]["lines"] == 24764
