@@ -149,7 +149,7 @@ def _check_dimap_v2(image_id: str, p) -> bool:  # noqa: ANN001 (DimapV2Product, 
     from solver.sensors.agreement import correction_sizes, rpc_agreement
     from solver.sensors.dimap_v2 import extent_check
 
-    if p.rpc_path is None:
+    if p.rpc_path is None and p.rpc is None:
         c = extent_check(p)
         where = f"at their common height {c['height_m']:.1f} m" if c["height_m"] is not None else "at their heights"
         shown = ", ".join(f"{d:.2f}" for d in c["distances_m"])
@@ -157,14 +157,18 @@ def _check_dimap_v2(image_id: str, p) -> bool:  # noqa: ANN001 (DimapV2Product, 
         print(f"{image_id}: {missing}exact model vs the product's {c['points']} extent corners {where}: {shown or 'none'} m",
               file=sys.stderr)
         return True
-    try:
-        rpc = read_rpc(p.rpc_path, str(p.rpc_path))
-    except SourceError as exc:
-        for problem in exc.source_problems:
-            print(f"pba import-sensor: {problem}", file=sys.stderr)
-        return False
+    if p.rpc is not None:
+        rpc, rpc_name = p.rpc, "the global RFM of the metadata file"
+    else:
+        try:
+            rpc = read_rpc(p.rpc_path, str(p.rpc_path))
+        except SourceError as exc:
+            for problem in exc.source_problems:
+                print(f"pba import-sensor: {problem}", file=sys.stderr)
+            return False
+        rpc_name = p.rpc_path.name
     a = rpc_agreement(p.model, rpc)
-    print(f"{image_id}: exact model vs vendor RPC ({p.rpc_path.name}) over {a['points']} points: {a['rms_px']:.3f} px RMS, "
+    print(f"{image_id}: exact model vs vendor RPC ({rpc_name}) over {a['points']} points: {a['rms_px']:.3f} px RMS, "
           f"{a['max_px']:.3f} px max (line mean {a['line_mean_px']:+.3f}, column mean {a['column_mean_px']:+.3f})", file=sys.stderr)
     for name, size in correction_sizes(p.model.with_corrections(aberration=True, light_time=True, refraction=True), rpc).items():
         print(f"{image_id}: {name} (off by default) would move image positions by {size['shift_rms_px']:.2f} px RMS",

@@ -51,6 +51,7 @@ from pathlib import Path, PurePath
 
 import numpy as np
 
+from solver.geometry.rpc import RPC
 from solver.schema.job import MAX_COLUMNS, MAX_LINES
 from solver.sensors.detectors import DIMAP_V2_SATELLITE, LookAngles
 from solver.sensors.linescan import Corrections, LinescanModel
@@ -85,6 +86,7 @@ class DimapV2Product:
     corners: np.ndarray  # (n, 5): line, column (0-based), lon, lat, h (NaN when not given)
     rpc_name: str | None  # the RPC component's file name
     rpc_path: Path | None  # that file beside the metadata file, when it exists
+    rpc: RPC | None = None  # an RPC carried by the metadata file itself (solver.sensors.phr_dimap)
 
 
 def _seconds(t: datetime, epoch: datetime) -> float:
@@ -107,20 +109,23 @@ def _line_period(stamp: Node, profile: str) -> float:
     return period
 
 
-def _ephemeris(model: Node, epoch: datetime) -> tuple[np.ndarray, np.ndarray, np.ndarray, datetime]:
-    lst = model.child("Ephemeris").child("Point_List")
+EPHEMERIS_TAGS = ("LOCATION_XYZ", "VELOCITY_XYZ", "TIME")  # position, velocity, time of a Point
+
+
+def _ephemeris(lst: Node, epoch: datetime, tags: tuple[str, str, str] = EPHEMERIS_TAGS) -> tuple[np.ndarray, np.ndarray, np.ndarray, datetime]:
+    """The ``Point`` children of ``lst``: times (s after ``epoch``), ECEF positions, velocities."""
     points = lst.children("Point")
     if len(points) < 4:
         raise lst.error(f"4 points at least, {len(points)} found", "Point")
-    times = [parse_utc(p, "TIME") for p in points]
-    pos = np.array([p.numbers("LOCATION_XYZ", 3) for p in points])
-    vel = np.array([p.numbers("VELOCITY_XYZ", 3) for p in points])
+    times = [parse_utc(p, tags[2]) for p in points]
+    pos = np.array([p.numbers(tags[0], 3) for p in points])
+    vel = np.array([p.numbers(tags[1], 3) for p in points])
     t = np.array([_seconds(x, epoch) for x in times])
     if np.any(np.diff(t) <= 0):
         raise lst.error("point times must increase (duplicated or unordered points)", "Point")
     r = np.linalg.norm(pos, axis=1)
     if np.any((r < 6.4e6) | (r > 5e7)):
-        raise lst.error("positions are not ECEF metres of an orbit", "Point/LOCATION_XYZ")
+        raise lst.error("positions are not ECEF metres of an orbit", f"Point/{tags[0]}")
     return t, pos, vel, times[0]
 
 
@@ -140,11 +145,13 @@ def _quaternion_list(att: Node, epoch: datetime) -> tuple[np.ndarray, np.ndarray
     return t, q / norm[:, None]
 
 
-def _polynomial_quaternions(att: Node, epoch: datetime, first_line: datetime, span: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    poly = att.child("Polynomial_Quaternions")
-    offset, scale = poly.number("OFFSET"), poly.number("SCALE")
+def _polynomial_quaternions(poly: Node, scaling: Node, epoch: datetime, first_line: datetime,
+                            span: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Quaternions sampled from the polynomials ``Q0..Q3`` of ``poly`` in ``(t - OFFSET) / SCALE``
+    (both in ``scaling``; t in s after 00:00 UTC of the first line's date)."""
+    offset, scale = scaling.number("OFFSET"), scaling.number("SCALE")
     if scale <= 0:
-        raise poly.error("must be positive", "SCALE")
+        raise scaling.error("must be positive", "SCALE")
     coeffs = []
     for k in ("Q0", "Q1", "Q2", "Q3"):
         q = poly.child(k)
@@ -203,6 +210,13 @@ def _corners(root: Node) -> np.ndarray:
     extent = content.find("Dataset_Extent") if content is not None else None
     if extent is None:
         return np.zeros((0, 5))
+    return extent_rows(extent)
+
+
+def extent_rows(extent: Node) -> np.ndarray:
+    """(n, 5) line, column (0-based), lon, lat, h (NaN when not given) of the ``Vertex`` and
+    ``Center`` children of ``extent``; a centre that is the vertices' mean is left out."""
+
     def rows_of(nodes: list[Node]) -> np.ndarray:
         rows = []
         for v in nodes:
@@ -246,33 +260,14 @@ def read_dimap_v2_root(root: Node, path: Path, shown: str) -> DimapV2Product:
     time = model_node.child("Time")
     first_line = parse_utc(time.child("Time_Range"), "START")
     period = _line_period(time.child("Time_Stamp"), profile)
-    eph_epoch_probe = model_node.child("Ephemeris").child("Point_List").children("Point")
-    epoch = min(first_line, parse_utc(eph_epoch_probe[0], "TIME")) if eph_epoch_probe else first_line
-    eph_t, pos, vel, _ = _ephemeris(model_node, epoch)
-    t0 = _seconds(first_line, epoch)
-    t_end = t0 + (lines - 1) * period
-    if t_end - t0 > MAX_IMAGE_S:
-        raise time.error(f"NROWS x LINE_PERIOD is {t_end - t0:.0f} s: an image of {MAX_IMAGE_S:.0f} s at most is read")
-    margin = 2.0 * float(np.median(np.diff(eph_t)))  # extrapolation by two sample intervals at most
-    if t0 < eph_t[0] - margin or t_end > eph_t[-1] + margin:
-        raise model_node.child("Ephemeris").error(
-            f"the samples ({eph_t[0] - t0:+.3f} to {eph_t[-1] - t0:+.3f} s from the first line) do not cover the image's lines "
-            f"(0 to {t_end - t0:.3f} s)")
-    try:
-        leaps = leap_seconds_between(epoch, epoch + timedelta(seconds=float(max(eph_t[-1], t_end))))
-    except UnknownLeapSeconds as exc:
-        raise time.error(f"{exc}: not read") from None
-    if leaps:
-        raise time.error(f"the samples span the leap second before {leaps[0].isoformat()}: not read")
     att = model_node.child("Attitudes")
-    if att.find("Quaternion_List") is not None:
-        att_t, att_q = _quaternion_list(att, epoch)
-    else:
-        att_t, att_q = _polynomial_quaternions(att, epoch, first_line, (t0, t_end))
-    margin = 2.0 * float(np.median(np.diff(att_t)))
-    if t0 < att_t[0] - margin or t_end > att_t[-1] + margin:
-        raise att.error(f"the samples ({att_t[0] - t0:+.3f} to {att_t[-1] - t0:+.3f} s from the first line) do not cover "
-                        f"the image's lines (0 to {t_end - t0:.3f} s)")
+
+    def attitude(epoch: datetime, span: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+        if att.find("Quaternion_List") is not None:
+            return _quaternion_list(att, epoch)
+        poly = att.child("Polynomial_Quaternions")
+        return _polynomial_quaternions(poly, poly, epoch, first_line, span)
+
     calib = model_node.child("Geometric_Calibration").child("Instrument_Calibration")
     look, band = _look_angles(calib)
     _biases(calib)
@@ -287,13 +282,8 @@ def read_dimap_v2_root(root: Node, path: Path, shown: str) -> DimapV2Product:
         else:
             raise config.error(f"{size}: a detector size in micrometres (0.5-100) or metres (1e-7 to 1e-4) expected",
                                "DETECTOR_SIZE_COL")
-    model = LinescanModel(
-        lines=lines, columns=columns, epoch_utc=epoch.isoformat().replace("+00:00", "Z"),
-        tlc_lines=np.array([0.0, 1.0]), tlc_times_s=np.array([t0, t0 + period]),
-        ephemeris_times_s=eph_t, positions_ecef_m=pos, velocities_ecef_m_s=vel,
-        attitude_times_s=att_t, attitude_wxyz=att_q, look_body=look.body,
-        corrections=Corrections(aberration=False, light_time=False, refraction=False),
-    )
+    model = linescan_model(model_node.child("Ephemeris").child("Point_List"), EPHEMERIS_TAGS, att, attitude, time,
+                           first_line, period, lines, columns, look)
     rpc_name = rpc_component(root)
     rpc_path = path.parent / rpc_name if rpc_name and path.name else None  # only beside a file read from disk
     if rpc_path is not None and not rpc_path.is_file():
@@ -301,6 +291,44 @@ def read_dimap_v2_root(root: Node, path: Path, shown: str) -> DimapV2Product:
     satellite = PROFILES[profile]
     return DimapV2Product(shown, satellite, band or "P", profile, model, look, period, pixel_mm, _corners(root),
                           rpc_name, rpc_path)
+
+
+def linescan_model(points: Node, tags: tuple[str, str, str], att: Node, attitude, time: Node, first_line: datetime,  # noqa: ANN001
+                   period: float, lines: int, columns: int, look: LookAngles) -> LinescanModel:
+    """The exact model from a product's ephemeris ``points`` (``Point`` children with ``tags``),
+    its attitude (``attitude(epoch, (t_first, t_last))`` -> sample times and quaternions, read from
+    ``att``), first-line time and line period, with the checks every Airbus format shares: the
+    samples cover the image's lines, no leap second inside, an image of at most MAX_IMAGE_S."""
+    probe = points.children("Point")
+    epoch = min(first_line, parse_utc(probe[0], tags[2])) if probe else first_line
+    eph_t, pos, vel, _ = _ephemeris(points, epoch, tags)
+    t0 = _seconds(first_line, epoch)
+    t_end = t0 + (lines - 1) * period
+    if t_end - t0 > MAX_IMAGE_S:
+        raise time.error(f"NROWS x LINE_PERIOD is {t_end - t0:.0f} s: an image of {MAX_IMAGE_S:.0f} s at most is read")
+    margin = 2.0 * float(np.median(np.diff(eph_t)))  # extrapolation by two sample intervals at most
+    if t0 < eph_t[0] - margin or t_end > eph_t[-1] + margin:
+        raise points.error(
+            f"the samples ({eph_t[0] - t0:+.3f} to {eph_t[-1] - t0:+.3f} s from the first line) do not cover the image's lines "
+            f"(0 to {t_end - t0:.3f} s)")
+    try:
+        leaps = leap_seconds_between(epoch, epoch + timedelta(seconds=float(max(eph_t[-1], t_end))))
+    except UnknownLeapSeconds as exc:
+        raise time.error(f"{exc}: not read") from None
+    if leaps:
+        raise time.error(f"the samples span the leap second before {leaps[0].isoformat()}: not read")
+    att_t, att_q = attitude(epoch, (t0, t_end))
+    margin = 2.0 * float(np.median(np.diff(att_t)))
+    if t0 < att_t[0] - margin or t_end > att_t[-1] + margin:
+        raise att.error(f"the samples ({att_t[0] - t0:+.3f} to {att_t[-1] - t0:+.3f} s from the first line) do not cover "
+                        f"the image's lines (0 to {t_end - t0:.3f} s)")
+    return LinescanModel(
+        lines=lines, columns=columns, epoch_utc=epoch.isoformat().replace("+00:00", "Z"),
+        tlc_lines=np.array([0.0, 1.0]), tlc_times_s=np.array([t0, t0 + period]),
+        ephemeris_times_s=eph_t, positions_ecef_m=pos, velocities_ecef_m_s=vel,
+        attitude_times_s=att_t, attitude_wxyz=att_q, look_body=look.body,
+        corrections=Corrections(aberration=False, light_time=False, refraction=False),
+    )
 
 
 def read_dimap_v2(path: str | Path, shown: str | None = None, data: bytes | None = None) -> DimapV2Product:

@@ -1,7 +1,8 @@
 """Which reader a metadata file needs, by its root element: ``isd`` (Maxar support data,
 :mod:`solver.sensors.maxar`), ``Dimap_Document`` (DIMAP v1 of SPOT 1-5,
 :mod:`solver.sensors.dimap_spot5`; DIMAP v2 of SPOT 6/7 and Pleiades,
-:mod:`solver.sensors.dimap_v2`, told apart by ``METADATA_FORMAT``'s version) or ``prdf`` (INPE
+:mod:`solver.sensors.dimap_v2`, told apart by ``METADATA_FORMAT``'s version),
+``PHR_Dimap_Document`` (Pleiades ground-segment metadata, :mod:`solver.sensors.phr_dimap`) or ``prdf`` (INPE
 product XML of CBERS-4/4A and Amazonia-1: :mod:`solver.sensors.inpe_cbers`; ``FILE#left`` or
 ``FILE#right`` names the camera of a two-camera record, the left one by default)."""
 
@@ -14,11 +15,12 @@ from solver.sensors.dimap_v2 import DimapV2Product, read_dimap_v2_root
 from solver.sensors.errors import MetadataError
 from solver.sensors.inpe_cbers import CbersProduct, read_cbers
 from solver.sensors.maxar import MaxarProduct, read_maxar
+from solver.sensors.phr_dimap import is_phr_dimap, read_phr_dimap_root
 from solver.sensors.xmlsafe import load, read_bytes
 
 FORMATS = ("Maxar/DigitalGlobe support-data XML (root isd), DIMAP v1 of SPOT 1-5 (METADATA.DIM), DIMAP v2 "
-           "of SPOT 6/7 and Pleiades (DIM_*.XML; root Dimap_Document) or INPE product XML of CBERS-4/4A, "
-           "Amazonia-1 (root prdf)")
+           "of SPOT 6/7 and Pleiades (DIM_*.XML; root Dimap_Document), Pleiades ground-segment metadata "
+           "(root PHR_Dimap_Document) or INPE product XML of CBERS-4/4A, Amazonia-1 (root prdf)")
 Product = MaxarProduct | Spot5Product | DimapV2Product | CbersProduct
 CAMERA_SUFFIXES = ("#left", "#right")
 
@@ -46,6 +48,8 @@ def read_product(path: str | Path, shown: str | None = None, data: bytes | str |
             return read_dimap_v2_root(root, path if from_disk else Path(""), shown)
         raise root.error(f"DIMAP version {version or 'unknown'}: 1.x (SPOT 1-5) or 2.x (SPOT 6/7, Pleiades) expected",
                          "Metadata_Identification/METADATA_FORMAT")
+    if is_phr_dimap(head):
+        return read_phr_dimap_root(load(path, shown, data), shown)
     if b"<prdf" in head:
         return read_cbers(path, shown, data, camera)
     raise MetadataError(shown, "", f"not a sensor metadata file we read: {FORMATS} expected")

@@ -84,9 +84,9 @@
     if (lower.endsWith(".rpb")) return { kind: "rpc", image: stem };
     if (lower.startsWith("rpc_") && lower.endsWith(".xml")) return { kind: "rpc", image: stem.slice(4) };
     // vendor sensor metadata (camera, ephemeris, attitude, line times): Maxar's XML (root isd),
-    // DIMAP v1 METADATA.DIM or DIMAP v2 DIM_NAME.XML
+    // DIMAP v1 METADATA.DIM, DIMAP v2 DIM_NAME.XML, the Pleiades ground segment's PHR_Dimap_Document, INPE's prdf
     if (lower.startsWith("dim_") && lower.endsWith(".xml")) return { kind: "sensor", image: stem.slice(4) };
-    if (lower.endsWith(".dim") || (lower.endsWith(".xml") && /<(isd|Dimap_Document)[\s>]/.test(text.slice(0, 4096)))) {
+    if (lower.endsWith(".dim") || (lower.endsWith(".xml") && /<(isd|Dimap_Document|PHR_Dimap_Document|prdf)[\s>]/.test(text.slice(0, 4096)))) {
       return { kind: "sensor", image: stem };
     }
     if (lower.endsWith(".points") || lower.endsWith(".gcp")) return { kind: "measurements", image: stem };

@@ -352,3 +352,49 @@ def test_a_real_pleiades_1a_product_meets_its_extent_corners(tmp_path, capsys) -
     assert "job form vs exact model 0.000 px RMS" in err and "4 extent corners at their common height" in err, err
     doc = json.loads((tmp_path / "f.json").read_text())
     assert doc["images"][0]["id"] == "PHR" and doc["cameras"][0]["lines"] == 24764
+
+
+# A real Pleiades 1B product's ground-segment metadata with its own RFM (tests/data/vendor/README.md,
+# shareloc/): measured 0.001 px RMS and max over 121 image positions x 5 heights (0.006 / 0.012
+# px on the repository's other product of that format). A wrong quaternion time origin, look-angle
+# column offset or pixel convention of the RFM is half a pixel (the convention) to thousands.
+REAL_PHR1B = Path(__file__).parents[2] / "data" / "vendor" / "shareloc" / "PHRDIMAP_P1BP--2018122638935449CP.XML"
+REAL_RFM_RMS_PX = 0.01
+REAL_RFM_MAX_PX = 0.02
+
+
+def test_a_real_pleiades_1b_ground_segment_product_meets_its_own_rfm(tmp_path, capsys) -> None:
+    from solver.sensors.agreement import rpc_agreement
+    from solver.sensors.formats import read_product
+
+    p = read_product(REAL_PHR1B)
+    assert p.rpc is not None and p.model.lines == 38248 and p.model.columns == 40000
+    a = rpc_agreement(p.model, p.rpc)
+    assert a["rms_px"] < REAL_RFM_RMS_PX and a["max_px"] < REAL_RFM_MAX_PX, a
+    # the aberration correction is absorbed by the refined attitude, as on the DIMAP v2 products
+    moved = rpc_agreement(p.model.with_corrections(aberration=True), p.rpc)
+    assert moved["rms_px"] > 10.0, moved
+    assert main(["import-sensor", str(REAL_PHR1B), "--image-id", "P1B", "--check-rpc", "-o", str(tmp_path / "f.json")]) == 0
+    err = capsys.readouterr().err
+    assert "exact model vs vendor RPC (the global RFM of the metadata file) over 605 points" in err, err
+    doc = json.loads((tmp_path / "f.json").read_text())
+    assert doc["images"][0]["id"] == "P1B" and doc["cameras"][0]["columns"] == 40000
+
+
+@pytest.mark.parametrize(
+    ("edit", "where"),
+    [
+        (lambda t: t.replace("<METADATA_FORMAT>DIMAP_PHR<", "<METADATA_FORMAT>DIMAP_XYZ<"), "METADATA_FORMAT"),
+        (lambda t: t.replace("<PROCESSING_LEVEL>SENSOR<", "<PROCESSING_LEVEL>ORTHO<"), "PROCESSING_LEVEL"),
+        (lambda t: t.replace("<SENSOR_LINE_PERIOD>0.0735<", "<SENSOR_LINE_PERIOD>73.5<"), "SENSOR_LINE_PERIOD"),
+        (lambda t: re.sub(r"<F_COL>[^<]*</F_COL>", "<F_COL>1 2 3</F_COL>", t), "F_COL"),
+        (lambda t: t.replace("<PsiX_Model>", "<PsiX_Mod>").replace("</PsiX_Model>", "</PsiX_Mod>"), "PsiX_Model"),
+        (lambda t: t[: len(t) // 2], ""),
+    ],
+)
+def test_bad_ground_segment_files_exit_2_naming_the_element(tmp_path, capsys, edit, where) -> None:
+    bad = tmp_path / "PHRDIMAP_bad.XML"
+    bad.write_text(edit(REAL_PHR1B.read_text()))
+    assert main(["import-sensor", str(bad), "-o", str(tmp_path / "f.json")]) == 2
+    err = capsys.readouterr().err
+    assert "PHRDIMAP_bad.XML" in err and where in err and "Traceback" not in err, err
