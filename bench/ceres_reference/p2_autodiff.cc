@@ -103,6 +103,13 @@ void camera_state(const T* c, const T& tau, const T* p, T* d, T* ddt) {
   }
 }
 
+// The image's 24 coefficients: its held values with the 14 free ones (q) put in their places.
+template <typename T>
+void coefficients(const Image& img, const T* q, T* c) {
+  for (int k = 0; k < kCoef; ++k) c[k] = T(img.base[k]);
+  for (int j = 0; j < kFree; ++j) c[img.free_idx[j]] = q[j];
+}
+
 // The collinearity at the observed line's time (no line search): the along-track image
 // coordinate must be the principal point's, the column the observed one. Not the same objective
 // as the exact projection (its along-track residual is a focal-plane distance at a fixed time),
@@ -113,8 +120,7 @@ struct ObservedTimeResidual {
   template <typename T>
   bool operator()(const T* q, const T* p, T* r) const {
     T c[kCoef];
-    for (int k = 0; k < kCoef; ++k) c[k] = T(img_.base[k]);
-    for (int j = 0; j < kFree; ++j) c[img_.free_idx[j]] = q[j];
+    coefficients(img_, q, c);
     const double f = o_.oc[3], px = o_.oc[4], x0 = o_.oc[5], y0 = o_.oc[6], cc = o_.oc[7], tpl = o_.oc[8];
     T d[3], ddt[3];
     camera_state(c, T(o_.oc[0] * tpl), p, d, ddt);
@@ -134,8 +140,7 @@ struct ObservationResidual {
   template <typename T>
   bool operator()(const T* q, const T* p, T* r) const {
     T c[kCoef];
-    for (int k = 0; k < kCoef; ++k) c[k] = T(img_.base[k]);
-    for (int j = 0; j < kFree; ++j) c[img_.free_idx[j]] = q[j];
+    coefficients(img_, q, c);
     const double f = o_.oc[3], px = o_.oc[4], x0 = o_.oc[5], y0 = o_.oc[6], cc = o_.oc[7], tpl = o_.oc[8];
     T line(o_.oc[0]);
     T d[3], ddt[3];
