@@ -22,6 +22,10 @@ Runs alternate (ours, then the reference) and the medians are printed:
 ``--form time`` makes the reference use the collinearity at the observed line's time instead
 (no line search: about half its Jacobian cost, a slightly different objective).
 
+``--settings ceres`` gives the reference Ceres' default solver options instead of the service's
+(initial trust region 1e4 instead of 1e12, Ceres' tolerances, no statistical stop): what a
+program written without the service's tuning does from the same start.
+
 ``--check`` also solves the block in this process (our solve alone) and compares the adjusted
 parameters with the reference's: the largest difference in units of the reference's standard
 deviations (both stop when chi-square changes by less than 1e-3 twice, i.e. within a few
@@ -97,6 +101,9 @@ def main() -> None:
     ap.add_argument("--form", choices=["exact", "time"], default="exact",
                     help="the reference's residual: the exact projection (the same objective as ours) or the "
                     "collinearity at the observed line's time (cheaper, a slightly different objective)")
+    ap.add_argument("--settings", choices=["service", "ceres"], default="service",
+                    help="the reference's solver options: the service's (trust region 1e12, statistical stop) or "
+                    "Ceres' defaults, as a Ceres user who keeps them")
     args = ap.parse_args()
     exe = build()
     path, doc = exported(args.observations, args.seed)
@@ -105,7 +112,7 @@ def main() -> None:
     mine, theirs = [], []
     for k in range(args.repeat):
         mine.append(ours(args.observations, args.seed))
-        theirs.append(run(exe, path, args.threads, form=args.form))
+        theirs.append(run(exe, path, args.threads, form=args.form, settings=args.settings))
         a, b = mine[-1], theirs[-1]
         print(f"run {k + 1}: ours {a['run_s']:.2f} s end to end ({a['process_s']:.2f} s process), {a['iterations']} it, "
               f"{a['per_iteration_s']:.3f} s/it ({a['ceres_per_iteration_s']:.3f} in Ceres), sigma0 {a['sigma0']:.4f} | "

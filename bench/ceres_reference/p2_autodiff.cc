@@ -12,7 +12,8 @@
 // points are linear priors. Input: bench/ceres_reference/export_block.py.
 //
 // Usage: p2_autodiff INPUT [--threads N] [--covariance 0|1] [--statistical-stop 0|1]
-//                         [--max-iterations N] [--form exact|time] [--out RESULT]
+//                         [--max-iterations N] [--form exact|time] [--settings service|ceres] [--out RESULT]
+// --settings ceres: Ceres' default solver options (trust region, tolerances) and no statistical stop.
 // RESULT: per image, its 14 adjusted parameters then their a posteriori standard deviations.
 // Prints one JSON line with the timings (s), iterations, costs and sigma0.
 
@@ -285,11 +286,11 @@ SchurCovariance schur_covariance(ceres::Problem& problem, std::vector<Image>& im
 
 int main(int argc, char** argv) {
   if (argc < 2) {
-    std::cerr << "usage: p2_autodiff INPUT [--threads N] [--covariance 0|1] [--statistical-stop 0|1] [--max-iterations N] [--form exact|time] [--out FILE]\n";
+    std::cerr << "usage: p2_autodiff INPUT [--threads N] [--covariance 0|1] [--statistical-stop 0|1] [--max-iterations N] [--form exact|time] [--settings service|ceres] [--out FILE]\n";
     return 2;
   }
   int threads = 2, covariance = 1, statistical = 1, max_iterations = 50;
-  std::string form = "exact";
+  std::string form = "exact", settings = "service";
   std::string out_path;
   for (int i = 2; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
@@ -299,6 +300,7 @@ int main(int argc, char** argv) {
     else if (k == "--max-iterations") max_iterations = std::stoi(v);
     else if (k == "--out") out_path = v;
     else if (k == "--form") form = v;
+    else if (k == "--settings") settings = v;
     else { std::cerr << "unknown option " << k << "\n"; return 2; }
   }
   const auto t_start = std::chrono::steady_clock::now();
@@ -383,10 +385,14 @@ int main(int argc, char** argv) {
   so.linear_solver_type = ceres::SPARSE_SCHUR;
   so.num_threads = threads;
   so.max_num_iterations = max_iterations;
-  so.function_tolerance = 1e-10;
-  so.parameter_tolerance = 1e-10;
-  so.gradient_tolerance = 1e-14;
-  so.initial_trust_region_radius = 1e12;
+  if (settings == "service") {  // the service's (solver/engine/backend.py), with its statistical stop
+    so.function_tolerance = 1e-10;
+    so.parameter_tolerance = 1e-10;
+    so.gradient_tolerance = 1e-14;
+    so.initial_trust_region_radius = 1e12;
+  } else {
+    statistical = 0;  // Ceres' defaults: trust region 1e4, tolerances 1e-6 / 1e-8 / 1e-10
+  }
   so.logging_type = ceres::SILENT;
   StatisticalStop stop;
   if (statistical) so.callbacks.push_back(&stop);
@@ -423,12 +429,12 @@ int main(int argc, char** argv) {
     }
   }
   std::printf(
-      "{\"form\": \"%s\", \"observations\": %zu, \"images\": %zu, \"threads\": %d, \"read_s\": %.4f, \"build_s\": %.4f, \"solve_s\": %.4f, "
+      "{\"form\": \"%s\", \"settings\": \"%s\", \"observations\": %zu, \"images\": %zu, \"threads\": %d, \"read_s\": %.4f, \"build_s\": %.4f, \"solve_s\": %.4f, "
       "\"covariance_s\": %.4f, \"process_s\": %.4f, \"iterations\": %d, \"per_iteration_s\": %.4f, "
       "\"residual_evaluation_s\": %.4f, \"jacobian_evaluation_s\": %.4f, \"linear_solver_s\": %.4f, "
       "\"initial_cost\": %.10g, \"final_cost\": %.10g, \"sigma0\": %.6f, \"mean_sigma_x0_m\": %.6g, "
       "\"mean_sigma_point_m\": %.6g, \"termination\": \"%s\"}\n",
-      form.c_str(), obs.size(), images.size(), threads, read_s, build_s, solve_s, covariance_s, seconds_since(t_start), iterations,
+      form.c_str(), settings.c_str(), obs.size(), images.size(), threads, read_s, build_s, solve_s, covariance_s, seconds_since(t_start), iterations,
       solve_s / std::max(1, iterations), summary.residual_evaluation_time_in_seconds, summary.jacobian_evaluation_time_in_seconds,
       summary.linear_solver_time_in_seconds, summary.initial_cost, summary.final_cost, sigma0, mean_sigma_x0,
       mean_sigma_point, ceres::TerminationTypeToString(summary.termination_type));

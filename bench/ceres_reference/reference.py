@@ -87,10 +87,12 @@ def build() -> Path:
     return exe
 
 
-def run(exe: Path, path: Path, threads: int = 2, out: Path | None = None, form: str = "exact") -> dict[str, Any]:
+def run(exe: Path, path: Path, threads: int = 2, out: Path | None = None, form: str = "exact",
+        settings: str = "service") -> dict[str, Any]:
     """One run of the reference on an exported block: its JSON line, with ``wall_s`` (this call's
     wall time) and ``ceres_per_iteration_s`` (residuals, Jacobians and linear solver per iteration)."""
-    cmd = [str(exe), str(path), "--threads", str(threads), "--form", form] + (["--out", str(out)] if out else [])
+    cmd = [str(exe), str(path), "--threads", str(threads), "--form", form, "--settings", settings]
+    cmd += ["--out", str(out)] if out else []
     t0 = time.perf_counter()
     res = subprocess.run(cmd, check=True, capture_output=True, text=True)
     r = json.loads(res.stdout.strip().splitlines()[-1])
