@@ -145,7 +145,7 @@ def _quaternion_list(att: Node, epoch: datetime) -> tuple[np.ndarray, np.ndarray
     return t, q / norm[:, None]
 
 
-def _polynomial_quaternions(poly: Node, scaling: Node, epoch: datetime, first_line: datetime,
+def polynomial_quaternions(poly: Node, scaling: Node, epoch: datetime, first_line: datetime,
                             span: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
     """Quaternions sampled from the polynomials ``Q0..Q3`` of ``poly`` in ``(t - OFFSET) / SCALE``
     (both in ``scaling``; t in s after 00:00 UTC of the first line's date)."""
@@ -266,7 +266,7 @@ def read_dimap_v2_root(root: Node, path: Path, shown: str) -> DimapV2Product:
         if att.find("Quaternion_List") is not None:
             return _quaternion_list(att, epoch)
         poly = att.child("Polynomial_Quaternions")
-        return _polynomial_quaternions(poly, poly, epoch, first_line, span)
+        return polynomial_quaternions(poly, poly, epoch, first_line, span)
 
     calib = model_node.child("Geometric_Calibration").child("Instrument_Calibration")
     look, band = _look_angles(calib)

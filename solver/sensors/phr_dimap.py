@@ -34,7 +34,7 @@ import numpy as np
 from solver.geometry.rpc import RPC
 from solver.schema.job import MAX_COLUMNS, MAX_LINES
 from solver.sensors.detectors import DIMAP_V2_SATELLITE, LookAngles
-from solver.sensors.dimap_v2 import DEFAULT_PIXEL_MM, DimapV2Product, _polynomial_quaternions, extent_rows, linescan_model
+from solver.sensors.dimap_v2 import DEFAULT_PIXEL_MM, DimapV2Product, extent_rows, linescan_model, polynomial_quaternions
 from solver.sensors.maxar import parse_utc
 from solver.sensors.xmlsafe import Node
 
@@ -112,7 +112,7 @@ def read_phr_dimap_root(root: Node, shown: str) -> DimapV2Product:
     look = _look_angles(model.child("Sensor_Viewing_Model"))
 
     def attitude(epoch: datetime, span: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-        return _polynomial_quaternions(att.child("Polynomial_Models"), att, epoch, first_line, span)
+        return polynomial_quaternions(att.child("Polynomial_Models"), att, epoch, first_line, span)
 
     exact = linescan_model(model.child("Sensor_Ephemeris").child("Point_List"), EPHEMERIS_TAGS, att, attitude, time,
                            first_line, period, lines, columns, look)
