@@ -1,7 +1,8 @@
 """``pba import-rpc``: an RPC00B that GDAL reads, as the job's ``images[].rpc`` object.
 
 Sources (read by GDAL through rasterio, never by our own parsers, except the RPB element of a
-Maxar support-data XML, which GDAL reads only beside its raster):
+Maxar support-data XML, which GDAL reads only beside its raster, and the RFM of the Pleiades
+ground segment's metadata, which GDAL does not read):
 
 - a raster (``IMAGE.tif`` and anything else GDAL opens): its RPC metadata domain, i.e. GeoTIFF
   RPC tags, or the sidecar GDAL finds beside it (``IMAGE_RPC.TXT``, ``IMAGE.RPB``, a DIMAP
@@ -11,7 +12,8 @@ Maxar support-data XML, which GDAL reads only beside its raster):
   Pleiades/SPOT 6-7 ``Rational_Function_Model``), a DIMAP v2 metadata file (``DIM_*.XML``
   or renamed: the RPC component it names, beside it), or a Maxar support-data XML (root
   ``isd``: its ``RPB`` element, read by :mod:`solver.sensors.maxar` since GDAL reads it only
-  beside the raster). GDAL reads
+  beside the raster), or a Pleiades ground-segment metadata file (root ``PHR_Dimap_Document``:
+  its global RFM, read by :mod:`solver.sensors.phr_dimap`; GDAL does not read it). GDAL reads
   those only beside a raster, so the file is copied into a temporary directory beside a 1 x 1
   GeoTIFF under the names GDAL looks for, and GDAL reads that raster's RPC.
 
@@ -115,6 +117,8 @@ def read_rpc(path: str | Path, shown: str | None = None) -> RPC:
         return _gdal_rpcs(path, shown)
     if kind == "dimap" and is_maxar_xml(path):  # GDAL reads a Maxar XML's RPB only beside its raster
         return _maxar_rpc(path, shown)
+    if kind == "dimap" and _is_phr_dimap(path):  # GDAL does not read this format's RFM
+        return _phr_dimap_rfm(path, shown)
     if kind == "dimap":
         component = _dimap_metadata_rpc(path, shown)
         if component is not None:  # a DIM_*.XML: its RPC is a file of its own beside it
@@ -155,6 +159,24 @@ def _dimap_metadata_rpc(path: Path, shown: str) -> Path | None:
         raise fail(shown, 0, "Dataset_Content/Dataset_Components", f"a DIMAP metadata file: its RPC is the component {name}, "
                    "not found beside it; give that file", "no_rpc")
     return beside
+
+
+def _is_phr_dimap(path: Path) -> bool:
+    from solver.sensors.phr_dimap import is_phr_dimap
+
+    with open(path, "rb") as f:
+        return is_phr_dimap(f.read(4096))
+
+
+def _phr_dimap_rfm(path: Path, shown: str) -> RPC:
+    """The global RFM of a Pleiades ground-segment metadata file (:mod:`solver.sensors.phr_dimap`)."""
+    from solver.sensors.phr_dimap import read_rfm
+    from solver.sensors.xmlsafe import load
+
+    try:
+        return read_rfm(load(path, shown))
+    except MetadataError as exc:
+        raise fail(shown, 0, exc.element, exc.reason) from None
 
 
 def _maxar_rpc(path: Path, shown: str) -> RPC:

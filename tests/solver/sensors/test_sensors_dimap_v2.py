@@ -398,3 +398,18 @@ def test_bad_ground_segment_files_exit_2_naming_the_element(tmp_path, capsys, ed
     assert main(["import-sensor", str(bad), "-o", str(tmp_path / "f.json")]) == 2
     err = capsys.readouterr().err
     assert "PHRDIMAP_bad.XML" in err and where in err and "Traceback" not in err, err
+
+
+def test_import_rpc_reads_the_rfm_of_a_ground_segment_file(tmp_path) -> None:
+    """``pba import-rpc`` on the same file (GDAL does not read this RFM): the job's RPC object
+    agrees with the exact model built by the sensor reader, as the RFM itself does."""
+    from solver.geometry.rpc import RPC
+    from solver.sensors.agreement import rpc_agreement
+    from solver.sensors.formats import read_product
+
+    out = tmp_path / "rpc.json"
+    assert main(["import-rpc", str(REAL_PHR1B), "--image-id", "P1B", "-o", str(out)]) == 0
+    image = json.loads(out.read_text())
+    rpc = RPC.from_job(image["rpc"])
+    a = rpc_agreement(read_product(REAL_PHR1B).model, rpc)
+    assert a["rms_px"] < REAL_RFM_RMS_PX and a["max_px"] < REAL_RFM_MAX_PX, a
