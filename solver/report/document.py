@@ -149,6 +149,13 @@ def rpc_gsd_m(coef: np.ndarray, kc: np.ndarray, oc: np.ndarray) -> float | None:
     return float(np.mean(d)) if d else None
 
 
+def _rows_by_image(img_of_row: np.ndarray, n_images: int) -> list[np.ndarray]:
+    """The rows of each image, ascending (one stable sort instead of a mask per image)."""
+    order = np.argsort(img_of_row, kind="stable")
+    bounds = np.searchsorted(img_of_row[order], np.arange(n_images + 1))
+    return [order[bounds[i] : bounds[i + 1]] for i in range(n_images)]
+
+
 def _images_report(problem: AdjustmentState, lin, cov: Covariance | None, var_factor: float):
     out = []
     gsds = []
@@ -157,6 +164,10 @@ def _images_report(problem: AdjustmentState, lin, cov: Covariance | None, var_fa
     obs = problem.obs
     sel = lin.obs_sel
     groups = attitude_groups(problem)
+    # each image's observations, once for all images (a mask per image is images x observations)
+    sel_of = _rows_by_image(obs.img[sel], len(problem.images))
+    all_of = _rows_by_image(obs.img, len(problem.images))
+    sigma_sel = obs.oc[sel, 2]
     for img in problem.images:
         specs = img.model.parameters(img.options)
         c = img.coef()
@@ -171,14 +182,14 @@ def _images_report(problem: AdjustmentState, lin, cov: Covariance | None, var_fa
             params.append(
                 {"name": s.name, "value": float(c[s.index] * s.to_report), "sigma": sigma, "unit": s.unit, "estimated": True}
             )
-        mine = np.flatnonzero(obs.img[sel] == img.index)
-        sig = obs.oc[sel][mine, 2]
+        mine = sel_of[img.index]
+        sig = sigma_sel[mine]
         rl = res[2 * mine] * sig
         rc = res[2 * mine + 1] * sig
         rms = lambda v: float(np.sqrt(np.mean(v**2))) if len(v) else None  # noqa: E731
         if img.camera is None:  # RPC image: bias parameters only, no camera or platform state
             px = None
-            gsd = rpc_gsd_m(c, img.kc, obs.oc[obs.img == img.index][:200])
+            gsd = rpc_gsd_m(c, img.kc, obs.oc[all_of[img.index][:200]])
         else:
             held = img.model.held_values_rad(img.options, img.camera.mounting_pitch_deg)
             for e, val in held.items():
@@ -186,7 +197,7 @@ def _images_report(problem: AdjustmentState, lin, cov: Covariance | None, var_fa
             px = img.camera.pixel_mm
             # ground sample distance: range to the observed points x pixel / focal length
             ranges = []
-            for k in np.flatnonzero(obs.img == img.index)[:200]:
+            for k in all_of[img.index][:200]:
                 s = platform_state(img.kind, c, img.kc, obs.oc[k, 0] * obs.oc[k, 8])[0]
                 ranges.append(np.linalg.norm(problem.points[obs.pt[k]].xyz - s))
             gsd = float(np.mean(ranges) * px / img.camera.focal_mm) if ranges else None
