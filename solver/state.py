@@ -99,6 +99,14 @@ class AdjustmentState:
         return roles != "check"
 
 
+def rows_by_image(img_of_row: np.ndarray, n_images: int) -> list[np.ndarray]:
+    """The rows of each image (indices into ``img_of_row``, ascending), by one stable sort: a
+    mask per image would cost images x observations."""
+    order = np.argsort(img_of_row, kind="stable")
+    bounds = np.searchsorted(img_of_row[order], np.arange(n_images + 1))
+    return [order[bounds[i] : bounds[i + 1]] for i in range(n_images)]
+
+
 def is_kepler(image: ImageState) -> bool:
     """Position from the image's own Earth-fixed state vector (Kepler, J2, orbit-attitude)."""
     return image.model.kind.ecef_state

@@ -26,7 +26,7 @@ from solver.quality.precision import checkpoint_precision, error_ellipses
 from solver.report.checkpoints import compute_checkpoints
 from solver.report.statistics import chi2_test
 from solver.schema.settings import Settings
-from solver.state import AdjustmentState
+from solver.state import AdjustmentState, rows_by_image
 
 REPORT_SCHEMA_VERSION = "1.0"
 # The order of the report's sections (docs/report-contract.md): the core's and the families'
@@ -149,13 +149,6 @@ def rpc_gsd_m(coef: np.ndarray, kc: np.ndarray, oc: np.ndarray) -> float | None:
     return float(np.mean(d)) if d else None
 
 
-def _rows_by_image(img_of_row: np.ndarray, n_images: int) -> list[np.ndarray]:
-    """The rows of each image, ascending (one stable sort instead of a mask per image)."""
-    order = np.argsort(img_of_row, kind="stable")
-    bounds = np.searchsorted(img_of_row[order], np.arange(n_images + 1))
-    return [order[bounds[i] : bounds[i + 1]] for i in range(n_images)]
-
-
 def _images_report(problem: AdjustmentState, lin, cov: Covariance | None, var_factor: float):
     out = []
     gsds = []
@@ -165,8 +158,8 @@ def _images_report(problem: AdjustmentState, lin, cov: Covariance | None, var_fa
     sel = lin.obs_sel
     groups = attitude_groups(problem)
     # each image's observations, once for all images (a mask per image is images x observations)
-    sel_of = _rows_by_image(obs.img[sel], len(problem.images))
-    all_of = _rows_by_image(obs.img, len(problem.images))
+    sel_of = rows_by_image(obs.img[sel], len(problem.images))
+    all_of = rows_by_image(obs.img, len(problem.images))
     sigma_sel = obs.oc[sel, 2]
     for img in problem.images:
         specs = img.model.parameters(img.options)
