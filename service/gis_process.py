@@ -17,7 +17,9 @@ from __future__ import annotations
 import asyncio
 import logging
 import multiprocessing as mp
+import os
 import threading
+import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
@@ -55,6 +57,23 @@ def _open(database_url: str) -> None:
     except OSError:
         pass
     _store = open_store(database_url, create=False)
+    _exit_with_parent(os.getppid())
+
+
+PARENT_POLL_S = 1.0
+
+
+def _exit_with_parent(parent: int) -> None:
+    """End this process once the API process that started it is gone: a server killed outright
+    (no ``stop()`` reached) would otherwise leave it running, holding its memory and the store."""
+
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_POLL_S)
+            if os.getppid() != parent:
+                os._exit(0)
+
+    threading.Thread(target=watch, name="pba-gis-parent", daemon=True).start()
 
 
 def _problem_fields(exc: ServiceError) -> dict[str, Any]:

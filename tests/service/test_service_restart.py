@@ -103,11 +103,12 @@ def test_server_killed_alone_its_orphaned_worker_hands_the_job_back(
         wait_status(c, job_id, {"running"}, min_progress=5)
     pid = worker_pid_of(server, job_id)
     assert server.proc is not None
+    gis = gis_pid_of(server.proc.pid)  # started early by pba serve
     server.proc.kill()  # only the server process; its worker notices and gives the job back
     server.proc.wait(10)
     deadline = time.monotonic() + 20
-    while pid_alive(pid):
-        assert time.monotonic() < deadline, "the orphaned worker did not exit"
+    while pid_alive(pid) or pid_alive(gis):
+        assert time.monotonic() < deadline, f"the orphaned worker ({pid_alive(pid)}) or GIS process ({pid_alive(gis)}) did not exit"
         time.sleep(0.2)
     store = server.store()
     try:
@@ -152,6 +153,23 @@ def worker_pid_of(server: Server, job_id: str) -> int:
         store.close()
     assert rec is not None and rec.worker
     return int(rec.worker.rsplit(":", 1)[1])
+
+
+def gis_pid_of(parent: int, timeout_s: float = 30.0) -> int:
+    """The ``pba-gis`` process the server process ``parent`` started (Linux /proc)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                text = stat.read_text()
+            except OSError:
+                continue
+            name = text[text.index("(") + 1 : text.rindex(")")]
+            ppid = int(text[text.rindex(")") + 2 :].split()[1])
+            if name == "pba-gis" and ppid == parent:
+                return int(stat.parent.name)
+        time.sleep(0.2)
+    raise AssertionError(f"no pba-gis process started by {parent}")
 
 
 def pid_alive(pid: int) -> bool:
