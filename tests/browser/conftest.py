@@ -106,12 +106,8 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
 @pytest.fixture(scope="session")
 def keyed_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     """A real server with keys required and 2 worker processes."""
-    srv = Server(tmp_path_factory.mktemp("ui-server"), workers=2, require_api_keys="true")
-    srv.start()
-    try:
+    with Server(tmp_path_factory.mktemp("ui-server"), workers=2, require_api_keys="true") as srv:
         yield srv
-    finally:
-        srv.stop()
 
 
 @pytest.fixture(scope="session")
@@ -122,12 +118,8 @@ def api_key(keyed_server: Server) -> str:
 @pytest.fixture(scope="session")
 def local_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     """A real server in local single-user mode (127.0.0.1, no keys), 1 worker process."""
-    srv = Server(tmp_path_factory.mktemp("ui-local"), workers=1, require_api_keys="false")
-    srv.start()
-    try:
+    with Server(tmp_path_factory.mktemp("ui-local"), workers=1, require_api_keys="false") as srv:
         yield srv
-    finally:
-        srv.stop()
 
 
 @pytest.fixture(scope="session")

@@ -27,12 +27,8 @@ SAME = 1e-6  # sigma0 (dimensionless) and RMSE (m): the same adjustment, points 
 def local_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     """A local single-user server of this module's own (overrides the session's): the jobs
     submitted here must not appear in the job lists other browser tests start from."""
-    srv = Server(tmp_path_factory.mktemp("builder-local"), workers=1, require_api_keys="false")
-    srv.start()
-    try:
+    with Server(tmp_path_factory.mktemp("builder-local"), workers=1, require_api_keys="false") as srv:
         yield srv
-    finally:
-        srv.stop()
 
 
 def test_build_the_example_triplet_from_its_files(page: Any, local_server: Server, tmp_path: Path) -> None:

@@ -32,12 +32,8 @@ def match_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Ser
     root = base / "images"
     (root / "local" / "pleiades").mkdir(parents=True)
     shutil.copyfile(DATA / f"{RIGHT}.tif", root / "local" / "pleiades" / f"{RIGHT}.tif")
-    srv = Server(base / "data", workers=1, require_api_keys="false", image_root=str(root))
-    srv.start()
-    try:
+    with Server(base / "data", workers=1, require_api_keys="false", image_root=str(root)) as srv:
         yield srv, root
-    finally:
-        srv.stop()
 
 
 def _ties(page: Any) -> dict[str, int]:

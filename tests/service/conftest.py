@@ -55,18 +55,14 @@ def big_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 @pytest.fixture(scope="session")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     """One real server for most end-to-end tests: keys required, 2 workers, 16 MB body limit."""
-    srv = Server(
+    with Server(
         tmp_path_factory.mktemp("server"),
         workers=2,
         require_api_keys="true",
         max_body_bytes=16_000_000,
         max_queued_jobs=400,
-    )
-    srv.start()
-    try:
+    ) as srv:
         yield srv
-    finally:
-        srv.stop()
 
 
 @pytest.fixture(scope="session")

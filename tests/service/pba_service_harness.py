@@ -95,6 +95,13 @@ class Server:
             self.kill_group()
             return None
 
+    def __enter__(self) -> "Server":
+        """``with Server(...) as srv``: started, and stopped however the block ends."""
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
     def kill_group(self) -> None:
         """SIGKILL the server and all its workers at once (a crash of the whole machine)."""
         if self.proc is None:

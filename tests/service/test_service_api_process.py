@@ -43,12 +43,8 @@ def _children(pid: int) -> set[int]:
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     """A server of its own (local mode, one worker): what its API process maps comes from this
     module's requests alone, whatever other modules asked of the shared one."""
-    srv = Server(tmp_path_factory.mktemp("api-process"), workers=1)
-    srv.start()
-    try:
+    with Server(tmp_path_factory.mktemp("api-process"), workers=1) as srv:
         yield srv
-    finally:
-        srv.stop()
 
 
 @pytest.fixture(scope="module")

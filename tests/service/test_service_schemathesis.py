@@ -30,12 +30,8 @@ def own_server(tmp_path: Path) -> Iterator[Server]:
     """A server of its own: the fuzzer is an admin (it reaches /metrics and /admin) and so sees
     every job; on the shared session server that includes jobs whose worker other tests kill
     on purpose, whose documented results are the job's own 500."""
-    srv = Server(tmp_path / "srv", workers=2, require_api_keys="true", max_body_bytes=16_000_000)
-    srv.start()
-    try:
+    with Server(tmp_path / "srv", workers=2, require_api_keys="true", max_body_bytes=16_000_000) as srv:
         yield srv
-    finally:
-        srv.stop()
 
 
 def test_schemathesis_finds_no_server_error(
