@@ -103,7 +103,11 @@ def _line_period(stamp: Node, profile: str) -> float:
         scale = LINE_PERIOD_UNITS[unit.strip().lower()]
     else:
         raise node.error(f"unit {unit[:20]!r}: s, ms or microsecond expected")
-    period = value * scale
+    return checked_line_period(node, value * scale)
+
+
+def checked_line_period(node: Node, period: float) -> float:
+    """``period`` (s) if a pushbroom sensor's line period (10 us to 10 ms), else a located error."""
     if not 1e-5 <= period <= 1e-2:
         raise node.error(f"{period:.3g} s: not the line period of a pushbroom sensor (10 us to 10 ms)")
     return period
@@ -145,6 +149,15 @@ def _quaternion_list(att: Node, epoch: datetime) -> tuple[np.ndarray, np.ndarray
     return t, q / norm[:, None]
 
 
+def polynomial_coefficients(node: Node, tag: str) -> np.ndarray:
+    """The ``COEFFICIENTS`` (lowest degree first) of the child ``tag`` with its ``DEGREE``."""
+    p = node.child(tag)
+    degree = p.integer("DEGREE")
+    if not 0 <= degree <= 10:
+        raise p.error(f"{degree}: a degree of 0 to 10 expected", "DEGREE")
+    return np.array(p.numbers("COEFFICIENTS", degree + 1))
+
+
 def polynomial_quaternions(poly: Node, scaling: Node, epoch: datetime, first_line: datetime,
                             span: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
     """Quaternions sampled from the polynomials ``Q0..Q3`` of ``poly`` in ``(t - OFFSET) / SCALE``
@@ -152,13 +165,7 @@ def polynomial_quaternions(poly: Node, scaling: Node, epoch: datetime, first_lin
     offset, scale = scaling.number("OFFSET"), scaling.number("SCALE")
     if scale <= 0:
         raise scaling.error("must be positive", "SCALE")
-    coeffs = []
-    for k in ("Q0", "Q1", "Q2", "Q3"):
-        q = poly.child(k)
-        degree = q.integer("DEGREE")
-        if not 0 <= degree <= 10:
-            raise q.error(f"{degree}: a degree of 0 to 10 expected", "DEGREE")
-        coeffs.append(np.array(q.numbers("COEFFICIENTS", degree + 1)))
+    coeffs = [polynomial_coefficients(poly, k) for k in ("Q0", "Q1", "Q2", "Q3")]
     midnight = datetime(first_line.year, first_line.month, first_line.day, tzinfo=timezone.utc)
     t = np.arange(span[0] - MARGIN_S, span[1] + MARGIN_S + QUATERNION_STEP_S, QUATERNION_STEP_S)
     u = (t + _seconds(epoch, midnight) - offset) / scale

@@ -27,14 +27,21 @@ The format is the one CNES' Pleiades ground segment writes beside a sensor produ
 from __future__ import annotations
 
 from datetime import datetime
-from pathlib import Path
 
 import numpy as np
 
 from solver.geometry.rpc import RPC
 from solver.schema.job import MAX_COLUMNS, MAX_LINES
 from solver.sensors.detectors import DIMAP_V2_SATELLITE, LookAngles
-from solver.sensors.dimap_v2 import DEFAULT_PIXEL_MM, DimapV2Product, extent_rows, linescan_model, polynomial_quaternions
+from solver.sensors.dimap_v2 import (
+    DEFAULT_PIXEL_MM,
+    DimapV2Product,
+    checked_line_period,
+    extent_rows,
+    linescan_model,
+    polynomial_coefficients,
+    polynomial_quaternions,
+)
 from solver.sensors.maxar import parse_utc
 from solver.sensors.xmlsafe import Node
 
@@ -43,18 +50,10 @@ EPHEMERIS_TAGS = ("LOCATION_VALUES", "VELOCITY_VALUES", "UTC_TIME")
 RFM_TERMS = 20
 
 
-def _polynomial(node: Node, tag: str) -> list[float]:
-    p = node.child(tag)
-    degree = p.integer("DEGREE")
-    if not 0 <= degree <= 10:
-        raise p.error(f"{degree}: a degree of 0 to 10 expected", "DEGREE")
-    return p.numbers("COEFFICIENTS", degree + 1)
-
-
 def _look_angles(viewing: Node) -> LookAngles:
     first_col = viewing.child("Position_In_Retina").number("FIRST_COL")
     directions = viewing.child("Viewing_Directions")
-    across, along = _polynomial(directions, "PsiX_Model"), _polynomial(directions, "PsiY_Model")
+    across, along = polynomial_coefficients(directions, "PsiX_Model"), polynomial_coefficients(directions, "PsiY_Model")
     return LookAngles.polynomials(along, across, first_col - 1.0, DIMAP_V2_SATELLITE)
 
 
@@ -63,10 +62,7 @@ def _line_period(model: Node) -> float:
     unit = (node.element.get("unit") or "ms").strip().lower()
     if unit not in ("ms", "s"):
         raise node.error(f"unit {unit[:20]!r}: ms or s expected")
-    period = model.number("SENSOR_LINE_PERIOD") * (1e-3 if unit == "ms" else 1.0)
-    if not 1e-5 <= period <= 1e-2:
-        raise node.error(f"{period:.3g} s: not the line period of a pushbroom sensor (10 us to 10 ms)")
-    return period
+    return checked_line_period(node, model.number("SENSOR_LINE_PERIOD") * (1e-3 if unit == "ms" else 1.0))
 
 
 def read_rfm(root: Node) -> RPC:
@@ -124,11 +120,3 @@ def read_phr_dimap_root(root: Node, shown: str) -> DimapV2Product:
 
 def is_phr_dimap(head: bytes) -> bool:
     return b"<PHR_Dimap_Document" in head
-
-
-def read_phr_dimap(path: str | Path, shown: str | None = None, data: bytes | None = None) -> DimapV2Product:
-    from solver.sensors.xmlsafe import load
-
-    path = Path(path)
-    shown = str(path) if shown is None else shown
-    return read_phr_dimap_root(load(path, shown, data), shown)
