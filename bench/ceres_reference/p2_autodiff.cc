@@ -111,30 +111,13 @@ void coefficients(const Image& img, const T* q, T* c) {
   for (int j = 0; j < kFree; ++j) c[img.free_idx[j]] = q[j];
 }
 
-// The collinearity at the observed line's time (no line search): the along-track image
-// coordinate must be the principal point's, the column the observed one. Not the same objective
-// as the exact projection (its along-track residual is a focal-plane distance at a fixed time),
-// but the cheaper form many pushbroom adjustments use; --form time selects it.
-struct ObservedTimeResidual {
-  ObservedTimeResidual(const Image& img, const Observation& o) : img_(img), o_(o) {}
-
-  template <typename T>
-  bool operator()(const T* q, const T* p, T* r) const {
-    T c[kCoef];
-    coefficients(img_, q, c);
-    const double f = o_.oc[3], px = o_.oc[4], x0 = o_.oc[5], y0 = o_.oc[6], cc = o_.oc[7], tpl = o_.oc[8];
-    T d[3], ddt[3];
-    camera_state(c, T(o_.oc[0] * tpl), p, d, ddt);
-    const double w = 1.0 / o_.oc[2];
-    r[0] = (-f * d[0] / d[2] - x0) / px * w;
-    r[1] = (o_.oc[1] - (cc + (-f * d[1] / d[2] - y0) / px)) * w;
-    return true;
-  }
-
-  const Image& img_;
-  const Observation& o_;
-};
-
+// One image observation: residuals (observed - projected) / sigma in pixels. kExact: the line
+// found by Newton's method (the service's projection). Otherwise the collinearity at the
+// observed line's time (no line search): the along-track image coordinate must be the principal
+// point's, the column the observed one; not the same objective (its along-track residual is a
+// focal-plane distance at a fixed time), but the cheaper form many pushbroom adjustments use
+// (--form time).
+template <bool kExact>
 struct ObservationResidual {
   ObservationResidual(const Image& img, const Observation& o) : img_(img), o_(o) {}
 
@@ -143,9 +126,15 @@ struct ObservationResidual {
     T c[kCoef];
     coefficients(img_, q, c);
     const double f = o_.oc[3], px = o_.oc[4], x0 = o_.oc[5], y0 = o_.oc[6], cc = o_.oc[7], tpl = o_.oc[8];
+    const double w = 1.0 / o_.oc[2];
     T line(o_.oc[0]);
     T d[3], ddt[3];
     camera_state(c, line * tpl, p, d, ddt);
+    if (!kExact) {
+      r[0] = (-f * d[0] / d[2] - x0) / px * w;
+      r[1] = (o_.oc[1] - (cc + (-f * d[1] / d[2] - y0) / px)) * w;
+      return true;
+    }
     for (int it = 0; it < 30; ++it) {
       const T g = -f * d[0] / d[2] - x0;
       const T dg = -f * (ddt[0] * d[2] - d[0] * ddt[2]) / (d[2] * d[2]) * tpl;
@@ -156,7 +145,6 @@ struct ObservationResidual {
       if (std::abs(value_of(step)) < 1e-8) break;
     }
     const T col = cc + (-f * d[1] / d[2] - y0) / px;
-    const double w = 1.0 / o_.oc[2];
     r[0] = (o_.oc[0] - line) * w;
     r[1] = (o_.oc[1] - col) * w;
     return true;
@@ -363,8 +351,8 @@ int main(int argc, char** argv) {
   ceres::Problem problem;
   for (const auto& o : obs) {
     ceres::CostFunction* cost;
-    if (form == "time") cost = new ceres::AutoDiffCostFunction<ObservedTimeResidual, 2, kFree, 3>(new ObservedTimeResidual(images[o.image], o));
-    else cost = new ceres::AutoDiffCostFunction<ObservationResidual, 2, kFree, 3>(new ObservationResidual(images[o.image], o));
+    if (form == "time") cost = new ceres::AutoDiffCostFunction<ObservationResidual<false>, 2, kFree, 3>(new ObservationResidual<false>(images[o.image], o));
+    else cost = new ceres::AutoDiffCostFunction<ObservationResidual<true>, 2, kFree, 3>(new ObservationResidual<true>(images[o.image], o));
     problem.AddResidualBlock(cost, nullptr, images[o.image].params, points[o.point].xyz);
   }
   for (auto& im : images)
