@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 
+from solver.engine.native import in_threads
 from solver.errors import JobError, Problem
 from solver.kernels import gravity_and_gradient, intersect_all, platform_state
 from solver.observations import registry
@@ -233,7 +234,12 @@ def intersect_estimated_points(problem: AdjustmentState) -> None:
         kcs[im.index, : len(im.kc)] = im.kc
     order = np.argsort(obs.pt, kind="stable")
     bounds = np.searchsorted(obs.pt[order], np.arange(len(problem.points) + 1))
-    # NaN (fewer than two rays) is reported by validation; keep a finite start
-    xyz = np.nan_to_num(intersect_all(kinds, coefs, kcs, obs.img, obs.oc, order, bounds, which))
+    xyz = np.empty((len(which), 3))
+
+    def fill(lo: int, hi: int) -> None:
+        xyz[lo:hi] = intersect_all(kinds, coefs, kcs, obs.img, obs.oc, order, bounds, which[lo:hi])
+
+    in_threads(fill, len(which))
+    xyz = np.nan_to_num(xyz)  # NaN (fewer than two rays) is reported by validation; keep a finite start
     for q, i in enumerate(which):
         problem.points[i].xyz = xyz[q].copy()  # its own contiguous array: a Ceres parameter block

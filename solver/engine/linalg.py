@@ -25,6 +25,7 @@ from numba import njit
 from scipy.linalg import lapack
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+from solver.engine.native import in_threads
 from solver.engine.packed_tables import current_tables, records
 from solver.engine.terms import block_owner, family_terms
 from solver.kernels import all_observation_blocks
@@ -160,7 +161,8 @@ def linearise(problem: AdjustmentState) -> Linearisation:
     est = np.array([p.estimated for p in problem.points], dtype=np.bool_)
     rec = records(problem, sel)
     op = np.ascontiguousarray(obs.pt[sel])
-    res, jf, fcol, jpt, ok = all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, op, est, lay.img_col, lay.cam_col, lay.pass_col, width)
+    res, jf, fcol, jpt, ok = all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, op, est, lay.img_col, lay.cam_col,
+                                                    lay.pass_col, width, run=in_threads)
     point_prior = {}
     for p in problem.points:
         if p.estimated and p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
@@ -216,9 +218,10 @@ def _point_b(lo, hi, order, fcol, jf, jpt):
 
 
 @njit(**_JIT)
-def _reduce(s, fcol, jf, jpt, order, bounds, c_inv):
-    """S -= B_p C_p^-1 B_p^T for every point p (observations grouped by ``order``/``bounds``)."""
-    for q in range(bounds.shape[0] - 1):
+def _reduce_into(q_lo, q_hi, s, fcol, jf, jpt, order, bounds, c_inv):
+    """S -= B_p C_p^-1 B_p^T for the points ``q_lo:q_hi`` (observations grouped by
+    ``order``/``bounds``)."""
+    for q in range(q_lo, q_hi):
         lo, hi = bounds[q], bounds[q + 1]
         if hi == lo:
             continue
@@ -228,16 +231,40 @@ def _reduce(s, fcol, jf, jpt, order, bounds, c_inv):
         for x in range(m):
             for y in range(m):
                 s[cols[x], cols[y]] -= wm[x, 0] * bp[y, 0] + wm[x, 1] * bp[y, 1] + wm[x, 2] * bp[y, 2]
-    return s
+
+
+PARALLEL_MAX_REDUCED = 2_000
+"""Largest reduced normal matrix (parameters of images, cameras and passes) whose points are
+eliminated on several threads, each into its own copy (2,000 parameters: 32 MB a copy)."""
+
+
+def _reduce(a, fcol, jf, jpt, order, bounds, c_inv) -> np.ndarray:
+    """S = A - sum_p B_p C_p^-1 B_p^T (``a`` is overwritten): on the solve's threads, each
+    eliminating a range of points into its own matrix and the matrices added in range order
+    (the same sum on every run with the same threads), when S is small enough to copy."""
+    n_points = bounds.shape[0] - 1
+    if a.shape[0] > PARALLEL_MAX_REDUCED:
+        _reduce_into(0, n_points, a, fcol, jf, jpt, order, bounds, c_inv)
+        return a
+    shares: dict[int, np.ndarray] = {}
+
+    def fill(lo: int, hi: int) -> None:
+        share = a if lo == 0 else np.zeros_like(a)
+        _reduce_into(lo, hi, share, fcol, jf, jpt, order, bounds, c_inv)
+        shares[lo] = share
+
+    in_threads(fill, n_points)
+    for lo in sorted(shares)[1:]:
+        a += shares[lo]
+    return a
 
 
 @njit(**_JIT)
-def _point_covariances(s_inv, fcol, jf, jpt, order, bounds, c_inv, lev):
-    """Per point: 3x3 covariance and the leverages of its observation rows (written into lev)."""
-    npt = bounds.shape[0] - 1
-    cov = np.zeros((npt, 3, 3))
+def _point_covariances_into(q_lo, q_hi, s_inv, fcol, jf, jpt, order, bounds, c_inv, cov, lev):
+    """Points ``q_lo:q_hi``: 3x3 covariance (into ``cov``) and the leverages of their
+    observation rows (into ``lev``)."""
     w = fcol.shape[1]
-    for q in range(npt):
+    for q in range(q_lo, q_hi):
         lo, hi = bounds[q], bounds[q + 1]
         cols, bp = _point_b(lo, hi, order, fcol, jf, jpt)
         m = cols.shape[0]
@@ -266,6 +293,17 @@ def _point_covariances(s_inv, fcol, jf, jpt, order, bounds, c_inv, lev):
                 u -= wb @ b
                 lev[2 * i + r] = u @ (sub @ u) + b @ (ci @ b)
             off += nown
+
+
+def _point_covariances(s_inv, fcol, jf, jpt, order, bounds, c_inv, lev) -> np.ndarray:
+    """Per point: 3x3 covariance and the leverages of its observation rows (written into lev),
+    on the solve's threads (:func:`in_threads`)."""
+    cov = np.zeros((bounds.shape[0] - 1, 3, 3))
+
+    def fill(lo: int, hi: int) -> None:
+        _point_covariances_into(lo, hi, s_inv, fcol, jf, jpt, order, bounds, c_inv, cov, lev)
+
+    in_threads(fill, len(cov))
     return cov
 
 

@@ -88,7 +88,7 @@ from solver.schema.iop_names import IOP_CHIP, IOP_OPTICAL, MAX_CHIPS
 
 # the compiled kernels' names and the module of each, imported on first use
 _KERNEL_MODULES = {
-    "blocks": ("_eval_record", "_fill", "_put_rows", "all_observation_blocks", "fixed_obs_block", "point_obs_block"),
+    "blocks": ("_eval_record", "_fill", "_put_rows", "all_observation_blocks", "fixed_obs_block", "observation_blocks_into", "point_obs_block"),
     "platform": (
         "_attitude_angles", "_attitude_time", "_camera_state", "_coef_gradients", "_kepler_terms", "_kepler_terms_for",
         "_oa_pose", "_orbit_jac", "_pose", "_state_directions", "assemble", "object_to_camera", "platform_state",
@@ -129,7 +129,7 @@ __all__ = [
     "_line_newton_step", "_mount", "_oa_pose", "_orbit_jac", "_orbital_frame",
     "_orbital_frame_rate", "_pose", "_put_rows", "_rotation_into", "_state_directions",
     "all_observation_blocks", "assemble", "camera_model", "ensure_segment", "fixed_obs_block",
-    "gravity_and_gradient", "ideal_direction", "intersect_all", "object_to_camera", "pass_state",
+    "gravity_and_gradient", "ideal_direction", "intersect_all", "object_to_camera", "observation_blocks_into", "pass_state",
     "platform_state", "point_obs_block", "project", "project_cam", "project_observation", "ray",
     "ray_cam", "ro_offset", "rotation_and_derivatives", "rpc_project", "rpc_ray",
 ]

@@ -5,6 +5,8 @@ Every record goes through :func:`solver.kernels.projection.project_observation`.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 from numba import njit
 
@@ -142,14 +144,22 @@ def fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, jacs, want_jac: boo
     return ok
 
 
-@njit(**_JIT)
-def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, estimated, img_col, cam_col, pass_col, width):
+def serial(fill: Callable[[int, int], None], n: int) -> None:
+    """Run ``fill(lo, hi)`` over the whole range ``[0, n)`` in this thread."""
+    fill(0, n)
+
+
+def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, estimated, img_col, cam_col, pass_col, width,
+                           run: Callable[[Callable[[int, int], None], int], None] = serial):
     """Whitened residuals and dense Jacobian pieces of every record (for the covariance).
 
     ``img_p`` (nimg, 24) and ``cam_p`` (ncam, N_IOP) hold the current free parameters; pass
     segments in ``img_tab`` must be current; slots in ``rec`` are ignored. Returns res (n, 2),
     jf (n, 2, width) with column indices fcol (n, width) (-1 padding) over the image, camera and
     pass parameters (``pass_col``: first column of each pass), jpt (n, 2, 3), ok (n).
+
+    ``run(fill, n)`` runs ``fill(lo, hi)`` over ranges that cover ``[0, n)`` (:func:`serial`, or
+    the caller's threads: the kernel releases the GIL and each record fills its own rows).
     """
     n = rec.shape[0]
     res = np.empty((n, 2))
@@ -157,7 +167,21 @@ def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, est
     fcol = -np.ones((n, width), dtype=np.int64)
     jpt = np.zeros((n, 2, 3))
     ok = np.empty(n, dtype=np.bool_)
-    for i in range(n):
+
+    def fill(lo: int, hi: int) -> None:
+        observation_blocks_into(lo, hi, rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, estimated, img_col, cam_col,
+                                pass_col, res, jf, fcol, jpt, ok)
+
+    run(fill, n)
+    return res, jf, fcol, jpt, ok
+
+
+@njit(**_JIT)
+def observation_blocks_into(lo, hi, rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, estimated, img_col, cam_col, pass_col,
+                            res, jf, fcol, jpt, ok):
+    """Rows ``lo:hi`` of :func:`all_observation_blocks`' outputs (``jf`` zeroed and ``fcol``
+    -1 beforehand)."""
+    for i in range(lo, hi):
         r = rec[i]
         im = int(r[REC_IMAGE])
         cm = int(r[REC_CAMERA])
@@ -206,4 +230,3 @@ def all_observation_blocks(rec, img_tab, cam_tab, img_p, cam_p, pts, pt_idx, est
             for j in range(3):
                 jpt[i, 0, j] = -dl_dp[j] * w
                 jpt[i, 1, j] = -dc_dp[j] * w
-    return res, jf, fcol, jpt, ok

@@ -18,10 +18,14 @@ from __future__ import annotations
 
 import importlib
 import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from types import ModuleType
+from typing import Callable
+
+import numpy as np
 
 EVALUATION_ENV = "PBA_EVALUATION"  # auto (default) | compiled | python
 THREADS_ENV = "PBA_SOLVER_THREADS"  # threads of a compiled solve (default: the machine's cores)
@@ -131,3 +135,25 @@ def solver_threads() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+PARALLEL_MIN_ROWS = 5_000
+"""Fewer rows (observations, points) than this per thread are filled on one thread: starting a
+thread costs more than it saves there."""
+
+
+def in_threads(fill: Callable[[int, int], None], n: int) -> None:
+    """Run ``fill(lo, hi)`` over contiguous ranges covering ``[0, n)``, one per thread of the
+    solve (``PBA_SOLVER_THREADS``, at most one per :data:`PARALLEL_MIN_ROWS` rows), in threads of
+    this process (the linearisation, covariance and intersections outside Ceres). ``fill`` calls a
+    numba kernel that releases the GIL and writes only what its range owns (rows of an output, or
+    its own copy that the caller adds in range order), so a result does not depend on which
+    thread finishes first."""
+    threads = max(1, min(solver_threads(), n // PARALLEL_MIN_ROWS))
+    if threads == 1:
+        fill(0, n)
+        return
+    bounds = np.linspace(0, n, threads + 1).astype(np.int64).tolist()
+    with ThreadPoolExecutor(threads, thread_name_prefix="pba-fill") as pool:
+        for done in [pool.submit(fill, bounds[k], bounds[k + 1]) for k in range(threads)]:
+            done.result()  # re-raises a thread's exception here

@@ -92,3 +92,52 @@ def test_fast_rank_check_falls_back_to_naming_the_null_parameters():
     report = check_rank(_parts_of(s), names, fast=True)
     assert report.deficient
     assert {"p7", "p8"} <= {n for n, _ in report.null_parameters}
+
+
+# The threaded passes split rows between threads: residuals, Jacobians, point covariances,
+# leverages and intersections are computed row by row either way (equal to the bit); the reduced
+# normal matrix adds the threads' shares in range order, i.e. in another order than one thread's
+# running sum: equal to rounding of its largest entries.
+REDUCED_REL = 1e-12
+
+
+def test_threaded_passes_equal_one_thread(monkeypatch):
+    import solver.engine.native as native
+    from solver.engine.initialize import intersect_estimated_points
+
+    job, _ = block_job("P2", n_triplets=2, n_tie=40, n_gcp=6, n_check=2, seed=7, state_sigma=(20.0, 0.05))
+    real = native.ThreadPoolExecutor
+
+    def passes(threads: int):
+        monkeypatch.setenv(native.THREADS_ENV, str(threads))
+        monkeypatch.setattr(native, "PARALLEL_MIN_ROWS", 7)  # several threads on a small block
+        calls = []
+
+        class Counting(real):
+            def submit(self, fn, *args):
+                calls.append(args)
+                return super().submit(fn, *args)
+
+        monkeypatch.setattr(native, "ThreadPoolExecutor", Counting)
+        problem = prepare(load_job(job))  # intersects the tie points
+        intersect_estimated_points(problem)  # again: the same rays
+        lin = linearise(problem)
+        parts = schur(lin, problem)
+        s = parts.s.copy()
+        cov = covariance(lin, parts, problem)
+        xyz = np.array([p.xyz for p in problem.points])
+        return lin, s, cov, xyz, calls
+
+    one = passes(1)
+    two = passes(2)
+    assert one[4] == [] and len(two[4]) >= 8  # intersections, observations, reduction, covariances
+    for name in ("res_obs", "jf", "fcol", "jpt", "ok"):
+        np.testing.assert_array_equal(getattr(one[0], name), getattr(two[0], name), err_msg=name)
+    np.testing.assert_allclose(two[1], one[1], rtol=0, atol=REDUCED_REL * np.abs(one[1]).max())
+    np.testing.assert_array_equal(one[3], two[3])
+    # the covariance starts from the reduced matrices above (last digits apart): compare on the
+    # correlation scale as the Schur test above
+    np.testing.assert_allclose(two[2].leverage, one[2].leverage, atol=LEVERAGE_PRIOR_ABS)
+    for pidx, c in one[2].points.items():
+        s = np.sqrt(np.outer(np.diag(c), np.diag(c)))
+        assert np.max(np.abs(two[2].points[pidx] - c) / s) < CORRELATION_ABS
