@@ -48,16 +48,17 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from ceres_reference.reference import build, export, run  # noqa: E402
+from ceres_reference.reference import STARTS, build, export, run  # noqa: E402
 
 
-def exported(n_obs: int, seed: int) -> tuple[Path, dict[str, Any]]:
+def exported(n_obs: int, seed: int, start: str = "service") -> tuple[Path, dict[str, Any]]:
     import bench_scale
 
     doc = bench_scale.block_for(n_obs, "P2", seed)
-    path = Path(tempfile.gettempdir()) / f"pba-p2-reference-{n_obs}-{seed}.txt"
+    suffix = "" if start == "service" else f"-{start}"
+    path = Path(tempfile.gettempdir()) / f"pba-p2-reference-{n_obs}-{seed}{suffix}.txt"
     if not path.is_file():
-        export(doc, path)
+        export(doc, path, start)
     return path, doc
 
 
@@ -104,9 +105,13 @@ def main() -> None:
     ap.add_argument("--settings", choices=["service", "ceres"], default="service",
                     help="the reference's solver options: the service's (trust region 1e12, statistical stop) or "
                     "Ceres' defaults, as a Ceres user who keeps them")
+    ap.add_argument("--start", choices=list(STARTS), default="service",
+                    help="the reference's initial values: the service's (exported after its initial values) or "
+                    "the ephemeris alone (header position and velocity, nominal attitude, tie points intersected "
+                    "from those rays: what a program without the service's resection on control points starts from)")
     args = ap.parse_args()
     exe = build()
-    path, doc = exported(args.observations, args.seed)
+    path, doc = exported(args.observations, args.seed, args.start)
     if args.check:
         print("solutions:", json.dumps(check(doc, exe, path, args.threads)), flush=True)
     mine, theirs = [], []

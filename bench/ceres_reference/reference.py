@@ -40,13 +40,41 @@ def _row(values: Any) -> str:
     return " ".join(repr(float(v)) for v in np.ravel(values))
 
 
-def export(doc: dict[str, Any], path: Path) -> dict[str, int]:
-    """Assemble and initialise ``doc`` as the solver does, then write the reference's input."""
+STARTS = ("service", "ephemeris")
+
+
+def ephemeris_start(problem) -> None:
+    """Replace the service's initial attitude by the one a program holding only the ephemeris
+    would take (in place): the position from the header state as before, the nominal attitude
+    (flight direction and the camera's mounting pitch, no resection on the control points), zero
+    rates; then the tie points intersected again from those rays."""
+    from solver.engine.initialize import _nominal_attitude, intersect_estimated_points
+    from solver.observations.ephemeris import image_state
+    from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
+
+    for img, im_doc in zip(problem.images, problem.job.images):
+        state = image_state(im_doc, problem.job.options)
+        v = None if state is None else np.array(state.velocity_ecef_m_s, dtype=float)
+        orders = img.model.effective_orders(img.options)
+        for e, value in zip(ANGLES, _nominal_attitude(img, problem.frame, v)):
+            if orders[ELEMENTS.index(e)] == HELD:
+                continue
+            for order in range(4):  # the angle and its rates
+                img.base[coef_index(e, order)] = value if order == 0 else 0.0
+        img.params[:] = img.base[img.free_idx]
+    intersect_estimated_points(problem)
+
+
+def export(doc: dict[str, Any], path: Path, start: str = "service") -> dict[str, int]:
+    """Assemble ``doc`` as the solver does and write the reference's input, starting from the
+    service's initial values (``start="service"``) or from the ephemeris alone (:func:`ephemeris_start`)."""
     from solver.api import _as_job
     from solver.observations.state_priors import state_prior
     from solver.procedures.single import prepare
 
     problem = prepare(_as_job(doc))
+    if start == "ephemeris":
+        ephemeris_start(problem)
     lines = ["PBA-P2 1", f"images {len(problem.images)}"]
     for img in problem.images:
         if img.model.name != "P2":
