@@ -199,11 +199,11 @@ def _accumulate(n_f, fcol, jf, obs_pt, jpt, pt_q, npt_est):
 
 
 @njit(**_JIT)
-def _point_b(lo, hi, order, fcol, jf, jpt):
-    """Columns (concatenated over the point's observations, duplicates allowed) and B_p rows."""
+def _point_b(lo, hi, order, fcol, jf, jpt, cols, bp):
+    """The point's image columns (concatenated over its observations, duplicates allowed) into
+    ``cols`` and its B_p rows into ``bp`` (work buffers of at least (hi - lo) x width rows);
+    returns their number m."""
     w = fcol.shape[1]
-    cols = np.empty((hi - lo) * w, dtype=np.int64)
-    bp = np.zeros(((hi - lo) * w, 3))
     m = 0
     for t in range(lo, hi):
         i = order[t]
@@ -214,20 +214,36 @@ def _point_b(lo, hi, order, fcol, jf, jpt):
             for k in range(3):
                 bp[m, k] = jf[i, 0, j] * jpt[i, 0, k] + jf[i, 1, j] * jpt[i, 1, k]
             m += 1
-    return cols[:m], bp[:m]
+    return m
 
 
 @njit(**_JIT)
-def _reduce_into(q_lo, q_hi, s, fcol, jf, jpt, order, bounds, c_inv):
+def _times_3x3(a, m, c, q, out):
+    """``out[:m] = a[:m] @ c[q]`` for 3 x 3 blocks ``c`` (indexed in place: no temporary and no
+    view, whose reference count threads would share)."""
+    for x in range(m):
+        for k in range(3):
+            out[x, k] = a[x, 0] * c[q, 0, k] + a[x, 1] * c[q, 1, k] + a[x, 2] * c[q, 2, k]
+
+
+def _most_rows(fcol: np.ndarray, bounds: np.ndarray) -> int:
+    """Work-buffer rows for any point: its observations times the block width."""
+    return max(int(np.diff(bounds).max(initial=0)) * fcol.shape[1], 1)
+
+
+@njit(**_JIT)
+def _reduce_into(q_lo, q_hi, s, fcol, jf, jpt, order, bounds, c_inv, rows):
     """S -= B_p C_p^-1 B_p^T for the points ``q_lo:q_hi`` (observations grouped by
-    ``order``/``bounds``)."""
+    ``order``/``bounds``; ``rows``: :func:`_most_rows`)."""
+    cols = np.empty(rows, dtype=np.int64)
+    bp = np.empty((rows, 3))
+    wm = np.empty((rows, 3))
     for q in range(q_lo, q_hi):
         lo, hi = bounds[q], bounds[q + 1]
         if hi == lo:
             continue
-        cols, bp = _point_b(lo, hi, order, fcol, jf, jpt)
-        wm = bp @ c_inv[q]
-        m = cols.shape[0]
+        m = _point_b(lo, hi, order, fcol, jf, jpt, cols, bp)
+        _times_3x3(bp, m, c_inv, q, wm)
         for x in range(m):
             for y in range(m):
                 s[cols[x], cols[y]] -= wm[x, 0] * bp[y, 0] + wm[x, 1] * bp[y, 1] + wm[x, 2] * bp[y, 2]
@@ -243,14 +259,15 @@ def _reduce(a, fcol, jf, jpt, order, bounds, c_inv) -> np.ndarray:
     eliminating a range of points into its own matrix and the matrices added in range order
     (the same sum on every run with the same threads), when S is small enough to copy."""
     n_points = bounds.shape[0] - 1
+    rows = _most_rows(fcol, bounds)
     if a.shape[0] > PARALLEL_MAX_REDUCED:
-        _reduce_into(0, n_points, a, fcol, jf, jpt, order, bounds, c_inv)
+        _reduce_into(0, n_points, a, fcol, jf, jpt, order, bounds, c_inv, rows)
         return a
     shares: dict[int, np.ndarray] = {}
 
     def fill(lo: int, hi: int) -> None:
         share = a if lo == 0 else np.zeros_like(a)
-        _reduce_into(lo, hi, share, fcol, jf, jpt, order, bounds, c_inv)
+        _reduce_into(lo, hi, share, fcol, jf, jpt, order, bounds, c_inv, rows)
         shares[lo] = share
 
     in_threads(fill, n_points)
@@ -260,21 +277,39 @@ def _reduce(a, fcol, jf, jpt, order, bounds, c_inv) -> np.ndarray:
 
 
 @njit(**_JIT)
-def _point_covariances_into(q_lo, q_hi, s_inv, fcol, jf, jpt, order, bounds, c_inv, cov, lev):
+def _point_covariances_into(q_lo, q_hi, s_inv, fcol, jf, jpt, order, bounds, c_inv, cov, lev, rows):
     """Points ``q_lo:q_hi``: 3x3 covariance (into ``cov``) and the leverages of their
-    observation rows (into ``lev``)."""
+    observation rows (into ``lev``); ``rows``: :func:`_most_rows`.
+
+    With W = B_p C^-1 (m x 3 over the point's m image columns), Q the images' covariance on
+    those columns, Z = Q W and G = W^T Z: the point's covariance is C^-1 + G, and a row with
+    image part e (its own image's columns only) and point part b has the leverage
+    (e - W b)^T Q (e - W b) + b^T C^-1 b = e^T Q e - 2 e^T Z b + b^T (G + C^-1) b: the m x m
+    products of the expanded form are done once per point, not once per row, and nothing is
+    allocated per point (numba's allocations serialise threads)."""
     w = fcol.shape[1]
+    cols = np.empty(rows, dtype=np.int64)
+    bp = np.empty((rows, 3))
+    wb = np.empty((rows, 3))
+    z = np.empty((rows, 3))
     for q in range(q_lo, q_hi):
         lo, hi = bounds[q], bounds[q + 1]
-        cols, bp = _point_b(lo, hi, order, fcol, jf, jpt)
-        m = cols.shape[0]
-        sub = np.empty((m, m))
-        for x in range(m):
+        m = _point_b(lo, hi, order, fcol, jf, jpt, cols, bp)
+        _times_3x3(bp, m, c_inv, q, wb)
+        for x in range(m):  # Z = Q W, Q read in place from the images' covariance
+            z0 = z1 = z2 = 0.0
             for y in range(m):
-                sub[x, y] = s_inv[cols[x], cols[y]]
-        ci = c_inv[q]
-        wb = bp @ ci
-        cov[q] = ci + wb.T @ sub @ wb
+                qxy = s_inv[cols[x], cols[y]]
+                z0 += qxy * wb[y, 0]
+                z1 += qxy * wb[y, 1]
+                z2 += qxy * wb[y, 2]
+            z[x, 0], z[x, 1], z[x, 2] = z0, z1, z2
+        for a in range(3):
+            for c in range(3):
+                g = 0.0
+                for x in range(m):
+                    g += wb[x, a] * z[x, c]
+                cov[q, a, c] = c_inv[q, a, c] + g
         off = 0
         for t in range(lo, hi):
             i = order[t]
@@ -283,15 +318,22 @@ def _point_covariances_into(q_lo, q_hi, s_inv, fcol, jf, jpt, order, bounds, c_i
                 if fcol[i, j] >= 0:
                     nown += 1
             for r in range(2):
-                u = np.zeros(m)
+                b0, b1, b2 = jpt[i, r, 0], jpt[i, r, 1], jpt[i, r, 2]
+                h = 0.0
                 jj = 0
                 for j in range(w):
-                    if fcol[i, j] >= 0:
-                        u[off + jj] = jf[i, r, j]
-                        jj += 1
-                b = jpt[i, r]
-                u -= wb @ b
-                lev[2 * i + r] = u @ (sub @ u) + b @ (ci @ b)
+                    if fcol[i, j] < 0:
+                        continue
+                    e = jf[i, r, j]
+                    cj = fcol[i, j]
+                    for k in range(w):
+                        if fcol[i, k] >= 0:
+                            h += e * s_inv[cj, fcol[i, k]] * jf[i, r, k]
+                    h -= 2.0 * e * (z[off + jj, 0] * b0 + z[off + jj, 1] * b1 + z[off + jj, 2] * b2)
+                    jj += 1
+                for x, bx in enumerate((b0, b1, b2)):
+                    h += bx * (cov[q, x, 0] * b0 + cov[q, x, 1] * b1 + cov[q, x, 2] * b2)
+                lev[2 * i + r] = h
             off += nown
 
 
@@ -299,9 +341,10 @@ def _point_covariances(s_inv, fcol, jf, jpt, order, bounds, c_inv, lev) -> np.nd
     """Per point: 3x3 covariance and the leverages of its observation rows (written into lev),
     on the solve's threads (:func:`in_threads`)."""
     cov = np.zeros((bounds.shape[0] - 1, 3, 3))
+    rows = _most_rows(fcol, bounds)
 
     def fill(lo: int, hi: int) -> None:
-        _point_covariances_into(lo, hi, s_inv, fcol, jf, jpt, order, bounds, c_inv, cov, lev)
+        _point_covariances_into(lo, hi, s_inv, fcol, jf, jpt, order, bounds, c_inv, cov, lev, rows)
 
     in_threads(fill, len(cov))
     return cov
