@@ -113,9 +113,8 @@ def error_ellipses(cov_en: np.ndarray) -> list[dict[str, float]]:
     az = np.degrees(np.arctan2(v[:, 0, 1], v[:, 1, 1])) % 180.0  # the major axis: column 1
     major = np.sqrt(np.maximum(w[:, 1], 0.0))
     minor = np.sqrt(np.maximum(w[:, 0], 0.0))
-    return [
-        {"semi_major_m": float(a), "semi_minor_m": float(b), "azimuth_deg": float(z)}
-        for a, b, z in zip(major, minor, az)
+    return [  # Python floats from one conversion per array, not one per value
+        {"semi_major_m": a, "semi_minor_m": b, "azimuth_deg": z} for a, b, z in zip(major.tolist(), minor.tolist(), az.tolist())
     ]
 
 
