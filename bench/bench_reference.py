@@ -26,6 +26,11 @@ Runs alternate (ours, then the reference) and the medians are printed:
 (initial trust region 1e4 instead of 1e12, Ceres' tolerances, no statistical stop): what a
 program written without the service's tuning does from the same start.
 
+``--start ephemeris`` starts the reference from the job's header alone (position and velocity of
+the header state, nominal attitude, tie points intersected from those rays) instead of the
+service's initial values: the program of the performance targets, "its own start from the
+ephemeris".
+
 ``--check`` also solves the block in this process (our solve alone) and compares the adjusted
 parameters with the reference's: the largest difference in units of the reference's standard
 deviations (both stop when chi-square changes by less than 1e-3 twice, i.e. within a few
