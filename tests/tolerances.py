@@ -25,8 +25,7 @@ GEODESY_M = 1e-6
 ROTATION_ABS = 1e-12
 
 # A pixel taken to the ground and back (a ray or image_to_ground, then the projection): the
-# line searches stop below 1e-8 line and the projection's Newton search leaves ~1e-10 px (its
-# last step below 1e-4 line, convergence quadratic); a wrong line time, convention or chip is
+# line searches and Newton steps stop below 1e-8 line; a wrong line time, convention or chip is
 # half a pixel or more.
 ROUND_TRIP_PX = 1e-6
 

@@ -14,16 +14,6 @@ from solver.kernels.layout import KIND_RPC, N_COEF, N_IOP
 from solver.kernels.platform import _camera_state, _coef_gradients, _kepler_terms_for, object_to_camera, platform_state
 from solver.kernels.rpc import rpc_project, rpc_ray
 
-NEWTON_LAST_STEP = 1e-4
-"""Lines (and columns): the Newton step on the line after which one more evaluation at the
-updated line ends the search. Newton's method converges quadratically: after a step h the line
-is off by about c h^2 with c = g''/(2 g') of the along-track condition g, which the attitude and
-orbit bend slowly (measured on the 100,000-observation P2 block: c 1.3e-6 per line, at most 2e-4),
-so a step below 1e-4 line leaves less than 1e-12 line, and 1e-8 line even for c = 1 per line.
-Waiting for a step below 1e-8 line instead took a fourth evaluation of the camera state for half
-of the observations (a second step of ~1e-8 line from a start 0.2 line off) and moved no line by
-more than rounding (7.6e-11 line)."""
-
 
 @njit(**_JIT)
 def _line_newton_step(d, ddt, f: float, xo: float, tpl: float) -> float:
@@ -74,7 +64,7 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
         if not np.isfinite(step):
             break
         line -= step
-        if abs(step) < NEWTON_LAST_STEP:
+        if abs(step) < 1e-8:
             ok = True
     iz = 1.0 / d[2]
     y = -f * d[1] * iz
@@ -201,7 +191,7 @@ def project_cam(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac
         dc = (-j21 * g1 + j11 * g2) / det
         line -= dl
         col -= dc
-        if abs(dl) < NEWTON_LAST_STEP and abs(dc) < NEWTON_LAST_STEP:
+        if abs(dl) < 1e-8 and abs(dc) < 1e-8:
             ok = True
     dl_dc = np.zeros(N_COEF)
     dl_dp = np.zeros(3)

@@ -177,10 +177,8 @@ def test_projection_jacobian_matches_finite_differences(model, pitch):
 
 
 # A ray taken 700 km out and projected back, the search started at the ray's own pixel and lines
-# away from it: Newton's last step on the line is below 1e-4 line and the search then ends
-# (NEWTON_LAST_STEP), so the pixel must come back to rounding from any of these starts (measured
-# worst over the per-image models: 4.1e-10 px; 3.0e-10 px when the search waited for a step below
-# 1e-8 line)
+# away from it: the pixel must come back to rounding from any of these starts (Newton's last step
+# on the line below 1e-8 line; measured worst over the per-image models: 3.0e-10 px)
 NEWTON_START_PX = 1e-9
 
 
