@@ -99,11 +99,16 @@ class AdjustmentState:
         return roles != "check"
 
 
+def grouped(key_of_row: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows grouped by key (0 .. n_keys - 1) by one stable sort: the rows of key k are
+    ``order[bounds[k]:bounds[k + 1]]``, ascending (a mask per key would cost keys x rows)."""
+    order = np.argsort(key_of_row, kind="stable")
+    return order, np.searchsorted(key_of_row[order], np.arange(n_keys + 1))
+
+
 def rows_by_image(img_of_row: np.ndarray, n_images: int) -> list[np.ndarray]:
-    """The rows of each image (indices into ``img_of_row``, ascending), by one stable sort: a
-    mask per image would cost images x observations."""
-    order = np.argsort(img_of_row, kind="stable")
-    bounds = np.searchsorted(img_of_row[order], np.arange(n_images + 1))
+    """The rows of each image (indices into ``img_of_row``, ascending): :func:`grouped`."""
+    order, bounds = grouped(img_of_row, n_images)
     return [order[bounds[i] : bounds[i + 1]] for i in range(n_images)]
 
 

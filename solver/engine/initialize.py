@@ -32,7 +32,7 @@ from solver.observations.ephemeris import image_state
 from solver.observations.passes import initialise_passes
 from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
 from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
-from solver.state import AdjustmentState, ImageState, is_kepler, rows_by_image
+from solver.state import AdjustmentState, ImageState, grouped, is_kepler, rows_by_image
 
 
 def angles_from_matrix(m: np.ndarray) -> tuple[float, float, float]:
@@ -232,8 +232,7 @@ def intersect_estimated_points(problem: AdjustmentState) -> None:
     kcs = np.zeros((len(problem.images), max(len(im.kc) for im in problem.images)))
     for im in problem.images:  # pass images carry longer kc (their trajectory segment)
         kcs[im.index, : len(im.kc)] = im.kc
-    order = np.argsort(obs.pt, kind="stable")
-    bounds = np.searchsorted(obs.pt[order], np.arange(len(problem.points) + 1))
+    order, bounds = grouped(obs.pt, len(problem.points))
     xyz = np.empty((len(which), 3))
 
     def fill(lo: int, hi: int) -> None:

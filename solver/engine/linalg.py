@@ -30,7 +30,7 @@ from solver.engine.packed_tables import current_tables, records
 from solver.engine.terms import block_owner, family_terms
 from solver.kernels import all_observation_blocks
 from solver.observations.family import Labelled
-from solver.state import AdjustmentState
+from solver.state import AdjustmentState, grouped
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
@@ -398,8 +398,8 @@ def schur(lin: Linearisation, problem: AdjustmentState) -> SchurParts:
     # observations grouped by estimated point (in the order of est)
     q_of_obs = pt_q[lin.obs_pt]
     has = np.flatnonzero(q_of_obs >= 0)
-    order = has[np.argsort(q_of_obs[has], kind="stable")]
-    bounds = np.searchsorted(q_of_obs[order], np.arange(len(est) + 1))
+    order, bounds = grouped(q_of_obs[has], len(est))
+    order = has[order]
     s = _reduce(a, lin.fcol, lin.jf, lin.jpt, order, bounds, c_inv) if len(est) else a
     return SchurParts(s, c_inv, est, singular, order, bounds)
 

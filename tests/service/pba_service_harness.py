@@ -19,6 +19,7 @@ from typing import Any
 import httpx
 
 from service.auth import create_key
+from service.gis_process import PROCESS_NAME as GIS_PROCESS_NAME
 from service.store import Store, open_store
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -197,3 +198,17 @@ def solved_report(client: httpx.Client, job: dict[str, Any]) -> tuple[str, dict[
 
 def load_example(name: str) -> dict[str, Any]:
     return json.loads((EXAMPLES / name).read_text())
+
+
+def gis_processes(parent: int) -> list[int]:
+    """The ``pba-gis`` processes (service/gis_process.py) the server process ``parent`` started
+    (pgrep and Linux /proc)."""
+    out = subprocess.run(["pgrep", "-P", str(parent)], capture_output=True, text=True)
+    named = []
+    for pid in (int(x) for x in out.stdout.split()):
+        try:
+            if Path(f"/proc/{pid}/comm").read_text().strip() == GIS_PROCESS_NAME:
+                named.append(pid)
+        except OSError:  # ended meanwhile
+            continue
+    return named

@@ -16,10 +16,8 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import pytest
-from pba_service_harness import Server, execute_body, load_example
+from pba_service_harness import Server, execute_body, gis_processes, load_example
 from test_service_compose import example_files, example_spec
-
-from service.gis_process import PROCESS_NAME
 
 HEAVY = ("llvmlite", "numba", "scipy")  # shared libraries the API process must never map
 
@@ -32,11 +30,6 @@ def _mapped_packages(pid: int) -> set[str]:
         if ".so" in path and "site-packages/" in path:
             out.add(path.split("site-packages/", 1)[1].split("/", 1)[0])
     return out
-
-
-def _children(pid: int) -> set[int]:
-    out = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True)
-    return {int(x) for x in out.stdout.split()}
 
 
 @pytest.fixture(scope="module")
@@ -99,7 +92,7 @@ def test_a_crashed_gis_process_is_a_503_and_the_next_request_starts_another(serv
     body: dict[str, Any] = {"image": "prism-nadir", "points": [{"lon": 138.7, "lat": 35.3, "height": 500.0}]}
     with server.client(keys["alice"]) as c:
         assert c.post(url, json=body).status_code == 200
-        named = [p for p in _children(server.proc.pid) if Path(f"/proc/{p}/comm").read_text().strip() == PROCESS_NAME]
+        named = gis_processes(server.proc.pid)
         assert len(named) == 1, named
         target = named[0]
         os.kill(target, signal.SIGKILL)

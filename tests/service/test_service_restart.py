@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from pba_service_harness import Server, execute_body, submit_async, wait_status
+from pba_service_harness import Server, execute_body, gis_processes, submit_async, wait_status
 
 from service.states import JobStatus
 
@@ -156,18 +156,12 @@ def worker_pid_of(server: Server, job_id: str) -> int:
 
 
 def gis_pid_of(parent: int, timeout_s: float = 30.0) -> int:
-    """The ``pba-gis`` process the server process ``parent`` started (Linux /proc)."""
+    """The ``pba-gis`` process the server process ``parent`` started, once it is up."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        for stat in Path("/proc").glob("[0-9]*/stat"):
-            try:
-                text = stat.read_text()
-            except OSError:
-                continue
-            name = text[text.index("(") + 1 : text.rindex(")")]
-            ppid = int(text[text.rindex(")") + 2 :].split()[1])
-            if name == "pba-gis" and ppid == parent:
-                return int(stat.parent.name)
+        named = gis_processes(parent)
+        if named:
+            return named[0]
         time.sleep(0.2)
     raise AssertionError(f"no pba-gis process started by {parent}")
 
