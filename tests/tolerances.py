@@ -36,3 +36,8 @@ SAME_RPC_PX = 1e-6
 # A ground point through an image or a CRS and back: the intersection's and the CRS's own
 # tolerances; a wrong height, datum or axis order is metres.
 GROUND_ROUND_TRIP_M = 1e-3
+
+# Shapiro-Wilk's W and p-value, ours (exact normal scores) against scipy.stats.shapiro (AS R94,
+# whose normal scores come from a 7-digit approximation): differences of ~1e-7 at most; a wrong
+# coefficient or transformation is 1e-3 or more.
+SHAPIRO_ABS = 1e-6

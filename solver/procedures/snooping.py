@@ -15,6 +15,7 @@ import numpy as np
 
 from solver.errors import JobError
 from solver.procedures.single import adjust_once
+from solver.quality.distributions import chi2_upper_quantile
 from solver.quality.flags import flag_sections
 from solver.quality.removal import INFLATE, reinstate, remove, testable, whole_points, with_candidates
 from solver.quality.snooping import entry, failing_clusters, predicted_test, reliability_section, snoop
@@ -332,14 +333,12 @@ def _check_point_outliers(report: dict[str, Any], alpha0: float) -> list[dict[st
     """Check points whose discrepancy test (d^T Sigma^-1 d, chi-square; docs/report-contract.md)
     fails at the snooping level ``alpha0``, worst first: a check point is not in the adjustment,
     so a blunder in its image points (or its known coordinates) shows only here."""
-    from scipy import stats
-
     out = []
     for it in report.get("checkpoints", {}).get("points", []):
         t = it.get("discrepancy_test")
         if not t or not t.get("dof"):
             continue
-        critical = float(stats.chi2.ppf(1.0 - alpha0, t["dof"]))
+        critical = chi2_upper_quantile(alpha0, t["dof"])
         if t["statistic"] > critical:
             out.append({"point": it["id"], "images": it.get("images"), "statistic": t["statistic"], "dof": t["dof"],
                         "critical": critical, "discrepancy_m": it["discrepancy_m"]})

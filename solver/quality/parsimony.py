@@ -21,8 +21,8 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
+from solver.quality.distributions import f_quantile
 from solver.state import AdjustmentState
 
 # models whose angles are the platform's attitude relative to the orbital frame (orbit-attitude,
@@ -116,5 +116,5 @@ def constraint_test(delta_vtpv: float, q: int, vtpv: float, dof: int, alpha: flo
     constraint is compatible with the data, the terms can go) below the ``1 - alpha`` quantile
     of F(q, dof)."""
     f = (max(delta_vtpv, 0.0) / q) / (vtpv / dof) if dof > 0 and vtpv > 0 else math.inf
-    crit = float(stats.f.ppf(1.0 - alpha, q, dof)) if dof > 0 else math.inf
+    crit = f_quantile(1.0 - alpha, q, dof) if dof > 0 else math.inf
     return {"statistic": float(f), "dof": [q, dof], "critical": crit, "alpha": alpha, "passed": bool(f <= crit)}

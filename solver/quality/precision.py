@@ -25,11 +25,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from solver.engine.linalg import Layout
 from solver.engine.packed_tables import current_tables, records
 from solver.kernels import all_observation_blocks
+from solver.quality.distributions import chi2_upper_quantile
 from solver.state import AdjustmentState
 
 
@@ -134,7 +134,7 @@ def discrepancy_test(d: np.ndarray, cov: np.ndarray, axes: tuple[int, ...], alph
         t = float(d[ax] @ np.linalg.solve(s, d[ax]))
     except np.linalg.LinAlgError:
         return None
-    crit = float(stats.chi2.ppf(1.0 - alpha, len(ax)))
+    crit = chi2_upper_quantile(alpha, len(ax))
     return {"statistic": t, "dof": len(ax), "critical": crit, "alpha": alpha, "passed": bool(t <= crit)}
 
 

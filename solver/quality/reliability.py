@@ -29,9 +29,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import optimize, stats
 
 from solver.engine.linalg import Linearisation, SchurParts
+from solver.quality.distributions import chi2_noncentrality, chi2_upper_quantile
 from solver.state import AdjustmentState
 
 # a redundancy component below this is "nothing checks it": no finite detectable bias. Not
@@ -194,8 +194,7 @@ def structure(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, s
 def noncentrality(alpha0: float, beta: float, dim: int) -> float:
     """lambda0: the non-centrality of a chi-square(dim) test at level alpha0 with power beta
     (dim = 1: (3.29 + 0.84)^2 = 17.07 for alpha0 = 0.001, beta = 0.8)."""
-    crit = stats.chi2.ppf(1.0 - alpha0, dim)
-    return float(optimize.brentq(lambda lam: stats.ncx2.sf(crit, dim, lam) - beta, 1e-9, 1e4))
+    return chi2_noncentrality(chi2_upper_quantile(alpha0, dim), dim, beta)
 
 
 def group_cofactor(st: Structure, g: Group) -> np.ndarray:

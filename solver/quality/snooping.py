@@ -26,9 +26,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from solver.engine.linalg import linearise, positive_definite_inverse, schur
+from solver.quality.distributions import beta_quantile, chi2_upper_quantile, f_quantile, normal_quantile
 from solver.quality.reliability import (
     REDUNDANCY_NEAR_ZERO,
     Group,
@@ -140,10 +140,10 @@ def _pinv(q: np.ndarray) -> tuple[np.ndarray, int]:
 
 def _critical(variance: str, alpha0: float, dim: int, dof: int) -> float | None:
     if variance == "apriori":
-        return float(math.sqrt(stats.chi2.ppf(1.0 - alpha0, dim)))
+        return math.sqrt(chi2_upper_quantile(alpha0, dim))
     if dof - dim <= 0:
         return None
-    return float(math.sqrt(dof * stats.beta.ppf(1.0 - alpha0, dim / 2.0, (dof - dim) / 2.0)))
+    return float(math.sqrt(dof * beta_quantile(1.0 - alpha0, dim / 2.0, (dof - dim) / 2.0)))
 
 
 def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
@@ -248,7 +248,7 @@ def inseparable(sn: Snoop, t: Test, threshold: float) -> list[Test]:
     if nrm == 0:
         return members
     direction = t.error_whitened / nrm
-    z = float(stats.norm.ppf(1.0 - sn.alpha0))
+    z = normal_quantile(1.0 - sn.alpha0)
     for u in sn.tests:
         if u is t or u.w is None or (u.group.block != t.group.block and not u.failed):
             continue
@@ -395,6 +395,6 @@ def predicted_test(sn: Snoop, t: Test, inflate: float, s2: tuple[float, int] | N
         w, crit = math.sqrt(t_stat) / sn.s0_apriori, _critical("apriori", sn.alpha0, d, sn.dof)
     else:
         w = math.sqrt(t_stat / s2[0])
-        crit = float(math.sqrt(d * stats.f.ppf(1.0 - sn.alpha0, d, max(s2[1], 1))))
+        crit = float(math.sqrt(d * f_quantile(1.0 - sn.alpha0, d, max(s2[1], 1))))
     err = g.sign * e * (g.sigma / inflate)
     return {"w": w, "critical": crit, "dof": d, "estimated_error": [float(x) for x in err], "passed": w <= crit}

@@ -14,15 +14,16 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import stats
+
+from solver.quality import distributions
 
 
 def chi2_test(weighted_ssr: float, dof: int, alpha: float, sigma0_apriori: float = 1.0) -> dict[str, Any] | None:
     if dof <= 0:
         return None
     statistic = weighted_ssr / sigma0_apriori**2
-    upper = float(stats.chi2.ppf(1.0 - alpha / 2.0, dof))
-    lower = float(stats.chi2.ppf(alpha / 2.0, dof))
+    upper = distributions.chi2_upper_quantile(alpha / 2.0, dof)
+    lower = distributions.chi2_quantile(alpha / 2.0, dof)
     return {
         "statistic": float(statistic),
         "dof": int(dof),
@@ -41,7 +42,7 @@ def t_test(values: np.ndarray, alpha: float) -> dict[str, Any] | None:
     s = float(np.std(values, ddof=1))
     mean = float(np.mean(values))
     statistic = mean * math.sqrt(n) / s if s > 0 else (0.0 if mean == 0 else math.inf)
-    critical = float(stats.t.ppf(1.0 - alpha / 2.0, n - 1))
+    critical = distributions.t_quantile(1.0 - alpha / 2.0, n - 1)
     return {
         "statistic": float(statistic),
         "critical": critical,
@@ -55,7 +56,7 @@ def shapiro_wilk(values: np.ndarray, alpha: float) -> dict[str, Any] | None:
     values = np.asarray(values, dtype=float)
     if len(values) < 3 or np.ptp(values) == 0:
         return None
-    w, p = stats.shapiro(values)
+    w, p = distributions.shapiro_wilk(values)
     return {"statistic": float(w), "p_value": float(p), "alpha": alpha, "passed": bool(p > alpha)}
 
 
