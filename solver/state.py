@@ -95,8 +95,8 @@ class AdjustmentState:
     @property
     def adjusted_mask(self) -> np.ndarray:
         """Observations that enter the adjustment (not of check points)."""
-        roles = np.array([self.points[i].role for i in self.obs.pt])
-        return roles != "check"
+        adjusted = np.fromiter((p.role != "check" for p in self.points), dtype=bool, count=len(self.points))
+        return adjusted[self.obs.pt]
 
 
 def grouped(key_of_row: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:

@@ -81,6 +81,10 @@ def compile_kernels(say: Say | None = None) -> float:
     if say is not None:
         prefix = "" if state.path == "compiled" else "WARNING: "
         say(f"{prefix}residual evaluation: {state.path} ({state.reason})")
+    if state.path == "compiled":  # every C callback, those no warm-up job reaches too
+        from solver.kernels import callbacks
+
+        callbacks.load_all()
     for label, job in warmup_jobs():
         t = time.perf_counter()
         report = run(job)

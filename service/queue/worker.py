@@ -48,7 +48,9 @@ def warm_up() -> None:
         from solver.engine import native
 
         if native.module() is not None:
-            import solver.kernels.callbacks  # noqa: F401  (the compiled path's C callbacks)
+            from solver.kernels import callbacks
+
+            callbacks.load_all()  # the compiled path's C callbacks (loaded on first use otherwise)
     except (ImportError, RuntimeError) as exc:  # RuntimeError: PBA_EVALUATION=compiled without the extension
         log.warning("solver engine not importable yet: %s", exc)
 

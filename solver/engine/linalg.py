@@ -18,9 +18,9 @@ factor where a report needs it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
 from numba import njit
 from scipy.linalg import lapack
 
@@ -31,6 +31,9 @@ from solver.engine.terms import block_owner, family_terms
 from solver.kernels import all_observation_blocks
 from solver.observations.family import Labelled
 from solver.state import AdjustmentState, grouped
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
@@ -119,6 +122,8 @@ class Linearisation:
 
     def sparse_jacobian(self) -> sp.csr_matrix:
         """The full weighted Jacobian (rows as :attr:`residuals`), for tests and diagnostics."""
+        import scipy.sparse as sp  # here, not at import: a new process's first solve would pay 0.1 s for it
+
         rows, cols, vals = [], [], []
         lay = self.layout
         for q in range(len(self.obs_sel)):

@@ -19,9 +19,14 @@ The physics is the one of :func:`solver.kernels.blocks.point_obs_block` and
 :func:`solver.kernels.blocks.fixed_obs_block`, called here with the parameter blocks copied
 into the rows of one padded array instead of a tuple; both paths are tested against each other
 (tests/solver/engine/test_compiled_evaluation.py).
+
+Each callback is compiled (or loaded from the disk cache) when it is first asked for
+(:func:`__getattr__`), so a solve loads only the ones its residual blocks use.
 """
 
 from __future__ import annotations
+
+import sys
 
 import numpy as np
 from numba import carray, cfunc, njit, types
@@ -108,8 +113,7 @@ def _doubles_at(pointer, n):
     return carray(pointer, (n,), dtype=np.float64)
 
 
-@cfunc(CALLBACK_SIGNATURE, **_CFUNC)
-def point_block_callback(block, table, parameters, residuals, jacobians, want):
+def _point_block_callback(block, table, parameters, residuals, jacobians, want):
     """All observations of one estimated point: parameter blocks [point (3), slots...]."""
     head = carray(block, (B_HEADER,), dtype=np.int64)
     nrec = head[B_NREC]
@@ -145,8 +149,7 @@ def point_block_callback(block, table, parameters, residuals, jacobians, want):
     return ok
 
 
-@cfunc(CALLBACK_SIGNATURE, **_CFUNC)
-def fixed_block_callback(block, table, parameters, residuals, jacobians, want):
+def _fixed_block_callback(block, table, parameters, residuals, jacobians, want):
     """Observations of fixed ground points in one image (a resection block): parameter blocks [slots...]."""
     head = carray(block, (B_HEADER,), dtype=np.int64)
     nrec = head[B_NREC]
@@ -179,8 +182,7 @@ def fixed_block_callback(block, table, parameters, residuals, jacobians, want):
     return ok
 
 
-@cfunc(CALLBACK_SIGNATURE, **_CFUNC)
-def pass_state_callback(block, table, parameters, residuals, jacobians, want):
+def _pass_state_callback(block, table, parameters, residuals, jacobians, want):
     """A weighted state vector observing the propagated pass state at its epoch:
     r = W (S(t; x0) - b) on the pass block x0 (6: ECEF position m, velocity m/s). The segment
     is the term's own (one residual block is never evaluated by two threads at once)."""
@@ -212,8 +214,7 @@ def pass_state_callback(block, table, parameters, residuals, jacobians, want):
     return ok
 
 
-@cfunc(CALLBACK_SIGNATURE, **_CFUNC)
-def line_term_callback(block, table, parameters, residuals, jacobians, want):
+def _line_term_callback(block, table, parameters, residuals, jacobians, want):
     """A straight-line term on one image's parameter block (:class:`solver.observations.lines.LineTerm`):
     the equivalent planes model, the rigorous distances of measured points, or the rigorous
     line through the projected endpoints against a fitted image line, whitened by the term's
@@ -276,3 +277,23 @@ def line_term_callback(block, table, parameters, residuals, jacobians, want):
                     acc += w[i, k] * jc[k, free[j]]
                 jac[i * nf + j] = sign * acc
     return good
+
+
+CALLBACKS = ("point_block_callback", "fixed_block_callback", "pass_state_callback", "line_term_callback")
+
+
+def __getattr__(name: str):
+    """A callback compiled (or loaded from the disk cache) on first use, not at import: loading
+    one takes 10-40 ms, and a job without straight lines or pass states needs only the point
+    blocks'."""
+    if name not in CALLBACKS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    compiled = cfunc(CALLBACK_SIGNATURE, **_CFUNC)(globals()["_" + name])
+    globals()[name] = compiled
+    return compiled
+
+
+def load_all() -> None:
+    """Compile or load every callback now (a worker before its first job, the warm-up)."""
+    for name in CALLBACKS:
+        getattr(sys.modules[__name__], name)

@@ -4,6 +4,8 @@ are sound adjustments (a warm-up that fails quietly would hide kernels it never 
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import pytest
 
@@ -39,8 +41,14 @@ def test_warmup_jobs_are_sound_adjustments(jobs) -> None:
         assert adj["iterations"] > 0, label
 
 
-def test_pba_warmup_reports_each_job(capsys) -> None:
+def test_pba_warmup_reports_each_job(capsys, monkeypatch) -> None:
+    from solver.kernels import callbacks
+
+    loaded = []
+    monkeypatch.setattr(callbacks, "load_all", lambda: loaded.append(True))
     assert main(["warmup"]) == 0
+    # the C callbacks load on first use: the warm-up asks for all of them (no job of it has a fixed point)
+    assert loaded == ([True] if native.status().path == "compiled" else [])
     out = capsys.readouterr().out.splitlines()
     labels = [label for label, _ in warmup_jobs()]
     # first which evaluation path solves take (a warning when it is not the compiled one)
@@ -48,3 +56,20 @@ def test_pba_warmup_reports_each_job(capsys) -> None:
     assert ("compiled" in out[0]) == (native.status().path == "compiled"), out[0]
     assert [line.split(":")[0] for line in out[1:-1]] == labels
     assert out[-1].startswith("kernels compiled or loaded from the cache in")
+
+
+def test_callbacks_load_on_first_use_and_all_at_once() -> None:
+    """In a new interpreter: importing the callbacks' module loads none of them (a job without
+    lines would pay 10-40 ms each), asking for one loads it, ``load_all`` loads the rest."""
+    code = (
+        "from solver.kernels import callbacks as c\n"
+        "print(sorted(n for n in c.CALLBACKS if n in vars(c)))\n"
+        "c.point_block_callback.address\n"
+        "print(sorted(n for n in c.CALLBACKS if n in vars(c)))\n"
+        "c.load_all()\n"
+        "print(sorted(n for n in c.CALLBACKS if n in vars(c)))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.splitlines()
+    from solver.kernels.callbacks import CALLBACKS
+
+    assert out == ["[]", "['point_block_callback']", str(sorted(CALLBACKS))]
