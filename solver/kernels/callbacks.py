@@ -27,6 +27,7 @@ Each callback is compiled (or loaded from the disk cache) when it is first asked
 from __future__ import annotations
 
 import sys
+import threading
 
 import numpy as np
 from numba import carray, cfunc, njit, types
@@ -280,6 +281,7 @@ def _line_term_callback(block, table, parameters, residuals, jacobians, want):
 
 
 CALLBACKS = ("point_block_callback", "fixed_block_callback", "pass_state_callback", "line_term_callback")
+_LOADING = threading.Lock()
 
 
 def __getattr__(name: str):
@@ -288,8 +290,11 @@ def __getattr__(name: str):
     blocks'."""
     if name not in CALLBACKS:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    compiled = cfunc(CALLBACK_SIGNATURE, **_CFUNC)(globals()["_" + name])
-    globals()[name] = compiled
+    with _LOADING:  # two threads solving at once compile or load each callback once
+        compiled = globals().get(name)
+        if compiled is None:
+            compiled = cfunc(CALLBACK_SIGNATURE, **_CFUNC)(globals()["_" + name])
+            globals()[name] = compiled
     return compiled
 
 
