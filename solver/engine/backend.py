@@ -317,9 +317,8 @@ def _add_fixed_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: A
         out.keep.append(desc)
         addresses = compiled.row_addresses(desc)
         memory = (desc, blocks.rec, pts, compiled.shared)
-    for b, params in enumerate(blocks.params):
+    for b, (params, sizes) in enumerate(zip(blocks.params, blocks.param_sizes())):
         s, e = start[b], start[b + 1]
-        sizes = [len(a) for a in params]
         if compiled is not None:
             cf = compiled.cost(compiled.cb.fixed_block_callback, addresses[b], 2 * (e - s), sizes, memory)
         else:
@@ -343,24 +342,16 @@ def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, co
         addresses = compiled.row_addresses(desc)
         memory = (desc, blocks.rec, compiled.shared)
     points = problem.points
-    # 33,000 blocks at 100,000 observations: the loop keeps to local names (the block's sizes
-    # from the layout's table, the cost's constructor and callback address looked up once)
-    residuals = (2 * np.diff(blocks.start)).tolist()
-    sizes_of = [row[:n] for row, n in zip(blocks.sizes.tolist(), blocks.n_params.tolist())]
-    if compiled is not None:
-        make, evaluator, callback = compiled.native.CallbackCost, compiled.evaluator, compiled.cb.point_block_callback.address
-    keep, listed, add = out.keep, out.blocks, out.problem.add_residual_block
-    for b, (point_index, params) in enumerate(zip(blocks.owner.tolist(), blocks.params)):
+    residuals = (2 * np.diff(blocks.start)).tolist()  # per block, as the sizes: no per-block numpy
+    callback = compiled.cb.point_block_callback if compiled is not None else None
+    for b, (point_index, params, sizes) in enumerate(zip(blocks.owner.tolist(), blocks.params, blocks.param_sizes())):
         p = points[point_index]
         if compiled is not None:
-            cf = make(evaluator, callback, addresses[b], residuals[b], [3] + sizes_of[b], memory)
+            cf = compiled.cost(callback, addresses[b], residuals[b], [3] + sizes, memory)
         else:
-            cf = PointCost(blocks.rec[start[b] : start[b + 1]], sizes_of[b], control, tables)
+            cf = PointCost(blocks.rec[start[b] : start[b + 1]], sizes, control, tables)
             out.python_blocks += 1
-        block_params = [p.xyz] + params
-        keep.append(cf)
-        listed.append((cf, block_params))
-        add(cf, loss, block_params)
+        out.add(cf, loss, [p.xyz] + params)
         if p.role == "gcp" and p.sigma_m is not None and p.known_lgs is not None:
             out.add(pyceres.factors.NormalPrior(p.known_lgs.copy(), np.diag(p.sigma_m**2)), None, [p.xyz])
 

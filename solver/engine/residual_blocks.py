@@ -42,6 +42,10 @@ class ResidualBlocks:
     def records_of(self, b: int) -> np.ndarray:
         return self.rec[self.start[b] : self.start[b + 1]]
 
+    def param_sizes(self) -> list[list[int]]:
+        """The sizes of ``params[b]`` for every block, as Python lists (read from ``sizes``)."""
+        return [row[:n] for row, n in zip(self.sizes.tolist(), self.n_params.tolist())]
+
 
 def first_appearance_ranks(block: np.ndarray, key: np.ndarray, n_blocks: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For rows grouped by ``block`` (non-decreasing) with ``key`` (-1: none): each row's rank

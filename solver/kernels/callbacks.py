@@ -26,7 +26,6 @@ Each callback is compiled (or loaded from the disk cache) when it is first asked
 
 from __future__ import annotations
 
-import sys
 import threading
 
 import numpy as np
@@ -301,4 +300,4 @@ def __getattr__(name: str):
 def load_all() -> None:
     """Compile or load every callback now (a worker before its first job, the warm-up)."""
     for name in CALLBACKS:
-        getattr(sys.modules[__name__], name)
+        __getattr__(name)

@@ -143,7 +143,7 @@ def _critical(variance: str, alpha0: float, dim: int, dof: int) -> float | None:
         return math.sqrt(chi2_upper_quantile(alpha0, dim))
     if dof - dim <= 0:
         return None
-    return float(math.sqrt(dof * beta_quantile(1.0 - alpha0, dim / 2.0, (dof - dim) / 2.0)))
+    return math.sqrt(dof * beta_quantile(1.0 - alpha0, dim / 2.0, (dof - dim) / 2.0))
 
 
 def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
@@ -395,6 +395,6 @@ def predicted_test(sn: Snoop, t: Test, inflate: float, s2: tuple[float, int] | N
         w, crit = math.sqrt(t_stat) / sn.s0_apriori, _critical("apriori", sn.alpha0, d, sn.dof)
     else:
         w = math.sqrt(t_stat / s2[0])
-        crit = float(math.sqrt(d * f_quantile(1.0 - sn.alpha0, d, max(s2[1], 1))))
+        crit = math.sqrt(d * f_quantile(1.0 - sn.alpha0, d, max(s2[1], 1)))
     err = g.sign * e * (g.sigma / inflate)
     return {"w": w, "critical": crit, "dof": d, "estimated_error": [float(x) for x in err], "passed": w <= crit}
