@@ -91,7 +91,7 @@ _KERNEL_MODULES = {
     "blocks": ("_eval_record", "_fill", "_put_rows", "all_observation_blocks", "fixed_obs_block", "observation_blocks_into", "point_obs_block"),
     "platform": (
         "_attitude_angles", "_attitude_time", "_camera_state", "_coef_gradients", "_kepler_terms", "_kepler_terms_for",
-        "_oa_pose", "_orbit_jac", "_pose", "_state_directions", "assemble", "object_to_camera", "platform_state",
+        "_oa_pose", "_oa_state_gradients", "_pose", "_state_column", "assemble", "object_to_camera", "platform_state",
     ),
     "projection": (
         "_line_newton_step", "camera_model", "ideal_direction", "intersect_all", "project", "project_cam",
@@ -126,8 +126,8 @@ __all__ = [
     "REC_CHIP_LEN", "REC_COLUMN", "REC_IMAGE", "REC_IMG_SLOT", "REC_LINE", "REC_OC",
     "REC_PASS_SLOT", "REC_SIGMA", "_attitude_angles", "_attitude_time", "_camera_state",
     "_coef_gradients", "_eval_record", "_fill", "_kepler_terms", "_kepler_terms_for",
-    "_line_newton_step", "_mount", "_oa_pose", "_orbit_jac", "_orbital_frame",
-    "_orbital_frame_rate", "_pose", "_put_rows", "_rotation_into", "_state_directions",
+    "_line_newton_step", "_mount", "_oa_pose", "_oa_state_gradients", "_orbital_frame",
+    "_orbital_frame_rate", "_pose", "_put_rows", "_rotation_into", "_state_column",
     "all_observation_blocks", "assemble", "camera_model", "ensure_segment", "fixed_obs_block",
     "gravity_and_gradient", "ideal_direction", "intersect_all", "object_to_camera", "observation_blocks_into", "pass_state",
     "platform_state", "point_obs_block", "project", "project_cam", "project_observation", "ray",

@@ -12,14 +12,23 @@ from numba import njit
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.kernels.layout import JIT as _JIT
 from solver.kernels.layout import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL, N_COEF
-from solver.kernels.propagation import PASS_ATT_OFF, PASS_COEF_INDEX, PASS_T_OFF, gravity_and_gradient, pass_state, pass_values_into
+from solver.kernels.propagation import (
+    NODE_SIZE,
+    PASS_ATT_OFF,
+    PASS_COEF_INDEX,
+    PASS_NODE0,
+    PASS_T_OFF,
+    _hermite_basis,
+    gravity_and_gradient,
+    pass_state,
+    pass_values_into,
+)
 from solver.kernels.rotation import (
     _mount_into,
     _orbital_frame_rate_into,
     _rotation_into,
     mat_mat,
     mat_vec,
-    ro_offset,
     rotation_and_derivatives,
 )
 
@@ -176,27 +185,38 @@ def _orbit_pos_into(kind, coef, kc, acc, tau, s, sdot, vdot, b, vecs) -> None:
 
 
 @njit(**_JIT)
-def _orbit_jac(kind, kc, da_dr, tau):
-    """d(S, V)/d(state) in LGS axes (3 x 6 each): state = (S0, u) at line 0 for the Kepler
-    quadratic, the pass state x0 at the reference epoch for KIND_PASS."""
-    r0 = kc[0:9].reshape(3, 3)
-    ds_dth = np.empty((3, 6))
-    dv_dth = np.empty((3, 6))
+def _state_column(kind, kc, da_dr, tau, bas, k0, q, ds, dv) -> None:
+    """Column q of d(S, V)/d(state) in ECEF axes into ``ds``, ``dv`` (3 each): state = (S0, u)
+    at line 0 for the Kepler quadratic, the pass state x0 at the reference epoch for KIND_PASS
+    (``bas``: the Hermite basis at tau, ``k0``: its interval's first node)."""
     if kind == KIND_PASS:
-        _p, _v, _a, ds, dv = pass_state(kc, kc[PASS_T_OFF] + tau, True)
-        ds_dth[:, :] = mat_mat(r0, ds)
-        dv_dth[:, :] = mat_mat(r0, dv)
-        return ds_dth, dv_dth
-    # S_lgs = R0 (S0 + u t + a h - O), V_lgs = R0 (u + a t); a = a(S0, u)
+        b0 = PASS_NODE0 + k0 * NODE_SIZE
+        b1 = b0 + NODE_SIZE
+        for i in range(3):
+            o = i * 6 + q
+            p0, v0, a0 = kc[b0 + 9 + o], kc[b0 + 27 + o], kc[b0 + 45 + o]
+            p1, v1, a1 = kc[b1 + 9 + o], kc[b1 + 27 + o], kc[b1 + 45 + o]
+            ds[i] = bas[0, 0] * p0 + bas[0, 1] * v0 + bas[0, 2] * a0 + bas[0, 3] * p1 + bas[0, 4] * v1 + bas[0, 5] * a1
+            dv[i] = bas[1, 0] * p0 + bas[1, 1] * v0 + bas[1, 2] * a0 + bas[1, 3] * p1 + bas[1, 4] * v1 + bas[1, 5] * a1
+        return
+    # S = S0 + u t + a h, V = u + a t with a = a(S0, u): da/dS0 = da_dr, da/du = 2 Omega [[0, 1, 0], [-1, 0, 0], 0]
     h = 0.5 * tau * tau
-    da_du = np.zeros((3, 3))
-    da_du[0, 1] = 2.0 * kc[13]
-    da_du[1, 0] = -2.0 * kc[13]
-    ds_dth[:, 0:3] = mat_mat(r0, np.eye(3) + h * da_dr)
-    ds_dth[:, 3:6] = mat_mat(r0, tau * np.eye(3) + h * da_du)
-    dv_dth[:, 0:3] = mat_mat(r0, tau * da_dr)
-    dv_dth[:, 3:6] = mat_mat(r0, np.eye(3) + tau * da_du)
-    return ds_dth, dv_dth
+    j = q % 3
+    if q < 3:
+        for i in range(3):
+            ds[i] = (1.0 if i == j else 0.0) + h * da_dr[i, j]
+            dv[i] = tau * da_dr[i, j]
+        return
+    w2 = 2.0 * kc[13]
+    for i in range(3):
+        ds[i] = tau if i == j else 0.0
+        dv[i] = 1.0 if i == j else 0.0
+    if j == 0:
+        ds[1] -= h * w2
+        dv[1] -= tau * w2
+    elif j == 1:
+        ds[0] += h * w2
+        dv[0] += tau * w2
 
 
 @njit(**_JIT)
@@ -243,28 +263,50 @@ def _oa_pose(kind, coef, kc, acc, tau, rot):
 
 
 @njit(**_JIT)
-def _state_directions(kind, kc, da_dr, tau, s, sdot, a_att, m, v):
-    """dd/d(state_q) (6 x 3) of the camera vector d = A R_orbit(S, V) (P - S) for the
-    orbit-attitude kinds: through S(t) and through the orbital frame's dependence on S and V,
+def _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, m, v, gx0, gx2, gy1, gy2, gxs, gys) -> None:
+    """Derivatives along the six state components of the two image functions of
+    :func:`_coef_gradients` (gradients (gx0, 0, gx2), (0, gy1, gy2) wrt d) for the orbit-attitude
+    kinds, into their slots of ``gxs``, ``gys``. The camera vector d = A R_orbit(S, V) (P - S)
+    moves through S(t) and through the orbital frame's dependence on S and V:
 
         dd_q = A (dR_orbit/dstate_q) v - M dS/dstate_q,   v = P - S,
 
     where dR_orbit/dstate_q is the frame's directional derivative along (dS, dV)_q: the
     formulas of :func:`solver.kernels.rotation._orbital_frame_rate` with the state's
-    derivatives in place of the time rates, in scalars (this runs for every observation)."""
-    ds_dth, dv_dth = _orbit_jac(kind, kc, da_dr, tau)
-    c = ro_offset(kc)
-    g0, g1, g2 = s[0] + c[0], s[1] + c[1], s[2] + c[2]
+    derivatives in place of the time rates. The gradients are applied to A and M first (g A,
+    g M), so each component costs a few dot products; in scalars and without allocating beyond
+    two work vectors (this runs for every observation)."""
+    bas = np.empty((3, 6))
+    col = np.empty((2, 3))
+    k0 = 0
+    if kind == KIND_PASS:
+        k0 = _hermite_basis(kc, kc[PASS_T_OFF] + tau, bas)
+    c0 = kc[0] * kc[9] + kc[1] * kc[10] + kc[2] * kc[11]  # ro_offset, in scalars
+    c1 = kc[3] * kc[9] + kc[4] * kc[10] + kc[5] * kc[11]
+    c2 = kc[6] * kc[9] + kc[7] * kc[10] + kc[8] * kc[11]
+    g0, g1, g2 = s[0] + c0, s[1] + c1, s[2] + c2
     gn = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
     z0, z1, z2 = g0 / gn, g1 / gn, g2 / gn
     vz = sdot[0] * z0 + sdot[1] * z1 + sdot[2] * z2
     h0, h1, h2 = sdot[0] - vz * z0, sdot[1] - vz * z1, sdot[2] - vz * z2
     hn = np.sqrt(h0 * h0 + h1 * h1 + h2 * h2)
     x0, x1, x2 = h0 / hn, h1 / hn, h2 / hn
-    out = np.empty((6, 3))
+    # the gradients through A (row vectors gA) and through M (gM)
+    ax0, ax1, ax2 = gx0 * a_att[0, 0] + gx2 * a_att[2, 0], gx0 * a_att[0, 1] + gx2 * a_att[2, 1], gx0 * a_att[0, 2] + gx2 * a_att[2, 2]
+    ay0, ay1, ay2 = gy1 * a_att[1, 0] + gy2 * a_att[2, 0], gy1 * a_att[1, 1] + gy2 * a_att[2, 1], gy1 * a_att[1, 2] + gy2 * a_att[2, 2]
+    mx0, mx1, mx2 = gx0 * m[0, 0] + gx2 * m[2, 0], gx0 * m[0, 1] + gx2 * m[2, 1], gx0 * m[0, 2] + gx2 * m[2, 2]
+    my0, my1, my2 = gy1 * m[1, 0] + gy2 * m[2, 0], gy1 * m[1, 1] + gy2 * m[2, 1], gy1 * m[1, 2] + gy2 * m[2, 2]
     for q in range(6):
-        s0, s1, s2 = ds_dth[0, q], ds_dth[1, q], ds_dth[2, q]
-        u0, u1, u2 = dv_dth[0, q], dv_dth[1, q], dv_dth[2, q]
+        _state_column(kind, kc, da_dr, tau, bas, k0, q, col[0], col[1])
+        e0, e1, e2 = col[0, 0], col[0, 1], col[0, 2]
+        f0, f1, f2 = col[1, 0], col[1, 1], col[1, 2]
+        # into LGS axes
+        s0 = kc[0] * e0 + kc[1] * e1 + kc[2] * e2
+        s1 = kc[3] * e0 + kc[4] * e1 + kc[5] * e2
+        s2 = kc[6] * e0 + kc[7] * e1 + kc[8] * e2
+        u0 = kc[0] * f0 + kc[1] * f1 + kc[2] * f2
+        u1 = kc[3] * f0 + kc[4] * f1 + kc[5] * f2
+        u2 = kc[6] * f0 + kc[7] * f1 + kc[8] * f2
         zs = z0 * s0 + z1 * s1 + z2 * s2
         dz0, dz1, dz2 = (s0 - zs * z0) / gn, (s1 - zs * z1) / gn, (s2 - zs * z2) / gn
         dvz = u0 * z0 + u1 * z1 + u2 * z2 + sdot[0] * dz0 + sdot[1] * dz1 + sdot[2] * dz2
@@ -278,9 +320,9 @@ def _state_directions(kind, kc, da_dr, tau, s, sdot, a_att, m, v):
         w0 = dx0 * v[0] + dx1 * v[1] + dx2 * v[2]  # (dR_orbit/dstate_q) v
         w1 = dy0 * v[0] + dy1 * v[1] + dy2 * v[2]
         w2 = dz0 * v[0] + dz1 * v[1] + dz2 * v[2]
-        for i in range(3):
-            out[q, i] = a_att[i, 0] * w0 + a_att[i, 1] * w1 + a_att[i, 2] * w2 - (m[i, 0] * s0 + m[i, 1] * s1 + m[i, 2] * s2)
-    return out
+        idx = (q % 3) * 4 + (0 if q < 3 else 1)
+        gxs[idx] = ax0 * w0 + ax1 * w1 + ax2 * w2 - (mx0 * s0 + mx1 * s1 + mx2 * s2)
+        gys[idx] = ay0 * w0 + ay1 * w1 + ay2 * w2 - (my0 * s0 + my1 * s1 + my2 * s2)
 
 
 @njit(**_JIT)
@@ -329,17 +371,22 @@ def _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, g
     oa = kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS
     # angles: dd/d(angle) = dM/d(angle) v (orbit-attitude: Ry(mount) dR_att R_orbit v), x t^k
     ta = _attitude_time(kind, kc, tau)
-    rov = mat_vec(ro, v) if oa else v
+    # orbit-attitude: dd/d(angle) = Ry(mount) dR_att R_orbit v; the gradients taken through the
+    # mounting first (g Ry) and R_orbit v formed once (scalar form: this runs for every observation)
+    r0, r1, r2 = v[0], v[1], v[2]
+    bx0, bx1, bx2, by0, by1, by2 = gx0, 0.0, gx2, 0.0, gy1, gy2
+    if oa:
+        r0 = ro[0, 0] * v[0] + ro[0, 1] * v[1] + ro[0, 2] * v[2]
+        r1 = ro[1, 0] * v[0] + ro[1, 1] * v[1] + ro[1, 2] * v[2]
+        r2 = ro[2, 0] * v[0] + ro[2, 1] * v[1] + ro[2, 2] * v[2]
+        bx0, bx1, bx2 = gx0 * mnt[0, 0] + gx2 * mnt[2, 0], gx0 * mnt[0, 1] + gx2 * mnt[2, 1], gx0 * mnt[0, 2] + gx2 * mnt[2, 2]
+        by0, by1, by2 = gy1 * mnt[1, 0] + gy2 * mnt[2, 0], gy1 * mnt[1, 1] + gy2 * mnt[2, 1], gy1 * mnt[1, 2] + gy2 * mnt[2, 2]
     for e in range(3):
-        if oa:
-            dd = mat_vec(mnt, mat_vec(rot[1 + e], rov))
-            d0, d1, d2 = dd[0], dd[1], dd[2]
-        else:  # scalar form: this runs for every observation of the per-image models
-            d0 = rot[1 + e, 0, 0] * v[0] + rot[1 + e, 0, 1] * v[1] + rot[1 + e, 0, 2] * v[2]
-            d1 = rot[1 + e, 1, 0] * v[0] + rot[1 + e, 1, 1] * v[1] + rot[1 + e, 1, 2] * v[2]
-            d2 = rot[1 + e, 2, 0] * v[0] + rot[1 + e, 2, 1] * v[1] + rot[1 + e, 2, 2] * v[2]
-        gxd = gx0 * d0 + gx2 * d2
-        gyd = gy1 * d1 + gy2 * d2
+        d0 = rot[1 + e, 0, 0] * r0 + rot[1 + e, 0, 1] * r1 + rot[1 + e, 0, 2] * r2
+        d1 = rot[1 + e, 1, 0] * r0 + rot[1 + e, 1, 1] * r1 + rot[1 + e, 1, 2] * r2
+        d2 = rot[1 + e, 2, 0] * r0 + rot[1 + e, 2, 1] * r1 + rot[1 + e, 2, 2] * r2
+        gxd = bx0 * d0 + bx1 * d1 + bx2 * d2
+        gyd = by0 * d0 + by1 * d1 + by2 * d2
         tp = 1.0
         for k in range(4):
             gxs[(3 + e) * 4 + k] = gxd * tp
@@ -347,11 +394,7 @@ def _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, g
             tp *= ta
     if oa:
         # state (S0, u) or pass x0: through S(t) and the orbital frame R_orbit(S, V)
-        dds = _state_directions(kind, kc, da_dr, tau, s, sdot, a_att, mm, v)
-        for q in range(6):
-            idx = (q % 3) * 4 + (0 if q < 3 else 1)
-            gxs[idx] = gx0 * dds[q, 0] + gx2 * dds[q, 2]
-            gys[idx] = gy1 * dds[q, 1] + gy2 * dds[q, 2]
+        _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, mm, v, gx0, gx2, gy1, gy2, gxs, gys)
         return gxs, gys
     # position: dd/dS_lgs = -M
     wx = np.empty(3)
