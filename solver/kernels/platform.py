@@ -220,11 +220,11 @@ def _state_column(kind, kc, da_dr, tau, bas, k0, q, ds, dv) -> None:
 
 
 @njit(**_JIT)
-def _oa_pose_into(kind, coef, kc, acc, tau, rot, s, sdot, m, dm_dt, a_att, mnt, ro, b, vecs, mats) -> None:
-    """What the orbit-attitude projection needs at tau, in place and without allocating: S,
-    Sdot, M = A R_orbit, dM/dtau, the attitude part A = Ry(mount) R_att, the mounting and
-    R_orbit (``rot`` receives R_att and its angle derivatives). ``b`` (3 x 6), ``vecs``
-    (6 x 3) and ``mats`` (3 x 3 x 3) are scratch."""
+def _oa_frames_into(kind, coef, kc, acc, tau, rot, s, sdot, ro, dro, b, vecs) -> None:
+    """The orbit-attitude kinds' factors at tau, in place and without allocating: S and Sdot
+    (LGS), R_att and its angle derivatives (``rot``), R_orbit and its rate (``ro``, ``dro``);
+    ``vecs`` (6 x 3) receives the angles in row 4 and their tau-derivatives in row 5 (rows
+    0-3 and ``b`` (3 x 6) are scratch)."""
     vdot, ang, angdot = vecs[3], vecs[4], vecs[5]
     _orbit_pos_into(kind, coef, kc, acc, tau, s, sdot, vdot, b, vecs)
     _attitude_angles(coef, _attitude_time(kind, kc, tau), ang, angdot)
@@ -233,19 +233,37 @@ def _oa_pose_into(kind, coef, kc, acc, tau, rot, s, sdot, m, dm_dt, a_att, mnt, 
     c0 = kc[0] * kc[9] + kc[1] * kc[10] + kc[2] * kc[11]
     c1 = kc[3] * kc[9] + kc[4] * kc[10] + kc[5] * kc[11]
     c2 = kc[6] * kc[9] + kc[7] * kc[10] + kc[8] * kc[11]
-    dro, datt, md = mats[0], mats[1], mats[2]
     _orbital_frame_rate_into(s, sdot, c0, c1, c2, sdot, vdot, ro, dro)
-    _mount_into(kc[16], mnt)
+
+
+@njit(**_JIT)
+def _oa_factors_into(rot, mnt, ro, a_att, m) -> None:
+    """A = Ry(mount) R_att and M = A R_orbit from the factors (what the Jacobians need)."""
     for i in range(3):
         for j in range(3):
             a_att[i, j] = mnt[i, 0] * rot[0, 0, j] + mnt[i, 1] * rot[0, 1, j] + mnt[i, 2] * rot[0, 2, j]
+    for i in range(3):
+        for j in range(3):
+            m[i, j] = a_att[i, 0] * ro[0, j] + a_att[i, 1] * ro[1, j] + a_att[i, 2] * ro[2, j]
+
+
+@njit(**_JIT)
+def _oa_pose_into(kind, coef, kc, acc, tau, rot, s, sdot, m, dm_dt, a_att, mnt, ro, b, vecs, mats) -> None:
+    """:func:`_oa_frames_into` and the matrices from its factors: M = A R_orbit, dM/dtau, the
+    attitude part A = Ry(mount) R_att and the mounting. ``mats`` (3 x 3 x 3) is scratch."""
+    dro, datt, md = mats[0], mats[1], mats[2]
+    _oa_frames_into(kind, coef, kc, acc, tau, rot, s, sdot, ro, dro, b, vecs)
+    angdot = vecs[5]
+    _mount_into(kc[16], mnt)
+    _oa_factors_into(rot, mnt, ro, a_att, m)
+    for i in range(3):
+        for j in range(3):
             datt[i, j] = rot[1, i, j] * angdot[0] + rot[2, i, j] * angdot[1] + rot[3, i, j] * angdot[2]
     for i in range(3):
         for j in range(3):
             md[i, j] = mnt[i, 0] * datt[0, j] + mnt[i, 1] * datt[1, j] + mnt[i, 2] * datt[2, j]
     for i in range(3):
         for j in range(3):
-            m[i, j] = a_att[i, 0] * ro[0, j] + a_att[i, 1] * ro[1, j] + a_att[i, 2] * ro[2, j]
             dm_dt[i, j] = (a_att[i, 0] * dro[0, j] + a_att[i, 1] * dro[1, j] + a_att[i, 2] * dro[2, j]) + (
                 md[i, 0] * ro[0, j] + md[i, 1] * ro[1, j] + md[i, 2] * ro[2, j]
             )
@@ -326,24 +344,48 @@ def _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, m, v, gx0, gx2, gy
 
 
 @njit(**_JIT)
-def _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, ang, angdot, v, d, ddt, mm, a_att, mnt, ro):
-    """Everything a projection needs at tau, for every kind, filled in place: S, dS/dtau, the
-    rotation M (``mm``), v = P - S, d = M v and dd/dtau; ``rot`` receives the angle rotation and
-    its angle derivatives (the attitude part for the orbit-attitude kinds), and for those kinds
-    ``a_att``, ``mnt``, ``ro`` the factors A = Ry(mount) R_att, Ry(mount) and R_orbit (left as
-    they are for the other kinds)."""
+def _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs, b):
+    """What a Newton step on the line needs at tau, for every kind, filled in place: S, dS/dtau,
+    v = P - S, d = M v and dd/dtau; ``rot`` receives the angle rotation and its angle
+    derivatives (the attitude part for the orbit-attitude kinds). The per-image kinds also fill
+    M (``mm``); the orbit-attitude kinds fill R_orbit and its rate (``ro``, ``dro``) and leave
+    M to :func:`_oa_factors_into` (the Jacobians alone need it): they form d and its rate as
+    products with vectors, Ry(mount) R_att (R_orbit v), with ``mnt`` = Ry(mount) filled by
+    :func:`_projection_terms`. ``vecs`` (6 x 3) and ``b`` (3 x 6) are scratch."""
     if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
-        mats = np.empty((4, 3, 3))  # dM/dtau, then scratch
-        vecs = np.empty((6, 3))
-        b = np.empty((3, 6))
-        dm_dt = mats[3]
-        _oa_pose_into(kind, coef, kc, acc, tau, rot, s, sdot, mm, dm_dt, a_att, mnt, ro, b, vecs, mats)
-        for i in range(3):
-            v[i] = p[i] - s[i]
-        for i in range(3):
-            d[i] = mm[i, 0] * v[0] + mm[i, 1] * v[1] + mm[i, 2] * v[2]
-            ddt[i] = (dm_dt[i, 0] * v[0] + dm_dt[i, 1] * v[1] + dm_dt[i, 2] * v[2]) - (mm[i, 0] * sdot[0] + mm[i, 1] * sdot[1] + mm[i, 2] * sdot[2])
+        _oa_frames_into(kind, coef, kc, acc, tau, rot, s, sdot, ro, dro, b, vecs)
+        angdot = vecs[5]
+        v0, v1, v2 = p[0] - s[0], p[1] - s[1], p[2] - s[2]
+        v[0], v[1], v[2] = v0, v1, v2
+        # w = R_orbit v and its rate dR_orbit/dtau v - R_orbit Sdot
+        w0 = ro[0, 0] * v0 + ro[0, 1] * v1 + ro[0, 2] * v2
+        w1 = ro[1, 0] * v0 + ro[1, 1] * v1 + ro[1, 2] * v2
+        w2 = ro[2, 0] * v0 + ro[2, 1] * v1 + ro[2, 2] * v2
+        q0 = dro[0, 0] * v0 + dro[0, 1] * v1 + dro[0, 2] * v2 - (ro[0, 0] * sdot[0] + ro[0, 1] * sdot[1] + ro[0, 2] * sdot[2])
+        q1 = dro[1, 0] * v0 + dro[1, 1] * v1 + dro[1, 2] * v2 - (ro[1, 0] * sdot[0] + ro[1, 1] * sdot[1] + ro[1, 2] * sdot[2])
+        q2 = dro[2, 0] * v0 + dro[2, 1] * v1 + dro[2, 2] * v2 - (ro[2, 0] * sdot[0] + ro[2, 1] * sdot[1] + ro[2, 2] * sdot[2])
+        # t = R_att w and its rate R_att q + (dR_att/dtau) w
+        t0 = rot[0, 0, 0] * w0 + rot[0, 0, 1] * w1 + rot[0, 0, 2] * w2
+        t1 = rot[0, 1, 0] * w0 + rot[0, 1, 1] * w1 + rot[0, 1, 2] * w2
+        t2 = rot[0, 2, 0] * w0 + rot[0, 2, 1] * w1 + rot[0, 2, 2] * w2
+        u0 = rot[0, 0, 0] * q0 + rot[0, 0, 1] * q1 + rot[0, 0, 2] * q2
+        u1 = rot[0, 1, 0] * q0 + rot[0, 1, 1] * q1 + rot[0, 1, 2] * q2
+        u2 = rot[0, 2, 0] * q0 + rot[0, 2, 1] * q1 + rot[0, 2, 2] * q2
+        for e in range(3):
+            a = angdot[e]
+            u0 += a * (rot[1 + e, 0, 0] * w0 + rot[1 + e, 0, 1] * w1 + rot[1 + e, 0, 2] * w2)
+            u1 += a * (rot[1 + e, 1, 0] * w0 + rot[1 + e, 1, 1] * w1 + rot[1 + e, 1, 2] * w2)
+            u2 += a * (rot[1 + e, 2, 0] * w0 + rot[1 + e, 2, 1] * w1 + rot[1 + e, 2, 2] * w2)
+        # d = Ry(mount) t (a rotation about the camera's y axis)
+        cm, sm = mnt[0, 0], mnt[0, 2]
+        d[0] = cm * t0 + sm * t2
+        d[1] = t1
+        d[2] = -sm * t0 + cm * t2
+        ddt[0] = cm * u0 + sm * u2
+        ddt[1] = u1
+        ddt[2] = -sm * u0 + cm * u2
         return
+    ang, angdot = vecs[4], vecs[5]
     _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot)
     _rotation_into(ang[0], ang[1], ang[2], rot)
     mm[:, :] = rot[0]
@@ -369,10 +411,10 @@ def _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, g
     gxs = np.zeros(N_COEF)
     gys = np.zeros(N_COEF)
     oa = kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS
-    # angles: dd/d(angle) = dM/d(angle) v (orbit-attitude: Ry(mount) dR_att R_orbit v), x t^k
+    # angles: dd/d(angle) = dM/d(angle) v, x t^k; orbit-attitude: Ry(mount) dR_att R_orbit v, the
+    # gradients taken through the mounting first (g Ry) and R_orbit v formed once (in scalars:
+    # this runs for every observation)
     ta = _attitude_time(kind, kc, tau)
-    # orbit-attitude: dd/d(angle) = Ry(mount) dR_att R_orbit v; the gradients taken through the
-    # mounting first (g Ry) and R_orbit v formed once (scalar form: this runs for every observation)
     r0, r1, r2 = v[0], v[1], v[2]
     bx0, bx1, bx2, by0, by1, by2 = gx0, 0.0, gx2, 0.0, gy1, gy2
     if oa:
@@ -437,11 +479,28 @@ def _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, g
 
 
 @njit(**_JIT)
-def _kepler_terms_for(kind, coef, kc):
-    """The Kepler acceleration terms a projection of this kind needs (zeros where none)."""
+def _projection_work():
+    """Work arrays of one projection: ``rot`` (4 x 3 x 3: a rotation and its angle
+    derivatives), ``mats`` (5 x 3 x 3: M, A, Ry(mount), R_orbit and its rate), ``vecs``
+    (12 x 3: S, Sdot, v, d, dd/dtau, the Kepler acceleration, then six rows of scratch for
+    :func:`_camera_state`), ``b`` (3 x 6, scratch) and ``da_dr`` (3 x 3)."""
+    return np.empty((4, 3, 3)), np.empty((5, 3, 3)), np.empty((12, 3)), np.empty((3, 6)), np.empty((3, 3))
+
+
+@njit(**_JIT)
+def _projection_terms(kind, coef, kc, acc, da_dr, mnt) -> None:
+    """What stays constant over a projection's Newton steps, in place: the Kepler acceleration
+    and its gradient (``acc``, ``da_dr``; zeros where the kind has none) and, for the
+    orbit-attitude kinds, the camera mounting Ry(mount) (``mnt``)."""
     if kind == KIND_KEPLER or kind == KIND_ORBIT_ATTITUDE:
-        return _kepler_terms(coef, kc)
-    return np.zeros(3), np.zeros((3, 3))
+        a, g = _kepler_terms(coef, kc)
+        acc[:] = a
+        da_dr[:, :] = g
+    else:
+        acc[:] = 0.0
+        da_dr[:, :] = 0.0
+    if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
+        _mount_into(kc[16], mnt)
 
 
 @njit(**_JIT)

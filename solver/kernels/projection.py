@@ -10,8 +10,16 @@ from numba import njit
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.kernels.layout import JIT as _JIT
-from solver.kernels.layout import KIND_RPC, N_COEF, N_IOP
-from solver.kernels.platform import _camera_state, _coef_gradients, _kepler_terms_for, object_to_camera, platform_state
+from solver.kernels.layout import KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_RPC, N_COEF, N_IOP
+from solver.kernels.platform import (
+    _camera_state,
+    _coef_gradients,
+    _oa_factors_into,
+    _projection_terms,
+    _projection_work,
+    object_to_camera,
+    platform_state,
+)
 from solver.kernels.rpc import rpc_project, rpc_ray
 
 
@@ -23,6 +31,46 @@ def _line_newton_step(d, ddt, f: float, xo: float, tpl: float) -> float:
     if dg_dl == 0.0 or not np.isfinite(dg_dl):
         return np.nan
     return g / dg_dl
+
+
+# Newton on the line stops once its step is below LINE_STEP_TOL (line), or once the error
+# left by stopping after the current step, estimated to second order, is below STOP_ERROR_TOL
+# (line and pixel): far below the rounding of the camera vector (~1e-10 line at 700 km). The
+# estimate is trusted only where the iteration is plainly converging: a step below
+# STOP_STEP_MAX (line) and below a tenth of the step before it.
+LINE_STEP_TOL = 1e-8
+STOP_ERROR_TOL = 1e-11
+STOP_STEP_MAX = 1e-2
+
+
+@njit(**_JIT)
+def _stop_error(d, ddt, dd2, dtau: float, f: float, tpl: float, px: float) -> float:
+    """Error (line, pixel: the larger) of stopping after a Newton step of ``dtau`` (scaled time)
+    with the camera vector moved to the new line to first order (d + ddt dtau) instead of
+    evaluated there. ``dd2`` estimates d'' (the difference of ddt over the previous step). The
+    along-track function x = -f d_x/d_z is left 0.5 x'' dtau^2 from its target (its Newton
+    model is linear), which the slope x' turns into a line error; the column's y = -f d_y/d_z
+    is off by that line error times y' and by 0.5 y'' dtau^2."""
+    iz = 1.0 / d[2]
+    ex = 0.0
+    ey = 0.0
+    slope_x = 0.0
+    slope_y = 0.0
+    for a in (0, 1):
+        q = ddt[a] * d[2] - d[a] * ddt[2]  # (d_a' d_z - d_a d_z')
+        first = -f * q * iz * iz
+        second = -f * ((dd2[a] * d[2] - d[a] * dd2[2]) * iz * iz - 2.0 * ddt[2] * q * iz * iz * iz)
+        if a == 0:
+            slope_x = first
+            ex = 0.5 * abs(second) * dtau * dtau
+        else:
+            slope_y = first
+            ey = 0.5 * abs(second) * dtau * dtau
+    if slope_x == 0.0:
+        return np.inf
+    line_err = ex / abs(slope_x)  # scaled time
+    col_err = (abs(slope_y) * line_err + ey) / px
+    return max(line_err / tpl, col_err)
 
 
 @njit(**_JIT)
@@ -43,39 +91,56 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
     cc = oc[7]
     tpl = oc[8]
     line = oc[0]
+    col = 0.0
     ok = False
-    acc, da_dr = _kepler_terms_for(kind, coef, kc)
-    rot = np.empty((4, 3, 3))
-    fac = np.empty((4, 3, 3))  # M, then the orbit-attitude factors A, Ry(mount), R_orbit
-    mm, a_att, mnt, ro = fac[0], fac[1], fac[2], fac[3]
-    s = np.empty(3)
-    sdot = np.empty(3)
-    ang = np.empty(3)
-    angdot = np.empty(3)
-    d = np.empty(3)
-    ddt = np.empty(3)
-    v = np.empty(3)
+    rot, mats, vecs, b, da_dr = _projection_work()
+    mm, a_att, mnt, ro, dro = mats[0], mats[1], mats[2], mats[3], mats[4]
+    s, sdot, v, d, ddt, acc = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4], vecs[5]
+    _projection_terms(kind, coef, kc, acc, da_dr, mnt)
+    dd2 = np.empty(3)
+    prev_tau = 0.0
+    prev_step = 0.0
     for it in range(31):
         tau = line * tpl
-        _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, ang, angdot, v, d, ddt, mm, a_att, mnt, ro)
-        if it == 30 or ok:
+        _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
+        if it == 30:
             break
         step = _line_newton_step(d, ddt, f, xo, tpl)
         if not np.isfinite(step):
             break
         line -= step
-        if abs(step) < 1e-8:
+        dtau = -step * tpl
+        done = abs(step) < LINE_STEP_TOL
+        if not done and it > 0 and abs(step) < STOP_STEP_MAX and abs(step) < 0.1 * abs(prev_step):
+            for i in range(3):
+                dd2[i] = (ddt[i] - dd2[i]) / (tau - prev_tau)
+            done = _stop_error(d, ddt, dd2, dtau, f, tpl, px) < STOP_ERROR_TOL
+        if done:
             ok = True
-    iz = 1.0 / d[2]
-    y = -f * d[1] * iz
-    col = cc + (y - yo) / px
+            # the column from the camera vector moved to the new line to first order (its error
+            # is in _stop_error): the same residuals whether or not derivatives are wanted
+            col = cc + (-f * (d[1] + ddt[1] * dtau) / (d[2] + ddt[2] * dtau) - yo) / px
+            if want_jac and abs(step) >= LINE_STEP_TOL:
+                # the derivatives at the solution itself: over a step they move by more than the
+                # rounding (~1e-5 relative at 0.01 line), enough to change Ceres' path
+                tau = line * tpl
+                _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
+            break
+        dd2[:] = ddt
+        prev_tau = tau
+        prev_step = step
+    if not ok:
+        col = cc + (-f * d[1] / d[2] - yo) / px
     dl_dc = np.zeros(N_COEF)
     dl_dp = np.zeros(3)
     dc_dc = np.zeros(N_COEF)
     dc_dp = np.zeros(3)
     if not want_jac:
         return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
-    tau = line * tpl
+    if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
+        _oa_factors_into(rot, mnt, ro, a_att, mm)
+    # the derivatives at the last line evaluated (tau): the solution, or within LINE_STEP_TOL of it
+    iz = 1.0 / d[2]
     # gradients of x and y (mm) wrt d
     gx0, gx2 = -f * iz, f * d[0] * iz * iz
     gy1, gy2 = -f * iz, f * d[1] * iz * iz
@@ -157,24 +222,17 @@ def project_cam(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac
     line = oc[0]
     col = oc[1]
     ok = False
-    rot = np.empty((4, 3, 3))
-    s = np.empty(3)
-    sdot = np.empty(3)
-    ang = np.empty(3)
-    angdot = np.empty(3)
-    d = np.empty(3)
-    ddt = np.empty(3)
-    v = np.empty(3)
-    acc, da_dr = _kepler_terms_for(kind, coef, kc)
-    fac = np.empty((4, 3, 3))  # M, then the orbit-attitude factors A, Ry(mount), R_orbit
-    mm, a_att, mnt, ro = fac[0], fac[1], fac[2], fac[3]
+    rot, mats, vecs, b, da_dr = _projection_work()
+    mm, a_att, mnt, ro, dro = mats[0], mats[1], mats[2], mats[3], mats[4]
+    s, sdot, v, d, ddt, acc = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4], vecs[5]
+    _projection_terms(kind, coef, kc, acc, da_dr, mnt)
     xi = yi = big_f = dxi_dc = dyi_dc = 0.0
     dxi_diop = np.zeros(N_IOP)
     dyi_diop = np.zeros(N_IOP)
     j11 = j12 = j21 = j22 = 0.0
     for it in range(31):
         tau = line * tpl
-        _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, ang, angdot, v, d, ddt, mm, a_att, mnt, ro)
+        _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
         xi, yi, big_f, dxi_dc, dyi_dc, dxi_diop, dyi_diop = camera_model(oc, iop, chip, chip_len, col, it == 30 or ok)
         if it == 30 or ok:
             break
@@ -201,6 +259,8 @@ def project_cam(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac
     dc_di = np.zeros(N_IOP)
     if not want_jac:
         return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di
+    if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
+        _oa_factors_into(rot, mnt, ro, a_att, mm)
     tau = line * tpl
     iz = 1.0 / d[2]
     # g = (x_i + F d_x/d_z, y_i + F d_y/d_z); its derivatives wrt d

@@ -202,6 +202,59 @@ def test_ray_inverts_projection_from_starts_lines_away(model):
     assert worst < min(NEWTON_START_PX, ROUND_TRIP_PX)
 
 
+# Newton on the line may stop on its second-order error estimate instead of a step below 1e-8
+# line: against the root of the along-track condition found by bracketing (brentq on
+# platform_state and object_to_camera, which share no code with the Newton loop), the line and
+# column must stay at the rounding of the camera vector (measured worst: 4.3e-10 line, 5.9e-10
+# px for K2 on the 100k strip; the early stop's own estimate is held below 1e-11)
+ROOT_PX = 2e-9
+
+
+@pytest.mark.parametrize("model", ["K2", "OA-J2", "P2", "MT8"])
+def test_projection_equals_a_bracketed_root_of_the_along_track_condition(model):
+    """From the observed line and from starts 3, -40 and 500 lines away, with perturbed
+    coefficients (curved orbit and attitude), the projection's (line, column) equal the bracketed
+    root's, and the call with derivatives gives the very same (line, column) as the one without
+    (Ceres compares costs from both)."""
+    from scipy.optimize import brentq
+
+    from solver.kernels import object_to_camera, platform_state
+
+    job, _ = single_image_job(model, seed=11, pitch_deg=-23.8)
+    problem = prepare(load_job(job))
+    img = problem.images[0]
+    coef = img.coef()
+    coef[img.free_idx] += np.where(np.abs(coef[img.free_idx]) > 0, 0, 1e-7)
+    worst = 0.0
+    for k in range(0, len(problem.obs.img), 3):
+        p = problem.points[problem.obs.pt[k]].xyz
+        oc = problem.obs.oc[k].copy()
+        f, px, xo, yo, cc, tpl = oc[3], oc[4], oc[5], oc[6], oc[7], oc[8]
+
+        def camera_vector(line, p=p, tpl=tpl):
+            tau = line * tpl
+            return object_to_camera(img.kind, coef, img.kc, tau) @ (p - platform_state(img.kind, coef, img.kc, tau)[0])
+
+        def along_track(line, f=f, xo=xo):
+            d = camera_vector(line)
+            return -f * d[0] / d[2] - xo
+
+        ok, line, col, *_ = project(img.kind, coef, img.kc, p, oc, False)
+        assert ok
+        root = brentq(along_track, line - 50.0, line + 50.0, xtol=1e-12, rtol=1e-15)
+        d = camera_vector(root)
+        root_col = cc + (-f * d[1] / d[2] - yo) / px
+        for off in (0.0, 3.0, -40.0, 500.0):
+            start = oc.copy()
+            start[0] += off
+            plain = project(img.kind, coef, img.kc, p, start, False)
+            with_jac = project(img.kind, coef, img.kc, p, start, True)
+            assert plain[0] and with_jac[0]
+            assert (plain[1], plain[2]) == (with_jac[1], with_jac[2])
+            worst = max(worst, abs(plain[1] - root), abs(plain[2] - root_col))
+    assert worst < ROOT_PX
+
+
 def test_point_block_matches_single_projections_and_layout():
     """The packed point block used by Ceres gives the same numbers as the plain kernel, with the
     Jacobian of image i only on rows 2i, 2i+1 (Ceres' dense row-major layout)."""

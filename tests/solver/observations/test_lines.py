@@ -192,8 +192,11 @@ def test_distances_do_not_depend_on_where_earlier_evaluations_left_the_search():
     assert ok
     wild = coef.copy()
     wild[16] -= 1.5  # phi0 (rad)
-    ok, _d, _jc, _jp = line_distances(img.kind, wild, img.kc, gl.p1, gl.p2, li.ocs, s, False)
-    assert not ok
+    before = s.copy()
+    ok, d_wild, _jc, _jp = line_distances(img.kind, wild, img.kc, gl.p1, gl.p2, li.ocs, s, False)
+    # the wild step's searches failed, or converged far away (the stored starts moved by hundreds
+    # of line lengths; the distances are 1e5 px): either leaves starts the next evaluation must not trust
+    assert not ok or (np.all(np.abs(s - before) > 100.0) and np.all(np.abs(d_wild) > 1e4))
     for starts in (s, np.full_like(s, 40.0), np.full_like(s, np.nan)):
         ok, d1, _jc, _jp = line_distances(img.kind, coef, img.kc, gl.p1, gl.p2, li.ocs, starts, False)
         assert ok
