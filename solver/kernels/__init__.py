@@ -98,7 +98,7 @@ _KERNEL_MODULES = {
         "project_observation", "ray", "ray_cam",
     ),
     "propagation": ("PASS_COEF_INDEX", "ensure_segment", "gravity_and_gradient", "pass_state"),
-    "rotation": ("_mount", "_orbital_frame", "_orbital_frame_rate", "_rotation_into", "ro_offset", "rotation_and_derivatives"),
+    "rotation": ("_mount", "_orbital_frame", "_orbital_frame_rate", "_rotation_into", "ro_offset", "ro_offset_scalars", "rotation_and_derivatives"),
     "rpc": ("rpc_project", "rpc_ray"),
 }
 _HOME = {name: module for module, names in _KERNEL_MODULES.items() for name in names}
@@ -132,5 +132,5 @@ __all__ = [
     "all_observation_blocks", "assemble", "camera_model", "ensure_segment", "fixed_obs_block",
     "gravity_and_gradient", "ideal_direction", "intersect_all", "object_to_camera", "observation_blocks_into", "pass_state",
     "platform_state", "point_obs_block", "project", "project_cam", "project_observation", "ray",
-    "ray_cam", "ro_offset", "rotation_and_derivatives", "rpc_project", "rpc_ray",
+    "ray_cam", "ro_offset", "ro_offset_scalars", "rotation_and_derivatives", "rpc_project", "rpc_ray",
 ]

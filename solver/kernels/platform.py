@@ -29,6 +29,7 @@ from solver.kernels.rotation import (
     _rotation_into,
     mat_mat,
     mat_vec,
+    ro_offset_scalars,
     rotation_and_derivatives,
 )
 
@@ -229,10 +230,7 @@ def _oa_frames_into(kind, coef, kc, acc, tau, rot, s, sdot, ro, dro, b, vecs) ->
     _orbit_pos_into(kind, coef, kc, acc, tau, s, sdot, vdot, b, vecs)
     _attitude_angles(coef, _attitude_time(kind, kc, tau), ang, angdot)
     _rotation_into(ang[0], ang[1], ang[2], rot)
-    # R_ecef->lgs @ LGS origin (ro_offset, in scalars)
-    c0 = kc[0] * kc[9] + kc[1] * kc[10] + kc[2] * kc[11]
-    c1 = kc[3] * kc[9] + kc[4] * kc[10] + kc[5] * kc[11]
-    c2 = kc[6] * kc[9] + kc[7] * kc[10] + kc[8] * kc[11]
+    c0, c1, c2 = ro_offset_scalars(kc)
     _orbital_frame_rate_into(s, sdot, c0, c1, c2, sdot, vdot, ro, dro)
 
 
@@ -299,9 +297,7 @@ def _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, m, v, gx0, gx2, gy
     k0 = 0
     if kind == KIND_PASS:
         k0 = _hermite_basis(kc, kc[PASS_T_OFF] + tau, bas)
-    c0 = kc[0] * kc[9] + kc[1] * kc[10] + kc[2] * kc[11]  # ro_offset, in scalars
-    c1 = kc[3] * kc[9] + kc[4] * kc[10] + kc[5] * kc[11]
-    c2 = kc[6] * kc[9] + kc[7] * kc[10] + kc[8] * kc[11]
+    c0, c1, c2 = ro_offset_scalars(kc)
     g0, g1, g2 = s[0] + c0, s[1] + c1, s[2] + c2
     gn = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
     z0, z1, z2 = g0 / gn, g1 / gn, g2 / gn

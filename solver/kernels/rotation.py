@@ -199,6 +199,15 @@ def _orbital_frame_rate(s, v, c, sdot, vdot):
 
 
 @njit(**_JIT)
+def ro_offset_scalars(kc):
+    """:func:`ro_offset` as three floats (no array: the projections' inner steps use it)."""
+    c0 = kc[0] * kc[9] + kc[1] * kc[10] + kc[2] * kc[11]
+    c1 = kc[3] * kc[9] + kc[4] * kc[10] + kc[5] * kc[11]
+    c2 = kc[6] * kc[9] + kc[7] * kc[10] + kc[8] * kc[11]
+    return c0, c1, c2
+
+
+@njit(**_JIT)
 def ro_offset(kc):
     """R_ecef->lgs @ LGS origin: added to an LGS position it gives the geocentric position in
     LGS axes (the orbital frame's radial direction)."""
