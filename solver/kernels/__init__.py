@@ -90,15 +90,15 @@ from solver.schema.iop_names import IOP_CHIP, IOP_OPTICAL, MAX_CHIPS
 _KERNEL_MODULES = {
     "blocks": ("_eval_record", "_fill", "_put_rows", "all_observation_blocks", "fixed_obs_block", "observation_blocks_into", "point_obs_block"),
     "platform": (
-        "_attitude_angles", "_attitude_time", "_camera_state", "_coef_gradients", "_kepler_terms", "_oa_factors_into",
-        "_oa_frames_into", "_oa_pose", "_oa_state_gradients", "_projection_terms", "_projection_work", "_pose", "_state_column", "assemble", "object_to_camera", "platform_state",
+        "_attitude_angles", "_attitude_time", "_camera_state", "_coef_gradients", "_kepler_terms", "_derivative_factors",
+        "_oa_factors_into", "_oa_frames_into", "_oa_pose", "_oa_state_gradients", "_projection_terms", "_projection_work", "_pose", "_state_column", "assemble", "object_to_camera", "platform_state",
     ),
     "projection": (
         "_line_newton_step", "camera_model", "ideal_direction", "intersect_all", "project", "project_cam",
         "project_observation", "ray", "ray_cam",
     ),
-    "propagation": ("PASS_COEF_INDEX", "ensure_segment", "gravity_and_gradient", "pass_state"),
-    "rotation": ("_mount", "_orbital_frame", "_orbital_frame_rate", "_rotation_into", "ro_offset", "ro_offset_scalars", "rotation_and_derivatives"),
+    "propagation": ("PASS_COEF_INDEX", "ensure_segment", "gravity_and_gradient", "pass_state", "pass_state_column"),
+    "rotation": ("_mount", "_orbital_frame", "_orbital_frame_rate", "_rotation_into", "ro_offset_scalars", "rotation_and_derivatives"),
     "rpc": ("rpc_project", "rpc_ray"),
 }
 _HOME = {name: module for module, names in _KERNEL_MODULES.items() for name in names}
@@ -125,12 +125,12 @@ __all__ = [
     "PASS_COEF_INDEX", "PASS_INDEX", "PASS_T_OFF", "REC_CAMERA", "REC_CAM_SLOT", "REC_CHIP",
     "REC_CHIP_LEN", "REC_COLUMN", "REC_IMAGE", "REC_IMG_SLOT", "REC_LINE", "REC_OC",
     "REC_PASS_SLOT", "REC_SIGMA", "_attitude_angles", "_attitude_time", "_camera_state",
-    "_coef_gradients", "_eval_record", "_fill", "_kepler_terms", "_oa_factors_into", "_oa_frames_into",
-    "_projection_terms", "_projection_work",
+    "_coef_gradients", "_eval_record", "_fill", "_kepler_terms", "_derivative_factors", "_oa_factors_into",
+    "_oa_frames_into", "_projection_terms", "_projection_work",
     "_line_newton_step", "_mount", "_oa_pose", "_oa_state_gradients", "_orbital_frame",
     "_orbital_frame_rate", "_pose", "_put_rows", "_rotation_into", "_state_column",
     "all_observation_blocks", "assemble", "camera_model", "ensure_segment", "fixed_obs_block",
     "gravity_and_gradient", "ideal_direction", "intersect_all", "object_to_camera", "observation_blocks_into", "pass_state",
     "platform_state", "point_obs_block", "project", "project_cam", "project_observation", "ray",
-    "ray_cam", "ro_offset", "ro_offset_scalars", "rotation_and_derivatives", "rpc_project", "rpc_ray",
+    "ray_cam", "ro_offset_scalars", "rotation_and_derivatives", "rpc_project", "rpc_ray",
 ]

@@ -13,17 +13,17 @@ import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: b
 from solver.kernels.layout import JIT as _JIT
 from solver.kernels.layout import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL, N_COEF
 from solver.kernels.propagation import (
-    NODE_SIZE,
     PASS_ATT_OFF,
     PASS_COEF_INDEX,
-    PASS_NODE0,
     PASS_T_OFF,
     _hermite_basis,
     gravity_and_gradient,
     pass_state,
+    pass_state_column,
     pass_values_into,
 )
 from solver.kernels.rotation import (
+    _frame_rows_rate,
     _mount_into,
     _orbital_frame_rate_into,
     _rotation_into,
@@ -191,14 +191,7 @@ def _state_column(kind, kc, da_dr, tau, bas, k0, q, ds, dv) -> None:
     at line 0 for the Kepler quadratic, the pass state x0 at the reference epoch for KIND_PASS
     (``bas``: the Hermite basis at tau, ``k0``: its interval's first node)."""
     if kind == KIND_PASS:
-        b0 = PASS_NODE0 + k0 * NODE_SIZE
-        b1 = b0 + NODE_SIZE
-        for i in range(3):
-            o = i * 6 + q
-            p0, v0, a0 = kc[b0 + 9 + o], kc[b0 + 27 + o], kc[b0 + 45 + o]
-            p1, v1, a1 = kc[b1 + 9 + o], kc[b1 + 27 + o], kc[b1 + 45 + o]
-            ds[i] = bas[0, 0] * p0 + bas[0, 1] * v0 + bas[0, 2] * a0 + bas[0, 3] * p1 + bas[0, 4] * v1 + bas[0, 5] * a1
-            dv[i] = bas[1, 0] * p0 + bas[1, 1] * v0 + bas[1, 2] * a0 + bas[1, 3] * p1 + bas[1, 4] * v1 + bas[1, 5] * a1
+        pass_state_column(kc, bas, k0, q, ds, dv)
         return
     # S = S0 + u t + a h, V = u + a t with a = a(S0, u): da/dS0 = da_dr, da/du = 2 Omega [[0, 1, 0], [-1, 0, 0], 0]
     h = 0.5 * tau * tau
@@ -232,6 +225,15 @@ def _oa_frames_into(kind, coef, kc, acc, tau, rot, s, sdot, ro, dro, b, vecs) ->
     _rotation_into(ang[0], ang[1], ang[2], rot)
     c0, c1, c2 = ro_offset_scalars(kc)
     _orbital_frame_rate_into(s, sdot, c0, c1, c2, sdot, vdot, ro, dro)
+
+
+@njit(**_JIT)
+def _derivative_factors(kind, rot, mnt, ro, a_att, m) -> None:
+    """Before derivatives, after the last :func:`_camera_state`: M (``m``) for every kind, and A
+    for the orbit-attitude kinds, whose Newton steps do not form them (the per-image kinds
+    filled M already)."""
+    if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
+        _oa_factors_into(rot, mnt, ro, a_att, m)
 
 
 @njit(**_JIT)
@@ -323,14 +325,8 @@ def _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, m, v, gx0, gx2, gy
         u2 = kc[6] * f0 + kc[7] * f1 + kc[8] * f2
         zs = z0 * s0 + z1 * s1 + z2 * s2
         dz0, dz1, dz2 = (s0 - zs * z0) / gn, (s1 - zs * z1) / gn, (s2 - zs * z2) / gn
-        dvz = u0 * z0 + u1 * z1 + u2 * z2 + sdot[0] * dz0 + sdot[1] * dz1 + sdot[2] * dz2
-        dh0, dh1, dh2 = u0 - dvz * z0 - vz * dz0, u1 - dvz * z1 - vz * dz1, u2 - dvz * z2 - vz * dz2
-        xd = x0 * dh0 + x1 * dh1 + x2 * dh2
-        dx0, dx1, dx2 = (dh0 - xd * x0) / hn, (dh1 - xd * x1) / hn, (dh2 - xd * x2) / hn
-        # y = z x x
-        dy0 = dz1 * x2 - dz2 * x1 + z1 * dx2 - z2 * dx1
-        dy1 = dz2 * x0 - dz0 * x2 + z2 * dx0 - z0 * dx2
-        dy2 = dz0 * x1 - dz1 * x0 + z0 * dx1 - z1 * dx0
+        dx0, dx1, dx2, dy0, dy1, dy2 = _frame_rows_rate(z0, z1, z2, dz0, dz1, dz2, x0, x1, x2, hn, vz, sdot[0], sdot[1], sdot[2],
+                                                         u0, u1, u2)
         w0 = dx0 * v[0] + dx1 * v[1] + dx2 * v[2]  # (dR_orbit/dstate_q) v
         w1 = dy0 * v[0] + dy1 * v[1] + dy2 * v[2]
         w2 = dz0 * v[0] + dz1 * v[1] + dz2 * v[2]
@@ -345,7 +341,7 @@ def _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt,
     v = P - S, d = M v and dd/dtau; ``rot`` receives the angle rotation and its angle
     derivatives (the attitude part for the orbit-attitude kinds). The per-image kinds also fill
     M (``mm``); the orbit-attitude kinds fill R_orbit and its rate (``ro``, ``dro``) and leave
-    M to :func:`_oa_factors_into` (the Jacobians alone need it): they form d and its rate as
+    M to :func:`_derivative_factors` (the Jacobians alone need it): they form d and its rate as
     products with vectors, Ry(mount) R_att (R_orbit v), with ``mnt`` = Ry(mount) filled by
     :func:`_projection_terms`. ``vecs`` (6 x 3) and ``b`` (3 x 6) are scratch."""
     if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:

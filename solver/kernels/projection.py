@@ -10,11 +10,11 @@ from numba import njit
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.kernels.layout import JIT as _JIT
-from solver.kernels.layout import KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_RPC, N_COEF, N_IOP
+from solver.kernels.layout import KIND_RPC, N_COEF, N_IOP
 from solver.kernels.platform import (
     _camera_state,
     _coef_gradients,
-    _oa_factors_into,
+    _derivative_factors,
     _projection_terms,
     _projection_work,
     object_to_camera,
@@ -44,32 +44,30 @@ STOP_STEP_MAX = 1e-2
 
 
 @njit(**_JIT)
-def _stop_error(d, ddt, dd2, dtau: float, f: float, tpl: float, px: float) -> float:
+def _quotient_rates(d, ddt, prev_ddt, prev_dtau: float, a: int):
+    """First and (estimated) second tau-derivatives of -d_a/d_z (a = 0: along track, 1: across),
+    d'' estimated as the change of dd/dtau over the previous step of ``prev_dtau``."""
+    iz = 1.0 / d[2]
+    q = ddt[a] * d[2] - d[a] * ddt[2]  # (d_a' d_z - d_a d_z')
+    d2a = (ddt[a] - prev_ddt[a]) / prev_dtau
+    d2z = (ddt[2] - prev_ddt[2]) / prev_dtau
+    return -q * iz * iz, -((d2a * d[2] - d[a] * d2z) * iz * iz - 2.0 * ddt[2] * q * iz * iz * iz)
+
+
+@njit(**_JIT)
+def _stop_error(d, ddt, prev_ddt, prev_dtau: float, dtau: float, f: float, tpl: float, px: float) -> float:
     """Error (line, pixel: the larger) of stopping after a Newton step of ``dtau`` (scaled time)
     with the camera vector moved to the new line to first order (d + ddt dtau) instead of
-    evaluated there. ``dd2`` estimates d'' (the difference of ddt over the previous step). The
-    along-track function x = -f d_x/d_z is left 0.5 x'' dtau^2 from its target (its Newton
-    model is linear), which the slope x' turns into a line error; the column's y = -f d_y/d_z
-    is off by that line error times y' and by 0.5 y'' dtau^2."""
-    iz = 1.0 / d[2]
-    ex = 0.0
-    ey = 0.0
-    slope_x = 0.0
-    slope_y = 0.0
-    for a in (0, 1):
-        q = ddt[a] * d[2] - d[a] * ddt[2]  # (d_a' d_z - d_a d_z')
-        first = -f * q * iz * iz
-        second = -f * ((dd2[a] * d[2] - d[a] * dd2[2]) * iz * iz - 2.0 * ddt[2] * q * iz * iz * iz)
-        if a == 0:
-            slope_x = first
-            ex = 0.5 * abs(second) * dtau * dtau
-        else:
-            slope_y = first
-            ey = 0.5 * abs(second) * dtau * dtau
+    evaluated there; d'' is estimated from ``prev_ddt``, dd/dtau before the previous step
+    (``prev_dtau``). The along-track function x = -f d_x/d_z is left 0.5 x'' dtau^2 from its
+    target (its Newton model is linear), which the slope x' turns into a line error; the
+    column's y = -f d_y/d_z is off by that line error times y' and by 0.5 y'' dtau^2."""
+    slope_x, second_x = _quotient_rates(d, ddt, prev_ddt, prev_dtau, 0)
+    slope_y, second_y = _quotient_rates(d, ddt, prev_ddt, prev_dtau, 1)
     if slope_x == 0.0:
         return np.inf
-    line_err = ex / abs(slope_x)  # scaled time
-    col_err = (abs(slope_y) * line_err + ey) / px
+    line_err = 0.5 * abs(second_x) * dtau * dtau / abs(slope_x)  # scaled time (f cancels)
+    col_err = f * (abs(slope_y) * line_err + 0.5 * abs(second_y) * dtau * dtau) / px
     return max(line_err / tpl, col_err)
 
 
@@ -97,8 +95,7 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
     mm, a_att, mnt, ro, dro = mats[0], mats[1], mats[2], mats[3], mats[4]
     s, sdot, v, d, ddt, acc = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4], vecs[5]
     _projection_terms(kind, coef, kc, acc, da_dr, mnt)
-    dd2 = np.empty(3)
-    prev_tau = 0.0
+    prev_ddt = np.empty(3)
     prev_step = 0.0
     for it in range(31):
         tau = line * tpl
@@ -112,9 +109,7 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
         dtau = -step * tpl
         done = abs(step) < LINE_STEP_TOL
         if not done and it > 0 and abs(step) < STOP_STEP_MAX and abs(step) < 0.1 * abs(prev_step):
-            for i in range(3):
-                dd2[i] = (ddt[i] - dd2[i]) / (tau - prev_tau)
-            done = _stop_error(d, ddt, dd2, dtau, f, tpl, px) < STOP_ERROR_TOL
+            done = _stop_error(d, ddt, prev_ddt, -prev_step * tpl, dtau, f, tpl, px) < STOP_ERROR_TOL
         if done:
             ok = True
             # the column from the camera vector moved to the new line to first order (its error
@@ -126,8 +121,7 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
                 tau = line * tpl
                 _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
             break
-        dd2[:] = ddt
-        prev_tau = tau
+        prev_ddt[:] = ddt
         prev_step = step
     if not ok:
         col = cc + (-f * d[1] / d[2] - yo) / px
@@ -137,8 +131,7 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
     dc_dp = np.zeros(3)
     if not want_jac:
         return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
-    if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
-        _oa_factors_into(rot, mnt, ro, a_att, mm)
+    _derivative_factors(kind, rot, mnt, ro, a_att, mm)
     # the derivatives at the last line evaluated (tau): the solution, or within LINE_STEP_TOL of it
     iz = 1.0 / d[2]
     # gradients of x and y (mm) wrt d
@@ -259,8 +252,7 @@ def project_cam(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac
     dc_di = np.zeros(N_IOP)
     if not want_jac:
         return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di
-    if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
-        _oa_factors_into(rot, mnt, ro, a_att, mm)
+    _derivative_factors(kind, rot, mnt, ro, a_att, mm)
     tau = line * tpl
     iz = 1.0 / d[2]
     # g = (x_i + F d_x/d_z, y_i + F d_y/d_z); its derivatives wrt d

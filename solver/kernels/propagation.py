@@ -267,17 +267,24 @@ def pass_state(kc, t: float, want_jac: bool):
     vel = np.empty(3)
     acc = np.empty(3)
     k = pass_values_into(kc, t, b, pos, vel, acc)
-    b0 = PASS_NODE0 + k * NODE_SIZE
-    b1 = b0 + NODE_SIZE
     ds = np.zeros((3, 6))
     dv = np.zeros((3, 6))
     if want_jac:
-        for i in range(3):
-            for c in range(6):
-                q = i * 6 + c
-                p0, v0, a0 = kc[b0 + 9 + q], kc[b0 + 27 + q], kc[b0 + 45 + q]
-                p1, v1, a1 = kc[b1 + 9 + q], kc[b1 + 27 + q], kc[b1 + 45 + q]
-                ds[i, c] = b[0, 0] * p0 + b[0, 1] * v0 + b[0, 2] * a0 + b[0, 3] * p1 + b[0, 4] * v1 + b[0, 5] * a1
-                dv[i, c] = b[1, 0] * p0 + b[1, 1] * v0 + b[1, 2] * a0 + b[1, 3] * p1 + b[1, 4] * v1 + b[1, 5] * a1
+        for c in range(6):
+            pass_state_column(kc, b, k, c, ds[:, c], dv[:, c])
     return pos, vel, acc, ds, dv
+
+
+@njit(**_JIT)
+def pass_state_column(kc, b, k: int, c: int, ds, dv) -> None:
+    """Column ``c`` of dS/dx0 and dV/dx0 (ECEF) into ``ds``, ``dv`` (3 each): the node
+    derivatives of interval ``k`` through the Hermite basis ``b`` of :func:`_hermite_basis`."""
+    b0 = PASS_NODE0 + k * NODE_SIZE
+    b1 = b0 + NODE_SIZE
+    for i in range(3):
+        q = i * 6 + c
+        p0, v0, a0 = kc[b0 + 9 + q], kc[b0 + 27 + q], kc[b0 + 45 + q]
+        p1, v1, a1 = kc[b1 + 9 + q], kc[b1 + 27 + q], kc[b1 + 45 + q]
+        ds[i] = b[0, 0] * p0 + b[0, 1] * v0 + b[0, 2] * a0 + b[0, 3] * p1 + b[0, 4] * v1 + b[0, 5] * a1
+        dv[i] = b[1, 0] * p0 + b[1, 1] * v0 + b[1, 2] * a0 + b[1, 3] * p1 + b[1, 4] * v1 + b[1, 5] * a1
 

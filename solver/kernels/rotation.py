@@ -172,10 +172,8 @@ def _orbital_frame_rate_into(s, v, c0: float, c1: float, c2: float, sdot, vdot, 
     h0, h1, h2 = v[0] - vz * z0, v[1] - vz * z1, v[2] - vz * z2
     hn = np.sqrt(h0 * h0 + h1 * h1 + h2 * h2)
     x0, x1, x2 = h0 / hn, h1 / hn, h2 / hn
-    dvz = vdot[0] * z0 + vdot[1] * z1 + vdot[2] * z2 + v[0] * dz0 + v[1] * dz1 + v[2] * dz2
-    dh0, dh1, dh2 = vdot[0] - dvz * z0 - vz * dz0, vdot[1] - dvz * z1 - vz * dz1, vdot[2] - dvz * z2 - vz * dz2
-    xd = x0 * dh0 + x1 * dh1 + x2 * dh2
-    dx0, dx1, dx2 = (dh0 - xd * x0) / hn, (dh1 - xd * x1) / hn, (dh2 - xd * x2) / hn
+    dx0, dx1, dx2, dy0, dy1, dy2 = _frame_rows_rate(z0, z1, z2, dz0, dz1, dz2, x0, x1, x2, hn, vz, v[0], v[1], v[2],
+                                                     vdot[0], vdot[1], vdot[2])
     r[0, 0], r[0, 1], r[0, 2] = x0, x1, x2
     r[2, 0], r[2, 1], r[2, 2] = z0, z1, z2
     dr[0, 0], dr[0, 1], dr[0, 2] = dx0, dx1, dx2
@@ -184,9 +182,24 @@ def _orbital_frame_rate_into(s, v, c0: float, c1: float, c2: float, sdot, vdot, 
     r[1, 0] = z1 * x2 - z2 * x1
     r[1, 1] = z2 * x0 - z0 * x2
     r[1, 2] = z0 * x1 - z1 * x0
-    dr[1, 0] = dz1 * x2 - dz2 * x1 + z1 * dx2 - z2 * dx1
-    dr[1, 1] = dz2 * x0 - dz0 * x2 + z2 * dx0 - z0 * dx2
-    dr[1, 2] = dz0 * x1 - dz1 * x0 + z0 * dx1 - z1 * dx0
+    dr[1, 0], dr[1, 1], dr[1, 2] = dy0, dy1, dy2
+
+
+@njit(**_JIT)
+def _frame_rows_rate(z0, z1, z2, dz0, dz1, dz2, x0, x1, x2, hn, vz, v0, v1, v2, u0, u1, u2):
+    """The derivatives of the orbital frame's rows x and y = z x x along a direction in which
+    the radial row z moves by (dz0, dz1, dz2) and the velocity by (u0, u1, u2): x is the
+    velocity v without its radial part (vz = v . z) normalised (hn its length). The time rate
+    (:func:`_orbital_frame_rate_into`) and the state derivatives
+    (:func:`solver.kernels.platform._oa_state_gradients`) are this along different directions."""
+    dvz = u0 * z0 + u1 * z1 + u2 * z2 + v0 * dz0 + v1 * dz1 + v2 * dz2
+    dh0, dh1, dh2 = u0 - dvz * z0 - vz * dz0, u1 - dvz * z1 - vz * dz1, u2 - dvz * z2 - vz * dz2
+    xd = x0 * dh0 + x1 * dh1 + x2 * dh2
+    dx0, dx1, dx2 = (dh0 - xd * x0) / hn, (dh1 - xd * x1) / hn, (dh2 - xd * x2) / hn
+    dy0 = dz1 * x2 - dz2 * x1 + z1 * dx2 - z2 * dx1
+    dy1 = dz2 * x0 - dz0 * x2 + z2 * dx0 - z0 * dx2
+    dy2 = dz0 * x1 - dz1 * x0 + z0 * dx1 - z1 * dx0
+    return dx0, dx1, dx2, dy0, dy1, dy2
 
 
 @njit(**_JIT)
@@ -200,15 +213,9 @@ def _orbital_frame_rate(s, v, c, sdot, vdot):
 
 @njit(**_JIT)
 def ro_offset_scalars(kc):
-    """:func:`ro_offset` as three floats (no array: the projections' inner steps use it)."""
+    """R_ecef->lgs @ LGS origin, as three floats: added to an LGS position it gives the
+    geocentric position in LGS axes (the orbital frame's radial direction)."""
     c0 = kc[0] * kc[9] + kc[1] * kc[10] + kc[2] * kc[11]
     c1 = kc[3] * kc[9] + kc[4] * kc[10] + kc[5] * kc[11]
     c2 = kc[6] * kc[9] + kc[7] * kc[10] + kc[8] * kc[11]
     return c0, c1, c2
-
-
-@njit(**_JIT)
-def ro_offset(kc):
-    """R_ecef->lgs @ LGS origin: added to an LGS position it gives the geocentric position in
-    LGS axes (the orbital frame's radial direction)."""
-    return mat_vec(kc[0:9].reshape(3, 3), kc[9:12])
