@@ -12,7 +12,7 @@ import pytest
 
 from solver.api import run
 from solver.cli import main
-from solver.procedures.weak_control import BAND_FRACTION, control_extent
+from solver.procedures.weak_control import BAND_FRACTION, _band_warning, _narrow, control_extent
 from solver.schema.job import load_job
 
 # measured on seed 1 (docs/quality.md, the weak-control rule): PASS-J2 131 m without the rule,
@@ -81,3 +81,35 @@ def test_the_default_acts_on_undetermined_attitude_and_says_so(triplet) -> None:
     assert rep["warnings"][0].startswith("weak control: the control did not determine")
     assert any("spans a band" in w for w in rep["warnings"])
     assert not [w for w in rep["quality"]["warnings"] if w["kind"] == "implausible_sigma"] or wc["still_undetermined"]
+
+
+def _without_control_in(job: dict, image_part: str) -> dict:
+    """``job`` with the control-point observations of the image whose id contains ``image_part``
+    dropped: that image keeps only tie (and check) points."""
+    j = copy.deepcopy(job)
+    gcps = {p["id"] for p in j["points"] if p["role"] == "gcp"}
+    j["observations"] = [o for o in j["observations"] if not (image_part in o["image"] and o["point"] in gcps)]
+    return j
+
+
+def test_an_image_with_only_tie_points_is_not_control_in_a_band(triplet) -> None:
+    """An image without any control point has no band of control: its orientation comes from the
+    other images through the tie points. Counting it as "control in a band" (the rule's
+    condition) would hold its attitude and warn of a band it does not have; today's other jobs
+    have control in every image, so only this test sees the difference."""
+    job = load_job(_without_control_in(triplet, "forward"))
+    extent = control_extent(job)
+    forward = next(k for k in extent if "forward" in k)
+    assert extent[forward]["lines"] is None and extent[forward]["fraction"] == 0.0
+    assert forward not in _narrow(extent)
+    assert all(e["fraction"] > BAND_FRACTION for k, e in extent.items() if k != forward)
+    _, band = _band_warning(job)
+    assert band is None  # the other images' control spans their lines: no band anywhere
+
+    # with a band in the other images, the warning names them, not the forward image
+    weak = load_job(_without_control_in(_weak(triplet), "forward"))
+    extent = control_extent(weak)
+    narrow = set(_narrow(extent))
+    assert any("nadir" in k for k in narrow) and forward not in narrow
+    _, band = _band_warning(weak)
+    assert band is not None and "nadir" in band and "forward" not in band
