@@ -64,6 +64,7 @@ BOUNDS: dict[str, dict[str, Any]] = {
     "models": {"min_length": 1, "max_length": 16},
     "sigma_px": {"gt": 0, "le": 1e6},
     "match_tolerance_m": {"gt": 0, "le": 1e6},
+    "bias_prior_px": {"gt": 0, "le": 1e6},
     "first_line_time_s": {"allow_inf_nan": False},
 }
 DESCRIPTIONS = {
@@ -71,6 +72,7 @@ DESCRIPTIONS = {
     "sensor": "vendor sensor metadata (Maxar XML, DIMAP of SPOT 1-7 and Pleiades): the image's camera, ephemeris, "
     "attitude, line times and model",
     "rpc_model": "bias model of the RPC images without their own",
+    "bias_prior_px": "a 0 +- this prior (px) on every RPC image's bias terms (drift terms: this over the image's extent)",
     "points": "point tables with a role column",
     "asp_gcp": "ASP GCP files naming their images",
     "camera": "camera by name (a camera file's, a preset, the camera library's)",

@@ -68,6 +68,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "NAME.RPB or DIMAP RPC XML, read by GDAL (no camera or time files for it)")
     p.add_argument("--rpc-model", action="append", default=[], metavar="[ID=]NAME",
                    help="bias model of the RPC images (RPC-SHIFT, RPC-DRIFT, RPC-AFFINE; default RPC-DRIFT); ID= for one image")
+    p.add_argument("--bias-prior", type=float, metavar="PX",
+                   help="a 0 +- PX prior on every RPC image's bias terms (offsets in px; drift terms PX over the "
+                   "image's extent): the RPCs' own ground reference defines the datum")
     p.add_argument("--time-scale", help="time scale of time files that do not state one (GPS, UTC, ...)")
     p.add_argument("--columns", action="append", default=[], metavar="FILE:NAME=COLUMN[,...]",
                    help="map a file's column names onto the format's (e.g. survey.csv:E=x,N=y,H=z)")
@@ -181,6 +184,7 @@ def request_from_args(args: argparse.Namespace) -> ComposeRequest:
         crs=args.crs,
         models=[m.strip() for m in args.model.split(",") if m.strip()],
         rpc_model=rpc_model,
+        bias_prior_px=args.bias_prior,
         options=options,
         name=args.name,
         time_scale=args.time_scale,

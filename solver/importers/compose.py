@@ -96,6 +96,7 @@ class ComposeRequest:
     crs: str | None = None
     models: list[str] = field(default_factory=lambda: ["K2"])  # of the images with a camera
     rpc_model: str = "RPC-DRIFT"  # bias model of the RPC images without their own
+    bias_prior_px: float | None = None  # a 0 +- this prior on every RPC image's bias terms (rpc_bias_priors)
     options: dict[str, Any] = field(default_factory=dict)
     name: str = "job"
     time_scale: str | None = None
@@ -132,6 +133,8 @@ def compose_job(req: ComposeRequest, camera_lookup: CameraLookup = preset_lookup
         parse_crs(crs)
     except UnknownCRSError as exc:
         raise fail("crs", 0, "", str(exc), "unknown_crs") from None
+    if req.bias_prior_px is not None and not 0.0 < req.bias_prior_px < float("inf"):
+        raise fail("bias_prior_px", 0, "", f"{req.bias_prior_px}: a positive number of pixels is expected", "bad_argument")
     if not req.images:
         raise fail("images", 0, "", "no image: give at least one (--image ID=measurements file)", "no_image")
 
@@ -281,7 +284,34 @@ def _rpc_image(im: ImageSources, req: ComposeRequest) -> dict[str, Any]:
 
     f = im.rpc
     rpc = read_rpc(f.path, shown=f.name) if f.path else read_rpc_bytes(f.data, f.name)
-    return {"id": im.id, "rpc": rpc.to_job(), "model": {"name": im.rpc_model or req.rpc_model}}
+    out = {"id": im.id, "rpc": rpc.to_job(), "model": {"name": im.rpc_model or req.rpc_model}}
+    if req.bias_prior_px is not None:
+        priors = rpc_bias_priors(out["model"]["name"], out["rpc"], req.bias_prior_px)
+        if priors is not None:
+            out["bias_prior"] = priors
+    return out
+
+
+def rpc_bias_priors(model: str, rpc: dict[str, Any], sigma_px: float) -> dict[str, dict[str, float]] | None:
+    """``images[].bias_prior`` putting 0 +- ``sigma_px`` on every bias term of an RPC image with
+    bias model ``model`` (None for a name that is not an RPC bias model: validation says so).
+
+    The offsets a0, b0 get ``sigma_px`` pixels; a drift term (px/px) gets ``sigma_px`` over the
+    image's extent along its axis (twice the RPC's line or sample scale, the image's size), so
+    that the term moves an image corner by at most about ``sigma_px`` too."""
+    from solver.geometry.rpc import BIAS_MODELS
+
+    names = BIAS_MODELS.get(model)
+    if names is None:
+        return None
+    extent = {"line": 2.0 * abs(float(rpc["line_scale"])), "column": 2.0 * abs(float(rpc["samp_scale"]))}
+    out = {}
+    for name in names:
+        if name in ("a0", "b0"):
+            out[name] = {"value": 0.0, "sigma": float(sigma_px)}
+        else:
+            out[name] = {"value": 0.0, "sigma": float(sigma_px) / max(extent[name.split("_")[1]], 1.0)}
+    return out
 
 
 def _sensor_fragment(req: ComposeRequest, problems: list[SourceProblem]) -> dict[str, Any]:

@@ -246,3 +246,36 @@ def test_rpc_images_round_trip_through_job_sources_and_pba_job(
     ra, rb = run(back), run(job)
     # the same adjustment: the RPC numbers differ by at most 1e-12 relative (measured 0)
     assert ra["checkpoints"]["rmse_m"]["3d"] == pytest.approx(rb["checkpoints"]["rmse_m"]["3d"], rel=SAME_ADJUSTMENT_REL)
+
+
+MATCHING = ROOT / "tests" / "data" / "matching"
+
+
+def test_bias_prior_puts_a_prior_on_every_rpc_bias_term(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``pba job --rpc ... --bias-prior PX``: two real RPC images (Pleiades, Mont Ventoux) with
+    tie points only. Without the flag the datum is undefined (exit 1, the problem says so); with
+    it every RPC image's offsets get 0 +- PX and its drift terms PX over the image's extent, and
+    the job is valid."""
+    monkeypatch.chdir(tmp_path)
+    ties = "point,image,line,column\n" + "".join(
+        f"T{k},{im},{100 + 30 * k},{120 + 25 * k}\n" for k in range(8) for im in ("L", "R"))
+    Path("ties.csv").write_text(ties)
+    base = ["job", "--rpc", f"L={MATCHING / 'ventoux_left_RPC.TXT'}", "--rpc", f"R={MATCHING / 'ventoux_right_RPC.TXT'}",
+            "--image", "ties.csv", "-o", "job.json"]
+    assert main(base) == 1
+    assert "datum is undefined" in capsys.readouterr().err
+    assert main(base + ["--bias-prior", "4"]) == 0, capsys.readouterr().err
+    job = json.loads(Path("job.json").read_text())
+    for im in job["images"]:
+        assert im["model"]["name"] == "RPC-DRIFT"
+        prior = im["bias_prior"]
+        assert set(prior) == {"a0", "a_line", "b0", "b_line"}
+        assert prior["a0"] == {"value": 0.0, "sigma": 4.0} and prior["b0"] == {"value": 0.0, "sigma": 4.0}
+        lines = 2 * im["rpc"]["line_scale"]
+        # the drift's prior moves the image's last line by the same 4 px
+        assert prior["a_line"]["sigma"] * lines == pytest.approx(4.0, rel=1e-12)
+        assert prior["b_line"]["sigma"] * lines == pytest.approx(4.0, rel=1e-12)
+    assert main(base + ["--bias-prior", "0"]) == 2
+    assert "positive number of pixels" in capsys.readouterr().err
