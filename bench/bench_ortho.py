@@ -21,7 +21,7 @@ from rasterio.transform import from_origin
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from gis_scenes import prism_butted  # noqa: E402
+from utils.gis_scenes import prism_butted  # noqa: E402
 
 from solver.geometry.geodesy import ecef_to_geodetic  # noqa: E402
 from solver.gis.ortho import orthorectify  # noqa: E402

@@ -1,6 +1,6 @@
 """RPC fit residuals per model kind (fit grid and independent check grid, RMS and max, px), and
 through GDAL (rasterio's RPC transformer, corner convention corrected), on the GIS test scenes
-(tests/solver/gis/gis_scenes.py: 2400 x 2400 single-chip camera, nadir and 20 deg tilted, seed 5) and a
+(tests/utils/gis_scenes.py: 2400 x 2400 single-chip camera, nadir and 20 deg tilted, seed 5) and a
 PRISM-like 4-chip butted nadir image (whole-image RPC and per-chip RPCs). Run by hand:
 
     .venv/bin/python bench/bench_rpc_fit.py
@@ -16,7 +16,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from gis_scenes import MODEL_KINDS, VIEWS, prism_butted, single_chip  # noqa: E402
+from utils.gis_scenes import MODEL_KINDS, VIEWS, prism_butted, single_chip  # noqa: E402
 
 from solver.geometry.geodesy import ecef_to_geodetic  # noqa: E402
 from solver.gis.rpc_export import height_range  # noqa: E402

@@ -7,11 +7,16 @@ from __future__ import annotations
 
 import copy
 import statistics
+import sys
 import time
+from pathlib import Path
 
 from solver.adjust import adjust_job
 from solver.schema.job import load_job
-from solver.synthetic import block_job
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # tests/utils: the model-consistent scenes
+
+from utils.scenes import block_job  # noqa: E402
 
 TRUTH = {"df": 2.0, "a0@1": 0.03, "b0@1": -0.02, "a0@3": -0.03, "b0@4": 0.03}
 

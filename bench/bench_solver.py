@@ -1,7 +1,7 @@
 """Solver benchmark: solve time and microseconds per observation for three block sizes.
 
 Run by hand (never in CI): ``.venv/bin/python bench/bench_solver.py [--large-only] [--repeat N]``.
-Scenes are model-consistent synthetic blocks (solver.synthetic): a single scene (~30
+Scenes are model-consistent synthetic blocks (tests/utils/scenes.py): a single scene (~30
 observations), a PRISM triplet (~300) and a strip of 20 triplets (60 images, 30k tie points,
 ~90k observations). Prints one line per case and the median over repeats.
 """
@@ -10,12 +10,17 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
+from pathlib import Path
 
 from solver.adjust import adjust_job, assert_full_rank, prepare, solve_problem
 from solver.engine.backend import SolveControl
 from solver.schema.job import load_job
-from solver.synthetic import block_job, single_image_job
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # tests/utils: the model-consistent scenes
+
+from utils.scenes import block_job, single_image_job  # noqa: E402
 
 CASES = {
     "single": lambda: single_image_job("P2", n_gcp=14, n_check=9, seed=1),

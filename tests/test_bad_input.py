@@ -7,11 +7,11 @@ import json
 
 import pytest
 from pydantic import ValidationError
+from utils.scenes import block_job, single_image_job
 
 from solver import api
 from solver.errors import JobError, RankDeficientError
 from solver.schema.job import load_job
-from solver.synthetic import block_job, single_image_job
 
 
 @pytest.fixture(scope="module")
@@ -174,7 +174,7 @@ def test_malformed_job_is_refused_with_its_location(case):
 def test_lines_only_job_without_points_solves():
     """A job with control lines and "points": [] (once a numba typing error: the empty point
     array had shape (0,) instead of (0, 3))."""
-    from solver.synthetic_lines import lines_job
+    from utils.line_scenes import lines_job
 
     doc, _ = lines_job("P2", n_check=0, n_gcp=0)
     doc["points"] = []

@@ -317,7 +317,7 @@ def test_blunder_detection_table(page: Any, local_server: Server, artifacts: Pat
     """A job with two image blunders and options.blunder_detection: the result lists the rejected
     column error and the non-identifiable group of the along-track error (three rays of one tie
     point) with w above the critical value, and offers rejected.csv."""
-    from solver.synthetic import block_job
+    from utils.scenes import block_job
 
     job, _truth = block_job(model="P1", n_tie=30, n_gcp=14, n_check=6, seed=3, gcp_sigma_m=0.5)
     ties = [i for i, o in enumerate(job["observations"]) if "-T" in o["point"]]
@@ -344,7 +344,7 @@ def test_blunder_detection_shows_reinstated_and_lost_control(page: Any, local_se
     non-identifiable {image point, survey} group whose removal costs the control point; a
     clean group removed on the way is put back. The page lists the reinstated members with
     their predicted test and names the lost control points with the predicted check RMSE."""
-    from blunder_scenes import prism_single_with_blunders
+    from utils.blunder_scenes import prism_single_with_blunders
 
     import solver.api
 

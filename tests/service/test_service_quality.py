@@ -11,8 +11,7 @@ import io
 from typing import Any
 
 from pba_service_harness import Server, solved_report
-
-from solver.synthetic import block_job
+from utils.scenes import block_job
 
 
 def _job_with_blunders() -> dict[str, Any]:

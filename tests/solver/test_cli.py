@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from solver.synthetic import single_image_job
+from utils.scenes import single_image_job
 
 PBA = [sys.executable, "-m", "solver.cli"]
 

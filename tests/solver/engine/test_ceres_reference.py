@@ -19,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from utils.scenes import block_job
 
 from solver.api import _as_job
 from solver.engine.backend import SolveControl
 from solver.engine.linalg import covariance, linearise, schur
 from solver.procedures.single import prepare, solve_problem
 from solver.schema.settings import Settings
-from solver.synthetic import block_job
 
 ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT / "bench"))

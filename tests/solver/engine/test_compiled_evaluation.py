@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from utils.scenes import block_job
 
 from solver.engine import backend, native
 from solver.engine.backend import SolveControl, build_ceres_problem
@@ -34,7 +35,6 @@ from solver.errors import Cancelled
 from solver.procedures.single import prepare
 from solver.schema.job import load_job
 from solver.schema.settings import Settings
-from solver.synthetic import block_job
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 SAME_PHYSICS_RTOL = 1e-10  # one kernel behind both paths: only summation order may differ
@@ -87,8 +87,8 @@ def _fixed_control_job() -> dict[str, Any]:
 
 
 def _lines_job(line_model: str, fitted: bool) -> dict[str, Any]:
-    """Straight-line control with points (solver.synthetic_lines): the line terms' three forms."""
-    from solver.synthetic_lines import lines_job
+    """Straight-line control with points (tests/utils/line_scenes.py): the line terms' three forms."""
+    from utils.line_scenes import lines_job
 
     job, _truth = lines_job("P1", n_lines=8, line_model=line_model, fitted=fitted, endpoint_sigma_m=0.3, seed=4)
     return job

@@ -7,12 +7,12 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
+from utils.scenes import single_image_job
 
 import solver.api
 import solver.engine.validate as validate
 from solver.errors import JobError
 from solver.schema.job import load_job
-from solver.synthetic import single_image_job
 
 
 @pytest.fixture

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from tolerances import REDUNDANCY_SUM_ABS
+from utils.scenes import block_job
 
 from solver.adjust import prepare
 from solver.engine.linalg import covariance, linearise, schur
 from solver.schema.job import load_job
-from solver.synthetic import block_job
 
 # covariances on the correlation scale: position-pitch coupling makes N ill-conditioned
 # (cond ~5e11), so any route loses about that many digits (cond * eps ~ 1e-4)

@@ -21,6 +21,8 @@ import pytest
 from test_attitude_obs import _samples_from
 from test_orbit_pass import _pass_job
 from test_rpc_models import _triplet
+from utils.line_scenes import lines_job
+from utils.scenes import block_job
 
 from solver.adjust import prepare
 from solver.engine import backend, native
@@ -29,8 +31,6 @@ from solver.engine.terms import family_terms
 from solver.observations import registry
 from solver.schema.job import load_job
 from solver.schema.settings import Settings
-from solver.synthetic import block_job
-from solver.synthetic_lines import lines_job
 
 # Steps move the most sensitive residual of a column by this many sigma: large enough that the
 # kernels' iterative line search (stopped at ~1e-8 line) and the rounding of 7e6-m coordinates

@@ -11,9 +11,9 @@ import json
 import numpy as np
 import pytest
 import rasterio
-from gis_scenes import single_chip
 from pyproj import Transformer
 from rasterio.transform import from_origin
+from utils.gis_scenes import single_chip
 
 from solver.cli import main
 from solver.geometry.geodesy import ecef_to_geodetic, to_ecef

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 import rasterio
-from gis_scenes import two_chip
+from utils.gis_scenes import two_chip
 
 from solver.cli import main
 from solver.geometry.geodesy import ecef_to_geodetic

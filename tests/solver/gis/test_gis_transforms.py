@@ -12,8 +12,8 @@ import json
 
 import numpy as np
 import pytest
-from gis_scenes import MODEL_KINDS, VIEWS, prism_butted, single_chip
 from tolerances import GROUND_ROUND_TRIP_M, ROUND_TRIP_PX
+from utils.gis_scenes import MODEL_KINDS, VIEWS, prism_butted, single_chip
 
 from solver.cli import main
 from solver.geometry.geodesy import ecef_to_geodetic, from_ecef, to_ecef

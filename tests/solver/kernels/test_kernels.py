@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 from tolerances import ROUND_TRIP_PX
+from utils.scenes import block_job, single_image_job
 
 from solver.adjust import prepare
 from solver.kernels import (
@@ -19,7 +20,6 @@ from solver.kernels import (
 from solver.platforms import get_model, model_names
 from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.schema.job import load_job
-from solver.synthetic import block_job, single_image_job
 
 ELEMENTARY_ABS = 1e-15  # the closed-form rotation vs the product of three elementary rotations: an ulp
 ORTHONORMAL_ABS = 1e-14  # M M^T = I for a kernel rotation: a few ulps

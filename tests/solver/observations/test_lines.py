@@ -8,6 +8,8 @@ import math
 
 import numpy as np
 import pytest
+from utils.line_scenes import lines_job
+from utils.scenes import single_image_job, truth_parameters
 
 from solver.adjust import prepare
 from solver.api import run, validate
@@ -19,8 +21,6 @@ from solver.kernels.lines import line_distances, planes_model, pushbroom_line, t
 from solver.observations.lines import LineTerm
 from solver.platforms import get_model, model_names
 from solver.schema.job import load_job
-from solver.synthetic import single_image_job, truth_parameters
-from solver.synthetic_lines import lines_job
 
 LINE_FIT_PX = 1e-9  # a fitted line's points lie on it: one multiplication and addition
 CURVED_LINE_PX = 2e-3  # distances to a curved image line 40 px long: ~1e-3 px of curvature
@@ -301,7 +301,7 @@ def test_points_and_lines_combined_for_every_platform_model(model):
 
 def test_lines_in_a_block_with_tie_and_weighted_points():
     """A check line in a multi-image job with tie points and weighted control (Schur path)."""
-    from solver.synthetic import block_job
+    from utils.scenes import block_job
 
     job, _truth = block_job("K2", n_triplets=1, n_tie=5, n_gcp=6, n_check=2, seed=3, gcp_sigma_m=0.3)
     nadir = next(im["id"] for im in job["images"] if im["camera"] == "nadir")

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from test_attitude_obs import _samples_from
 from test_orbit_pass import _pass_job
+from utils.scenes import block_job
 
 from solver.adjust import prepare
 from solver.kernels import _attitude_angles, _attitude_time, platform_state
@@ -23,7 +24,6 @@ from solver.observations.ephemeris import image_state
 from solver.observations.interior import camera_priors
 from solver.observations.state_priors import all_state_priors
 from solver.schema.job import load_job
-from solver.synthetic import block_job
 
 JSON_DEGREES_SIGMA = 1e-6  # whitened attitude residuals from degrees written to and read from JSON
 

@@ -6,11 +6,11 @@ import copy
 
 import numpy as np
 import pytest
+from utils.scenes import block_job
 
 from solver.adjust import adjust_job
 from solver.observations.interior import camera_from_report
 from solver.schema.job import load_job
-from solver.synthetic import block_job
 
 TRUTH = {"df": 2.0, "a0@1": 0.03, "b0@1": -0.02, "a0@3": -0.03, "b0@4": 0.03}  # mm; chip 2 is the master
 CAMS = ("backward", "nadir", "forward")

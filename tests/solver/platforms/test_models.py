@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from tolerances import GEODESY_M, RECOMPUTED_REL
+from utils.scenes import block_job, single_image_job, truth_parameters
 
 from solver.adjust import adjust_job
 from solver.platforms import all_models, get_model, model_names
 from solver.schema.job import load_job
-from solver.synthetic import block_job, single_image_job, truth_parameters
 
 T_TABLE_ABS = 1e-3  # the tabled Student quantile t(8; 0.975) = 2.306 has three decimals
 

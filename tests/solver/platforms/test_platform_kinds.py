@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fake_platform_kind import install
+from utils.scenes import single_image_job, truth_parameters
 
 import solver.platforms.kinds as kinds_module
 import solver.platforms.registry as registry
 from solver.api import run, validate
-from solver.synthetic import single_image_job, truth_parameters
 
 ROOT = Path(__file__).resolve().parents[3]
 ALLOWED = (ROOT / "solver" / "platforms", ROOT / "solver" / "kernels")

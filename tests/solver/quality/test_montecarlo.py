@@ -16,10 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from utils.scenes import block_job, single_image_job
 
 from solver.adjust import adjust_job
 from solver.schema.job import load_job
-from solver.synthetic import block_job, single_image_job
 
 pytestmark = pytest.mark.slow
 

@@ -9,6 +9,7 @@ import copy
 
 import numpy as np
 import pytest
+from utils.scenes import block_job
 
 from solver.adjust import adjust_once
 from solver.api import run
@@ -16,7 +17,6 @@ from solver.quality.external import external_points
 from solver.quality.reliability import Structure
 from solver.quality.snooping import snoop
 from solver.schema.job import BlunderDetection, load_job
-from solver.synthetic import block_job
 
 # the effect is first order in the bias. At a tenth of the MDB the re-adjusted shifts match it
 # within 4 % (measured 0.3-4 %: the solver's convergence and the remaining curvature); at one

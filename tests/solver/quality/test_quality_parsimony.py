@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 from tolerances import SAME_NUMBER_REL
+from utils.scenes import block_job
 
 from solver.adjust import adjust_job
 from solver.quality.parsimony import constraint_test, high_correlations
 from solver.schema.job import load_job
-from solver.synthetic import block_job
 
 F_TABLE_ABS = 1e-3  # the tabled F(1, 100; 0.95) = 3.936 has three decimals
 

@@ -9,13 +9,13 @@ import json
 
 import numpy as np
 import pytest
+from utils.scenes import block_job
 
 from solver.adjust import adjust_job
 from solver.api import preanalyse
 from solver.commands import preanalysis_text
 from solver.errors import JobError
 from solver.schema.job import load_job
-from solver.synthetic import block_job
 
 # pre-analysis of a plan vs the adjustment of the same scene, a-posteriori scale taken out: the
 # geometry of the linearisation point differs (truth vs solution); a wrong cofactor is a factor
@@ -91,11 +91,11 @@ def test_planned_control_lines_improve_the_prediction_and_match_the_adjustment(s
     """One PRISM image, P2, 10 control points, 8 mono check points, and 12 planned control
     lines: the lines' planned image points (8 per line between the endpoints, as the measured
     ones) enter the pre-analysis, lower the predicted check-point sigmas, and the prediction
-    matches what the adjustment of the measured lines and points (synthetic_lines: noise
+    matches what the adjustment of the measured lines and points (tests/utils/line_scenes.py: noise
     0.5 px, started from a header state 20 m off) then reports within the issue's 25 %
     (measured 4-7 %: that adjustment's sigma0 1.04-1.08; without the lines the pre-analysis
     predicts 1.6-2.4 times worse)."""
-    from solver.synthetic_lines import lines_job
+    from utils.line_scenes import lines_job
 
     job, _truth = lines_job(model="P2", n_lines=12, points_per_line=8, n_gcp=10, n_check=8, seed=seed)
     plan = json.loads(json.dumps(job))

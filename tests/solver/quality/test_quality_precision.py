@@ -17,11 +17,11 @@ import copy
 import numpy as np
 import pytest
 from tolerances import RECOMPUTED_REL, SAME_NUMBER_REL
+from utils.scenes import block_job
 
 from solver.adjust import adjust_job
 from solver.geometry.geodesy import LocalFrame
 from solver.schema.job import load_job
-from solver.synthetic import block_job
 
 ELLIPSE_BOUND_REL = 1e-9  # the ellipse's semi-axes bound the east/north sigmas: eigenvalues of a 2 x 2 matrix
 AZIMUTH_DEG = 1e-9  # a hand-built ellipse's azimuth: arctan2 of eigenvector components; an east/north swap reports 90 - az
@@ -156,7 +156,7 @@ def test_mono_check_point_discrepancy_test_is_chi_square_with_two_dof():
     discrepancy only: its test is chi-square with 2 dof, whose 1 - alpha quantile is -2 ln alpha
     (no quantile function needed), on T = d_en^T C^-1 d_en with C the covariance the point's
     error ellipse describes (which must also give its east and north sigmas)."""
-    from solver.synthetic import single_image_job
+    from utils.scenes import single_image_job
 
     job, _ = single_image_job("K2", seed=6, n_check=9)
     rep = adjust_job(load_job(job))

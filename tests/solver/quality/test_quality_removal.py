@@ -10,13 +10,13 @@ import copy
 import numpy as np
 import pytest
 from tolerances import SAME_NUMBER_REL
+from utils.scenes import block_job
 
 from solver.adjust import adjust_once
 from solver.api import run
 from solver.quality.removal import INFLATE, with_candidates
 from solver.quality.snooping import predicted_test, snoop
 from solver.schema.job import BlunderDetection, load_job
-from solver.synthetic import block_job
 
 # the predicted w of a removed observation vs the test inside the adjustment: the nonlinearity of
 # a 6-px error (the statistics are evaluated at solutions 6 px apart); a cofactor without the
@@ -111,7 +111,7 @@ def test_a_moved_fixed_control_point_is_tested_through_its_rays(block) -> None:
 def test_a_fixed_control_point_in_one_image_is_not_identifiable() -> None:
     """One image: a fixed control point's single ray cannot tell a moved point from a wrong image
     point (the test spaces coincide): one non-identifiable group of the two, removed."""
-    from solver.synthetic import single_image_job
+    from utils.scenes import single_image_job
 
     job, _ = single_image_job(model="K2", n_gcp=14, n_check=4, seed=5, gcp_sigma_m=0.5)
     job["options"] = {"control": "fixed", "blunder_detection": {}}
@@ -127,7 +127,7 @@ def test_a_line_image_point_blunder_is_found_and_removed() -> None:
     """Rigorous lines: one measured point of a line image moved 10 px in column is rejected and
     removed (its test fails, its estimated error is the move's component across the line), the
     clean run rejects nothing."""
-    from solver.synthetic_lines import lines_job
+    from utils.line_scenes import lines_job
 
     job, _ = lines_job(seed=2)
     job["options"] = {"blunder_detection": {}}
@@ -183,8 +183,9 @@ def test_a_point_removed_whole_is_tested_against_the_final_orientation() -> None
     leave nothing of the point; put back together (inflated), the test of the ray against the
     final orientation and the survey equals, in linear theory, its w-test inside the adjustment
     with both (the point estimated from its own ray and survey, the orientation from the rest)."""
+    from utils.scenes import single_image_job
+
     from solver.quality.removal import remove, whole_points
-    from solver.synthetic import single_image_job
 
     job, _ = single_image_job(model="K2", n_gcp=14, n_check=0, seed=5, gcp_sigma_m=0.5)
     gcp = [p for p in job["points"] if p["role"] == "gcp"][4]
@@ -216,7 +217,7 @@ def single_with_blunders() -> tuple[set[str], dict[bool, dict]]:
     """prism-single (the independent simulator), seed 4, as bench/bench_snooping.py blunders
     --seeds 4: four image blunders and a control point moved; the injected points and the
     reports without and with reinstatement."""
-    from blunder_scenes import prism_single_with_blunders
+    from utils.blunder_scenes import prism_single_with_blunders
 
     job, injected = prism_single_with_blunders(seed=4)
     reports = {}

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from scipy import stats
 from tolerances import RECOMPUTED_REL, REDUNDANCY_SUM_ABS, SAME_NUMBER_REL
+from utils.scenes import block_job, single_image_job
 
 from solver.adjust import adjust_once
 from solver.api import run, validate
@@ -19,7 +20,6 @@ from solver.engine.linalg import linearise
 from solver.quality.reliability import minimal_detectable_bias, noncentrality, redundancy, weakest_direction
 from solver.quality.snooping import snoop
 from solver.schema.job import BlunderDetection, load_job
-from solver.synthetic import block_job, single_image_job
 
 NONCENTRALITY_ABS = 0.02  # Baarda's tabled 17.07 is given to two decimals
 # the cofactor blocks of the snooping structure against a dense inverse (QR path ~1e-11): a
@@ -282,7 +282,7 @@ def test_every_observation_kind_is_tested() -> None:
     import json
     from pathlib import Path
 
-    from solver.synthetic_lines import lines_job
+    from utils.line_scenes import lines_job
 
     direct = json.loads((Path(__file__).resolve().parents[3] / "examples" / "prism-triplet-direct.json").read_text())
     lines, _ = lines_job(seed=2)

@@ -1,4 +1,4 @@
-"""Simulated scenes adjusted once per test process, for the GIS tests (tests/test_gis_*.py).
+"""Simulated scenes adjusted once per test process, for the GIS tests (tests/solver/gis/test_gis_*.py).
 
 Small single-chip scenes (a CBERS-like 20 m camera, 2400 x 2400 pixels, nadir or tilted 20 deg
 along track) with every platform-model kind, and one PRISM-like 4-chip image; each is simulated,

@@ -1,6 +1,6 @@
 """Model-consistent synthetic jobs with straight lines (tests of the line models).
 
-Like :mod:`solver.synthetic`, the observations are generated *by a platform model itself*: an
+Like tests/utils/scenes.py, the observations are generated *by a platform model itself*: an
 ALOS-like PRISM image (nadir or tilted), straight object lines whose endpoints are the terrain
 points seen by two chosen pixels, and image points of each line projected with the model's
 exact pushbroom projection plus Gaussian noise (or, with ``fitted=True``, the least-squares
@@ -21,7 +21,7 @@ from solver.engine.assemble import kepler_constants
 from solver.geometry.geodesy import LocalFrame, ecef_to_geodetic, geodetic_to_ecef
 from solver.kernels import ray
 from solver.platforms import ANGLES, ELEMENTS, HELD, get_model
-from solver.synthetic import (
+from utils.scenes import (
     PRISM_NADIR,
     SyntheticImage,
     _obs_consts,
