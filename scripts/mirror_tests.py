@@ -16,7 +16,7 @@ What the move needs besides ``git mv`` (each is done here):
   only the importing file's folder and the folders of conftest.py files on ``sys.path``, so a
   helper imported from another folder needs its folder there: tests/conftest.py gets one
   ``sys.path`` line per such folder. Helpers shared across packages (tolerances.py,
-  bad_job_cases.py, blunder_scenes.py) stay in tests/, which conftest.py already puts there.
+  bad_job_cases.py) stay in tests/, which conftest.py already puts there.
 * Basenames stay unique (no ``__init__.py`` is added, so two ``test_x.py`` in two folders would
   collide); the script refuses a mapping that breaks this.
 * References to the moved files by path (docs, docstrings, comments, the Makefile) are rewritten.
@@ -95,7 +95,7 @@ MAPPING: dict[str, str] = {
     "test_gis_rpc.py": "solver/gis",
     "test_gis_rpc_images.py": "solver/gis",
     "test_gis_transforms.py": "solver/gis",
-    "gis_scenes.py": "solver/gis",
+    "gis_scenes.py": "solver/gis",  # since moved to tests/utils/
     # importers
     "test_importers.py": "solver/importers",
     "test_importers_rpc.py": "solver/importers",
@@ -127,12 +127,39 @@ MAPPING: dict[str, str] = {
     "test_matching_real.py": "solver/matching",
 }
 
+# tests/service/<name> -> folder under tests/service/ (mirrors service/<package>/); the rest of
+# tests/service/ (the harnesses, conftest.py, tests of service/*.py modules and of the whole
+# server) stays where it is: ``python scripts/mirror_tests.py --service``
+SERVICE_MAPPING: dict[str, str] = {
+    # service/routes/ and the use cases behind them, in process or on a real server
+    "test_service_api.py": "service/routes",
+    "test_service_admin.py": "service/routes",
+    "test_service_bad_input.py": "service/routes",
+    "test_service_camera_owners.py": "service/routes",
+    "test_service_compose.py": "service/routes",
+    "test_service_gis.py": "service/routes",
+    "test_service_ownership.py": "service/routes",
+    "test_service_promises.py": "service/routes",
+    "test_service_uploads.py": "service/routes",
+    # service/store/: the job store, its migrations, leases, fair sharing, quotas, retention
+    "test_service_store.py": "service/store",
+    "test_service_migrations.py": "service/store",
+    "test_service_leases.py": "service/store",
+    "test_service_fair.py": "service/store",
+    "test_service_quota.py": "service/store",
+    "test_service_retention.py": "service/store",
+    # service/queue/: local workers and Celery, lanes, fair order, restarts
+    "test_service_celery.py": "service/queue",
+    "test_service_fair_queues.py": "service/queue",
+    "test_service_lanes.py": "service/queue",
+    "test_service_restart.py": "service/queue",
+}
+
 # stay at the top of tests/: cross-cutting tests and the helpers several packages share
 STAY = {
     "conftest.py",
     "tolerances.py",
     "bad_job_cases.py",
-    "blunder_scenes.py",
     "test_architecture.py",
     "test_docs.py",
     "test_examples.py",
@@ -144,6 +171,39 @@ SYS_PATH_BEGIN = "# ---- mirror_tests: helper folders on sys.path (begin) ----"
 SYS_PATH_END = "# ---- mirror_tests: helper folders on sys.path (end) ----"
 TEXT_SUFFIXES = {".py", ".md", ".toml", ".yml", ".yaml", ".txt", ".cfg", ".ini", ".sh"}
 TEXT_NAMES = {"Makefile", "Dockerfile"}
+
+
+def service_moves() -> int:
+    """Move the service tests into tests/service/<package>/ (``--service``): the same steps as the
+    solver move, one folder down."""
+    here = TESTS / "service"
+    present = {n: d for n, d in SERVICE_MAPPING.items() if (here / n).exists()}
+    names = [p.name for p in TESTS.rglob("*.py") if p.name not in ("conftest.py", "__init__.py")]
+    if any(names.count(n) > 1 for n in names):
+        sys.exit("mirror_tests: duplicate basenames under tests/")
+    for name, folder in present.items():
+        print(f"git mv tests/service/{name} tests/{folder}/{name}")
+        (TESTS / folder).mkdir(parents=True, exist_ok=True)
+        subprocess.run(["git", "mv", f"tests/service/{name}", f"tests/{folder}/{name}"], cwd=ROOT, check=True)
+        moved = TESTS / folder / name
+        moved.write_text(rewrite_file_depth(moved.read_text(), 1))
+    pattern = re.compile(r"(?<![\w/.])tests/service/(" + "|".join(re.escape(n) for n in present) + r")\b")
+    for f in text_files():
+        try:
+            text = f.read_text()
+        except UnicodeDecodeError:
+            continue
+        new = pattern.sub(lambda m: f"tests/{present[m.group(1)]}/{m.group(1)}", text)
+        if new != text:
+            print("references rewritten in", f.relative_to(ROOT))
+            f.write_text(new)
+    conftest = TESTS / "conftest.py"
+    text = conftest.read_text()
+    folders = helper_folders({})
+    text = re.sub(re.escape(SYS_PATH_BEGIN) + r".*?" + re.escape(SYS_PATH_END) + r"\n", "", text, flags=re.S)
+    conftest.write_text(text.rstrip("\n") + "\n\n\n" + conftest_block(folders))
+    print("sys.path folders in tests/conftest.py:", ", ".join(folders))
+    return 0
 
 
 def check_mapping() -> None:
@@ -243,7 +303,10 @@ def rewrite_references(moves: dict[str, str], dry: bool) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dry-run", action="store_true", help="print what would move and change; touch nothing")
+    ap.add_argument("--service", action="store_true", help="move the service tests into tests/service/<package>/ instead")
     args = ap.parse_args(argv)
+    if args.service:
+        return service_moves()
     check_mapping()
     present = {n: d for n, d in MAPPING.items() if (TESTS / n).exists()}
     new_place = {n: TESTS / d for n, d in present.items()}

@@ -1,6 +1,6 @@
 """Malformed jobs (mutations of examples/prism-triplet.json) and where each must be refused.
 
-Shared by tests/test_bad_input.py (through solver.api) and tests/service/test_service_bad_input.py
+Shared by tests/test_bad_input.py (through solver.api) and tests/service/routes/test_service_bad_input.py
 (through the HTTP API); pytest puts this directory on sys.path (tests/conftest.py has no package).
 Every case was answered 500 or accepted silently before issue 13. ``where`` is the location in
 the job document (a tuple; the service prefixes ``/inputs/job``).

@@ -25,7 +25,7 @@ def _helper_folders_on_sys_path() -> None:
     import sys
     from pathlib import Path
 
-    for folder in ('service', 'solver/importers', 'solver/matching', 'solver/observations', 'solver/platforms', 'solver/sensors'):
+    for folder in ('service', 'service/routes', 'service/store', 'solver/importers', 'solver/matching', 'solver/observations', 'solver/platforms', 'solver/sensors'):
         path = str(Path(__file__).resolve().parent / folder)
         if path not in sys.path:
             sys.path.insert(0, path)

@@ -17,7 +17,7 @@ from test_service_api import assert_problem, body, make_client
 
 from solver.importers.presets import PRESETS, preset_camera
 
-ROOT = Path(__file__).parent.parent.parent
+ROOT = Path(__file__).resolve().parents[3]
 SOURCES = ROOT / "examples" / "prism-triplet-sources"
 EXAMPLE = ROOT / "examples" / "prism-triplet.json"
 IMAGES = ("prism-backward", "prism-nadir", "prism-forward")

@@ -123,7 +123,7 @@ def test_models_changed_without_a_migration_are_caught(engine: Engine) -> None:
 
 def test_migrations_ship_inside_the_package() -> None:
     """The environment is found relative to the installed package, not the checkout."""
-    assert MIGRATIONS_DIR == Path(__file__).resolve().parents[2] / "service" / "migrations"
+    assert MIGRATIONS_DIR == Path(__file__).resolve().parents[3] / "service" / "migrations"
     assert (MIGRATIONS_DIR / "env.py").is_file() and (MIGRATIONS_DIR / "script.py.mako").is_file()
     names = sorted(p.name for p in (MIGRATIONS_DIR / "versions").glob("*.py"))
     assert names[0].startswith(BASELINE)
