@@ -22,6 +22,20 @@ from solver.quality.snooping import entry, failing_clusters, predicted_test, rel
 from solver.quality.tie_pairs import tie_pairs
 from solver.schema.job import Job
 
+# The limit of removals when ``max_rejections`` is not given: a share of the tests (observation
+# groups), so that a large tie set is not cut short at a small fixed number (docs/quality.md).
+RELATIVE_MAX_REJECTIONS = 0.05
+MIN_MAX_REJECTIONS = 20
+
+
+def rejection_limit(max_rejections: int | None, n_tests: int) -> int:
+    """The most removals allowed: ``max_rejections`` when given, else
+    :data:`RELATIVE_MAX_REJECTIONS` of the ``n_tests`` tests of the whole job, at least
+    :data:`MIN_MAX_REJECTIONS`."""
+    if max_rejections is not None:
+        return max_rejections
+    return max(MIN_MAX_REJECTIONS, int(RELATIVE_MAX_REJECTIONS * n_tests))
+
 
 def snooping_adjustment(job: Job, progress, cancel, models, fraction_range: tuple[float, float]) -> dict[str, Any]:
     """Data snooping (docs/quality.md): adjust, test every observation group, remove the worst
@@ -69,6 +83,21 @@ class _Snooping:
         self.warnings: list[str] = []
         self.items: list[dict[str, Any]] = []
         self.once: set[tuple] = set()  # reinstated once: not again (no oscillation)
+        self.limit: int | None = None  # the most removals (rejection_limit), from the whole job's tests
+        self.n_tests = 0
+        self.stopped_early: dict[str, Any] | None = None
+
+    def cap(self, sn) -> int:
+        """The most removals allowed (set from the first tests: those of the whole job)."""
+        if self.limit is None:
+            self.limit, self.n_tests = rejection_limit(self.bd.max_rejections, len(sn.tests)), len(sn.tests)
+        return self.limit
+
+    def stop(self, reason: str, message: str, sn) -> None:
+        """Record why the removals stopped before every removable test passed."""
+        self.warnings.append(message)
+        failing = sum(1 for t in sn.tests if t.failed)
+        self.stopped_early = {"reason": reason, "message": message, "failing_tests": failing}
 
     def adjust(self, job: Job):
         """``adjust_once`` in the next slice of the progress range (halving slices)."""
@@ -120,14 +149,16 @@ class _Snooping:
             if not clusters:
                 return problem, report, sn
             cluster = clusters[0]
-            if self.n_removed + len(cluster) > bd.max_rejections:
-                self.warnings.append(f"data snooping stopped at max_rejections = {bd.max_rejections}: some tests still fail")
+            limit = self.cap(sn)
+            if self.n_removed + len(cluster) > limit:
+                rule = "" if bd.max_rejections is not None else f" ({RELATIVE_MAX_REJECTIONS:.0%} of the {self.n_tests} tests, at least {MIN_MAX_REJECTIONS})"
+                self.stop("max_rejections", f"data snooping stopped at max_rejections = {limit}{rule}: some tests still fail", sn)
                 return problem, report, sn
             nxt, collateral = remove(self.current, [m.group.removal for m in cluster if m.group.removal])
             try:
                 nxt_problem, nxt_report = self.adjust(nxt)
             except JobError as exc:  # rank, unusable solution, or the job no longer valid
-                self.warnings.append(f"data snooping stopped: without the next rejected observation the adjustment fails ({exc})")
+                self.stop("adjustment_failed", f"data snooping stopped: without the next rejected observation the adjustment fails ({exc})", sn)
                 return problem, report, sn
             self.record(cluster, report, collateral, self.current)
             self.n_removed += len(cluster)
@@ -139,7 +170,9 @@ class _Snooping:
         bd, job = self.bd, self.job
         robust = job.model_copy(update={"options": job.options.model_copy(update={"loss": bd.robust_start})})
         problem, report = self.adjust(robust)
-        clusters = [c for c in failing_clusters(snoop(problem, bd, robust=True), bd.separability) if c[0].group.removal]
+        sn = snoop(problem, bd, robust=True)
+        limit = self.cap(sn)
+        clusters = [c for c in failing_clusters(sn, bd.separability) if c[0].group.removal]
         take = []
         blocks: set[int] = set()
         for c in clusters:
@@ -153,7 +186,7 @@ class _Snooping:
                 # solve) and the image-only terms (lines, ephemeris, attitude: the loss does not
                 # act on them) cannot be reinstated: the least-squares loop tests them
                 continue
-            if self.n_removed + len(c) > bd.max_rejections:
+            if self.n_removed + len(c) > limit:
                 break
             take.append(c)
             blocks.update(m.group.block for m in c)
@@ -235,7 +268,7 @@ class _Snooping:
 
     def run(self) -> dict[str, Any]:
         bd, job = self.bd, self.job
-        if bd.robust_start != "none" and bd.action == "remove" and bd.max_rejections > 0:
+        if bd.robust_start != "none" and bd.action == "remove" and bd.max_rejections != 0:
             self.robust_start()
         try:
             problem, report = self.adjust(self.current)
@@ -244,7 +277,7 @@ class _Snooping:
                 raise
             # the robust step removed too much: snoop one at a time from the whole job instead
             self.warnings.append(f"the robust start's removals left no valid adjustment ({exc}); snooping from the whole job")
-            self.current, self.n_removed = job, 0
+            self.current, self.n_removed, self.limit = job, 0, None
             self.rejected.clear()
             self.not_identifiable.clear()
             self.items.clear()
@@ -303,7 +336,10 @@ class _Snooping:
                     "alpha0": bd.alpha0,
                     "beta": bd.beta,
                     "action": bd.action,
-                    "max_rejections": bd.max_rejections,
+                    "max_rejections": self.cap(sn),
+                    "max_rejections_rule": "given" if bd.max_rejections is not None else
+                    f"{RELATIVE_MAX_REJECTIONS:.0%} of the tests, at least {MIN_MAX_REJECTIONS}",
+                    "stopped_early": self.stopped_early,
                     "robust_start": bd.robust_start,
                     "reinstate": bd.reinstate,
                     "separability": bd.separability,

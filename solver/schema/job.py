@@ -587,7 +587,11 @@ class BlunderDetection(_Strict):
         description="remove the worst rejected observation (group) and re-adjust until no test "
         "fails (remove), or only test and report (report)",
     )
-    max_rejections: _int(ge=0, le=1000) = Field(default=20, description="at most this many removals")
+    max_rejections: _int(ge=0, le=1_000_000) | None = Field(
+        default=None,
+        description="at most this many removals; null: a limit relative to the observations "
+        "(5% of the tests, at least 20; quality.blunder_detection.max_rejections says which)",
+    )
     variance: Literal["apriori", "estimated"] = Field(
         default="apriori",
         description="apriori: Baarda's data snooping with sigma0_apriori taken as known; "

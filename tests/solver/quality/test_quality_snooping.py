@@ -317,6 +317,43 @@ def test_max_rejections_stops_and_reports_the_rest(weighted_block) -> None:
     assert ratios == sorted(ratios, reverse=True) and ratios[-1] > 1.0
     assert kept[0]["estimated_error"][1] == pytest.approx(-12.0, abs=BLUNDER_ESTIMATE_PX)
     assert any("max_rejections" in w for w in rep["warnings"])
+    bd = q["blunder_detection"]
+    assert bd["max_rejections"] == 1 and bd["max_rejections_rule"] == "given"
+    assert bd["stopped_early"]["reason"] == "max_rejections" and bd["stopped_early"]["failing_tests"] >= 1
+
+
+def test_rejection_limit_is_relative_to_the_tests_when_not_given() -> None:
+    from solver.procedures.snooping import rejection_limit
+
+    assert rejection_limit(None, 2400) == 120  # 5 % of the tests
+    assert rejection_limit(None, 100) == 20  # never fewer than 20
+    assert rejection_limit(7, 2400) == 7  # a given limit is kept
+
+
+def test_default_snooping_of_a_large_tie_set_removes_more_than_twenty() -> None:
+    """30 blunders among 400 tie points (about 1,250 tests): the default limit (5 % of the tests,
+    62) lets snooping remove them all and finish, where a fixed limit of 20 stopped it."""
+    job, _truth = block_job(model="P1", n_tie=400, n_gcp=14, n_check=0, seed=5, gcp_sigma_m=0.5)
+    ties = [i for i, o in enumerate(job["observations"]) if "-T" in o["point"]]
+    rng = np.random.default_rng(1)
+    picked = {}
+    for i in rng.permutation(ties):
+        if job["observations"][i]["point"] not in picked:
+            picked[job["observations"][i]["point"]] = int(i)
+        if len(picked) == 30:
+            break
+    for i in picked.values():
+        job["observations"][i]["column"] += 15.0
+    job["options"] = {"blunder_detection": {}}
+    rep = run(job)
+    bd = rep["quality"]["blunder_detection"]
+    assert bd["max_rejections"] > 30 and bd["max_rejections_rule"] != "given"
+    assert bd["stopped_early"] is None, bd["stopped_early"]
+    assert bd["n_removed"] >= 30
+    got = {(r["image"], r["point"]) for r in rep["quality"]["rejected"] if r["removed"]}
+    got |= {(m["image"], m["point"]) for g in rep["quality"]["not_identifiable"] for m in g["members"] if m["removed"]}
+    assert {(job["observations"][i]["image"], p) for p, i in picked.items()} <= got
+    assert rep["adjustment"]["chi2"]["passed"]
 
 
 def test_weakest_direction_mdb_is_the_largest_over_directions(weighted_block) -> None:
