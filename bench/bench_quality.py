@@ -34,13 +34,13 @@ from solver.adjust import adjust_job
 from solver.api import preanalyse
 from solver.schema.job import load_job
 from solver.simulate.presets import prism_triplet
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 EPHEMERIS = {"ephemeris": {"sigma_position_m": 2.0, "sigma_velocity_m_s": 0.01}}
 
 
 def triplet(seed: int, gcps: int, model: str, jitter: bool = False) -> tuple[dict, dict]:
-    s = Settings(preset="prism-triplet", seed=seed, model=model, job_options=copy.deepcopy(EPHEMERIS))
+    s = SceneSettings(preset="prism-triplet", seed=seed, model=model, job_options=copy.deepcopy(EPHEMERIS))
     if jitter:
         s = replace(s, jitter_rad=2e-6, jitter_hz=0.05)
     scene = prism_triplet(s, gcps=gcps, checks=20, tie_points=40)

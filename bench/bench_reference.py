@@ -84,14 +84,14 @@ def check(doc: dict[str, Any], exe: Path, path: Path, threads: int) -> dict[str,
     from solver.api import _as_job
     from solver.engine.backend import SolveControl
     from solver.procedures.single import prepare, solve_problem
-    from solver.schema.settings import Settings
+    from solver.schema.settings import JobSettings
 
     out = Path(tempfile.gettempdir()) / "pba-p2-reference-result.txt"
     ref = run(exe, path, threads, out)
     table = np.loadtxt(out, ndmin=2)
     job = _as_job(doc)
     problem = prepare(job)
-    solve_problem(problem, SolveControl(None, None, Settings.from_options(job.options).solve.max_iterations))
+    solve_problem(problem, SolveControl(None, None, JobSettings.from_options(job.options).solve.max_iterations))
     q_ours = np.array([img.params for img in problem.images])
     q_ref, sigma_ref = table[:, :14], table[:, 14:]
     return {"max_difference_sigma": float(np.max(np.abs(q_ours - q_ref) / sigma_ref)), "sigma0_reference": ref["sigma0"]}

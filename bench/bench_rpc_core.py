@@ -20,14 +20,14 @@ from solver import api
 from solver.geometry.rpc import BIAS_MODELS
 from solver.simulate import presets
 from solver.simulate.rpc import RpcSettings
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 BIAS = {"a0": 20.0, "a_line": 1e-4, "a_column": -3e-5, "b0": -12.0, "b_line": 2e-5, "b_column": 5e-5}
 
 
 def job(seed: int, model: str | None, images=None, **kw) -> dict:
     rpc = RpcSettings(model, {k: BIAS[k] for k in BIAS_MODELS[model]}, images) if model else None
-    return presets.prism_triplet(Settings(preset="prism-triplet", seed=seed, rpc=rpc), **kw).job()
+    return presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=seed, rpc=rpc), **kw).job()
 
 
 def rmse(rep: dict) -> tuple[float, float]:

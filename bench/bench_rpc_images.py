@@ -19,7 +19,7 @@ from solver.gis.rpc_image import RpcImage, refined_rpc
 from solver.gis.rpc_io import gdal_ground_to_image, gdal_rpc
 from solver.simulate import presets
 from solver.simulate.rpc import RpcSettings
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 BIASES = {
     "RPC-SHIFT": {"a0": 20.0, "b0": -12.0},
@@ -37,7 +37,7 @@ def main() -> None:
     for label, make in SCENES.items():
         for model, bias in BIASES.items():
             t0 = time.perf_counter()
-            scene = make(Settings(preset="bench", seed=7, rpc=RpcSettings(model, bias)))
+            scene = make(SceneSettings(preset="bench", seed=7, rpc=RpcSettings(model, bias)))
             t_sim = time.perf_counter() - t0
             (k, rpc), = scene.rpcs.items()
             im = scene.images[k]

@@ -63,14 +63,14 @@ def strip_for(n_obs: int, model: str, seed: int) -> dict[str, Any]:
     same block for every platform model (the PASS models need the ephemeris, which
     ``block_job`` does not make), at about ``n_obs`` observations."""
     from solver.simulate import presets
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
     cache = Path(tempfile.gettempdir()) / f"pba-bench-strip-{n_obs}-{seed}.json"
     if cache.is_file():
         doc = json.loads(cache.read_text())
     else:
         triplets = max(1, round(n_obs / (3 * OBS_PER_IMAGE)))
-        doc = presets.strip(Settings(preset="strip", seed=seed), triplets, round(n_obs / 3)).job()
+        doc = presets.strip(SceneSettings(preset="strip", seed=seed), triplets, round(n_obs / 3)).job()
         cache.write_text(json.dumps(doc))
     for image in doc["images"]:
         image["model"] = {"name": model}

@@ -9,14 +9,14 @@ import statistics
 import time
 
 from solver.simulate import presets
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 
 def main(repeat: int = 3) -> None:
     times = []
     for seed in range(1, repeat + 1):
         t = time.perf_counter()
-        job = presets.strip(Settings(preset="strip", seed=seed), triplets=20, tie_points=30000).job()
+        job = presets.strip(SceneSettings(preset="strip", seed=seed), triplets=20, tie_points=30000).job()
         times.append(time.perf_counter() - t)
     print(f"strip 60 images, 30000 tie points: median {statistics.median(times):.1f} s over {repeat} "
           f"({len(job['observations'])} observations)")

@@ -48,11 +48,11 @@ def _scene_job(preset: str, seed: int, model: str, ephemeris: bool) -> dict:
     """The job of a ``pba simulate`` preset (the independent simulator), the ephemeris weighted
     when asked."""
     from solver.simulate import presets
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
     maker = {"prism-triplet": presets.prism_triplet, "prism-single": presets.prism_single, "cbers-scene": presets.cbers_scene}[preset]
     opts = copy.deepcopy(EPHEMERIS_WEIGHTS) if ephemeris else {}
-    return maker(Settings(preset=preset, seed=seed, model=model, job_options=opts)).job()
+    return maker(SceneSettings(preset=preset, seed=seed, model=model, job_options=opts)).job()
 
 
 def _key(entry: dict) -> tuple:

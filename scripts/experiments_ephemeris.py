@@ -39,7 +39,7 @@ from solver.observations.ephemeris import Ephemeris
 from solver.schema.job import load_job
 from solver.simulate import presets
 from solver.simulate.orbit import EarthModel, Orbit, circular_state_over, sun_synchronous_semi_major_axis
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from doc_sections import replace_section  # noqa: E402
@@ -81,7 +81,7 @@ def interpolator_accuracy(seed: int) -> tuple[list[dict[str, Any]], dict[str, fl
             }
         )
     # leave-one-out on the noisy ephemeris the simulator writes (1 m / 1 mm/s white noise)
-    job = load_job(presets.prism_triplet(Settings(preset="prism-triplet", seed=seed)).job())
+    job = load_job(presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=seed)).job())
     loos = [Ephemeris.from_image(im).leave_one_out() for im in job.images]
     noisy = {
         "n_samples": float(np.mean([len(im.ephemeris) for im in job.images])),
@@ -126,7 +126,7 @@ def run_sweeps(seeds: list[int]) -> tuple[dict, dict, dict]:
     selfcal: dict[Any, list[dict[str, float]]] = {}
     rates: list[tuple[float, float]] = []
     for seed in seeds:
-        scene = presets.prism_triplet(Settings(preset="prism-triplet", seed=seed))
+        scene = presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=seed))
         job, truth = scene.job(), scene.truth()
         true0 = {
             im["id"]: (np.array(im["samples"]["position_ecef_m"][0]), np.array(im["samples"]["velocity_ecef_m_s"][0]))
@@ -172,7 +172,7 @@ def run_sweeps(seeds: list[int]) -> tuple[dict, dict, dict]:
             n_rate = np.linalg.norm(np.cross(r_mid, v_in)) / np.linalg.norm(r_mid) ** 2
             rates.append((float(n_rate * np.linalg.norm(centre - r_mid)), float(im["mounting_pitch_deg"])))
         # self-calibration with known IOP errors
-        scene = presets.prism_triplet(Settings(preset="prism-triplet", seed=seed, iop_errors="default"))
+        scene = presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=seed, iop_errors="default"))
         job, truth = scene.job(), scene.truth()
         for sp in POSITION_SIGMAS:
             doc = copy.deepcopy(job)

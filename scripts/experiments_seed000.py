@@ -35,7 +35,7 @@ from solver.geometry.geodesy import LocalFrame, to_ecef
 from solver.schema.job import load_job
 from solver.simulate.attitude import opk_from_matrix
 from solver.simulate.camera import prism_camera
-from solver.simulate.scene import Group, Scene, Settings
+from solver.simulate.scene import Group, Scene, SceneSettings
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from doc_sections import replace_section  # noqa: E402
@@ -59,7 +59,7 @@ PAPER_RMSE = {
 
 def simulate_pair(seed: int) -> Scene:
     """One pass: the backward and nadir cameras see the same 23 ground points."""
-    settings = Settings(preset="seed000", seed=seed, noise_px=NOISE_PX, gcp_sigma_m=GCP_SIGMA_M, name=f"seed000 seed {seed}")
+    settings = SceneSettings(preset="seed000", seed=seed, noise_px=NOISE_PX, gcp_sigma_m=GCP_SIGMA_M, name=f"seed000 seed {seed}")
     group = Group([prism_camera(v) for v in VIEWS], CONFIGS[0][0], CONFIGS[0][1], 0)
     return Scene(settings, [group]).simulate()
 

@@ -48,7 +48,7 @@ from solver.api import run
 from solver.observations.interior import camera_from_report
 from solver.schema.job import load_job
 from solver.simulate.camera import prism_camera
-from solver.simulate.scene import Group, Scene, Settings
+from solver.simulate.scene import Group, Scene, SceneSettings
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from doc_sections import replace_section  # noqa: E402
@@ -88,7 +88,7 @@ LABELS = {
 
 def simulate_pass(seed: int, iop_errors: Any = "default") -> Scene:
     """One pass over two neighbouring areas, each seen by the three cameras."""
-    settings = Settings(
+    settings = SceneSettings(
         preset="seed001", seed=seed, noise_px=NOISE_PX, gcp_sigma_m=GCP_SIGMA_M, model=MODEL, iop_errors=iop_errors, name=f"seed001 seed {seed}"
     )
     groups = [Group([prism_camera(v) for v in VIEWS], g, c, t) for g, c, t in TRIPLETS]

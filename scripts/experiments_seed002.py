@@ -44,7 +44,7 @@ from solver.api import run
 from solver.errors import JobError
 from solver.geometry.geodesy import from_ecef
 from solver.simulate.lines import GRID, LineScene, LineSet, PointSet, cbers_settings
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from doc_sections import replace_section  # noqa: E402
@@ -80,7 +80,7 @@ def scene_sets() -> tuple[list[PointSet], list[LineSet]]:
 
 def simulate(seed: int, yaw_steering: bool = False) -> LineScene:
     settings = cbers_settings(
-        Settings(preset="seed002", seed=seed, noise_px=NOISE_PX, gcp_sigma_m=GCP_SIGMA_M, name=f"seed002 seed {seed}", model="MT8")
+        SceneSettings(preset="seed002", seed=seed, noise_px=NOISE_PX, gcp_sigma_m=GCP_SIGMA_M, name=f"seed002 seed {seed}", model="MT8")
     )
     points, lines = scene_sets()
     return LineScene(settings, points, lines, yaw_steering=yaw_steering, line_noise_px=LINE_NOISE_PX).simulate()

@@ -17,7 +17,7 @@ from solver.procedures.single import adjust_once, assert_full_rank, assess, prep
 from solver.procedures.snooping import snooping_adjustment
 from solver.procedures.weak_control import weak_control_rule
 from solver.schema.job import Job
-from solver.schema.settings import Settings
+from solver.schema.settings import JobSettings
 
 __all__ = ["adjust_job", "adjust_once", "assert_full_rank", "assess", "parameter_names", "prepare", "solve_problem"]
 
@@ -44,7 +44,7 @@ def adjust_job(
     def inner(j: Job, window: tuple[float, float]) -> dict[str, Any]:
         return adjust_job(j, progress, cancel, models, window)
 
-    procedures = Settings.from_options(job.options).procedures
+    procedures = JobSettings.from_options(job.options).procedures
     if procedures.weak_control == "act" and procedures.parsimony is None and not models:
         return weak_control_rule(job, inner, progress)
     if procedures.parsimony is not None:

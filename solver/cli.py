@@ -15,12 +15,12 @@ import sys
 from collections.abc import Callable, Sequence
 
 from solver import commands
-from solver.gis import cli as gis_cli
-from solver.importers import cli as importers_cli
+from solver.gis import results_cli
+from solver.importers import job_cli
 from solver.importers import rpc_cli as import_rpc_cli
 from solver.importers import sensor_cli as import_sensor_cli
-from solver.matching import cli as matching_cli
-from solver.simulate import cli as simulate_cli
+from solver.matching import match_cli
+from solver.simulate import simulate_cli
 
 Registrar = Callable[[argparse._SubParsersAction], None]
 
@@ -33,12 +33,12 @@ def build_parser(extra: Sequence[Registrar] = ()) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     commands.register(sub)  # run, models, compare, validate, export-camera, warmup
     simulate_cli.register(sub)  # simulate
-    importers_cli.register(sub)  # job, job-sources
+    job_cli.register(sub)  # job, job-sources
     import_rpc_cli.register(sub)  # import-rpc
     import_sensor_cli.register(sub)  # import-sensor, simulate-measurements
-    gis_cli.register(sub)  # ground-to-image, image-to-ground, export-rpc, export-geojson, ortho, resample
-    matching_cli.register(sub)  # match
-    matching_cli.register_gcp(sub)  # match-gcp
+    results_cli.register(sub)  # ground-to-image, image-to-ground, export-rpc, export-geojson, ortho, resample
+    match_cli.register(sub)  # match
+    match_cli.register_gcp(sub)  # match-gcp
     for register in extra:
         register(sub)
     return parser

@@ -26,9 +26,9 @@ Say = Callable[[str], None]
 def _triplet() -> dict[str, Any]:
     """A PRISM triplet with 10 control, 2 check and 10 tie points (about 130 observations)."""
     from solver.simulate import presets
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
-    scene = presets.prism_triplet(Settings(preset="prism-triplet", seed=7), gcps=10, checks=2, tie_points=10)
+    scene = presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=7), gcps=10, checks=2, tie_points=10)
     return scene.job()
 
 
@@ -36,18 +36,18 @@ def _rpc_triplet() -> dict[str, Any]:
     """The triplet with images 2 and 3 as RPC-DRIFT images (RPC kernels beside a rigorous image)."""
     from solver.simulate import presets
     from solver.simulate.rpc import RpcSettings
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
-    settings = Settings(preset="prism-triplet", seed=7, rpc=RpcSettings("RPC-DRIFT", {"a0": 5.0, "b0": -3.0}, [2, 3]))
+    settings = SceneSettings(preset="prism-triplet", seed=7, rpc=RpcSettings("RPC-DRIFT", {"a0": 5.0, "b0": -3.0}, [2, 3]))
     return presets.prism_triplet(settings, gcps=10, checks=2, tie_points=10).job()
 
 
 def _lines() -> dict[str, Any]:
     """A CBERS-like scene with 10 ground lines, 6 control and 2 check points."""
     from solver.simulate.lines import cbers_lines
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
-    return cbers_lines(Settings(preset="cbers-lines", seed=7), lines=10, gcps=6, checks=2).job()
+    return cbers_lines(SceneSettings(preset="cbers-lines", seed=7), lines=10, gcps=6, checks=2).job()
 
 
 def warmup_jobs() -> Iterator[tuple[str, dict[str, Any]]]:

@@ -101,9 +101,9 @@ def test_exactly_singular_geometry_reports_strict_json():
     """One control point on the simulated triplet: the normal matrix may be exactly singular
     (condition infinite); the problem detail then says null, never Infinity."""
     from solver.simulate import presets
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
-    job = presets.prism_triplet(Settings(preset="prism-triplet", seed=2008)).job()
+    job = presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=2008)).job()
     for p in [p for p in job["points"] if p["role"] == "gcp"][1:]:
         p["role"] = "tie"
     with pytest.raises(RankDeficientError) as e:

@@ -8,5 +8,5 @@ writer: survey points (:mod:`~solver.importers.points_csv`), image measurements
 (:mod:`~solver.importers.ephemeris_csv`), attitude (:mod:`~solver.importers.attitude_csv`).
 The sensor presets (:mod:`~solver.importers.presets`), the composer of a job document from
 all of these (:mod:`~solver.importers.compose`, :mod:`~solver.importers.export` for the way
-back) and the ``pba job`` command (:mod:`~solver.importers.cli`).
+back) and the ``pba job`` command (:mod:`~solver.importers.job_cli`).
 """

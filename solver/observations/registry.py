@@ -9,7 +9,7 @@ here, implementing :class:`solver.observations.family.ObservationFamily`:
 * validation (:mod:`solver.engine.validate`): ``check`` (problems and counts);
 * the Ceres problem and the linearisation (:mod:`solver.engine.terms`, consumed by
   :mod:`solver.engine.backend` and :mod:`solver.engine.linalg`): ``terms``, ``refresh``;
-* quality control (:mod:`solver.quality.reliability`, :mod:`solver.quality.snooping`,
+* quality control (:mod:`solver.quality.reliability`, :mod:`solver.quality.outlier_tests`,
   :mod:`solver.quality.removal`, :mod:`solver.quality.flags`): ``groups`` (the tests of a
   term, labelled), ``without`` (the job without removed observations), ``removal_details``,
   ``flag``;

@@ -1,6 +1,6 @@
 """Parsimony of the platform models (``options.parsimony``; docs/models.md): drop the time
 terms that are not significant, one at a time, each with the F test of that constraint
-(:func:`solver.quality.parsimony.constraint_test`)."""
+(:func:`solver.quality.parameter_checks.constraint_test`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import Any
 from solver.errors import RankDeficientError
 from solver.platforms import ELEMENTS, coef_index, get_model
 from solver.procedures.single import Adjust
-from solver.quality.parsimony import constraint_test
+from solver.quality.parameter_checks import constraint_test
 from solver.schema.job import Job
 
 

@@ -22,7 +22,7 @@ from solver.engine.validate import require_valid
 from solver.errors import Cancelled, Problem, RankDeficientError, UnusableSolution
 from solver.report.document import assess
 from solver.schema.job import Job
-from solver.schema.settings import Settings
+from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState
 
 Adjust = Callable[[Job, tuple[float, float]], dict[str, Any]]
@@ -89,7 +89,7 @@ def solve_problem(problem: AdjustmentState, control):
     from solver.engine.terms import solve_with_refreshes
 
     # terms that linearise around the solution (line corrections) are refreshed between solves
-    return solve_with_refreshes(problem, Settings.from_options(problem.job.options).solve, control, solve)
+    return solve_with_refreshes(problem, JobSettings.from_options(problem.job.options).solve, control, solve)
 
 
 def adjust_once(
@@ -114,7 +114,7 @@ def adjust_once(
     assert_full_rank(problem)
     if cancel is not None and cancel():
         raise Cancelled("cancelled before the solve")
-    control = SolveControl(progress, cancel, Settings.from_options(job.options).solve.max_iterations, (frac(0.08), frac(0.9)))
+    control = SolveControl(progress, cancel, JobSettings.from_options(job.options).solve.max_iterations, (frac(0.08), frac(0.9)))
     outcome = solve_problem(problem, control)
     if outcome.cancelled:
         raise Cancelled(f"cancelled after {outcome.iterations} iterations")

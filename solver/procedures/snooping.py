@@ -1,7 +1,7 @@
 """Data snooping (``options.blunder_detection``; docs/quality.md): test, remove the worst rejected
 observation (group), re-adjust, and put back what passes against the final solution.
 
-The tests, reliability and the ``quality`` report section are :mod:`solver.quality.snooping`;
+The tests, reliability and the ``quality`` report section are :mod:`solver.quality.outlier_tests`;
 the job without the removed observations :mod:`solver.quality.removal` (the core's removals
 and each observation family's ``without``); their flags in the families' report sections
 :mod:`solver.quality.flags`. This module is the loop.
@@ -17,8 +17,8 @@ from solver.errors import JobError
 from solver.procedures.single import adjust_once
 from solver.quality.distributions import chi2_upper_quantile
 from solver.quality.flags import flag_sections
+from solver.quality.outlier_tests import entry, failing_clusters, predicted_test, reliability_section, snoop
 from solver.quality.removal import INFLATE, reinstate, remove, testable, whole_points, with_candidates
-from solver.quality.snooping import entry, failing_clusters, predicted_test, reliability_section, snoop
 from solver.quality.tie_pairs import tie_pairs
 from solver.schema.job import Job
 

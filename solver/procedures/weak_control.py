@@ -4,7 +4,7 @@ term (``options.weak_control``, default ``"act"``; docs/models.md section 13).
 The report calls an attitude term of an orbit-attitude or pass model undetermined when its
 sigma, as an angle over half the image, exceeds the plausible limit
 (``options.quality_warnings.attitude_sigma_deg``, 0.1 degree:
-:func:`solver.quality.parsimony.implausible_sigmas`). With weak control (a few control points
+:func:`solver.quality.parameter_checks.implausible_sigmas`). With weak control (a few control points
 in one band of a long strip, no attitude samples) the attitude of the oblique images is such,
 and its rates, extrapolated along the strip, put the check points tens to hundreds of metres
 off.

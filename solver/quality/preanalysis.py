@@ -32,7 +32,7 @@ from solver.kernels import all_observation_blocks
 from solver.observations.ephemeris import image_state
 from solver.observations.line_data import lines_ecef
 from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
-from solver.quality.parsimony import high_correlations
+from solver.quality.parameter_checks import high_correlations
 from solver.quality.precision import (
     block_width,
     error_ellipse,

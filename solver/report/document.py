@@ -21,11 +21,11 @@ from solver.observations.ephemeris import line0_state_ecef
 from solver.observations.family import ReportContext
 from solver.observations.passes import attitude_groups
 from solver.quality.leave_one_out import leave_one_out
-from solver.quality.parsimony import high_correlations, implausible_sigmas
+from solver.quality.parameter_checks import high_correlations, implausible_sigmas
 from solver.quality.precision import checkpoint_precision, error_ellipses
 from solver.report.checkpoints import compute_checkpoints
 from solver.report.statistics import chi2_test
-from solver.schema.settings import Settings
+from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState, rows_by_image
 
 REPORT_SCHEMA_VERSION = "1.0"
@@ -55,7 +55,7 @@ def _covariance(lin: Linearisation, problem: AdjustmentState, warnings: list[str
 def assess(problem: AdjustmentState, outcome) -> dict[str, Any]:
     """Statistics, covariance, check points and the report, at the current parameters."""
     job = problem.job
-    stats = Settings.from_options(job.options).statistics
+    stats = JobSettings.from_options(job.options).statistics
     lin = linearise(problem)
     n_obs = len(lin.residuals)
     n_unk = lin.layout.n_params

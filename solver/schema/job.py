@@ -655,7 +655,7 @@ class PreanalysisOptions(_Strict):
 
 
 # The solver reads these as four objects (how to solve, which blocks, which statistics, which
-# procedures): solver.schema.settings.Settings.from_options; the wire format stays this one.
+# procedures): solver.schema.settings.JobSettings.from_options; the wire format stays this one.
 class SolverOptions(_Strict):
     """How to solve and what to report."""
 

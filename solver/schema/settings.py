@@ -2,7 +2,7 @@
 as COLMAP's bundle adjustment does (../shared/STYLE.md).
 
 The job document keeps its one ``options`` object (:class:`solver.schema.job.SolverOptions`,
-the wire format users write and openapi.yaml publishes); :meth:`Settings.from_options` maps it,
+the wire format users write and openapi.yaml publishes); :meth:`JobSettings.from_options` maps it,
 at the boundary, onto four objects whose names collide with nothing of pyceres':
 
 * :class:`SolveSettings`: how to solve (Ceres: iterations, tolerances, robust loss), read by
@@ -85,7 +85,7 @@ class ProcedureConfig:
 
 
 @dataclass(frozen=True)
-class Settings:
+class JobSettings:
     """The four groups of a job's ``options``."""
 
     solve: SolveSettings
@@ -94,7 +94,7 @@ class Settings:
     procedures: ProcedureConfig
 
     @classmethod
-    def from_options(cls, o: SolverOptions) -> "Settings":
+    def from_options(cls, o: SolverOptions) -> "JobSettings":
         """The settings of the job document's ``options`` (the wire format, unchanged)."""
         sc = o.self_calibration
         return cls(

@@ -36,7 +36,7 @@ import numpy as np
 from solver.geometry.geodesy import ecef_to_geodetic, enu_rotation, from_ecef
 from solver.simulate.camera import cbers_camera
 from solver.simulate.presets import CBERS_INCLINATION_DEG, CBERS_SITE
-from solver.simulate.scene import Group, Scene, Settings, SimObservation, SimPoint
+from solver.simulate.scene import Group, Scene, SceneSettings, SimObservation, SimPoint
 
 FULL = (0.0, 1.0, 0.0, 1.0)  # region: line_lo, line_hi, column_lo, column_hi (fractions)
 GRID = "grid"
@@ -94,7 +94,7 @@ class LineScene(Scene):
 
     def __init__(
         self,
-        settings: Settings,
+        settings: SceneSettings,
         point_sets: list[PointSet],
         line_sets: list[LineSet],
         yaw_steering: bool = False,
@@ -253,7 +253,7 @@ class LineScene(Scene):
         return doc
 
 
-def cbers_settings(settings: Settings) -> Settings:
+def cbers_settings(settings: SceneSettings) -> SceneSettings:
     """The ``cbers-scene`` site, orbit and CRS (SAD69 / UTM 22S) applied to ``settings``."""
     return replace(
         settings,
@@ -262,12 +262,12 @@ def cbers_settings(settings: Settings) -> Settings:
         lat_deg=CBERS_SITE[1],
         inclination_deg=CBERS_INCLINATION_DEG,
         crs="EPSG:29192",
-        epoch_s=48600.0 if settings.epoch_s == Settings.epoch_s else settings.epoch_s,
+        epoch_s=48600.0 if settings.epoch_s == SceneSettings.epoch_s else settings.epoch_s,
     )
 
 
 def cbers_lines(
-    settings: Settings,
+    settings: SceneSettings,
     lines: int = 50,
     gcps: int = 23,
     checks: int = 8,

@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from solver.simulate.camera import cbers_camera, prism_camera, simple_camera
-from solver.simulate.scene import Group, Scene, Settings
+from solver.simulate.scene import Group, Scene, SceneSettings
 
 PRISM_VIEWS = ("backward", "nadir", "forward")
 CBERS_SITE = (-51.147, -22.372)  # centre of the seed 002 scene (orbit 159, point 125)
@@ -32,7 +32,7 @@ SMALL_MIN_PX = 64
 
 
 def prism_single(
-    settings: Settings, camera: str = "nadir", gcps: int = 14, checks: int = 9, chip_layout: str = "partition"
+    settings: SceneSettings, camera: str = "nadir", gcps: int = 14, checks: int = 9, chip_layout: str = "partition"
 ) -> Scene:
     """One PRISM-like image of the default area (``chip_layout``: :func:`solver.simulate.camera.prism_chips`)."""
     group = Group([prism_camera(camera, chip_layout)], gcps, checks, 0)
@@ -40,7 +40,7 @@ def prism_single(
 
 
 def prism_triplet(
-    settings: Settings, gcps: int = 22, checks: int = 20, tie_points: int = 40, chip_layout: str = "partition"
+    settings: SceneSettings, gcps: int = 22, checks: int = 20, tie_points: int = 40, chip_layout: str = "partition"
 ) -> Scene:
     """A PRISM-like triplet (backward, nadir, forward) of the default area (``chip_layout``:
     :func:`solver.simulate.camera.prism_chips`)."""
@@ -48,7 +48,7 @@ def prism_triplet(
     return Scene(replace(settings, preset="prism-triplet"), [group]).simulate()
 
 
-def cbers_scene(settings: Settings, gcps: int = 23, checks: int = 8) -> Scene:
+def cbers_scene(settings: SceneSettings, gcps: int = 23, checks: int = 8) -> Scene:
     """A CBERS-like CCD scene, ground coordinates in SAD69 / UTM 22S."""
     s = replace(
         settings,
@@ -57,13 +57,13 @@ def cbers_scene(settings: Settings, gcps: int = 23, checks: int = 8) -> Scene:
         lat_deg=CBERS_SITE[1],
         inclination_deg=CBERS_INCLINATION_DEG,
         crs="EPSG:29192",
-        epoch_s=48600.0 if settings.epoch_s == Settings.epoch_s else settings.epoch_s,
+        epoch_s=48600.0 if settings.epoch_s == SceneSettings.epoch_s else settings.epoch_s,
     )
     return Scene(s, [Group([cbers_camera()], gcps, checks, 0)]).simulate()
 
 
 def strip(
-    settings: Settings, triplets: int = 20, tie_points: int = 30000, gcps: int | None = None, checks: int | None = None
+    settings: SceneSettings, triplets: int = 20, tie_points: int = 30000, gcps: int | None = None, checks: int | None = None
 ) -> Scene:
     """``triplets`` consecutive PRISM triplets along one pass, ``tie_points`` ties in total.
 
@@ -84,7 +84,7 @@ def strip(
     return Scene(replace(settings, preset="strip", truth_step_lines=max(settings.truth_step_lines, 1000)), groups).simulate()
 
 
-def small_triplet(settings: Settings, size_px: int = 480, gcps: int = 8, checks: int = 8, tie_points: int = 30) -> Scene:
+def small_triplet(settings: SceneSettings, size_px: int = 480, gcps: int = 8, checks: int = 8, tie_points: int = 30) -> Scene:
     """Three views (``back``, ``nadir``, ``fwd``: pitched -20, 0, +20 degrees) of a
     ``size_px`` x ``size_px`` single-chip camera with ~20 m ground pixels over terrain of
     200-1200 m ellipsoidal height."""

@@ -42,7 +42,7 @@ SEAM_CLEARANCE_PX = 2.0
 
 
 @dataclass
-class Settings:
+class SceneSettings:
     """Everything that defines a simulation (recorded in the truth file)."""
 
     preset: str
@@ -119,7 +119,7 @@ class Group:
 class Scene:
     """A simulated pass. Build with :meth:`simulate`, then write :meth:`job` and :meth:`truth`."""
 
-    def __init__(self, settings: Settings, groups: list[Group], earth: EarthModel | None = None) -> None:
+    def __init__(self, settings: SceneSettings, groups: list[Group], earth: EarthModel | None = None) -> None:
         self.settings = settings
         self.groups = [
             replace(

@@ -97,9 +97,9 @@ def test_build_an_rpc_block_from_its_files(page: Any, local_server: Server, tmp_
     from solver.importers.export import write_sources
     from solver.simulate import presets
     from solver.simulate.rpc import RpcSettings
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
-    s = Settings(preset="prism-triplet", seed=5, rpc=RpcSettings("RPC-DRIFT", {"a0": 6.0, "b0": -4.0}))
+    s = SceneSettings(preset="prism-triplet", seed=5, rpc=RpcSettings("RPC-DRIFT", {"a0": 6.0, "b0": -4.0}))
     job = presets.prism_triplet(s, gcps=6, checks=4, tie_points=12).job()
     write_sources(job, tmp_path)
     ids = [im["id"] for im in job["images"]]

@@ -25,9 +25,9 @@ BIAS = {"a0": 20.0, "a_line": 1e-4, "b0": -12.0, "b_line": 2e-5}  # px and px/px
 def _rpc_job() -> dict[str, Any]:
     from solver.simulate import presets
     from solver.simulate.rpc import RpcSettings
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
-    s = Settings(preset="prism-triplet", seed=3, rpc=RpcSettings("RPC-DRIFT", dict(BIAS), None))
+    s = SceneSettings(preset="prism-triplet", seed=3, rpc=RpcSettings("RPC-DRIFT", dict(BIAS), None))
     job = presets.prism_triplet(s, gcps=6, checks=10, tie_points=20).job()
     job["options"] = {"blunder_detection": {}}
     return job

@@ -13,9 +13,9 @@ def prism_single_with_blunders(seed: int = 4) -> tuple[dict[str, Any], set[str]]
     control image points and one more control point's survey moved 10-30 m; the job and the
     ids of the points with a blunder."""
     from solver.simulate import presets
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
-    job = presets.prism_single(Settings(preset="prism-single", seed=seed, model="K2")).job()
+    job = presets.prism_single(SceneSettings(preset="prism-single", seed=seed, model="K2")).job()
     rng = np.random.default_rng(1000 + seed)
     roles = {p["id"]: p["role"] for p in job["points"]}
     injected: set[str] = set()

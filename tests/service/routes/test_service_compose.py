@@ -163,9 +163,9 @@ def test_compose_rpc_images_from_uploaded_rpc_files(local: TestClient, tmp_path:
     from solver.importers.export import write_sources
     from solver.simulate import presets
     from solver.simulate.rpc import RpcSettings
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
-    s = Settings(preset="prism-triplet", seed=4, rpc=RpcSettings("RPC-SHIFT", {"a0": 5.0, "b0": 3.0}))
+    s = SceneSettings(preset="prism-triplet", seed=4, rpc=RpcSettings("RPC-SHIFT", {"a0": 5.0, "b0": 3.0}))
     job = presets.prism_triplet(s, gcps=6, checks=4, tie_points=12).job()
     write_sources(job, tmp_path)
     files = {p.name: p.read_bytes() for p in tmp_path.iterdir()}

@@ -25,7 +25,7 @@ from solver.api import _as_job
 from solver.engine.backend import SolveControl
 from solver.engine.linalg import covariance, linearise, schur
 from solver.procedures.single import prepare, solve_problem
-from solver.schema.settings import Settings
+from solver.schema.settings import JobSettings
 
 ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT / "bench"))
@@ -63,7 +63,7 @@ def test_p2_solution_and_covariance_equal_the_cpp_autodiff_program(reference_exe
 
     job = _as_job(doc)
     problem = prepare(job)
-    outcome = solve_problem(problem, SolveControl(None, None, Settings.from_options(job.options).solve.max_iterations))
+    outcome = solve_problem(problem, SolveControl(None, None, JobSettings.from_options(job.options).solve.max_iterations))
     assert outcome.converged
     lin = linearise(problem)
     cov = covariance(lin, schur(lin, problem), problem)

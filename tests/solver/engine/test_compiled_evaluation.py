@@ -34,7 +34,7 @@ from solver.engine.backend import SolveControl, build_ceres_problem
 from solver.errors import Cancelled
 from solver.procedures.single import prepare
 from solver.schema.job import load_job
-from solver.schema.settings import Settings
+from solver.schema.settings import JobSettings
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 SAME_PHYSICS_RTOL = 1e-10  # one kernel behind both paths: only summation order may differ
@@ -62,9 +62,9 @@ requires_native = pytest.mark.skipif(
 
 def _triplet_job(model: str, **options: Any) -> dict[str, Any]:
     from solver.simulate import presets
-    from solver.simulate.scene import Settings as SimSettings
+    from solver.simulate.scene import SceneSettings
 
-    job = presets.prism_triplet(SimSettings(preset="prism-triplet", seed=5), gcps=8, checks=3, tie_points=12).job()
+    job = presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=5), gcps=8, checks=3, tie_points=12).job()
     for image in job["images"]:
         image["model"] = {"name": model}
     job.setdefault("options", {}).update(options)
@@ -74,9 +74,9 @@ def _triplet_job(model: str, **options: Any) -> dict[str, Any]:
 def _rpc_job() -> dict[str, Any]:
     from solver.simulate import presets
     from solver.simulate.rpc import RpcSettings
-    from solver.simulate.scene import Settings as SimSettings
+    from solver.simulate.scene import SceneSettings
 
-    settings = SimSettings(preset="prism-triplet", seed=5, rpc=RpcSettings("RPC-DRIFT", {"a0": 5.0, "b0": -3.0}, [2, 3]))
+    settings = SceneSettings(preset="prism-triplet", seed=5, rpc=RpcSettings("RPC-DRIFT", {"a0": 5.0, "b0": -3.0}, [2, 3]))
     return presets.prism_triplet(settings, gcps=8, checks=3, tie_points=12).job()
 
 
@@ -112,7 +112,7 @@ SCENES = {
 def _built(job: dict[str, Any], path: str, monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setenv(native.EVALUATION_ENV, path)
     problem = prepare(load_job(copy.deepcopy(job)))
-    options = Settings.from_options(problem.job.options).solve
+    options = JobSettings.from_options(problem.job.options).solve
     return problem, build_ceres_problem(problem, options, SolveControl(None, None, 10))
 
 

@@ -30,7 +30,7 @@ from solver.engine.linalg import linearise
 from solver.engine.terms import family_terms
 from solver.observations import registry
 from solver.schema.job import load_job
-from solver.schema.settings import Settings
+from solver.schema.settings import JobSettings
 
 # Steps move the most sensitive residual of a column by this many sigma: large enough that the
 # kernels' iterative line search (stopped at ~1e-8 line) and the rounding of 7e6-m coordinates
@@ -162,7 +162,7 @@ def _ceres_blocks(problem, monkeypatch, path: str = "python") -> list[tuple]:
     """The residual blocks the backend builds on evaluation ``path`` ("python" or "compiled")."""
     monkeypatch.setattr(backend.pyceres, "Problem", _Recorder)
     monkeypatch.setenv("PBA_EVALUATION", path)
-    settings = Settings.from_options(problem.job.options).solve
+    settings = JobSettings.from_options(problem.job.options).solve
     built = backend.build_ceres_problem(problem, settings, backend.SolveControl(None, None, 10))
     return [(c, p) for c, p in built.problem.blocks if isinstance(c, backend.pyceres.CostFunction) and not _is_ceres_own(c)]
 

@@ -24,7 +24,7 @@ from solver.importers.errors import SourceError
 from solver.importers.rpc import read_rpc
 from solver.simulate import presets
 from solver.simulate.rpc import RpcSettings
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 RPC_NUMBER_ABS = 1e-12  # RPC coefficients and offsets written and read back (values of O(1))
 
@@ -37,7 +37,7 @@ COEFFS = {"line_num_coeff": "line_num", "line_den_coeff": "line_den", "samp_num_
 @pytest.fixture(scope="module")
 def rpc() -> RPC:
     """A realistic RPC: fitted by the simulator to a tilted PRISM-like image (ideal geometry)."""
-    s = Settings(preset="prism-single", seed=4, rpc=RpcSettings("RPC-AFFINE", {"a0": 3.0, "b_line": 1e-5}))
+    s = SceneSettings(preset="prism-single", seed=4, rpc=RpcSettings("RPC-AFFINE", {"a0": 3.0, "b_line": 1e-5}))
     scene = presets.prism_single(s, camera="forward", gcps=6, checks=2)
     r = scene.rpcs[0]
     r.err_bias, r.err_rand = 1.5, 0.25

@@ -216,9 +216,9 @@ def test_rpc_images_round_trip_through_job_sources_and_pba_job(
     from solver.api import run
     from solver.simulate import presets
     from solver.simulate.rpc import RpcSettings
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
-    s = Settings(preset="prism-triplet", seed=2, rpc=RpcSettings("RPC-DRIFT", {"a0": 15.0, "b0": -8.0}, (1, 3)))
+    s = SceneSettings(preset="prism-triplet", seed=2, rpc=RpcSettings("RPC-DRIFT", {"a0": 15.0, "b0": -8.0}, (1, 3)))
     job = presets.prism_triplet(s, gcps=8, checks=8, tie_points=20).job()
     rpc_ids = [im["id"] for im in job["images"] if im.get("rpc")]
     assert len(rpc_ids) == 2 and len(job["cameras"]) == 1

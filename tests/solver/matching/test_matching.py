@@ -27,7 +27,7 @@ from solver.importers.measurements_csv import read_measurements
 from solver.simulate.camera import simple_camera
 from solver.simulate.raster import render_image
 from solver.simulate.rpc import fit_image_rpc
-from solver.simulate.scene import Group, Scene, Settings
+from solver.simulate.scene import Group, Scene, SceneSettings
 
 pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")]
 
@@ -42,7 +42,7 @@ GRID = ["--grid", "5", "--per-cell", "4"]
 def triplet(tmp_path_factory):
     d = tmp_path_factory.mktemp("match")
     cams = [simple_camera(n, 520.0, 0.013, 0.00292, SIZE_PX, SIZE_PX, p) for n, p in (("back", -20.0), ("nadir", 0.0), ("fwd", 20.0))]
-    settings = Settings(preset="match-test", seed=3, name="match", model="J2-2", noise_px=0.05, terrain_min_m=200.0, terrain_max_m=1200.0)
+    settings = SceneSettings(preset="match-test", seed=3, name="match", model="J2-2", noise_px=0.05, terrain_min_m=200.0, terrain_max_m=1200.0)
     scene = Scene(settings, [Group(cams, 8, 8, 30)]).simulate()
     job = scene.job()
     (d / "sim.json").write_text(json.dumps(job))
@@ -228,7 +228,7 @@ def test_job_match_adds_tie_points(triplet):
     """``pba job ... --match`` (its helper on a composed job): the matched tie points join the
     job as tie points with their measurements, ids clear of the job's own, and the job is valid."""
     from solver.api import validate
-    from solver.importers.cli import add_matched_ties
+    from solver.importers.job_cli import add_matched_ties
     from solver.matching.features import MatchSettings
     from solver.schema.job import load_job
 

@@ -24,7 +24,7 @@ from solver.importers.measurements_csv import read_measurements
 from solver.importers.points_csv import read_points
 from solver.simulate.camera import simple_camera
 from solver.simulate.raster import render_image, render_ortho
-from solver.simulate.scene import Group, Scene, Settings
+from solver.simulate.scene import Group, Scene, SceneSettings
 
 pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")]
 
@@ -40,7 +40,7 @@ GRID = ["--grid", "8"]
 def scene_files(tmp_path_factory):
     d = tmp_path_factory.mktemp("gcp")
     cams = [simple_camera(n, 520.0, 0.013, 0.00292, SIZE_PX, SIZE_PX, p) for n, p in (("back", -20.0), ("nadir", 0.0), ("fwd", 20.0))]
-    settings = Settings(preset="match-test", seed=3, name="match", model="J2-2", noise_px=0.05, terrain_min_m=200.0, terrain_max_m=1200.0)
+    settings = SceneSettings(preset="match-test", seed=3, name="match", model="J2-2", noise_px=0.05, terrain_min_m=200.0, terrain_max_m=1200.0)
     scene = Scene(settings, [Group(cams, 8, 8, 30)]).simulate()
     (d / "sim.json").write_text(json.dumps(scene.job()))
     for i, g in enumerate(scene.images):

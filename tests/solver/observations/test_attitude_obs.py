@@ -186,9 +186,9 @@ def test_simulated_attitude_samples_use_the_models_convention():
     from solver.kernels import _orbital_frame, _rotation_into
     from solver.simulate import presets
     from solver.simulate.attitude import AttitudeModel, model_attitude_angles
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
-    scene = presets.prism_triplet(Settings(preset="prism-triplet", seed=1), gcps=4, checks=1, tie_points=0)
+    scene = presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=1), gcps=4, checks=1, tie_points=0)
     t = np.array([0.0, 3.0, 50.0])
     r, v = scene.platform.orbit.state(t)
     rng = np.random.default_rng(0)

@@ -23,7 +23,7 @@ from solver.schema.job import Camera, load_job
 from solver.simulate import presets
 from solver.simulate.camera import CameraSpec, ChipSpec, prism_camera
 from solver.simulate.iop import CameraIOP
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 SAME_FORMULA_MM = 1e-9  # 1e-9 mm = 1.4e-7 px: the same focal-plane formula evaluated twice
 
@@ -69,7 +69,7 @@ def test_explicit_chip_overrides_the_rule():
 
 @pytest.fixture(scope="module")
 def butted_triplet() -> tuple[dict, dict]:
-    scene = presets.prism_triplet(Settings(preset="prism-triplet", seed=13), chip_layout="butted")
+    scene = presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=13), chip_layout="butted")
     return scene.job(), scene.truth()
 
 

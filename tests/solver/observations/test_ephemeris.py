@@ -15,7 +15,7 @@ from solver.observations.ephemeris import Ephemeris, ephemeris_report, hermite, 
 from solver.schema.job import Image, SolverOptions, load_job
 from solver.simulate import presets
 from solver.simulate.orbit import EarthModel, Orbit, circular_state_over, sun_synchronous_semi_major_axis
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 RMS_POSITION_M, RMS_VELOCITY_M_S = 2e-5, 3e-7  # RMS interpolation errors over the pass (measured below the max bounds)
 ZERO_CORRECTION_M = 1e-6  # before the solve the Kepler state is the interpolated one
@@ -107,7 +107,7 @@ def test_interpolation_is_exact_at_the_samples_and_ignores_their_order():
 
 @pytest.fixture(scope="module")
 def triplet_job() -> dict:
-    return presets.prism_triplet(Settings(preset="prism-triplet", seed=5)).job()
+    return presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=5)).job()
 
 
 def test_image_state_precedence(triplet_job):

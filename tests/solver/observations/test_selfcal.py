@@ -99,9 +99,9 @@ def test_a_creeping_solve_names_the_nearly_undetermined_pair():
     iterations; the report then names that pair. Without df the solve converges and the
     warning is absent."""
     from solver.simulate import presets
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
-    job = presets.prism_triplet(Settings(preset="prism-triplet", seed=1, iop_errors="default")).job()
+    job = presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=1, iop_errors="default")).job()
     job["options"] = {"self_calibration": {"estimate": ["df", "a0", "b0"]}}
     rep = adjust_job(load_job(job))
     assert not rep["adjustment"]["converged"]

@@ -25,7 +25,7 @@ from solver.kernels.rpc import rpc_project
 from solver.schema.job import load_job
 from solver.simulate import presets
 from solver.simulate.rpc import RpcSettings
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 RAY_MISS_M = 1e-3  # the ray of an observed pixel passes within 1 mm of the ground point it came from
 
@@ -43,7 +43,7 @@ def _bias_of(model: str) -> dict[str, float]:
 
 
 def _triplet(model="RPC-DRIFT", seed=1, images=None, gcps=4, checks=20, ties=40, noise_px=0.5) -> dict:
-    s = Settings(preset="prism-triplet", seed=seed, noise_px=noise_px, rpc=RpcSettings(model, _bias_of(model), images) if model else None)
+    s = SceneSettings(preset="prism-triplet", seed=seed, noise_px=noise_px, rpc=RpcSettings(model, _bias_of(model), images) if model else None)
     return presets.prism_triplet(s, gcps=gcps, checks=checks, tie_points=ties).job()
 
 
@@ -162,9 +162,9 @@ def test_mixed_block_is_as_good_as_the_all_rigorous_block() -> None:
     """Image 1 rigorous (K2), images 2, 3 RPC-DRIFT images with the known bias, sharing the tie,
     control and check points (the preset's default control, 20 check points, seed 1): the
     check-point RMSE (planimetric and 3D) within 10% of the all-rigorous block's."""
-    s = Settings(preset="prism-triplet", seed=1, rpc=RpcSettings("RPC-DRIFT", _bias_of("RPC-DRIFT"), [2, 3]))
+    s = SceneSettings(preset="prism-triplet", seed=1, rpc=RpcSettings("RPC-DRIFT", _bias_of("RPC-DRIFT"), [2, 3]))
     mixed_doc = presets.prism_triplet(s).job()
-    rigorous_doc = presets.prism_triplet(Settings(preset="prism-triplet", seed=1)).job()
+    rigorous_doc = presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=1)).job()
     assert [im.get("camera") is None for im in mixed_doc["images"]] == [False, True, True]
     mixed, rigorous = api.run(mixed_doc), api.run(rigorous_doc)
     assert mixed["checkpoints"]["n"] == rigorous["checkpoints"]["n"] == 20
@@ -177,7 +177,7 @@ def test_report_and_quality_sections_cover_rpc_images() -> None:
     the blunder is found and removed (it is only in an RPC image), the observation list and
     per-image residual statistics include the RPC images, check points seen only by RPC images
     are intersected, and the RPC image's report entry has its bias, sigmas and covariance."""
-    s = Settings(preset="prism-triplet", seed=2, rpc=RpcSettings("RPC-SHIFT", _bias_of("RPC-SHIFT"), [2, 3]))
+    s = SceneSettings(preset="prism-triplet", seed=2, rpc=RpcSettings("RPC-SHIFT", _bias_of("RPC-SHIFT"), [2, 3]))
     doc = presets.prism_triplet(s, gcps=6, checks=10, tie_points=30).job()
     doc = copy.deepcopy(doc)
     rpc_ids = {im["id"] for im in doc["images"] if "rpc" in im}
@@ -208,7 +208,7 @@ def test_lines_observed_in_an_rpc_image_are_refused_where_they_are() -> None:
     an RPC image is a 4xx problem at that line's observations, not a crash or a silent drop."""
     from solver.simulate.lines import cbers_lines
 
-    s = Settings(preset="cbers-lines", seed=7, rpc=RpcSettings("RPC-SHIFT", {"a0": 5.0}, None))
+    s = SceneSettings(preset="cbers-lines", seed=7, rpc=RpcSettings("RPC-SHIFT", {"a0": 5.0}, None))
     doc = cbers_lines(s, lines=3, gcps=6, checks=2).job()
     result = api.validate(doc)
     assert not result["valid"]

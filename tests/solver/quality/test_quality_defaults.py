@@ -19,13 +19,13 @@ import pytest
 from solver.adjust import adjust_job
 from solver.schema.job import load_job
 from solver.simulate.presets import prism_triplet
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 EPHEMERIS = {"ephemeris": {"sigma_position_m": 2.0, "sigma_velocity_m_s": 0.01}}
 
 
 def _scene(gcps: int) -> dict:
-    s = Settings(preset="prism-triplet", seed=1, model="PASS-J2", job_options=copy.deepcopy(EPHEMERIS))
+    s = SceneSettings(preset="prism-triplet", seed=1, model="PASS-J2", job_options=copy.deepcopy(EPHEMERIS))
     # the simulator's default drift (rates 1e-6/1e-6/1e-5 rad/s, acceleration 1e-8 rad/s^2) and
     # a slow oscillation: 2 urad at 0.05 Hz (a 20-s period over a 6-s image: a curvature the
     # linear terms cannot follow exactly)

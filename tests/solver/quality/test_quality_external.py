@@ -14,8 +14,8 @@ from utils.scenes import block_job
 from solver.adjust import adjust_once
 from solver.api import run
 from solver.quality.external import external_points
+from solver.quality.outlier_tests import snoop
 from solver.quality.reliability import Structure
-from solver.quality.snooping import snoop
 from solver.schema.job import BlunderDetection, load_job
 
 # the effect is first order in the bias. At a tenth of the MDB the re-adjusted shifts match it

@@ -9,7 +9,7 @@ from tolerances import SAME_NUMBER_REL
 from utils.scenes import block_job
 
 from solver.adjust import adjust_job
-from solver.quality.parsimony import constraint_test, high_correlations
+from solver.quality.parameter_checks import constraint_test, high_correlations
 from solver.schema.job import load_job
 
 F_TABLE_ABS = 1e-3  # the tabled F(1, 100; 0.95) = 3.936 has three decimals

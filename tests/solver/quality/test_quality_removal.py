@@ -14,8 +14,8 @@ from utils.scenes import block_job
 
 from solver.adjust import adjust_once
 from solver.api import run
+from solver.quality.outlier_tests import predicted_test, snoop
 from solver.quality.removal import INFLATE, with_candidates
-from solver.quality.snooping import predicted_test, snoop
 from solver.schema.job import BlunderDetection, load_job
 
 # the predicted w of a removed observation vs the test inside the adjustment: the nonlinearity of

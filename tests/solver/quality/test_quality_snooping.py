@@ -17,8 +17,8 @@ from utils.scenes import block_job, single_image_job
 from solver.adjust import adjust_once
 from solver.api import run, validate
 from solver.engine.linalg import linearise
+from solver.quality.outlier_tests import snoop
 from solver.quality.reliability import minimal_detectable_bias, noncentrality, redundancy, weakest_direction
-from solver.quality.snooping import snoop
 from solver.schema.job import BlunderDetection, load_job
 
 NONCENTRALITY_ABS = 0.02  # Baarda's tabled 17.07 is given to two decimals
@@ -405,7 +405,7 @@ def test_w_test_critical_values_match_closed_forms(alpha0) -> None:
     (3.29 for 0.001); d = 2 is sqrt(-2 ln alpha0) (chi-square with 2 dof is exponential);
     Pope's tau with d = 1 is sqrt(r) t / sqrt(r - 1 + t^2), t the two-sided Student quantile
     with r - 1 dof. A test at 1 - alpha0/2 instead of 1 - alpha0 is 5 % to 10 % too high."""
-    from solver.quality.snooping import _critical
+    from solver.quality.outlier_tests import _critical
 
     rel = 1e-9  # quantile functions evaluated two ways
     assert _critical("apriori", alpha0, 1, 50) == pytest.approx(stats.norm.ppf(1 - alpha0 / 2), rel=rel)

@@ -21,7 +21,7 @@ from solver.engine.linalg import linearise
 from solver.report.document import assess
 from solver.schema.job import load_job
 from solver.simulate import presets
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 # the dense inverse of the normal matrix against the solver's Schur complement: the matrix is
 # ill-conditioned (pitch / along-track position, ~1e11); a missing a-posteriori scaling is 100 %
@@ -40,7 +40,7 @@ ALPHA = 0.05  # the job default (options.alpha)
 
 def _job(sigma_px: float | None = None, seed: int = 7) -> dict:
     scene = presets.prism_triplet(
-        Settings(preset="prism-triplet", seed=seed, gcp_sigma_m=0.0), gcps=8, checks=8, tie_points=12
+        SceneSettings(preset="prism-triplet", seed=seed, gcp_sigma_m=0.0), gcps=8, checks=8, tie_points=12
     )
     job = scene.job()
     if sigma_px is not None:  # the simulated noise stays 0.5 px; only the stated sigma changes

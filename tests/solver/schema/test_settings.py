@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 
 from solver.schema.job import SolverOptions
-from solver.schema.settings import BlockConfig, ProcedureConfig, Settings, SolveSettings, StatisticsConfig
+from solver.schema.settings import BlockConfig, JobSettings, ProcedureConfig, SolveSettings, StatisticsConfig
 
 GROUPS = (SolveSettings, BlockConfig, StatisticsConfig, ProcedureConfig)
 DERIVED = {"significance_analysis"}  # read from options.self_calibration (also in BlockConfig)
@@ -23,7 +23,7 @@ def test_values_pass_through() -> None:
     doc = {"max_iterations": 7, "loss": "huber", "loss_scale": 2.5, "control": "fixed", "alpha": 0.01,
            "covariance": False, "models": ["P1", "P2"], "self_calibration": {"estimate": ["df"], "significance_analysis": True},
            "parsimony": {"threshold": 3}}
-    s = Settings.from_options(SolverOptions.model_validate(doc))
+    s = JobSettings.from_options(SolverOptions.model_validate(doc))
     assert (s.solve.max_iterations, s.solve.loss, s.solve.loss_scale) == (7, "huber", 2.5)
     assert s.blocks.control == "fixed" and s.blocks.self_calibration.estimate == ["df"]
     assert (s.statistics.alpha, s.statistics.covariance) == (0.01, False)

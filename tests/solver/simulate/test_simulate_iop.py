@@ -19,7 +19,7 @@ from solver.simulate.camera import prism_camera
 from solver.simulate.iop import MASTER_CHIP, CameraIOP, default_iop
 from solver.simulate.orbit import EarthModel, Orbit, circular_state_over, sun_synchronous_semi_major_axis
 from solver.simulate.projection import ImageGeometry
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 from solver.simulate.terrain import Terrain
 
 SOLVER_PX = 1e-7  # the 2-D (time, scan line) solution vs the nominal projection: both solved to ~1e-9 px
@@ -75,9 +75,9 @@ def _ground_points(img: ImageGeometry, n: int = 200, seed: int = 3) -> tuple[np.
 
 
 def test_zero_iop_errors_leave_the_documents_unchanged():
-    base = presets.prism_triplet(Settings(preset="prism-triplet", seed=4))
+    base = presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=4))
     zero = presets.prism_triplet(
-        Settings(preset="prism-triplet", seed=4, iop_errors={"prism-nadir": {"df": 0.0, "a0@1": 0.0}})
+        SceneSettings(preset="prism-triplet", seed=4, iop_errors={"prism-nadir": {"df": 0.0, "a0@1": 0.0}})
     )
     # exact on purpose: zero IOP take the very code path of no IOP in the same process, so the
     # documents are bit-for-bit the same on any machine

@@ -7,7 +7,7 @@ import pytest
 from solver.compare import compare_models
 from solver.schema.job import load_job
 from solver.simulate import presets
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 GSD_M = 2.5  # PRISM nadir ground sample distance
 RIGOROUS_AND_FREE = ["K1", "K2", "J2-1", "J2-2", "P1", "P2"]
@@ -15,7 +15,7 @@ RIGOROUS_AND_FREE = ["K1", "K2", "J2-1", "J2-2", "P1", "P2"]
 
 def _nadir_job(seed: int, noise_px: float, gcp_sigma_m: float, checks: int) -> dict:
     scene = presets.prism_single(
-        Settings(preset="prism-single", seed=seed, noise_px=noise_px, gcp_sigma_m=gcp_sigma_m), "nadir", 14, checks
+        SceneSettings(preset="prism-single", seed=seed, noise_px=noise_px, gcp_sigma_m=gcp_sigma_m), "nadir", 14, checks
     )
     job = scene.job()
     # parameter covariances are not needed for these statistics
@@ -51,7 +51,7 @@ def test_noise_free_scene_is_reproduced_by_the_models(model: str):
 @pytest.mark.parametrize("model", ["ON1", "ON2", "MT8", "GENERAL"])
 def test_remaining_models_recover_the_simulated_scene(model: str):
     """The models whose recovery tests otherwise use the solver's own projection
-    (solver/synthetic.py) on the simulator's independent scene: same noise, control and check
+    (tests/utils/scenes.py) on the simulator's independent scene: same noise, control and check
     points as the test above; check points within one GSD, residuals noise-sized. (OA-K and
     the pass models are tested on simulated scenes in test_orbit_attitude.py and
     test_orbit_pass.py; OA-J2 in the warm-up jobs, test_warmup.py.)"""

@@ -26,7 +26,7 @@ from solver.geometry.rpc import RPC, RpcBias
 from solver.gis.rpc_io import gdal_ground_to_image, gdal_rpc
 from solver.simulate import presets
 from solver.simulate.rpc import IDEAL_CHIP_ID, RpcSettings
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 pytestmark = pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")
 
@@ -36,7 +36,7 @@ BIAS = {"a0": 20.0, "a_line": 1e-4, "a_column": -3e-5, "b0": -12.0, "b_line": 2e
 
 
 def _scene(preset="prism-single", model="RPC-AFFINE", bias=BIAS, images=None, **kw):
-    s = Settings(preset=preset, seed=3, noise_px=0.3, rpc=RpcSettings(model, bias, images))
+    s = SceneSettings(preset=preset, seed=3, noise_px=0.3, rpc=RpcSettings(model, bias, images))
     if preset == "prism-single":
         return presets.prism_single(s, **kw)
     if preset == "prism-triplet":
@@ -152,7 +152,7 @@ def test_ideal_image_is_that_of_the_gis_outputs(tmp_path) -> None:
     model = load_model(job, json.loads(report_path.read_text()))
     gis_raw = model.image(job["images"][0]["id"])
     gis_ideal = IdealImage(model, gis_raw.image)
-    scene = presets.prism_single(Settings(preset="prism-single", seed=1, noise_px=0.01, gcp_sigma_m=0.01), gcps=20, checks=4)
+    scene = presets.prism_single(SceneSettings(preset="prism-single", seed=1, noise_px=0.01, gcp_sigma_m=0.01), gcps=20, checks=4)
     sim_raw = scene.images[0]
     sim_ideal = delivered_geometry(sim_raw)
     rng = np.random.default_rng(0)

@@ -13,7 +13,7 @@ from solver.cli import main
 from solver.geometry.geodesy import enu_rotation, to_ecef
 from solver.schema.job import load_job
 from solver.simulate import presets
-from solver.simulate.scene import Settings
+from solver.simulate.scene import SceneSettings
 
 NOISE_STD_REL = 0.03  # the std of ~9000 simulated 0.5-px noise values: 3 x its standard error 0.75 %
 SURVEY_STD_REL = 0.12  # the std of 300 simulated 0.3-m survey errors per axis: 3 x its standard error 4 %
@@ -21,7 +21,7 @@ SURVEY_STD_REL = 0.12  # the std of 300 simulated 0.3-m survey errors per axis: 
 
 @pytest.fixture(scope="module")
 def triplet():
-    return presets.prism_triplet(Settings(preset="prism-triplet", seed=11))
+    return presets.prism_triplet(SceneSettings(preset="prism-triplet", seed=11))
 
 
 def _roles(job) -> Counter:
@@ -29,7 +29,7 @@ def _roles(job) -> Counter:
 
 
 def test_prism_single_defaults_follow_seed_000():
-    scene = presets.prism_single(Settings(preset="prism-single", seed=1))
+    scene = presets.prism_single(SceneSettings(preset="prism-single", seed=1))
     job = load_job(scene.job())
     assert _roles(job) == {"gcp": 14, "check": 9}
     assert [im.model.name for im in job.images] == ["K2"]
@@ -37,7 +37,7 @@ def test_prism_single_defaults_follow_seed_000():
     assert all(p.sigma_m == (0.2, 0.2, 0.2) for p in job.points if p.role == "gcp")
     assert len(job.images[0].ephemeris) >= 5
     # swapping the configuration keeps the same 23 points (seed 000's 14/9 and 9/14)
-    other = load_job(presets.prism_single(Settings(preset="prism-single", seed=1), gcps=9, checks=14).job())
+    other = load_job(presets.prism_single(SceneSettings(preset="prism-single", seed=1), gcps=9, checks=14).job())
     assert _roles(other) == {"gcp": 9, "check": 14}
     assert {p.id: p.coordinates for p in job.points} == {p.id: p.coordinates for p in other.points}
 
@@ -72,7 +72,7 @@ def test_approx_state_and_ephemeris_are_perturbed_truth(triplet):
 
 
 def test_noise_statistics_match_the_settings():
-    s = Settings(preset="strip", seed=5, noise_px=0.5, gcp_sigma_m=0.3)
+    s = SceneSettings(preset="strip", seed=5, noise_px=0.5, gcp_sigma_m=0.3)
     scene = presets.strip(s, triplets=2, tie_points=3000, gcps=150, checks=150)
     job = scene.job()
     truth = {(o["image"], o["point"]): (o["line"], o["column"]) for o in scene.truth()["observations"]}
@@ -96,7 +96,7 @@ def test_noise_statistics_match_the_settings():
 
 
 def test_cbers_scene_writes_sad69_utm(tmp_path):
-    scene = presets.cbers_scene(Settings(preset="cbers-scene", seed=2))
+    scene = presets.cbers_scene(SceneSettings(preset="cbers-scene", seed=2))
     job = load_job(scene.job())
     assert job.crs == "EPSG:29192"
     assert _roles(job) == {"gcp": 23, "check": 8}
@@ -115,9 +115,9 @@ def test_cbers_scene_writes_sad69_utm(tmp_path):
 
 
 def test_same_seed_same_documents_other_seed_other_documents():
-    a = presets.prism_single(Settings(preset="prism-single", seed=4)).job()
-    b = presets.prism_single(Settings(preset="prism-single", seed=4)).job()
-    c = presets.prism_single(Settings(preset="prism-single", seed=5)).job()
+    a = presets.prism_single(SceneSettings(preset="prism-single", seed=4)).job()
+    b = presets.prism_single(SceneSettings(preset="prism-single", seed=4)).job()
+    c = presets.prism_single(SceneSettings(preset="prism-single", seed=5)).job()
     # exact on purpose: the same computation twice in one process is bit-for-bit reproducible on
     # any machine (the check across machines, with tolerances, is tests/test_examples.py)
     assert json.dumps(a) == json.dumps(b)
@@ -139,7 +139,7 @@ def test_cli_writes_job_and_truth(tmp_path, capsys):
 @pytest.mark.slow
 def test_strip_scale_generation(tmp_path):
     """A strip of 60 images and 30000 tie points is generated whole (its time: bench/bench_simulate.py)."""
-    scene = presets.strip(Settings(preset="strip", seed=1), triplets=20, tie_points=30000)
+    scene = presets.strip(SceneSettings(preset="strip", seed=1), triplets=20, tie_points=30000)
     job = scene.job()
     assert len(scene.images) == 60
     roles = Counter(p["role"] for p in job["points"])

@@ -13,7 +13,7 @@ from solver.api import run
 from solver.observations.interior import camera_from_report
 from solver.schema.job import load_job
 from solver.simulate.camera import prism_camera
-from solver.simulate.scene import Group, Scene, Settings
+from solver.simulate.scene import Group, Scene, SceneSettings
 
 VIEWS = ("backward", "nadir", "forward")
 EPHEMERIS = {"sigma_position_m": 10.0}  # positions weighted, velocities free (docs/models.md 9)
@@ -41,7 +41,7 @@ def test_true_iop_in_the_job_reproduce_the_simulated_cameras():
         f"prism-{v}": {"x0": 0.01, "y0": -0.02, "df": 2.0, "k1": 2e-8, "k2": 1e-12, "sy": 3e-5, "a0@1": -0.03, "b0@3": 0.03, "a1@4": 4e-5, "b1@3": -3e-5, "delta@3": 1e-3}
         for v in VIEWS
     }
-    scene = Scene(Settings(preset="t", seed=7, iop_errors=errors, noise_px=0.0, gcp_sigma_m=0.0), [Group([prism_camera(v) for v in VIEWS], 22, 20, 40)]).simulate()
+    scene = Scene(SceneSettings(preset="t", seed=7, iop_errors=errors, noise_px=0.0, gcp_sigma_m=0.0), [Group([prism_camera(v) for v in VIEWS], 22, 20, 40)]).simulate()
     job, truth = scene.job(), scene.truth()
     job["options"] = {"ephemeris": dict(EPHEMERIS)}
     nominal = run(load_job(job))
@@ -55,7 +55,7 @@ def test_true_iop_in_the_job_reproduce_the_simulated_cameras():
 
 @pytest.fixture(scope="module")
 def two_triplets():
-    settings = Settings(preset="seed001", seed=2008, iop_errors="default")
+    settings = SceneSettings(preset="seed001", seed=2008, iop_errors="default")
     scene = Scene(settings, [Group([prism_camera(v) for v in VIEWS], g, c, 40) for g, c in ((22, 20), (21, 24))]).simulate()
     job, truth = scene.job(), scene.truth()
     return _triplet(job, truth, 0), _triplet(job, truth, 1), truth

@@ -1,5 +1,5 @@
-"""Model parsimony: warnings on implausible platform parameters and the significance analysis
-of the platform terms.
+"""Checks of the estimated parameters: warnings on implausible platform parameters and on
+correlated pairs, and the F test of a constraint that the significance analyses use.
 
 Warnings (always, from the covariance of the solution):
 
@@ -10,9 +10,8 @@ Warnings (always, from the covariance of the solution):
 * a pair of platform, pass or interior-orientation parameters correlated beyond
   ``correlation`` (default 0.99) in magnitude: nearly undetermined together.
 
-Significance analysis (``options.parsimony``): :func:`solver.adjust.parsimony_analysis`
-(it re-adjusts, so it lives with the driver) uses :func:`candidate_terms` and
-:func:`constraint_test` from here.
+Significance analysis (``options.parsimony``): :func:`solver.procedures.parsimony.parsimony_analysis`
+(it re-adjusts, so it is a procedure) uses :func:`constraint_test` from here.
 """
 
 from __future__ import annotations

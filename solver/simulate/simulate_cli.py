@@ -13,7 +13,7 @@ from solver.simulate import presets
 from solver.simulate.camera import PRISM_LAYOUTS
 from solver.simulate.lines import cbers_lines
 from solver.simulate.rpc import RpcSettings, RpcSettingsError, parse_bias
-from solver.simulate.scene import Settings, write_documents
+from solver.simulate.scene import SceneSettings, write_documents
 
 RPC_MODELS = tuple(BIAS_MODELS)
 
@@ -191,7 +191,7 @@ def _iop_errors(value: str):
     return json.loads(Path(value).read_text())
 
 
-def _scene(args: argparse.Namespace, settings: Settings):
+def _scene(args: argparse.Namespace, settings: SceneSettings):
     """The simulated scene of the preset ``args.preset``."""
     if args.preset == "prism-single":
         return presets.prism_single(settings, args.camera, args.gcps, args.checks, args.chip_layout)
@@ -209,7 +209,7 @@ def _scene(args: argparse.Namespace, settings: Settings):
 
 
 def run(args: argparse.Namespace) -> int:
-    settings = Settings(
+    settings = SceneSettings(
         preset=args.preset,
         seed=args.seed,
         name=args.name or f"simulated {args.preset} (seed {args.seed})",
