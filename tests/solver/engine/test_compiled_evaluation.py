@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from utils.differences import central_jacobian
 from utils.scenes import block_job
 
 from solver.engine import backend, native
@@ -164,14 +165,8 @@ def test_both_paths_give_the_same_normal_equations(scene: str, monkeypatch: pyte
 
 
 def _central_difference(cost: Any, params: list[np.ndarray], i: int, steps: np.ndarray) -> np.ndarray:
-    cols = []
-    for q, h in enumerate(steps):
-        plus = [p.copy() for p in params]
-        minus = [p.copy() for p in params]
-        plus[i][q] += h
-        minus[i][q] -= h
-        cols.append((_evaluate(cost, plus)[0] - _evaluate(cost, minus)[0]) / (2 * h))
-    return np.column_stack(cols)
+    """The residuals' derivatives by parameter block ``i`` (rows x its parameters)."""
+    return central_jacobian(lambda block: _evaluate(cost, params[:i] + [block] + params[i + 1:])[0], params[i], steps)
 
 
 @requires_native

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 from test_attitude_obs import _samples_from
 from test_orbit_pass import _pass_job
-from test_prior_jacobians import _assert_jacobian, _central_differences, _steps
+from test_prior_jacobians import _assert_jacobian, _steps
+from utils.differences import central_jacobian
 
 from solver.adjust import prepare
 from solver.api import run
@@ -106,7 +107,7 @@ def test_jacobian_by_central_differences_of_the_kernels_angles() -> None:
         p = img.params + rng.normal(0.0, 1e-3, img.nfree)
         r, jac = term.evaluate(p)
         np.testing.assert_allclose(r, residual(p), rtol=0, atol=JSON_DEGREES_SIGMA * max(1.0, np.abs(r).max()))
-        _assert_jacobian(jac, _central_differences(residual, p, _steps(p)))
+        _assert_jacobian(jac, central_jacobian(residual, p, _steps(p)))
 
 
 def test_without_a_bias_the_samples_are_independent_as_before() -> None:

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from utils.differences import central_difference
 from utils.line_scenes import lines_job
 from utils.scenes import single_image_job, truth_parameters
 
@@ -70,10 +71,7 @@ def _check_columns(f, x0: np.ndarray, analytic: np.ndarray, cols, target_change:
         # (a step that moves f by target_change, but at most 0.1 % of the parameter: an insensitive
         # parameter, such as the height in the equivalent planes model, would otherwise get a huge one)
         h = step if step is not None else min(target_change / scale, 1e-3 * max(1.0, abs(float(x0[j]))))
-        xp, xm = x0.copy(), x0.copy()
-        xp[j] += h
-        xm[j] -= h
-        fd = (f(xp) - f(xm)) / (2 * h)
+        fd = central_difference(f, x0, j, h)
         tol = REL_TOL * (whole if step is not None else scale)
         np.testing.assert_allclose(fd, analytic[:, j], rtol=0, atol=tol, err_msg=f"column {j}")
 

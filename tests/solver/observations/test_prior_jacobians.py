@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from test_attitude_obs import _samples_from
 from test_orbit_pass import _pass_job
+from utils.differences import central_jacobian
 from utils.scenes import block_job
 
 from solver.adjust import prepare
@@ -32,15 +33,6 @@ JSON_DEGREES_SIGMA = 1e-6  # whitened attitude residuals from degrees written to
 # is off by the whole entry
 FD_REL = 1e-6
 VALUE_ABS = 1e-9  # whitened residuals recomputed two ways
-
-
-def _central_differences(fun, p: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    cols = []
-    for k, h in enumerate(steps):
-        e = np.zeros_like(p)
-        e[k] = h
-        cols.append((fun(p + e) - fun(p - e)) / (2 * h))
-    return np.array(cols).T
 
 
 def _steps(p: np.ndarray) -> np.ndarray:
@@ -84,7 +76,7 @@ def test_state_prior_is_the_line0_state_of_the_kernel(model):
         r, jac = term.evaluate(p)
         assert len(r) == 6
         np.testing.assert_allclose(r, residual(p), rtol=0, atol=VALUE_ABS * max(1.0, np.max(np.abs(r))))
-        _assert_jacobian(jac, _central_differences(residual, p, _steps(p)))
+        _assert_jacobian(jac, central_jacobian(residual, p, _steps(p)))
 
 
 def test_measured_attitude_is_the_kernels_angles_at_each_sample():
@@ -116,7 +108,7 @@ def test_measured_attitude_is_the_kernels_angles_at_each_sample():
         p = img.params + rng.normal(0.0, 1e-3, img.nfree)
         r, jac = term.evaluate(p)
         np.testing.assert_allclose(r, residual(p), rtol=0, atol=JSON_DEGREES_SIGMA)
-        _assert_jacobian(jac, _central_differences(residual, p, _steps(p)))
+        _assert_jacobian(jac, central_jacobian(residual, p, _steps(p)))
 
 
 def test_iop_priors_observe_the_named_parameters():
@@ -139,4 +131,4 @@ def test_iop_priors_observe_the_named_parameters():
         p = mean + np.random.default_rng(5).normal(0.0, 1e-3, st.nfree)
         r, jac = prior.evaluate(p)
         np.testing.assert_allclose(r, residual(p), rtol=0, atol=VALUE_ABS)
-        _assert_jacobian(jac, _central_differences(residual, p, _steps(p)))
+        _assert_jacobian(jac, central_jacobian(residual, p, _steps(p)))

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 from tolerances import ROUND_TRIP_PX, SAME_NUMBER_REL
+from utils.differences import central_difference, central_difference_in_place
 
 from solver.adjust import adjust_job, prepare
 from solver.engine.linalg import linearise
@@ -114,10 +115,9 @@ def test_interpolant_time_derivatives_are_consistent():
     for t in (-7.3, 0.25, 4.999, 5.0, 9.4):
         h = 1e-3
         p, v, a, _ds, _dv = pass_state(kc, t, False)
-        pp, vp, *_ = pass_state(kc, t + h, False)
-        pm, vm, *_ = pass_state(kc, t - h, False)
-        np.testing.assert_allclose((pp - pm) / (2 * h), v, atol=INTERPOLANT_FD_ABS)
-        np.testing.assert_allclose((vp - vm) / (2 * h), a, atol=INTERPOLANT_FD_ABS)
+        dp_dt, dv_dt = central_difference(lambda x: pass_state(kc, x[0], False)[:2], np.array([t]), 0, h)
+        np.testing.assert_allclose(dp_dt, v, atol=INTERPOLANT_FD_ABS)
+        np.testing.assert_allclose(dv_dt, a, atol=INTERPOLANT_FD_ABS)
 
 
 def test_variational_equations_match_finite_differences():
@@ -128,15 +128,16 @@ def test_variational_equations_match_finite_differences():
         for c in range(6):
             # steps large enough that the rounding of 7e6-m positions does not dominate
             h = 10.0 if c < 3 else 0.1
-            e = np.zeros(6)
-            e[c] = h
-            kp, km = kc.copy(), kc.copy()
-            build_segment(kp, X0 + e)
-            build_segment(km, X0 - e)
-            fp = pass_state(kp, t, False)
-            fm = pass_state(km, t, False)
-            np.testing.assert_allclose((fp[0] - fm[0]) / (2 * h), ds[:, c], rtol=VARIATIONAL_FD, atol=VARIATIONAL_FD)
-            np.testing.assert_allclose((fp[1] - fm[1]) / (2 * h), dv[:, c], rtol=VARIATIONAL_FD, atol=VARIATIONAL_FD)
+            dp, dvel = central_difference(lambda x0: _state_of_segment(kc, x0, t), X0, c, h)
+            np.testing.assert_allclose(dp, ds[:, c], rtol=VARIATIONAL_FD, atol=VARIATIONAL_FD)
+            np.testing.assert_allclose(dvel, dv[:, c], rtol=VARIATIONAL_FD, atol=VARIATIONAL_FD)
+
+
+def _state_of_segment(kc: np.ndarray, x0: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """Position and velocity at ``t`` of a copy of the segment ``kc`` rebuilt from the pass state ``x0``."""
+    k = kc.copy()
+    build_segment(k, x0)
+    return pass_state(k, t, False)[:2]
 
 
 def _pass_job(model: str = "PASS-J2", seed: int = 1, ephemeris: bool = False) -> dict:
@@ -162,13 +163,7 @@ def _assert_columns_match_differences(problem, params: np.ndarray, col0: int, st
     if steps is None:  # a step that moves the most sensitive residual by 0.3 sigma
         steps = [0.3 / max(np.max(np.abs(jac[:n_obs, col0 + k])), 1e-12) for k in range(len(params))]
     for k, h in enumerate(steps):
-        base = params.copy()
-        params[:] = base + np.eye(len(params))[k] * h
-        rp = linearise(problem).res_obs.ravel()
-        params[:] = base - np.eye(len(params))[k] * h
-        rm = linearise(problem).res_obs.ravel()
-        params[:] = base
-        fd = (rp - rm) / (2 * h)
+        fd = central_difference_in_place(lambda: linearise(problem).res_obs.ravel(), params, k, h)
         an = jac[:n_obs, col0 + k]
         assert np.max(np.abs(fd - an)) < COLUMN_FD_REL * np.max(np.abs(an)) + COLUMN_FD_ABS, k
 
@@ -195,13 +190,15 @@ def test_pass_kernel_jacobian_single_projection():
     x0 = problem.passes[0].params.copy()
     for q, idx in enumerate((0, 4, 8, 1, 5, 9)):
         h = 5.0 if q < 3 else 5e-3
-        kp, km = img.kc.copy(), img.kc.copy()
-        build_segment(kp, x0 + np.eye(6)[q] * h)
-        build_segment(km, x0 - np.eye(6)[q] * h)
-        lp = project(3, img.coef(), kp, p, oc, False)
-        lm = project(3, img.coef(), km, p, oc, False)
-        assert abs((lp[1] - lm[1]) / (2 * h) - dl_dc[idx]) < PASS_KERNEL_FD_REL * abs(dl_dc[idx]) + PASS_KERNEL_FD_ABS
-        assert abs((lp[2] - lm[2]) / (2 * h) - dc_dc[idx]) < PASS_KERNEL_FD_REL * abs(dc_dc[idx]) + PASS_KERNEL_FD_ABS
+
+        def image_point(x):
+            kx = img.kc.copy()
+            build_segment(kx, x)
+            return project(3, img.coef(), kx, p, oc, False)[1:3]
+
+        fdl, fdc = central_difference(image_point, x0, q, h)
+        assert abs(fdl - dl_dc[idx]) < PASS_KERNEL_FD_REL * abs(dl_dc[idx]) + PASS_KERNEL_FD_ABS
+        assert abs(fdc - dc_dc[idx]) < PASS_KERNEL_FD_REL * abs(dc_dc[idx]) + PASS_KERNEL_FD_ABS
 
 
 def _exact_projections(job: dict):
