@@ -103,6 +103,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{note['image']}: {note['satellite']} ({note['band']}), first line {note['first_line_utc']} "
               f"(times in s since {note['time_origin_utc']}); job form vs exact model {d['rms']:.3f} px RMS, "
               f"{d['max']:.3f} px max", file=sys.stderr)
+        for w in note.get("notes", []):
+            print(f"{note['image']}: note: {w}", file=sys.stderr)
         for w in note.get("warnings", []):
             print(f"{note['image']}: warning: {w}", file=sys.stderr)
     if args.check_rpc:

@@ -220,9 +220,16 @@ def _images_report(problem: AdjustmentState, lin, cov: Covariance | None, var_fa
                 "gsd_m": gsd,
                 "lines": img.camera.lines if img.camera else None,
                 "columns": img.camera.columns if img.camera else None,
+                "sensor": _sensor_origin(problem, img.index),
             }
         )
     return out, gsds
+
+
+def _sensor_origin(problem: AdjustmentState, index: int) -> dict[str, Any] | None:
+    """The job image's ``sensor`` (vendor metadata and what its reading did), as given."""
+    origin = problem.job.images[index].sensor
+    return None if origin is None else origin.model_dump(mode="json")
 
 
 def _correlation_pairs(cov: Covariance) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:

@@ -364,6 +364,19 @@ class BiasPrior(_Strict):
     sigma: _num(gt=0, le=1e9)
 
 
+class SensorOrigin(_Strict):
+    """Where an image's camera, ephemeris and attitude were read from (vendor metadata, by ``pba
+    import-sensor`` or ``pba job --sensor``) and what the reading did to them: conversions (an
+    inertial velocity made Earth-fixed) and samples it did not use. Informative: the solver does
+    not read it, and the report repeats it (``images[].sensor``)."""
+
+    file: str = Field(min_length=1, max_length=4096)
+    satellite: str = Field(default="", max_length=200)
+    notes: list[Annotated[str, Field(max_length=4000)]] = Field(
+        default_factory=list, max_length=200, description="what the reader converted or did not use, one sentence each"
+    )
+
+
 class Image(_Strict):
     """One pushbroom image: a camera with a platform model, or an RPC (``rpc``) with an RPC
     bias model (RPC-SHIFT, RPC-DRIFT, RPC-AFFINE), which needs no camera."""
@@ -390,6 +403,9 @@ class Image(_Strict):
         default_factory=list,
         description="measured attitude samples (roll, pitch, yaw relative to the orbital frame); "
         "weighted observations of the orbit-attitude and pass models with options.attitude",
+    )
+    sensor: SensorOrigin | None = Field(
+        default=None, description="the vendor metadata the image was read from, and what its reading converted or dropped"
     )
     initial: dict[str, _num(ge=-1e9, le=1e9)] = Field(
         default_factory=dict, description="initial parameter values by model parameter name"

@@ -18,9 +18,17 @@ formulas:
   used as tangents its five Dataset_Extent corners meet the exact model at one common height to
   0.12 m; taking the tangent of them instead spreads the corners' heights over 60 m).
 
-Columns are 0-based image columns; a table is linear between detectors and extended with the
-end slopes; a polynomial is evaluated at ``column + column_offset`` (DIMAP v2: the swath's first
-column minus one).
+Columns are 0-based image columns; a table is linear *in the angle* between detectors (the
+tangent of the interpolated angle), extended with the end slopes; a polynomial is evaluated at
+``column + column_offset`` (DIMAP v2: the swath's first column minus one).
+
+Why in the angle: SPOT 1-4 files give the look angles of the first and last detector only.
+Interpolated linearly in the angle, the exact model meets the scene centre every public SPOT 1-4
+file states (``Dataset_Frame/Scene_Center``, the middle detector) to 0.4-15.8 m on seven scenes
+of incidence -3.9 to 30.7 degrees, as close as their corners (1.5-24 m); linear in the tangent,
+the centres are 65 m (3.9 degrees), 178-210 m (10-12 degrees) and 722 m (30.7 degrees) away
+while the corners, which are those two detectors, do not move (docs/sensor-metadata.md). For a
+table of every detector (SPOT 5) the two readings agree to 1e-12 rad.
 """
 
 from __future__ import annotations
@@ -37,7 +45,7 @@ DIMAP_V2_SATELLITE = np.diag([1.0, -1.0, 1.0])
 
 def _table(columns: np.ndarray, detectors: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Linear between the tabulated detectors (increasing 0-based columns), extended with the
-    end slopes beyond the first and last."""
+    end slopes beyond the first and last (``values`` as given: the caller interpolates angles)."""
     if values.size == 1:
         return np.full(columns.shape, values[0])
     out = np.interp(columns, detectors, values)
@@ -51,8 +59,8 @@ def _table(columns: np.ndarray, detectors: np.ndarray, values: np.ndarray) -> np
 class LookAngles:
     """Tangents of the along- and across-track look angles of every detector (module docstring):
     ``along``/``across`` are either tables (values at the 0-based columns ``detectors``,
-    ``polynomial=False``) or polynomial coefficients in ``column + column_offset`` (lowest degree
-    first)."""
+    ``polynomial=False``; interpolated linearly in the angle) or polynomial coefficients in
+    ``column + column_offset`` (lowest degree first)."""
 
     along: np.ndarray
     across: np.ndarray
@@ -79,7 +87,8 @@ class LookAngles:
         if self.polynomial:
             x = c + self.column_offset
             return np.polynomial.polynomial.polyval(x, self.along), np.polynomial.polynomial.polyval(x, self.across)
-        return _table(c, self.detectors, self.along), _table(c, self.detectors, self.across)
+        along = np.tan(_table(c, self.detectors, np.arctan(self.along)))
+        return along, np.tan(_table(c, self.detectors, np.arctan(self.across)))
 
     def look_frame(self, columns: np.ndarray) -> np.ndarray:
         """(n, 3) directions ``(tan_along, tan_across, 1)`` in the look frame."""

@@ -6,7 +6,13 @@ SPOT 5 HRS segment of tests/data/vendor/stereopipeline):
 
 - ``Raster_Dimensions``: ``NCOLS``, ``NROWS``.
 - ``Data_Strip/Ephemeris/Points/Point``: ``Location`` and ``Velocity`` (``X Y Z``, ECEF m and
-  m/s, DORIS-determined, 30 s apart) and ``TIME`` (UTC, ISO 8601 without zone).
+  m/s; SPOT 5: DORIS-determined, 30 s apart; SPOT 1-4: 60 s apart) and ``TIME`` (UTC, ISO 8601
+  without zone). The velocities of SPOT 1-4 files are *inertial* velocities in Earth-fixed axes
+  (``V = v_ecef + omega x P``): the screening (:mod:`solver.sensors.screening`) finds it from the
+  data (as Earth-fixed velocities they miss their positions by 20-27 km per 60-s interval on
+  seven public scenes, as ``V - omega x P`` by 0.5-10 m) and converts them, saying so. The
+  orbital frame of the attitude (below) is built from the velocities as the file gives them, as
+  the vendor's location model does (its tie points are met to metres with them).
 - SPOT 5: ``Data_Strip/Satellite_Attitudes/Corrected_Attitudes/Corrected_Attitude/Angles``: ``TIME``,
   ``YAW``, ``PITCH``, ``ROLL`` (rad; star-tracker corrected, 8 Hz), samples flagged
   ``OUT_OF_RANGE`` Y are refused. The angles turn the navigation frame O1 into the local
@@ -29,25 +35,28 @@ SPOT 5 HRS segment of tests/data/vendor/stereopipeline):
   column C is detector C + 1), ``PSI_X`` (along track) and ``PSI_Y`` (across track), rad:
   the detector looks along ``(-tan PSI_Y, tan PSI_X, -1)`` in O1 (z away from the ground;
   :mod:`solver.sensors.detectors`). SPOT 5 gives one per column, SPOT 1-4 the first and last
-  detector's: the tangents are linear in the column between the given detectors.
+  detector's: the *angles* are linear in the column between the given detectors (the tangents
+  linear instead miss the scene centre the file states by 65-722 m; docs/sensor-metadata.md).
 
 The file's corner tie points (``Geoposition/Geoposition_Points/Tie_Point``: ``TIE_POINT_CRS_X``
 longitude, ``_Y`` latitude, ``_Z`` height at ``TIE_POINT_DATA_X`` column, ``_Y`` line, 1-based)
-are kept for a check (:func:`tie_point_check`); DIMAP v1 carries no RPC. The corrections of
+and the scene centre (``Dataset_Frame/Scene_Center``: ``FRAME_ROW``, ``FRAME_COL``, 1-based,
+``FRAME_LON``, ``FRAME_LAT``, at the tie points' height) are kept for the checks
+(:func:`tie_point_check`, :mod:`solver.sensors.self_check`); DIMAP v1 carries no RPC. The corrections of
 :mod:`solver.sensors.linescan` are all switched off by default for SPOT 5: the vendor's location
 model has none (its tie points agree with the uncorrected model to centimetres, and the
 corrected attitude, estimated with that model, absorbs them); switch them on to see their size.
 
-The tie points of SPOT 1-4 products are the vendor's systematic location without the attitude:
-the exact model with zero angles meets them to 0.4-2.6 m (one constant offset per scene), with
-the measured attitude 3-20 m away (docs/sensor-metadata.md). DIMAP v2 (SPOT 6/7, Pleiades) is
+The tie points and centres of SPOT 1-4 products are the vendor's systematic location: the
+exact model with the measured attitude meets them to 0.4-24 m (10-m pixels) on seven public
+scenes (docs/sensor-metadata.md). DIMAP v2 (SPOT 6/7, Pleiades) is
 :mod:`solver.sensors.dimap_v2`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -56,6 +65,7 @@ import numpy as np
 from solver.schema.job import MAX_COLUMNS, MAX_LINES
 from solver.sensors.detectors import SPOT_NAVIGATION, LookAngles
 from solver.sensors.linescan import Corrections, LinescanModel, lagrange, matrix_to_quaternion
+from solver.sensors.screening import Screening, screen_model
 from solver.sensors.xmlsafe import Node, load
 
 
@@ -68,6 +78,9 @@ class Spot5Product:
     corners: np.ndarray  # (k, 5): tie points: line, column (0-based), lon_deg, lat_deg, h_m
     line_period_s: float
     look: LookAngles
+    centre: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))  # (0 or 1, 5): Dataset_Frame/Scene_Center
+    screening: Screening = field(default_factory=Screening)
+    incidence_deg: float | None = None  # Scene_Source/INCIDENCE_ANGLE, as stated
 
 
 def _utc(node: Node, tag: str) -> datetime:
@@ -238,6 +251,9 @@ def read_dimap_v1_root(root: Node, shown: str) -> Spot5Product:
         margin = 2.0 * float(np.median(np.diff(t)))  # extrapolation by two sample intervals at most
         if t0 < t[0] - margin or t_end > t[-1] + margin:
             raise node.error("the samples do not cover the image's line times")
+    # the orbital frame from the velocities as the file gives them (inertial ones for SPOT 1-4, as
+    # the vendor's location model: its tie points are met to metres); the model's velocities are
+    # then screened and, where inertial, converted to Earth-fixed (solver.sensors.screening)
     rot = orbital_to_ecef(lagrange(att_t, eph_t, pos), lagrange(att_t, eph_t, vel)) @ look_rotation(ypr[:, 0], ypr[:, 1], ypr[:, 2])
     model = LinescanModel(
         lines=lines, columns=columns, epoch_utc=epoch.isoformat().replace("+00:00", "Z"),
@@ -246,12 +262,14 @@ def read_dimap_v1_root(root: Node, shown: str) -> Spot5Product:
         attitude_times_s=att_t, attitude_wxyz=matrix_to_quaternion(rot), look_body=look.body,
         corrections=Corrections(aberration=False, light_time=False, refraction=False),
     )
+    model, screening = screen_model(model, strip.child("Ephemeris").child("Points"), att)
     corners = []
     geo = root.find("Geoposition")
     tie = geo.find("Geoposition_Points") if geo is not None else None
     for v in tie.children("Tie_Point") if tie is not None else []:
         corners.append([v.number("TIE_POINT_DATA_Y") - 1, v.number("TIE_POINT_DATA_X") - 1,
                         v.number("TIE_POINT_CRS_X"), v.number("TIE_POINT_CRS_Y"), v.number("TIE_POINT_CRS_Z")])
+    corners_array = np.array(corners).reshape(-1, 5)
     src = root.find("Dataset_Sources")
     scene = src.find("Source_Information") if src is not None else None
     scene = scene.find("Scene_Source") if scene is not None else None
@@ -259,7 +277,25 @@ def read_dimap_v1_root(root: Node, shown: str) -> Spot5Product:
     if mission and mission not in ("SPOT 1", "SPOT 2", "SPOT 3", "SPOT 4", "SPOT 5"):
         raise scene.error(f"{mission}: a DIMAP v1 product of SPOT 1 to 5 expected", "MISSION_INDEX")
     instrument = scene.text("INSTRUMENT") if scene is not None and scene.find("INSTRUMENT") is not None else ""
-    return Spot5Product(shown, mission, instrument, model, np.array(corners).reshape(-1, 5), period, look)
+    incidence = scene.number("INCIDENCE_ANGLE") if scene is not None and scene.find("INCIDENCE_ANGLE") is not None else None
+    return Spot5Product(shown, mission, instrument, model, corners_array, period, look,
+                        _scene_centre(root, corners_array), screening, incidence)
+
+
+def _scene_centre(root: Node, tie_points: np.ndarray) -> np.ndarray:
+    """(0 or 1, 5) the ``Dataset_Frame/Scene_Center`` (line, column 0-based, lon, lat, height of
+    the tie points: the frame states none) when the frame's vertices are the tie points (a frame
+    rewritten apart from them, as in the public SPOT 5 segment cut to 300 columns, is not used)."""
+    frame = root.find("Dataset_Frame")
+    if frame is None or frame.find("Scene_Center") is None or tie_points.shape[0] == 0:
+        return np.zeros((0, 5))
+    vertices = np.array([[v.number("FRAME_ROW") - 1, v.number("FRAME_COL") - 1, v.number("FRAME_LON"), v.number("FRAME_LAT")]
+                         for v in frame.children("Vertex")]).reshape(-1, 4)
+    if vertices.shape[0] != tie_points.shape[0] or not np.allclose(vertices, tie_points[:, :4], rtol=0.0, atol=1e-6):
+        return np.zeros((0, 5))
+    c = frame.child("Scene_Center")
+    height = float(np.mean(tie_points[:, 4]))
+    return np.array([[c.number("FRAME_ROW") - 1, c.number("FRAME_COL") - 1, c.number("FRAME_LON"), c.number("FRAME_LAT"), height]])
 
 
 def tie_point_check(p: Spot5Product) -> dict[str, object]:

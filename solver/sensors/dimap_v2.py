@@ -45,7 +45,7 @@ aberration and 17 m away with it; on the real Pleiades 1A product (tests/data/ve
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timedelta, timezone
 from pathlib import Path, PurePath
 
@@ -56,6 +56,7 @@ from solver.schema.job import MAX_COLUMNS, MAX_LINES
 from solver.sensors.detectors import DIMAP_V2_SATELLITE, LookAngles
 from solver.sensors.linescan import Corrections, LinescanModel
 from solver.sensors.maxar import parse_utc
+from solver.sensors.screening import Screening, screen_model
 from solver.sensors.timescales import UnknownLeapSeconds, leap_seconds_between
 from solver.sensors.xmlsafe import Node, load
 
@@ -87,6 +88,7 @@ class DimapV2Product:
     rpc_name: str | None  # the RPC component's file name
     rpc_path: Path | None  # that file beside the metadata file, when it exists
     rpc: RPC | None = None  # an RPC carried by the metadata file itself (solver.sensors.phr_dimap)
+    screening: Screening = field(default_factory=Screening)
 
 
 def _seconds(t: datetime, epoch: datetime) -> float:
@@ -289,23 +291,24 @@ def read_dimap_v2_root(root: Node, path: Path, shown: str) -> DimapV2Product:
         else:
             raise config.error(f"{size}: a detector size in micrometres (0.5-100) or metres (1e-7 to 1e-4) expected",
                                "DETECTOR_SIZE_COL")
-    model = linescan_model(model_node.child("Ephemeris").child("Point_List"), EPHEMERIS_TAGS, att, attitude, time,
-                           first_line, period, lines, columns, look)
+    model, screening = linescan_model(model_node.child("Ephemeris").child("Point_List"), EPHEMERIS_TAGS, att, attitude, time,
+                                      first_line, period, lines, columns, look)
     rpc_name = rpc_component(root)
     rpc_path = path.parent / rpc_name if rpc_name and path.name else None  # only beside a file read from disk
     if rpc_path is not None and not rpc_path.is_file():
         rpc_path = None
     satellite = PROFILES[profile]
     return DimapV2Product(shown, satellite, band or "P", profile, model, look, period, pixel_mm, _corners(root),
-                          rpc_name, rpc_path)
+                          rpc_name, rpc_path, screening=screening)
 
 
 def linescan_model(points: Node, tags: tuple[str, str, str], att: Node, attitude, time: Node, first_line: datetime,  # noqa: ANN001
-                   period: float, lines: int, columns: int, look: LookAngles) -> LinescanModel:
+                   period: float, lines: int, columns: int, look: LookAngles) -> tuple[LinescanModel, Screening]:
     """The exact model from a product's ephemeris ``points`` (``Point`` children with ``tags``),
     its attitude (``attitude(epoch, (t_first, t_last))`` -> sample times and quaternions, read from
     ``att``), first-line time and line period, with the checks every Airbus format shares: the
-    samples cover the image's lines, no leap second inside, an image of at most MAX_IMAGE_S."""
+    samples cover the image's lines, no leap second inside, an image of at most MAX_IMAGE_S; and
+    the screening of :mod:`solver.sensors.screening` (what it did: the second value)."""
     probe = points.children("Point")
     epoch = min(first_line, parse_utc(probe[0], tags[2])) if probe else first_line
     eph_t, pos, vel, _ = _ephemeris(points, epoch, tags)
@@ -329,13 +332,14 @@ def linescan_model(points: Node, tags: tuple[str, str, str], att: Node, attitude
     if t0 < att_t[0] - margin or t_end > att_t[-1] + margin:
         raise att.error(f"the samples ({att_t[0] - t0:+.3f} to {att_t[-1] - t0:+.3f} s from the first line) do not cover "
                         f"the image's lines (0 to {t_end - t0:.3f} s)")
-    return LinescanModel(
+    model = LinescanModel(
         lines=lines, columns=columns, epoch_utc=epoch.isoformat().replace("+00:00", "Z"),
         tlc_lines=np.array([0.0, 1.0]), tlc_times_s=np.array([t0, t0 + period]),
         ephemeris_times_s=eph_t, positions_ecef_m=pos, velocities_ecef_m_s=vel,
         attitude_times_s=att_t, attitude_wxyz=att_q, look_body=look.body,
         corrections=Corrections(aberration=False, light_time=False, refraction=False),
     )
+    return screen_model(model, points, att)
 
 
 def read_dimap_v2(path: str | Path, shown: str | None = None, data: bytes | None = None) -> DimapV2Product:

@@ -62,6 +62,7 @@ from solver.sensors.linescan import (
     matrix_to_quaternion,
     orbital_rows,
 )
+from solver.sensors.screening import Screening
 from solver.sensors.xmlsafe import Node, load
 
 NAMESPACE = "{http://www.gisplan.com.br/xmlsat}"
@@ -94,7 +95,8 @@ class CbersProduct:
     attitude_rpy_rad: np.ndarray  # (n, 3) roll, pitch, yaw as read (not used)
     ephemeris: EphemerisScreen
     corners_used: np.ndarray  # (4,) bool: corners the pointing was fitted to
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # the screening's notes and warnings, and the reader's
+    screening: Screening = field(default_factory=Screening)
 
 
 def _strip_namespace(root: Node) -> None:
@@ -203,7 +205,8 @@ def read_cbers(path: str | Path, shown: str | None = None, data: bytes | None = 
         k = int(np.flatnonzero((r < 6.4e6) | (r > 5e7))[0])
         raise states[k].error(f"state {k + 1}: not ECEF metres of an orbit (6400 km to 50000 km from the centre)")
     checked = screen(eph_t, pos, vel, epoch, f"{image.path}/ephemerides")
-    warnings = list(checked.warnings)
+    vel = checked.velocities_m_s
+    warnings = list(checked.notes) + list(checked.warnings)
     kept = checked.kept.copy()
     if kept.sum() < 8:
         raise image.error(f"only {int(kept.sum())} consistent ephemeris states: " + "; ".join(warnings), "ephemerides")
@@ -304,8 +307,10 @@ def read_cbers(path: str | Path, shown: str | None = None, data: bytes | None = 
         if not cams or name.lower().startswith(chosen):
             focal = f_node.numbers(None, 1)[0] / 1000.0
             break
+    screened = Screening(list(checked.notes), list(checked.warnings), checked.velocity_frame, checked.velocity_rms_m_s,
+                         sorted(checked.dropped_duplicates + checked.dropped_inconsistent))
     return CbersProduct(shown, satellite, instrument, chosen, names, model, corners, centre, period, focal, ifov, c0,
-                        x[:3].copy(), bm, att_t, rpy, checked, used, warnings)
+                        x[:3].copy(), bm, att_t, rpy, checked, used, warnings, screened)
 
 
 def pointing_rotation(p: CbersProduct) -> np.ndarray:

@@ -57,6 +57,7 @@ from solver.sensors.dimap_v2 import DimapV2Product
 from solver.sensors.inpe_cbers import CbersProduct, pointing_rotation
 from solver.sensors.linescan import LinescanModel, matrix_to_quaternion, orbital_rows, quaternion_matrices
 from solver.sensors.maxar import MaxarProduct
+from solver.sensors.screening import Screening
 
 KABSCH_DETECTORS = 9
 DEFAULT_MODEL = "OA-J2"  # Maxar: images of 1-2 s
@@ -137,7 +138,9 @@ class SensorSource:
     sigma_attitude_rad: float | None
     attitude_white: bool = False  # sigma_attitude_rad is a common error per image and angle; the white part from the samples
     default_model: str = DEFAULT_MODEL
-    warnings: list[str] = field(default_factory=list)  # the reader's, for the note and standard error
+    warnings: list[str] = field(default_factory=list)  # samples not used, gaps: the note, standard error, the job
+    notes: list[str] = field(default_factory=list)  # conversions (the velocities' frame): likewise
+    velocity_rms_m_s: float | None = None  # how well the file's velocities agree with its positions
 
 
 def maxar_source(p: MaxarProduct) -> SensorSource:
@@ -159,7 +162,14 @@ def maxar_source(p: MaxarProduct) -> SensorSource:
     sigma_p = float(np.sqrt(np.mean(cov[:, [0, 3, 5]].sum(axis=1) / 3.0))) if cov.shape[1] == 6 and np.all(cov[:, [0, 3, 5]] >= 0) else None
     return SensorSource(p.file, p.satellite, p.band, m, cam_to_body @ axes.T, camera,
                         p.rpc.height_off if p.rpc is not None else 0.0, sigma_p, p.attitude_sigma_rad,
-                        attitude_white=p.attitude_sigma_rad is not None)
+                        attitude_white=p.attitude_sigma_rad is not None, **_screened(p.screening))
+
+
+def _screened(screening: Screening, warnings: list[str] | None = None) -> dict[str, Any]:
+    """The SensorSource fields of a reader's screening (``warnings``: the reader's own, which
+    include the screening's, in place of the screening's)."""
+    return {"warnings": list(screening.warnings if warnings is None else warnings), "notes": list(screening.notes),
+            "velocity_rms_m_s": screening.velocity_rms_m_s}
 
 
 SPOT5_PIXEL_MM = 0.0065  # HRG/HRS detector pitch: nominal; only its ratio to the focal length matters
@@ -194,35 +204,47 @@ def look_angle_chips(along_mm: np.ndarray, across_mm: np.ndarray, pixel_mm: floa
 
 
 def look_angle_source(file: str, satellite: str, band: str, model: LinescanModel, look: LookAngles, line_period_s: float,
-                      pixel_mm: float, default_model: str, mean_height_m: float = 0.0) -> SensorSource:
+                      pixel_mm: float, default_model: str, screening: Screening, mean_height_m: float = 0.0) -> SensorSource:
     """A look-angle focal plane (:mod:`solver.sensors.detectors`, SPOT 1-7 and Pleiades) as
-    straight chips of ours (:func:`look_angle_chips`). Our camera sees ``(a, s c, -1)`` for the
-    look frame's ``(a, c, 1)`` (``s`` = +-1 so that our axes are a rotation of the body's),
+    straight chips of ours (:func:`look_angle_chips`). The look frame is first tilted about its
+    along-track axis onto the middle detector's across-track angle (the *tilted* frame: the
+    swath's centre on its z axis), so that equal pixels are equal angles across the swath: a
+    SPOT 1-4 mirror at 30 degrees looks along tangents whose pitch grows by 8 % from one edge of
+    the swath to the other, which equal chips cannot follow (2 px at their ends with 64 chips);
+    about the swath's centre the pitch is constant to 0.1 %. Our camera sees ``(a, s c, -1)`` for
+    the tilted frame's ``(a, c, 1)`` (``s`` = +-1 so that our axes are a rotation of the body's),
     turned half a turn about z when the columns run against our y; the focal length is the
-    nominal pitch over the mean slope of ``s c`` in the column."""
+    nominal pitch over the mean slope of ``s c`` in the column. The tilt becomes part of the
+    attitude (a roll of the camera in the orbital frame)."""
     c = np.arange(model.columns, dtype=float)
-    along, across = look.tangents(c)
+    tilt = float(np.arctan(look.tangents(np.array([(model.columns - 1) / 2.0]))[1][0]))
+    look_from_tilted = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(tilt), np.sin(tilt)], [0.0, -np.sin(tilt), np.cos(tilt)]])
+    d = look.look_frame(c) @ look_from_tilted  # rows: the tilted frame's components (look_from_tilted^T d)
+    along, across = d[:, 0] / d[:, 2], d[:, 1] / d[:, 2]
     s = -1.0 / float(np.sign(np.linalg.det(look.to_body)))
     slope = float(np.polyfit(c, s * across, 1)[0]) if model.columns > 1 else 1e-6
     turn = 1.0 if slope > 0 else -1.0  # columns running against our y: turn the camera about z
-    ours_from_look = np.diag([turn, turn * s, -1.0])
-    body_from_ours = look.to_body @ ours_from_look  # ours_from_look is its own inverse
+    ours_from_tilted = np.diag([turn, turn * s, -1.0])
+    body_from_ours = look.to_body @ look_from_tilted @ ours_from_tilted  # ours_from_tilted is its own inverse
     focal = pixel_mm / abs(slope)
     chips = look_angle_chips(focal * turn * along, focal * turn * s * across, pixel_mm)
     camera = {"focal_mm": float(focal), "pixel_mm": pixel_mm, "line_time_s": line_period_s, "lines": model.lines,
               "columns": model.columns, "chips": chips}
-    return SensorSource(file, satellite, band, model, body_from_ours, camera, mean_height_m, None, None, default_model=default_model)
+    return SensorSource(file, satellite, band, model, body_from_ours, camera, mean_height_m, None, None, default_model=default_model,
+                        **_screened(screening))
 
 
 def spot5_source(p: Spot5Product) -> SensorSource:
     """A SPOT 1-5 product's camera (:func:`look_angle_source`; its body frame is the navigation
     frame O1, our x along its Y, the flight)."""
-    return look_angle_source(p.file, p.mission, p.instrument, p.model, p.look, p.line_period_s, SPOT5_PIXEL_MM, LONG_STRIP_MODEL)
+    return look_angle_source(p.file, p.mission, p.instrument, p.model, p.look, p.line_period_s, SPOT5_PIXEL_MM, LONG_STRIP_MODEL,
+                             p.screening)
 
 
 def dimap_v2_source(p: DimapV2Product) -> SensorSource:
     """A DIMAP v2 product's camera (:func:`look_angle_source`; body frame: the satellite frame)."""
-    return look_angle_source(p.file, p.satellite, p.band, p.model, p.look, p.line_period_s, p.pixel_mm, DEFAULT_MODEL)
+    return look_angle_source(p.file, p.satellite, p.band, p.model, p.look, p.line_period_s, p.pixel_mm, DEFAULT_MODEL,
+                             p.screening)
 
 
 CBERS_PIXEL_MM = 0.013  # nominal: the records give no detector pitch; only its ratio to the focal length matters
@@ -243,8 +265,9 @@ def cbers_source(p: CbersProduct) -> SensorSource:
                    "dy_mm": float(((m.columns - 1) / 2.0 - p.centre_column) * CBERS_PIXEL_MM)}],
     }
     name = f"{p.satellite} {p.instrument}" + (f" {p.camera}" if p.camera else "")
+    reader = [w for w in p.warnings if w not in p.screening.notes]
     return SensorSource(p.file, name, p.instrument, m, pointing_rotation(p), camera, 0.0, None, None,
-                        default_model=LONG_STRIP_MODEL, warnings=list(p.warnings))
+                        default_model=LONG_STRIP_MODEL, **_screened(p.screening, reader))
 
 
 def _time_origin(sources: list[SensorSource]) -> datetime:
@@ -316,12 +339,13 @@ def fragment(
             fit = ang[within] - v @ np.linalg.lstsq(v, ang[within], rcond=None)[0]
             scatter_sq += np.sum(fit**2, axis=0)
             scatter_dof += int(within.sum()) - 4
+        image["sensor"] = {"file": src.file, "satellite": src.satellite, "notes": src.notes + src.warnings}
         cameras.append(camera)
         images.append(image)
         notes.append({"image": image_id, "file": src.file, "satellite": src.satellite, "band": src.band,
                       "first_line_utc": _utc(origin, t0 + shift), "time_origin_utc": origin.isoformat().replace("+00:00", "Z"),
                       "difference_px": job_form_difference(src, camera, image, shift),
-                      **({"warnings": src.warnings} if src.warnings else {})})
+                      **({"notes": src.notes} if src.notes else {}), **({"warnings": src.warnings} if src.warnings else {})})
     sig_p = [s.sigma_position_m for s in sources if s.sigma_position_m is not None]
     sig_a = [s.sigma_attitude_rad for s in sources if s.sigma_attitude_rad is not None]
     absolute = max(float(np.degrees(max(sig_a))), 1e-5) if sig_a else DEFAULT_SIGMA_ATTITUDE_DEG
@@ -329,9 +353,12 @@ def fragment(
     if all(s.attitude_white for s in sources) and scatter_dof > 0:  # a common error and the samples' white part (Maxar)
         white = np.maximum(np.sqrt(scatter_sq / scatter_dof), MAXAR_ATTITUDE_WHITE_DEG)
         attitude = {"sigma_deg": [float(x) for x in white], "bias_sigma_deg": [absolute] * 3}
+    # velocities that agree with their positions worse than the default weight says (SPOT 1-4:
+    # 0.03-0.16 m/s) are weighted by that agreement
+    sig_v = [s.velocity_rms_m_s for s in sources if s.velocity_rms_m_s is not None]
     options: dict[str, Any] = {
         "ephemeris": {"sigma_position_m": max(max(sig_p), 0.01) if sig_p else DEFAULT_SIGMA_POSITION_M,
-                      "sigma_velocity_m_s": DEFAULT_SIGMA_VELOCITY_M_S},
+                      "sigma_velocity_m_s": max([DEFAULT_SIGMA_VELOCITY_M_S, *sig_v])},
         "attitude": attitude,
     }
     return {"cameras": cameras, "images": images, "options": options, "sensor_metadata": notes}

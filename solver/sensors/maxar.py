@@ -31,7 +31,7 @@ of a June or December beyond the table) is refused rather than silently one seco
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -40,6 +40,7 @@ import numpy as np
 
 from solver.geometry.rpc import RPC
 from solver.sensors.linescan import LinescanModel, quaternion_matrices
+from solver.sensors.screening import Screening, screen_model
 from solver.sensors.timescales import UnknownLeapSeconds, leap_seconds_between
 from solver.sensors.xmlsafe import Node, load
 
@@ -63,6 +64,8 @@ class MaxarProduct:
     position_covariance_m2: np.ndarray  # (n, 6) upper triangles per ephemeris point
     attitude_sigma_rad: float | None  # from the quaternion covariance: 2 sqrt(mean variance of q1..q3)
     image_descriptor: str
+    screening: Screening = field(default_factory=Screening)
+    corners: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))  # (k, 5) IMD/BAND_x corners: line, column, lon, lat, HAE
 
 
 def parse_utc(node: Node, tag: str) -> datetime:
@@ -249,6 +252,7 @@ def read_maxar(path: str | Path, shown: str | None = None, data: bytes | None = 
         attitude_times_s=att_t, attitude_wxyz=np.column_stack([at[:, 4], at[:, 1:4]]),
         look_body=look_body, camera_offset_body_m=offset,
     )
+    model, screening = screen_model(model, eph.child("EPHEMLISTList"), att.child("ATTLISTList"))
     rpb = root.find("RPB")
     return MaxarProduct(
         file=shown, satellite=image.text("SATID") if image.find("SATID") is not None else "",
@@ -258,7 +262,27 @@ def read_maxar(path: str | Path, shown: str | None = None, data: bytes | None = 
         position_covariance_m2=et[:, 7:13] if et.shape[1] >= 13 else np.zeros((et.shape[0], 0)),
         attitude_sigma_rad=_attitude_sigma(at),
         image_descriptor=imd.text("IMAGEDESCRIPTOR") if imd.find("IMAGEDESCRIPTOR") is not None else "",
+        screening=screening, corners=_band_corners(imd, lines, columns),
     )
+
+
+CORNER_TAGS = (("UL", 0.0, 0.0), ("UR", 0.0, 1.0), ("LR", 1.0, 1.0), ("LL", 1.0, 0.0))
+
+
+def _band_corners(imd: Node, lines: int, columns: int) -> np.ndarray:
+    """(k, 5) the corners of the first ``IMD/BAND_x`` block: ``ULLON``, ``ULLAT``, ``ULHAE`` ...
+    ``LLHAE`` (degrees, metres above the ellipsoid) at the image's first and last lines and
+    columns (pixel centres), as line, column, lon, lat, h; none when the block lacks them."""
+    bands = [c for c in imd.element if c.tag.startswith("BAND_")]
+    if not bands:
+        return np.zeros((0, 5))
+    band = imd.child(bands[0].tag)
+    rows = []
+    for tag, fl, fc in CORNER_TAGS:
+        if all(band.find(f"{tag}{k}") is not None for k in ("LON", "LAT", "HAE")):
+            rows.append([fl * (lines - 1), fc * (columns - 1), band.number(f"{tag}LON"), band.number(f"{tag}LAT"),
+                         band.number(f"{tag}HAE")])
+    return np.array(rows).reshape(-1, 5)
 
 
 def _attitude_sigma(at: np.ndarray) -> float | None:

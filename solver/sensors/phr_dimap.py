@@ -110,12 +110,12 @@ def read_phr_dimap_root(root: Node, shown: str) -> DimapV2Product:
     def attitude(epoch: datetime, span: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
         return polynomial_quaternions(att.child("Polynomial_Models"), att, epoch, first_line, span)
 
-    exact = linescan_model(model.child("Sensor_Ephemeris").child("Point_List"), EPHEMERIS_TAGS, att, attitude, time,
+    exact, screening = linescan_model(model.child("Sensor_Ephemeris").child("Point_List"), EPHEMERIS_TAGS, att, attitude, time,
                            first_line, period, lines, columns, look)
     frame = root.child("Product_Frame").find("Dataset_Frame")
     corners = extent_rows(frame) if frame is not None else np.zeros((0, 5))
     return DimapV2Product(shown, "Pleiades", "P", FORMAT, exact, look, period, DEFAULT_PIXEL_MM, corners, None, None,
-                          rpc=read_rfm(root))
+                          rpc=read_rfm(root), screening=screening)
 
 
 def is_phr_dimap(head: bytes) -> bool:

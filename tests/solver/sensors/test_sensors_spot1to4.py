@@ -1,15 +1,19 @@
 """SPOT 1-4 DIMAP v1: attitude given as the gyros' angular speeds (integrated from the first
-absolute AOCS angle) and the look angles of the first and last detector only. No public SPOT
-1-4 product may be committed (the ones we found carry a non-commercial licence;
-docs/sensor-metadata.md gives the numbers measured on them), so the public SPOT 5 segment
-(tests/data/vendor) is rewritten in SPOT 1-4's form around a known, analytic attitude:
+absolute AOCS angle), the look angles of the first and last detector only, and inertial
+velocities. No public SPOT 1-4 product may be committed (the ones we found carry a
+non-commercial licence; docs/sensor-metadata.md gives the numbers measured on them), so:
 
-- truth: the same segment in SPOT 5's form, its corrected yaw, pitch and roll replaced by the
-  analytic angles sampled every 20 ms (the SPOT 5 path meets the product's own tie points,
-  tests/solver/sensors/test_sensors_spot5.py);
-- SPOT 1-4 form: no corrected attitude; ``Aocs_Attitude/Angles_List`` with the analytic angles
-  at the first and last time, ``Angular_Speeds_List`` with their analytic derivatives at 8 Hz;
-- both: the look angles of detectors 1 and 300 only.
+- the public SPOT 5 segment (tests/data/vendor) is rewritten in SPOT 1-4's attitude form around
+  a known, analytic attitude (truth: the same segment in SPOT 5's form, its corrected yaw, pitch
+  and roll replaced by the analytic angles sampled every 20 ms; SPOT 1-4 form: no corrected
+  attitude, ``Aocs_Attitude/Angles_List`` with the analytic angles at the first and last time,
+  ``Angular_Speeds_List`` with their analytic derivatives at 8 Hz; both: the look angles of
+  detectors 1 and 300 only);
+- a whole SPOT 1-4 scene is written from an independent simulated one
+  (tests/solver/sensors/simulated_spot14.py: inertial velocities in Earth-fixed axes, two look
+  angles linear in the angle, a mirror tilted 28 degrees, the corners and the scene centre):
+  the reader meets its truth, the job as delivered meets it, and an adjustment with 17 control
+  points meets its check points.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from datetime import datetime, timedelta
 
 import numpy as np
 import pytest
+from simulated_spot14 import START as START_SIM
 
 from solver.cli import main
 from solver.sensors.dimap_spot5 import read_spot5
@@ -145,3 +150,122 @@ def test_job_fragment(models) -> None:
     Image(**doc["images"][0])
     assert note["satellite"] == "SPOT 2" and doc["images"][0]["model"]["name"] == "PASS-J2"
     assert note["difference_px"]["rms"] < JOB_FORM_PX, note
+
+
+# --- a SPOT 1-4 scene as the real files are: inertial velocities, two look angles, a tilted mirror
+
+SIM_GROUND_M = 0.1  # reader vs the simulated truth (measured 0.04 m: trapezoids of the gyro speeds)
+DELIVERED_PX = 0.5  # the job's own orientation vs the truth (measured 0.49 px max: its cubic attitude)
+TANGENT_CENTRE_M = 100.0  # the scene centre with the tangents linear instead (measured ~0.5 km at 28 degrees)
+
+
+@pytest.fixture(scope="module")
+def sim14(tmp_path_factory):
+    from simulated_spot14 import Spot14Scene, metadata_dim
+
+    scene = Spot14Scene()
+    path = tmp_path_factory.mktemp("spot14") / "METADATA.DIM"
+    path.write_text(metadata_dim(scene))
+    return scene, path, read_spot5(path)
+
+
+def test_the_inertial_velocities_are_found_and_converted(sim14) -> None:
+    scene, _, p = sim14
+    assert p.screening.velocity_frame == "inertial"
+    assert any("inertial velocities in Earth-fixed axes" in n for n in p.screening.notes), p.screening.notes
+    m = p.model
+    first = (datetime.fromisoformat(m.epoch_utc.replace("Z", "+00:00")) - START_SIM).total_seconds()
+    truth = scene.state(m.ephemeris_times_s + first)[1]
+    assert np.abs(m.velocities_ecef_m_s - truth).max() < 1e-6  # the file's V - omega x P, as written
+
+
+def test_the_simulated_scene_meets_its_truth_corners_and_centre(sim14) -> None:
+    from solver.geometry.geodesy import geodetic_to_ecef
+
+    scene, _, p = sim14
+    m = p.model
+    L, C = (a.ravel() for a in np.meshgrid(np.linspace(0, m.lines - 1, 7), np.linspace(0, m.columns - 1, 7), indexing="ij"))
+    for h in (0.0, 1500.0):
+        d = np.linalg.norm(m.image_to_ecef(L, C, np.full(L.size, h)) - scene.ground(L, C, np.full(L.size, h)), axis=1)
+        assert d.max() < SIM_GROUND_M, d.max()
+    assert p.centre.shape == (1, 5) and p.corners.shape == (4, 5)
+    c = np.vstack([p.corners, p.centre])
+    d = np.linalg.norm(m.image_to_ecef(c[:, 0], c[:, 1], c[:, 4]) - geodetic_to_ecef(c[:, 2:5]), axis=1)
+    assert d.max() < SIM_GROUND_M, d
+    # the centre tells the interpolation of the two look angles apart (the corners cannot):
+    # tangents linear in the column put it far away
+    from solver.sensors.detectors import SPOT_NAVIGATION
+
+    u = p.centre[0, 1] / (m.columns - 1)
+    tan_lin = np.array([[p.look.along[0] + u * (p.look.along[1] - p.look.along[0]),
+                         p.look.across[0] + u * (p.look.across[1] - p.look.across[0]), 1.0]]) @ SPOT_NAVIGATION.T
+    t = m.line_time(p.centre[:, 0])
+    ray = m.rotation(t)[0] @ tan_lin[0]
+    s = m.position(t)[0]
+    from solver.sensors.linescan import intersect_ellipsoid
+
+    wrong = intersect_ellipsoid(s[None], ray[None], np.zeros(1))
+    assert np.linalg.norm(wrong[0] - geodetic_to_ecef(p.centre[:, 2:5])[0]) > TANGENT_CENTRE_M
+
+
+def _truth_job(scene, p, gcps: int, checks: int, seed: int, perturb: bool) -> dict:
+    """The fragment of ``p`` with ``gcps`` control and ``checks`` check points imaged by the
+    scene's truth at 0-2000 m, every observation perturbed as its weight says (``perturb``)."""
+    from monte_carlo import perturbed
+
+    from solver.sensors.job_fragment import fragment
+
+    doc = fragment([p], ["S"])
+    doc.pop("sensor_metadata")
+    g = np.random.default_rng(seed)
+    n = gcps + checks
+    L, C, H = g.uniform(60, scene.lines - 60, n), g.uniform(60, scene.columns - 60, n), g.uniform(0, 2000, n)
+    ground = scene.geodetic(scene.ground(L, C, H))
+    points = [{"id": f"P{k}", "role": "gcp" if k < gcps else "check", "coordinates": [float(v) for v in ground[k]],
+               "sigma_m": [0.5] * 3} for k in range(n)]
+    obs = [{"image": "S", "point": f"P{k}", "line": float(L[k]), "column": float(C[k]), "sigma_px": 0.3} for k in range(n)]
+    if perturb:
+        doc, obs = perturbed(doc, obs, g)
+        for q in points:  # the survey errs by its sigma too (east/north/up ~ degrees at these sizes)
+            q["coordinates"] = [q["coordinates"][0] + g.normal(0, 0.5) / 85e3, q["coordinates"][1] + g.normal(0, 0.5) / 111e3,
+                                q["coordinates"][2] + g.normal(0, 0.5)]
+    return {"schema_version": "1.0", "name": "spot14", "crs": "EPSG:4326", **doc, "points": points, "observations": obs}
+
+
+def test_the_job_as_delivered_meets_the_truth(sim14) -> None:
+    """``pba ground-to-image job.json -``: the job's own orientation (its pass orbit fitted to the
+    converted states as weighted, its cubic attitude to the samples) against the truth."""
+    from solver.gis.model import load_model
+
+    scene, _, p = sim14
+    job = _truth_job(scene, p, 5, 0, 1, perturb=False)
+    img = load_model(job, None).image("S")
+    L, C = (a.ravel() for a in np.meshgrid(np.linspace(0, scene.lines - 1, 9), np.linspace(0, scene.columns - 1, 9), indexing="ij"))
+    for h in (0.0, 2000.0):
+        g = scene.ground(L, C, np.full(L.size, h))
+        line, col, *_ = img.ground_to_image(g)
+        d = np.hypot(line - L, col - C)
+        assert d.max() < DELIVERED_PX, d.max()
+
+
+def test_an_adjustment_with_17_control_points_reaches_sub_pixel_check_points(sim14) -> None:
+    """Everything the job observes perturbed as its weights say: sigma0 near 1, the global test
+    passes and the 26 check points land within a GSD (measured 0.43-0.56 GSD, sigma0 0.92-1.02
+    over three seeds)."""
+    from solver.api import run
+
+    scene, _, p = sim14
+    job = _truth_job(scene, p, 17, 26, 2, perturb=True)
+    rep = run(job)
+    a, cp = rep["adjustment"], rep["checkpoints"]
+    assert 0.8 < a["sigma0_aposteriori"] < 1.25 and a["chi2"]["passed"], a["chi2"]
+    assert np.hypot(cp["rmse_m"]["e"], cp["rmse_m"]["n"]) < rep["images"][0]["gsd_m"], cp["rmse_m"]
+    assert any("inertial" in n for n in rep["images"][0]["sensor"]["notes"])  # carried into the report
+
+
+def test_import_sensor_states_the_conversion(sim14, capsys) -> None:
+    _, path, _ = sim14
+    assert main(["import-sensor", str(path), "--image-id", "S", "-o", str(path.parent / "f.json")]) == 0
+    err = capsys.readouterr().err
+    assert "S: note: " in err and "converted to Earth-fixed velocities, V - omega x P" in err, err
+
