@@ -35,6 +35,7 @@ from service.retention import RetentionLoop
 from service.routes import admin, cameras, compose, gis, jobs, landing, ops, plots, processes, ui
 from service.settings import Settings
 from service.store import open_store
+from solver.raster_gate import harden_gdal_environment
 
 log = logging.getLogger("pba.service")
 
@@ -83,6 +84,7 @@ def _start_services(settings: Settings) -> Services:
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     """Start the store and the queue backend; stop the workers on shutdown."""
     settings: Settings = app.state.settings
+    harden_gdal_environment()  # before any worker or GIS process starts: they inherit it
     services = _start_services(settings)
     app.state.services = services
     if getattr(app.state, "start_gis_early", False):  # pba serve: the GIS process loads while the server starts

@@ -119,6 +119,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     from service.app import create_app
     from service.logs import configure_logging
+    from solver.raster_gate import lock_down_process
 
     settings = _settings(args)
     configure_logging(settings.log_level, settings.log_format)
@@ -127,6 +128,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             f"binding to {settings.host}: API keys are required (pba admin create-key)",
             file=sys.stderr,
         )
+    lock_down_process()  # the raster gate: GDAL off the network, no raster outside an explicit space
     app = create_app(settings)
     app.state.start_gis_early = True
     uvicorn.run(

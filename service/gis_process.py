@@ -47,10 +47,12 @@ def _open(database_url: str) -> None:
     from threadpoolctl import threadpool_limits
 
     from service.store import open_store
+    from solver.raster_gate import lock_down_process
 
     # Small least-squares problems (RPC fits) on one BLAS thread: with OpenBLAS's threads competing
     # for the cores the workers' solves use, a 0.6 s fit took 17-25 s (measured on 2 cores).
     threadpool_limits(limits=1)
+    lock_down_process()  # this process opens no raster; GDAL off the network (solver.raster_gate)
     try:
         with open("/proc/self/comm", "w") as comm:  # Linux; elsewhere the name stays python
             comm.write(PROCESS_NAME)

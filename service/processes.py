@@ -249,7 +249,7 @@ def _run_preanalysis(document: dict[str, Any], progress: Progress, cancel: Cance
 def _check_match(job: Job, inputs: ExecuteInputs, caller: Caller) -> Checked:
     """The rasters (service.rasters: inside the caller's image folder, or bounded uploads GDAL
     reads), one per image of the job named; the orientation itself is the worker's to use."""
-    from service.rasters import stored_rasters
+    from service.rasters import stated_sizes, stored_rasters
 
     if inputs.models:
         _refuse_models(inputs)
@@ -268,7 +268,8 @@ def _check_match(job: Job, inputs: ExecuteInputs, caller: Caller) -> Checked:
         message = "heights_m: MIN must be below MAX (ellipsoidal metres)"
         raise InvalidInput(message, [{"pointer": "/inputs/heights_m", "code": "invalid", "message": message}])
     s = caller.settings
-    rasters = stored_rasters(inputs.images, s.image_root, caller.user_name, s.max_image_upload_bytes)
+    rasters = stored_rasters(inputs.images, s.image_root, caller.user_name, s.max_image_upload_bytes,
+                             s.max_upload_pixel_bytes, s.max_raster_pixel_bytes, stated_sizes(job))
     document = {
         **_job_document(job),
         "images": rasters,
@@ -276,6 +277,7 @@ def _check_match(job: Job, inputs: ExecuteInputs, caller: Caller) -> Checked:
         "image_folder": caller.user_name,
         "heights_m": list(heights) if heights is not None else None,
         "match": inputs.match.model_dump() if inputs.match is not None else None,
+        "max_pixel_bytes": max(s.max_upload_pixel_bytes, s.max_raster_pixel_bytes),
     }
     summary = {"valid": True, "problems": [], "images": [{"id": r["id"], "source": "path" if "path" in r else "upload"} for r in rasters]}
     return Checked(document, summary)
@@ -283,17 +285,27 @@ def _check_match(job: Job, inputs: ExecuteInputs, caller: Caller) -> Checked:
 
 def _run_match(document: dict[str, Any], progress: Progress, cancel: Cancel) -> dict[str, Any]:
     """Uploads written to a temporary directory, server paths checked again, then the
-    matching (solver.matching.run)."""
+    matching (solver.matching.run), every raster opened through the raster gate inside the
+    job's space only: the user's image folder and the job's own temporary folder."""
     import base64
+    import os
     import tempfile
     from pathlib import Path
 
-    from service.rasters import resolve
+    from service.rasters import MAX_SIDE_PX, resolve, user_folder
     from solver.matching.features import MatchSettings
     from solver.matching.run import run_matching
+    from solver.raster_gate import RasterLimits, RasterSpace, confined
 
     root = Path(document["image_root"]) if document.get("image_root") else None
     with tempfile.TemporaryDirectory(prefix="pba-match-") as tmp:
+        folders = [Path(os.path.realpath(tmp))]
+        if root is not None:
+            try:
+                folders.insert(0, user_folder(root, document["image_folder"]))
+            except ValueError as exc:
+                raise JobError(Problem("unusable_raster", str(exc), ())) from None
+        space = RasterSpace(tuple(folders), RasterLimits(MAX_SIDE_PX, document.get("max_pixel_bytes")))
         rasters = []
         for k, r in enumerate(document["images"]):
             if "path" in r:
@@ -308,7 +320,8 @@ def _run_match(document: dict[str, Any], progress: Progress, cancel: Cancel) -> 
                 rasters.append((r["id"], path, f"the upload of image {r['id']}"))
         settings = MatchSettings(**(document.get("match") or {}))
         heights = tuple(document["heights_m"]) if document.get("heights_m") else None
-        return run_matching(document["job"], rasters, heights, settings, progress, cancel)
+        with confined(space):
+            return run_matching(document["job"], rasters, heights, settings, progress, cancel)
 
 
 def _match_inputs() -> dict[str, InputDescription]:

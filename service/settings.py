@@ -76,6 +76,18 @@ class Settings(BaseSettings):
         gt=0,
         description="match process: an uploaded raster (inputs.images[].value, decoded), at most",
     )
+    max_upload_pixel_bytes: int = Field(
+        256 * 1024 * 1024,
+        gt=0,
+        description="match process: an uploaded raster's band 1 decoded (width x height x bytes per pixel, "
+        "from its header), at most; a small compressed file may claim a huge image",
+    )
+    max_raster_pixel_bytes: int = Field(
+        16 * 1024**3,
+        gt=0,
+        description="match process: a raster under the image root, band 1 decoded (width x height x bytes per "
+        "pixel, from its header), at most",
+    )
     compose_max_rows: int = Field(
         20_000,
         gt=0,

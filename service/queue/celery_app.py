@@ -264,8 +264,10 @@ def _on_process_init(**_: Any) -> None:
     """In each pool process: logging, a store of its own, and the solver imported."""
     from service.logs import configure_logging
     from service.queue.worker import warm_up
+    from solver.raster_gate import lock_down_process
 
     assert RT.settings is not None
+    lock_down_process()  # rasters only inside a job's space (solver.raster_gate)
     configure_logging(RT.settings.log_level, RT.settings.log_format)
     RT.store = None  # never use a connection pool inherited from the main process
     _store()

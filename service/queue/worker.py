@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from service.execution import SHUTDOWN, RunLimits, run_claimed_job
+from solver.raster_gate import lock_down_process
 
 log = logging.getLogger("pba.worker")
 
@@ -61,6 +62,7 @@ def worker_main(cfg: WorkerConfig, stop: Any, wake: Any) -> None:
     from service.store import open_store
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the server, which stops us
+    lock_down_process()  # rasters only inside a job's space (solver.raster_gate)
     configure_logging(cfg.log_level, cfg.log_format)
     me = worker_id()
     store = open_store(cfg.database_url, create=False)

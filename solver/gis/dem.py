@@ -19,9 +19,10 @@ class Dem:
     """A DEM held in memory: ``height(lon_deg, lat_deg)`` (WGS 84) -> ellipsoidal metres."""
 
     def __init__(self, path: Path | str):
-        import rasterio
+        from solver.raster_gate import open_raster
 
-        with rasterio.open(path) as src:
+        with open_raster(path) as gated:  # the raster gate: allowed formats, local files, no sidecar
+            src = gated.dataset
             self.values = src.read(1, masked=True).astype(float).filled(np.nan)
             self.inverse = ~src.transform
             if src.crs is None:

@@ -24,6 +24,7 @@ a DEM and 1.8x slower at a constant height on a PRISM-size image (bench/bench_or
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Callable
 
@@ -88,14 +89,15 @@ def orthorectify(
     from rasterio.transform import from_origin
 
     from solver.gis.dem import Dem
+    from solver.raster_gate import create_raster, open_raster
 
     if (height_m is None) == (dem is None):
         raise ValueError("give exactly one of --height and --dem")
     dem_obj = Dem(dem) if dem is not None else None
     heights = dem_obj.range_m if dem_obj is not None else (height_m, height_m)
     say = progress or (lambda f, m: None)
-    with rasterio.open(raster) as src:
-        data = src.read(1)
+    with open_raster(raster) as gated:
+        data = gated.dataset.read(1)
         dtype = data.dtype
     if isinstance(image, RpcImage):  # no camera: the raster gives the image's size
         image = image.with_size(*data.shape)
@@ -110,8 +112,11 @@ def orthorectify(
 
         from solver.gis.rpc_io import gdal_rpc
 
-        opts = {"RPC_DEM": str(dem)} if dem is not None else {"RPC_HEIGHT": float(height_m)}
-        reproject(data, out, rpcs=gdal_rpc(rpc), src_crs="EPSG:4326", dst_transform=transform, dst_crs=crs, resampling=Resampling.bilinear, src_nodata=None, dst_nodata=0, **opts)
+        with open_raster(dem) if dem is not None else nullcontext() as gated_dem:
+            # GDAL's transformer opens RPC_DEM itself: it is given the gate's private name of the
+            # DEM the gate opened (the same file, checked), never the caller's path
+            opts = {"RPC_DEM": gated_dem.gdal_name} if gated_dem is not None else {"RPC_HEIGHT": float(height_m)}
+            reproject(data, out, rpcs=gdal_rpc(rpc), src_crs="EPSG:4326", dst_transform=transform, dst_crs=crs, resampling=Resampling.bilinear, src_nodata=None, dst_nodata=0, **opts)
         say(1.0, "done")
     elif method == "rigorous":
         from solver.gis.ortho_kernel import sample_block
@@ -131,8 +136,8 @@ def orthorectify(
             from rasterio.warp import Resampling, reproject
 
             dem_heights = np.full((ny, nx), np.nan, dtype=np.float64)
-            with rasterio.open(dem) as dsrc:
-                reproject(rasterio.band(dsrc, 1), dem_heights, dst_transform=transform, dst_crs=crs, resampling=Resampling.bilinear, dst_nodata=np.nan)
+            with open_raster(dem) as gated_dem:
+                reproject(rasterio.band(gated_dem.dataset, 1), dem_heights, dst_transform=transform, dst_crs=crs, resampling=Resampling.bilinear, dst_nodata=np.nan)
             say(0.3, "DEM on the output grid")
         empty = np.zeros((1, 1))
         block = max(1, 4_000_000 // max(nx, 1))
@@ -143,6 +148,6 @@ def orthorectify(
             say(0.3 + 0.7 * r1 / ny, "resampling")
     else:
         raise ValueError(f"unknown method {method!r} (rigorous or rpc)")
-    with rasterio.open(output, "w", driver="GTiff", width=nx, height=ny, count=1, dtype=dtype, crs=crs, transform=transform, nodata=0, compress="deflate", tiled=True) as dst:
+    with create_raster(output, driver="GTiff", width=nx, height=ny, count=1, dtype=dtype, crs=crs, transform=transform, nodata=0, compress="deflate", tiled=True) as dst:
         dst.write(out, 1)
     return {"width": nx, "height": ny, "origin": [x0, y1], "gsd": gsd, "crs": crs, "method": method}

@@ -105,16 +105,16 @@ def _nodes(n: int) -> np.ndarray:
 
 def resample_raster(image: AdjustedImage, raster: Path, output: Path, progress: Callable[[float, str], None] | None = None) -> IdealImage:
     """Write the ideal single-array image of ``raster`` (same size); returns the ideal image."""
-    import rasterio
     from scipy.ndimage import map_coordinates
 
     from solver.gis.ortho import _interp
+    from solver.raster_gate import create_raster, open_raster
 
     say = progress or (lambda f, m: None)
     ideal = ideal_image(image)
     h = mean_point_height(image)
-    with rasterio.open(raster) as src:
-        data = src.read(1)
+    with open_raster(raster) as gated:
+        data = gated.dataset.read(1)
     if data.shape != (image.lines, image.columns):
         raise ValueError(f"{raster}: {data.shape[0]} x {data.shape[1]} pixels, the image has {image.lines} x {image.columns}")
     rs, cs = _nodes(image.lines), _nodes(image.columns)
@@ -134,7 +134,7 @@ def resample_raster(image: AdjustedImage, raster: Path, output: Path, progress: 
         vals[bad] = 0
         out[r0 : r0 + len(rows)] = vals
         say(0.3 + 0.7 * min(r0 + block, image.lines) / image.lines, "resampling")
-    with rasterio.open(output, "w", driver="GTiff", width=image.columns, height=image.lines, count=1, dtype=data.dtype, nodata=0, compress="deflate", tiled=True) as dst:
+    with create_raster(output, driver="GTiff", width=image.columns, height=image.lines, count=1, dtype=data.dtype, nodata=0, compress="deflate", tiled=True) as dst:
         dst.write(out, 1)
     return ideal
 
@@ -142,19 +142,20 @@ def resample_raster(image: AdjustedImage, raster: Path, output: Path, progress: 
 def write_chip_rasters(image: AdjustedImage, raster: Path, output: Path) -> list[tuple[int, Path]]:
     """The per-chip sub-images of ``raster`` (columns of each chip inside the image):
     ``<output stem>_<chip id>.tif``."""
-    import rasterio
     from rasterio.windows import Window
 
     from solver.gis.rpc_export import _chip_path
+    from solver.raster_gate import create_raster, open_raster
 
     written = []
-    with rasterio.open(raster) as src:
+    with open_raster(raster) as gated:
+        src = gated.dataset
         for k in range(image.n_chips):
             lo, hi = (int(v) for v in image.chip_range(k))
             chip_id = image.image.camera.chips[k].id if image.image.camera.chips else "1"
             data = src.read(1, window=Window(lo, 0, hi - lo + 1, src.height))
             path = _chip_path(Path(output), chip_id)
-            with rasterio.open(path, "w", driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype=data.dtype) as dst:
+            with create_raster(path, driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype=data.dtype) as dst:
                 dst.write(data, 1)
             written.append((k, path))
     return written

@@ -100,11 +100,13 @@ def write_sidecar(rpc: RPC, path: Path) -> Path:
 
 def write_raster_with_rpc(rpc: RPC, source: Path, destination: Path) -> Path:
     """A GeoTIFF copy of ``source`` with the RPC as GeoTIFF RPC tags (rasterio / GDAL)."""
-    import rasterio
     from rasterio.errors import NotGeoreferencedWarning
     from rasterio.rpc import RPC as GdalRPC
 
-    with rasterio.open(source) as src:
+    from solver.raster_gate import create_raster, open_raster
+
+    with open_raster(source) as gated:
+        src = gated.dataset
         profile = src.profile.copy()
         profile.update(driver="GTiff")
         profile.pop("crs", None)
@@ -112,7 +114,7 @@ def write_raster_with_rpc(rpc: RPC, source: Path, destination: Path) -> Path:
         data = src.read()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)  # raw image geometry: the RPC is its georeferencing
-        with rasterio.open(destination, "w", **profile) as dst:
+        with create_raster(destination, **profile) as dst:
             dst.write(data)
             dst.rpcs = GdalRPC.from_gdal(rpc.to_gdal())
     return Path(destination)

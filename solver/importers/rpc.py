@@ -35,6 +35,7 @@ from typing import Any
 
 from solver.geometry.rpc import RPC
 from solver.importers.errors import fail
+from solver.raster_gate import RasterSpace, confined
 from solver.sensors.errors import MetadataError
 from solver.sensors.maxar import is_maxar_xml, read_maxar_rpc
 
@@ -57,25 +58,40 @@ def sidecar_kind(path: Path) -> str | None:
 
 def _dummy_raster(path: Path) -> None:
     import numpy as np
-    import rasterio
+
+    from solver.raster_gate import create_raster
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # NotGeoreferencedWarning
-        with rasterio.open(path, "w", driver="GTiff", width=1, height=1, count=1, dtype="uint8") as dst:
+        with create_raster(path, driver="GTiff", width=1, height=1, count=1, dtype="uint8") as dst:
             dst.write(np.zeros((1, 1, 1), np.uint8))
 
 
+def rpc_sidecar_names(raster: Path) -> tuple[str, ...]:
+    """The sidecars GDAL's metadata readers take an RPC from beside ``raster``: ``NAME_RPC.TXT``,
+    ``NAME.RPB``, a DigitalGlobe ``NAME.XML`` or ``NAME.IMD``, a DIMAP product's ``RPC_<x>.XML``
+    beside ``IMG_<x>``, an ALOS ``RPC-<x>.txt`` (with its ``summary.txt``) beside ``IMG-<x>``;
+    the raster gate lets GDAL see these only."""
+    from solver.raster_gate import RPC_SIDECARS
+
+    stem = raster.stem
+    names = [*RPC_SIDECARS, f"{stem}.XML", f"{stem}.xml", f"{stem}.IMD", f"{stem}.imd"]
+    if stem[:4].upper() == "IMG_":
+        names += [f"RPC_{stem[4:]}.XML", f"RPC_{stem[4:]}.xml"]
+    if stem[:4].upper() == "IMG-":
+        names += [f"RPC-{stem[4:]}.txt", f"RPC-{stem[4:]}.TXT", "summary.txt"]
+    return tuple(names)
+
+
 def _gdal_rpcs(raster: Path, shown: str) -> RPC:
-    import rasterio
-    from rasterio.errors import RasterioIOError
+    """The RPC GDAL reads from ``raster`` or its sidecars, through the raster gate."""
+    from solver.raster_gate import RasterRefused, open_raster
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # NotGeoreferencedWarning: an RPC image has no transform
-            with rasterio.open(raster) as src:
-                rpcs = src.rpcs
-    except RasterioIOError as exc:
-        raise fail(shown, 0, "", f"GDAL cannot open it: {exc}") from None
+        with open_raster(raster, shown=shown, sidecars=rpc_sidecar_names(raster)) as gated:
+            rpcs = gated.dataset.rpcs
+    except RasterRefused as exc:
+        raise fail(shown, 0, "", f"GDAL cannot open it: {exc.message}") from None
     except (KeyError, ValueError) as exc:  # rasterio's RPC of a file GDAL half-reads (an XML without RPC fields)
         raise fail(shown, 0, "", f"GDAL reads an incomplete RPC from it (missing or unreadable: {exc})", "incomplete_rpc") from None
     if rpcs is None:
@@ -133,7 +149,8 @@ def read_rpc(path: str | Path, shown: str | None = None) -> RPC:
         shutil.copyfile(path, sidecar)
         if kind == "alos":
             (d / "summary.txt").write_text("")
-        return _gdal_rpcs(raster, shown)
+        with confined(RasterSpace.of(d)):  # the temporary folder is this read's whole space
+            return _gdal_rpcs(raster, shown)
 
 
 def _dimap_metadata_rpc(path: Path, shown: str) -> Path | None:

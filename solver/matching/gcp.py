@@ -62,27 +62,27 @@ class Georaster:
     path: Path
     dataset: Any
 
+    gated: Any = None  # solver.raster_gate.GatedRaster: closed with close()
+
     @classmethod
     def open(cls, path: Path, what: str) -> "Georaster":
-        import rasterio
-        from rasterio.errors import RasterioError
+        """Open ``path`` through the raster gate (:mod:`solver.raster_gate`; its georeferencing
+        must be inside the file); :class:`RasterError` when refused or not georeferenced."""
+        from solver.raster_gate import RasterRefused, open_raster
 
         path = Path(path)
-        if not path.is_file():
-            raise RasterError(f"{path}: no such file")
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                ds = rasterio.open(path)
-        except RasterioError as exc:
-            raise RasterError(f"{path}: GDAL cannot open it as a raster: {exc}") from None
+            gated = open_raster(path)
+        except RasterRefused as exc:
+            raise RasterError(exc.message if exc.message.startswith(str(path)) else f"{path}: {exc.message}") from None
+        ds = gated.dataset
         if ds.crs is None or ds.transform.is_identity:
-            ds.close()
-            raise RasterError(f"{path}: the {what} has no CRS or geotransform (it must be georeferenced)")
+            gated.close()
+            raise RasterError(f"{path}: the {what} has no CRS or geotransform inside the file (it must be georeferenced)")
         if ds.transform.b != 0 or ds.transform.d != 0:
-            ds.close()
+            gated.close()
             raise RasterError(f"{path}: the {what}'s geotransform is rotated (not supported)")
-        return cls(path, ds)
+        return cls(path, ds, gated)
 
     def to_lonlat(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from pyproj import Transformer
@@ -140,7 +140,10 @@ class Georaster:
         return np.where(ok, v, np.nan)
 
     def close(self) -> None:
-        self.dataset.close()
+        if self.gated is not None:
+            self.gated.close()  # the dataset, its descriptors and private folder
+        else:
+            self.dataset.close()
 
 
 @dataclass

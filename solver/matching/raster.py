@@ -16,6 +16,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -37,40 +38,45 @@ class Raster:
     columns: int
     dtype: str
     rpcs: dict[str, str] | None
-    _dataset: object = field(repr=False)
+    _dataset: Any = field(repr=False)  # solver.raster_gate.GatedRaster
     stretch: tuple[float, float] = (0.0, 255.0)
     nodata: float | None = None
 
     @classmethod
     def open(cls, path: str | Path) -> "Raster":
-        """Open ``path`` (anything GDAL reads) and compute its 8-bit stretch; raises
-        :class:`RasterError` for a missing, unreadable, truncated or absurd file."""
-        import rasterio
-        from rasterio.errors import RasterioError
+        """Open ``path`` through the raster gate (:mod:`solver.raster_gate`: an allowed format, a
+        plain file inside the current space, its ``_RPC.TXT`` or ``.RPB`` beside it) and compute
+        its 8-bit stretch; raises :class:`RasterError` for a missing, refused, unreadable,
+        truncated or absurd file."""
+        from solver.raster_gate import RPC_SIDECARS, RasterLimits, RasterRefused, RasterSpace, current_space, open_raster
 
         path = Path(path)
-        if not path.is_file():
-            raise RasterError(f"{path}: no such file")
+        space = current_space()
+        if space.limits.max_side_px > MAX_SIDE_PX:
+            space = RasterSpace(space.folders, RasterLimits(MAX_SIDE_PX, space.limits.max_pixel_bytes, space.limits.max_block_bytes))
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # NotGeoreferencedWarning: raw image geometry
-                ds = rasterio.open(path)
-        except RasterioError as exc:
-            raise RasterError(f"{path}: GDAL cannot open it as a raster: {exc}") from None
-        if ds.count < 1:
-            raise RasterError(f"{path}: the raster has no band")
-        if not (0 < ds.width <= MAX_SIDE_PX and 0 < ds.height <= MAX_SIDE_PX):
-            raise RasterError(f"{path}: absurd size {ds.width} x {ds.height} pixels (1 to {MAX_SIDE_PX} per side)")
-        dtype = ds.dtypes[0]
+            gated = open_raster(path, space, sidecars=RPC_SIDECARS)
+        except RasterRefused as exc:
+            raise RasterError(exc.message if exc.message.startswith(str(path)) else f"{path}: {exc.message}") from None
+        ds = gated.dataset
+        dtype = gated.header.dtype
         if dtype not in DTYPES:
+            gated.close()
             raise RasterError(f"{path}: pixel type {dtype} is not supported (8 to 32-bit integers or floats)")
-        rpcs = ds.rpcs.to_gdal() if ds.rpcs is not None else None
-        r = cls(path, ds.height, ds.width, dtype, rpcs, ds, nodata=ds.nodata)
-        r.stretch = r._percentiles()
+        try:
+            rpcs = ds.rpcs.to_gdal() if ds.rpcs is not None else None
+        except (KeyError, ValueError):
+            rpcs = None
+        r = cls(path, ds.height, ds.width, dtype, rpcs, gated, nodata=ds.nodata)
+        try:
+            r.stretch = r._percentiles()
+        except BaseException:
+            gated.close()
+            raise
         return r
 
     def close(self) -> None:
-        self._dataset.close()
+        self._dataset.close()  # the gated raster: its dataset, descriptors and private folder
 
     def _read(self, **kw) -> np.ndarray:
         from rasterio.errors import RasterioError
@@ -78,7 +84,7 @@ class Raster:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                return self._dataset.read(1, **kw)
+                return self._dataset.dataset.read(1, **kw)
         except (RasterioError, OSError, ValueError) as exc:
             raise RasterError(f"{self.path}: cannot read its pixels (truncated or corrupt file?): {exc}") from None
 

@@ -137,8 +137,9 @@ def render_ortho(scene, lon_deg: np.ndarray, lat_deg: np.ndarray, seed: int = 0,
 
 def write_rasters(scene, job_path: Path, step: int = 8, texture: str = "smooth", seed: int = 0) -> list[Path]:
     """One GeoTIFF per image beside the job: ``<job stem>.<image id>.tif`` (raw geometry)."""
-    import rasterio
     from rasterio.errors import NotGeoreferencedWarning
+
+    from solver.raster_gate import create_raster
 
     job_path = Path(job_path)
     stem = job_path.name[:-5] if job_path.name.endswith(".json") else job_path.name
@@ -148,7 +149,7 @@ def write_rasters(scene, job_path: Path, step: int = 8, texture: str = "smooth",
         path = job_path.with_name(f"{stem}.{geom.id}.tif")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)  # raw image geometry, as delivered
-            with rasterio.open(path, "w", driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype=data.dtype.name, compress="deflate") as dst:
+            with create_raster(path, driver="GTiff", width=data.shape[1], height=data.shape[0], count=1, dtype=data.dtype.name, compress="deflate") as dst:
                 dst.write(data, 1)
         out.append(path)
     return out

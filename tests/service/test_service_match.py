@@ -26,6 +26,7 @@ from service.execution import RunLimits, run_claimed_job
 from service.processes import MATCH, PROCESSES
 from service.settings import Settings
 from service.states import JobStatus
+from solver.raster_gate import create_raster
 
 sys.path.insert(0, str(Path(__file__).parent.parent))
 from test_matching_real import DATA, MIN_TIE_POINTS, PAIRS, _rpc_job  # noqa: E402
@@ -156,8 +157,12 @@ def test_bad_uploads_and_inputs_are_refused(served, tmp_path, triplet_doc):
     refused({"id": LEFT, "value": base64.b64encode(data[: len(data) // 2]).decode()}, "/inputs/images/0/value", "truncated")
     refused({"id": LEFT, "value": "not base64!"}, "/inputs/images/0/value", "base64")
     vrt = b'<VRTDataset rasterXSize="2000000" rasterYSize="10"><VRTRasterBand dataType="Byte" band="1"/></VRTDataset>'
-    refused({"id": LEFT, "value": base64.b64encode(vrt).decode()}, "/inputs/images/0/value", "2000000")
-    refused({"id": LEFT, "value": base64.b64encode(b"hello").decode()}, "/inputs/images/0/value", "GDAL cannot read")
+    refused({"id": LEFT, "value": base64.b64encode(vrt).decode()}, "/inputs/images/0/value", "not a supported raster format")
+    huge = tmp_path / "huge.tif"
+    with create_raster(huge, driver="GTiff", width=2_000_000, height=10, count=1, dtype="uint8", tiled=True, sparse_ok=True):
+        pass
+    refused({"id": LEFT, "value": _b64(huge)}, "/inputs/images/0/value", "2000000 x 10")
+    refused({"id": LEFT, "value": base64.b64encode(b"hello").decode()}, "/inputs/images/0/value", "not a supported raster format")
     refused({"id": LEFT, "value": base64.b64encode(b"\0" * 1_100_000).decode()}, "/inputs/images/0/value", "larger than")
     refused({"id": "nadir", "value": good["value"]}, "/inputs/images/0/id", "no image")
     refused({"id": RIGHT, "value": good["value"]}, "/inputs/images/1/id", "twice")

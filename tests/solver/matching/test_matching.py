@@ -24,6 +24,7 @@ from solver.cli import main
 from solver.geometry.rpc import RpcBias
 from solver.gis.rpc_io import write_sidecar
 from solver.importers.measurements_csv import read_measurements
+from solver.raster_gate import create_raster
 from solver.simulate.camera import simple_camera
 from solver.simulate.raster import render_image
 from solver.simulate.rpc import fit_image_rpc
@@ -198,14 +199,19 @@ def test_bad_rasters_exit_2(triplet, rpc_pair, tmp_path, capsys):
     data = paths[0].read_bytes()
     cut.write_bytes(data[: len(data) // 2])
     _fails(["match", str(cut), str(paths[1]), "--job", job, "-o", out, "-q"], capsys, "sim.back.tif")
-    # absurd size (a VRT header claiming 2,000,000 columns)
+    # absurd size (a sparse GeoTIFF header claiming 2,000,000 columns)
+    huge = tmp_path / "huge.tif"
+    with create_raster(huge, driver="GTiff", width=2_000_000, height=10, count=1, dtype="uint8", tiled=True, sparse_ok=True):
+        pass
+    _fails(["match", f"back={huge}", str(paths[1]), "--job", job, "-o", out, "-q"], capsys, "2000000 x 10 pixels")
+    # a VRT (a format naming other files: never opened)
     vrt = tmp_path / "huge.vrt"
-    vrt.write_text('<VRTDataset rasterXSize="2000000" rasterYSize="10"><VRTRasterBand dataType="Byte" band="1"/></VRTDataset>')
-    _fails(["match", f"back={vrt}", str(paths[1]), "--job", job, "-o", out, "-q"], capsys, "absurd size")
+    vrt.write_text(f'<VRTDataset rasterXSize="500" rasterYSize="10"><VRTRasterBand dataType="Byte" band="1"><SimpleSource><SourceFilename>{paths[1]}</SourceFilename></SimpleSource></VRTRasterBand></VRTDataset>')
+    _fails(["match", f"back={vrt}", str(paths[1]), "--job", job, "-o", out, "-q"], capsys, "not a supported raster format")
     # not a raster
     txt = tmp_path / "notes.tif"
     txt.write_text("hello")
-    _fails(["match", f"back={txt}", str(paths[1]), "--job", job, "-o", out, "-q"], capsys, "GDAL cannot open")
+    _fails(["match", f"back={txt}", str(paths[1]), "--job", job, "-o", out, "-q"], capsys, "not a supported raster format")
     # a raster the job does not know
     _fails(["match", str(tmp_path / "other.tif"), str(paths[1]), "--job", job, "-o", out, "-q"], capsys, "which image")
     # no RPC and no job

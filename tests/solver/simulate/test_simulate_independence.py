@@ -14,7 +14,8 @@ SIMULATE = Path(__file__).resolve().parents[3] / "solver" / "simulate"
 # the geometry shared by design (issue 14): CRS plumbing and the chip-of-a-column rule; (issue 17)
 # the RPC00B polynomial, its least-squares fit and the bias equations of RPC images (the
 # simulated RPC images' truth is checked through GDAL, tests/solver/simulate/test_simulate_rpc.py)
-ALLOWED = {"solver.geometry", "solver.geometry.geodesy", "solver.geometry.sensor", "solver.geometry.rpc"}
+# the raster gate writes the simulated rasters (file plumbing, no physics: every raster goes through it)
+ALLOWED = {"solver.geometry", "solver.geometry.geodesy", "solver.geometry.sensor", "solver.geometry.rpc", "solver.raster_gate"}
 
 
 def test_simulate_sources_import_only_geometry_from_the_solver() -> None:
