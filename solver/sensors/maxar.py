@@ -144,6 +144,7 @@ def read_maxar_rpc(path: str | Path, shown: str | None = None) -> RPC:
     root = load(path, str(path) if shown is None else shown)
     if root.element.tag != "isd":
         raise root.error("not a Maxar support-data XML (root element isd expected)")
+    root.check_counts()
     return read_rpb(root.child("RPB"))
 
 
@@ -155,6 +156,7 @@ def read_maxar(path: str | Path, shown: str | None = None, data: bytes | None = 
     root = load(path, shown, data)
     if root.element.tag != "isd":
         raise root.error("not a Maxar support-data XML (root element isd expected)")
+    root.check_counts()
     imd, eph, att, geo = (root.child(t) for t in ("IMD", "EPH", "ATT", "GEO"))
     image = imd.child("IMAGE")
     lines, columns = imd.integer("NUMROWS"), imd.integer("NUMCOLUMNS")
