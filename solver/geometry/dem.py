@@ -145,20 +145,21 @@ class Dem:
 
 def read_dem(path: Path | str, vertical: str | None = None, bounds_lon_lat: tuple[float, float, float, float] | None = None,
              margin_cells: int = 2) -> Dem:
-    """A DEM from a raster file (any format GDAL reads), its vertical datum from the file or
+    """A DEM from a raster file (a format the raster gate allows: GeoTIFF, JPEG 2000...), its vertical datum from the file or
     ``vertical`` (:func:`solver.geometry.vertical.resolve`). ``bounds_lon_lat``: (west, south,
     east, north) degrees: only the window covering them (plus ``margin_cells``) is read.
     Raises :class:`DemError` or :class:`solver.geometry.vertical.VerticalDatumError`."""
-    import rasterio
-    from rasterio.errors import RasterioIOError
     from rasterio.windows import Window, from_bounds
+
+    from solver.raster_gate import RasterRefused, open_raster
 
     shown = Path(path).name
     try:
-        src = rasterio.open(path)
-    except RasterioIOError as exc:
-        raise DemError(f"{shown}: cannot read the DEM ({exc})") from None
-    with src:
+        gated = open_raster(path, shown=shown)  # the raster gate: allowed formats, local files, no sidecar
+    except RasterRefused as exc:
+        raise DemError(f"{shown}: cannot read the DEM ({exc.message})") from None
+    with gated:
+        src = gated.dataset
         if src.crs is None:
             raise DemError(f"{shown}: the DEM has no CRS")
         crs = CRS.from_user_input(src.crs.to_wkt())

@@ -3,7 +3,7 @@ refuses is never read.
 
 The rasters are real: the Pleiades crop of tests/data/matching (GeoTIFF with its _RPC.TXT) and
 files written here; "another user's raster" is a copy of it in a sibling folder, watched with
-inotify (tests/leak_probes.py) so that a single open or read of it fails the test; the network
+inotify (tests/utils/leak_probes.py) so that a single open or read of it fails the test; the network
 is a local listener counting the connections it receives.
 """
 
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from leak_probes import CountingListener, FileWatch
+from utils.leak_probes import CountingListener, FileWatch
 
 from solver import raster_gate as gate
 from solver.raster_gate import RasterLimits, RasterRefused, RasterSpace, create_raster, open_raster
