@@ -1,8 +1,10 @@
-"""The adjustment's data: images, ground points and image observations as the solver's arrays.
+"""The adjustment's data: images, ground points, image observations and the parameter blocks
+as the solver's arrays.
 
-Data only: built by :mod:`solver.engine.assemble` (assembly from a job), filled by
-:mod:`solver.engine.initialize`, read by every later stage. Frames: ground points are carried in the
-LGS (east, north, up at the centroid of the control points, metres) whatever the platform model.
+Data only: built by :mod:`solver.engine.assemble` (assembly from a job; the blocks by their
+kinds, :mod:`solver.blocks.registry`), filled by :mod:`solver.engine.initialize`, read by every
+later stage. Frames: ground points are carried in the LGS (east, north, up at the centroid of
+the control points, metres) whatever the platform model.
 """
 
 from __future__ import annotations
@@ -29,10 +31,15 @@ class ImageState:
     kc: np.ndarray  # (N_KEPLER_CONST,) = (17,) Kepler constants (also set, unused, for polynomial models)
     base: np.ndarray  # (24,) full coefficients (held values and current free values)
     free_idx: np.ndarray  # (nfree,) int64
-    params: np.ndarray  # (nfree,) the parameter block handed to Ceres (C-contiguous)
     tau_per_line: float
     initial: dict = field(default_factory=dict)  # job's initial values, report units
     pass_index: int = -1  # pass-propagated models: index in Problem.passes
+    platform: Any = None  # its platform block (solver.blocks.platform.PlatformBlock; shared by images sharing an attitude)
+
+    @property
+    def params(self) -> np.ndarray:
+        """(nfree,) the free coefficients: its platform block's array, which Ceres moves."""
+        return self.platform.params
 
     @property
     def kind(self) -> int:
@@ -64,6 +71,15 @@ class PointState:
     estimated: bool  # True: a 3-parameter block in the adjustment
     xyz: np.ndarray = field(default_factory=lambda: np.zeros(3))  # current LGS (parameter block)
 
+    @property
+    def params(self) -> np.ndarray:
+        """The point's parameter block: its LGS coordinates (m)."""
+        return self.xyz
+
+    @property
+    def nfree(self) -> int:
+        return 3 if self.estimated else 0
+
 
 @dataclass
 class Observations:
@@ -74,14 +90,15 @@ class Observations:
     oc: np.ndarray  # (n, 9) observation constants (see solver.kernels)
     chip: list[str]
     source_index: np.ndarray  # (n,) index in job.observations
-    cam: np.ndarray | None = None  # (n,) camera index (solver.observations.cameras.CameraState order)
+    cam: np.ndarray | None = None  # (n,) camera index (the camera blocks' order, solver.blocks.cameras.CameraState)
     chip_idx: np.ndarray | None = None  # (n,) chip position in the camera's chip list
 
 
 @dataclass
 class AdjustmentState:
-    """The whole adjustment's data: the job, its local frame, and the images, points and
-    observations with their current parameter values (the blocks Ceres moves)."""
+    """The whole adjustment's data: the job, its local frame, the images, points and
+    observations, and the parameter blocks by kind (``blocks[kind name]``, the kinds of
+    :mod:`solver.blocks.registry`) with their current values (the arrays Ceres moves)."""
 
     job: Job
     frame: LocalFrame
@@ -89,8 +106,17 @@ class AdjustmentState:
     points: list[PointState]
     obs: Observations
     lines: Any = None  # solver.observations.lines.LineSet: straight-line observations (None without lines)
-    cameras: list = field(default_factory=list)  # solver.observations.cameras.CameraState per job camera
-    passes: list = field(default_factory=list)  # solver.observations.passes.PassState per pass
+    blocks: dict[str, list] = field(default_factory=dict)
+
+    @property
+    def cameras(self) -> list:
+        """The cameras' interior-orientation blocks (solver.blocks.cameras.CameraState, one per job camera)."""
+        return self.blocks.get("camera", [])
+
+    @property
+    def passes(self) -> list:
+        """The passes' orbit-state blocks (solver.blocks.passes.PassState, one per pass)."""
+        return self.blocks.get("pass", [])
 
     @property
     def adjusted_mask(self) -> np.ndarray:

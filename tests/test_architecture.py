@@ -122,12 +122,9 @@ def test_every_path_and_module_the_page_names_exists() -> None:
 # ---- observation families: the stages walk the registry, they do not name families -----------
 
 STAGES = ("solver/engine", "solver/quality", "solver/report", "solver/procedures", "solver/adjust.py")
-# What a family module still defines besides its family: the passes' parameter blocks (grouping,
-# trajectory segments, initial states), used by assembly, initialisation, the tables and the
-# report's images. They belong with the pass platform kind; until they move, the stages may
-# import these names, and nothing else, from a family module.
-PASS_BLOCKS = {"build_passes", "parameter_names", "initialise_passes", "refresh_segments", "attitude_groups"}
-ALLOWED = {"solver.observations.passes": PASS_BLOCKS}
+# Names a stage may take from a family module (none: the parameter blocks the families once
+# defined are the block kinds of solver/blocks/, which the stages walk through their registry).
+ALLOWED: dict[str, set[str]] = {}
 
 
 def family_modules() -> set[str]:
@@ -150,12 +147,12 @@ def imported_names(source: str) -> list[tuple[str, set[str]]]:
     return out
 
 
-def family_imports(source: str, families: set[str]) -> list[str]:
-    """The imports of ``source`` that name a family module beyond what :data:`ALLOWED` lets through."""
+def family_imports(source: str, families: set[str], allowed: dict[str, set[str]] = ALLOWED) -> list[str]:
+    """The imports of ``source`` that name a family module beyond what ``allowed`` lets through."""
     bad = []
     for module, names in imported_names(source):
         if module in families:
-            extra = names - ALLOWED.get(module, set())
+            extra = names - allowed.get(module, set())
             if extra:
                 bad.append(f"{module}: {', '.join(sorted(extra))}")
     return bad
@@ -179,7 +176,9 @@ def test_the_family_import_check_has_teeth() -> None:
     assert family_imports("from solver.observations.lines import LineTerm\n", families) == ["solver.observations.lines: LineTerm"]
     assert family_imports("def f():\n    from solver.observations import lines\n", families) == ["solver.observations.lines: *"]
     assert family_imports("import solver.observations.passes as p\n", families) == ["solver.observations.passes: *"]
-    assert family_imports("from solver.observations.passes import refresh_segments\n", families) == []
+    assert family_imports("from solver.observations.passes import pass_terms\n", families) == ["solver.observations.passes: pass_terms"]
+    allowed = {"solver.observations.passes": {"pass_terms"}}
+    assert family_imports("from solver.observations.passes import pass_terms\n", families, allowed) == []
     assert family_imports("from solver.observations import registry\n", families) == []
 
 
@@ -195,6 +194,20 @@ def test_documented_families_are_the_registry() -> None:
 
     want = [(f.name, type(f).__module__.replace(".", "/") + ".py") for f in registry.FAMILIES]
     assert _documented_families() == want
+
+
+def _documented_block_kinds() -> list[tuple[str, str]]:
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    block = re.search(r"<!-- block kinds: begin -->\n(.*?)<!-- block kinds: end -->", text, re.S)
+    assert block, "docs/architecture.md has lost its list of parameter-block kinds"
+    return re.findall(r"^\s*\d+\. `(\w+)` \(`(solver/blocks/\w+\.py)`\)", block.group(1), re.M)
+
+
+def test_documented_block_kinds_are_the_registry() -> None:
+    from solver.blocks import registry
+
+    want = [(k.name, type(k).__module__.replace(".", "/") + ".py") for k in registry.BLOCK_KINDS]
+    assert _documented_block_kinds() == want
 
 
 # ---- platform models: the checklist of docs/architecture.md holds ------------------------------

@@ -12,18 +12,17 @@ from typing import Any
 
 import numpy as np
 
+from solver.blocks import registry as blocks
 from solver.geometry.geodesy import A_WGS84_M, E2_WGS84, LocalFrame, to_ecef
 from solver.geometry.rpc import RPC
 from solver.geometry.sensor import chip_indices, chip_of_index
 from solver.kernels import N_COEF, N_KEPLER_CONST, N_OBS_CONST
 from solver.kernels.rpc import KC_A, KC_E2, RPC_LEN, RPC_START
-from solver.observations.cameras import build_cameras
 from solver.observations.line_data import build_lines, control_line_points_ecef, lines_ecef
-from solver.observations.passes import build_passes
-from solver.observations.passes import parameter_names as pass_names
 from solver.platforms import PlatformModel, get_model
 from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.schema.job import Image, Job
+from solver.schema.settings import BlockConfig, JobSettings
 from solver.state import AdjustmentState, ImageState, Observations, PointState
 
 
@@ -178,8 +177,10 @@ def _chip_ids(images: list, obs_img: np.ndarray, chip_of_obs: np.ndarray) -> lis
     return [ids[r] for r in (first[obs_img] + chip_of_obs).tolist()]
 
 
-def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentState:
-    """Assemble arrays from a job that passed :func:`solver.engine.validate.validate_job`.
+def build_problem(job: Job, models: dict[str, str] | None = None, config: BlockConfig | None = None) -> AdjustmentState:
+    """Assemble arrays from a job that passed :func:`solver.engine.validate.validate_job`: the
+    images, points and observations, then the parameter blocks of every kind
+    (:mod:`solver.blocks.registry`; ``config``: which are estimated, default from the job's options).
 
     Parameter values are zero here; :mod:`solver.engine.initialize` fills them.
     """
@@ -210,13 +211,10 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
                 kc=kc,
                 base=np.zeros(N_COEF),
                 free_idx=free,
-                params=np.zeros(free.shape[0]),
                 tau_per_line=tau_per_line,
                 initial=dict(im.initial),
             )
         )
-
-    passes = build_passes(job, images)
 
     points: list[PointState] = []
     for j, p in enumerate(job.points):
@@ -237,8 +235,7 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
     chip_of_obs = _chip_indices(job, images, obs_img)
     oc = _observation_constants(observations, images, obs_img, chip_of_obs)
     chips = _chip_ids(images, obs_img, chip_of_obs)
-    cams = build_cameras(job)
-    cam_index = {c.id: c.index for c in cams}
+    cam_index = {c.id: k for k, c in enumerate(job.cameras)}
     # RPC images have no camera: index -1 (the kernels never read a camera for them)
     cam_of_image = np.array([cam_index[im.camera.id] if im.camera else -1 for im in images], dtype=np.int64)
     obs_cam = cam_of_image[obs_img] if n else np.zeros(0, dtype=np.int64)
@@ -246,20 +243,11 @@ def build_problem(job: Job, models: dict[str, str] | None = None) -> AdjustmentS
     obs = Observations(obs_img, obs_pt, oc, chips, np.arange(n), obs_cam, obs_chip)
     lines = build_lines(job, frame, images, line_ecef) if job.lines else None
     problem = AdjustmentState(job, frame, images, points, obs, lines)
-    problem.cameras = cams
-    problem.passes = passes
+    blocks.build(problem, config if config is not None else JobSettings.from_options(job.options).blocks)
     return problem
 
 
 def parameter_names(problem: AdjustmentState) -> list[str]:
-    """Names of the image and camera columns, in layout order ("image/param", "camera:id/iop")."""
-    names = []
-    seen: set[int] = set()
-    for img in problem.images:
-        if id(img.params) in seen:  # shared attitude block: named after its first image
-            continue
-        seen.add(id(img.params))
-        names += [f"{img.id}/{p.name}" for p in img.model.parameters(img.options)]
-    for cam in problem.cameras:
-        names += [f"camera:{cam.id}/{cam.names[i]}" for i in cam.free_idx]
-    return names + pass_names(problem)
+    """Names of the columns before the points, in layout order ("image/param", "camera:id/iop",
+    "pass:id/X", ...: each block kind's :meth:`~solver.blocks.kind.BlockKind.names`)."""
+    return blocks.names(problem)

@@ -27,12 +27,12 @@ from typing import Any, Callable, Iterator
 import numpy as np
 import pyceres
 
+from solver.blocks import registry as block_kinds
 from solver.engine import native
 from solver.engine.packed_tables import camera_table, image_table
 from solver.engine.residual_blocks import ResidualBlocks, fixed_blocks, fixed_points, point_blocks
 from solver.engine.terms import block_owner, family_terms
 from solver.kernels import fixed_obs_block, point_obs_block
-from solver.observations.passes import refresh_segments
 from solver.schema.settings import SolveSettings
 from solver.state import AdjustmentState
 
@@ -241,18 +241,15 @@ class CeresProblem:
 
 
 def _add_parameter_blocks(cp: Any, problem: AdjustmentState) -> None:
-    """The images' (a block shared by images is added once), the cameras' free interior
-    orientation and the passes' states."""
-    added: set[int] = set()
-    for img in problem.images:
-        if id(img.params) not in added:
-            added.add(id(img.params))
-            cp.add_parameter_block(img.params, img.nfree)
-    for cam in problem.cameras:
-        if cam.nfree:
-            cp.add_parameter_block(cam.params, cam.nfree)
-    for ps in problem.passes:
-        cp.add_parameter_block(ps.params, ps.nfree)
+    """Every block with free parameters of every kind before the eliminated one, in the
+    registry's order (:mod:`solver.blocks.registry`; a shared block is one block); the points
+    come with their residual blocks."""
+    for kind in block_kinds.BLOCK_KINDS:
+        if kind.eliminated:
+            continue
+        for block in kind.blocks(problem):
+            if block.nfree:
+                cp.add_parameter_block(block.params, block.nfree)
 
 
 class _Compiled:
@@ -508,5 +505,5 @@ def solve(problem: AdjustmentState, options: SolveSettings, control: SolveContro
     summary = pyceres.SolverSummary()
     with _cancel_watch(control, built.evaluator):
         pyceres.solve(so, built.problem, summary)
-    refresh_segments(problem)  # the images' trajectory segments for the final pass states
+    block_kinds.refresh(problem)  # what the kinds derive from their parameters (the pass trajectories) for the final values
     return summarise(summary, control, time.perf_counter() - t0)

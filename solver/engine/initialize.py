@@ -24,12 +24,12 @@ import math
 
 import numpy as np
 
+from solver.blocks import registry as blocks
 from solver.engine.native import in_threads
 from solver.errors import JobError, Problem
 from solver.kernels import gravity_and_gradient, intersect_all, platform_state
 from solver.observations import registry
 from solver.observations.ephemeris import image_state
-from solver.observations.passes import initialise_passes
 from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
 from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.state import AdjustmentState, ImageState, grouped, is_kepler, rows_by_image
@@ -124,7 +124,7 @@ def initialise(problem: AdjustmentState) -> None:
         if state is not None:
             r_ecef = np.array(state.position_ecef_m, dtype=float)
             v_ecef = np.array(state.velocity_ecef_m_s, dtype=float)
-            if img.model.kind.position_from_image_state:  # pass states: initialise_passes below
+            if img.model.kind.position_from_image_state:  # pass states: the pass blocks' initialise below
                 _set_position_from_state(img, frame, r_ecef, v_ecef)
         elif img.model.kind.position_from_image_state:
             pos_names = {"X0", "Y0", "Z0"}
@@ -157,7 +157,8 @@ def initialise(problem: AdjustmentState) -> None:
                     img.base[coef_index(e, 0)] = math.radians(val)
         _apply_initial(img)
         img.params[:] = img.base[img.free_idx]
-    issues += initialise_passes(problem, states)
+    for kind in blocks.BLOCK_KINDS:  # e.g. the pass states from the image states nearest their epochs
+        issues += kind.initialise(problem, states)
     if issues:
         raise JobError(issues)
     for family in registry.FAMILIES:  # e.g. the attitude polynomials fitted to measured attitude

@@ -25,6 +25,7 @@ from numba import njit
 from scipy.linalg import lapack
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+from solver.blocks import registry as blocks
 from solver.engine.native import in_threads
 from solver.engine.packed_tables import current_tables, records
 from solver.engine.terms import block_owner, family_terms
@@ -40,47 +41,55 @@ _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
 @dataclass
 class Layout:
-    img_col: np.ndarray  # (nimg,) first column of each image
+    """The columns of the unknowns: the blocks of every kind of :mod:`solver.blocks.registry`
+    in its order, the eliminated kind (the ground points) last. ``cols[kind]``: the first column
+    of the block each index of that kind names (as a term's label does; -1: not laid out, no
+    free parameters); ``img_col``, ``cam_col``, ``pass_col`` and ``pt_col`` are those of the
+    kinds the image-observation kernels read."""
+
+    img_col: np.ndarray  # (nimg,) first column of each image's platform block
     pt_col: np.ndarray  # (npt,) first column of each estimated point, -1 otherwise
-    n_img_params: int  # images and cameras: all columns before the points
+    n_img_params: int  # every block before the points: all columns of the reduced system
     n_params: int
     cam_col: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (ncam,)
     pass_col: np.ndarray = field(default_factory=lambda: np.zeros(1, dtype=np.int64))  # (npass,)
+    cols: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def column(self, kind: str, index: int) -> int:
+        """The first column of the block that ``index`` of kind ``kind`` names (-1: none)."""
+        return int(self.cols[kind][index])
+
+
+def _kind_columns(problem: AdjustmentState, kind, c: int) -> tuple[np.ndarray, int]:
+    """First columns of ``kind``'s blocks from column ``c`` on (indexed as its terms address them), and the next free column."""
+    first: dict[int, int] = {}
+    for block in kind.blocks(problem):
+        if block.nfree:
+            first[block.index] = c
+            c += block.nfree
+    addressed = kind.addressed(problem)
+    cols = np.array([first.get(b.index, -1) for b in addressed], dtype=np.int64)
+    return (cols if len(cols) else -np.ones(1, dtype=np.int64)), c
 
 
 def layout(problem: AdjustmentState) -> Layout:
-    img_col = np.zeros(len(problem.images), dtype=np.int64)
+    """The columns of every kind's blocks (:mod:`solver.blocks.registry`): the reduced kinds in
+    the registry's order, then the eliminated one (the ground points)."""
     c = 0
-    first: dict[int, int] = {}  # images sharing a parameter block share its columns
-    for img in problem.images:
-        if id(img.params) in first:
-            img_col[img.index] = first[id(img.params)]
-            continue
-        first[id(img.params)] = c
-        img_col[img.index] = c
-        c += img.nfree
-    cam_col = -np.ones(max(len(problem.cameras), 1), dtype=np.int64)
-    for cam in problem.cameras:
-        if cam.nfree:
-            cam_col[cam.index] = c
-            c += cam.nfree
-    pass_col = -np.ones(max(len(problem.passes), 1), dtype=np.int64)
-    for ps in problem.passes:
-        pass_col[ps.index] = c
-        c += ps.nfree
+    cols: dict[str, np.ndarray] = {}
+    for kind in [k for k in blocks.BLOCK_KINDS if not k.eliminated]:
+        cols[kind.name], c = _kind_columns(problem, kind, c)
     n_f = c
-    pt_col = -np.ones(len(problem.points), dtype=np.int64)
-    for p in problem.points:
-        if p.estimated:
-            pt_col[p.index] = c
-            c += 3
-    return Layout(img_col, pt_col, n_f, c, cam_col, pass_col)
+    for kind in [k for k in blocks.BLOCK_KINDS if k.eliminated]:
+        cols[kind.name], c = _kind_columns(problem, kind, c)
+    pt_col = cols["point"][: len(problem.points)]
+    img_col = cols["image"][: len(problem.images)] if problem.images else np.zeros(0, dtype=np.int64)
+    return Layout(img_col, pt_col, n_f, c, cols["camera"], cols["pass"], cols)
 
 
 def first_column(lay: Layout, labelled: Labelled) -> int:
     """The first column of the parameter block a family's term acts on."""
-    cols = {"image": lay.img_col, "pass": lay.pass_col, "camera": lay.cam_col}[labelled.block]
-    return int(cols[labelled.index])
+    return lay.column(labelled.block, labelled.index)
 
 
 @dataclass
@@ -391,7 +400,12 @@ def schur(lin: Linearisation, problem: AdjustmentState) -> SchurParts:
     a, c = _accumulate(lay.n_img_params, lin.fcol, lin.jf, lin.obs_pt, lin.jpt, pt_q, len(est))
     for pidx, (_r, w) in lin.point_prior.items():
         c[pt_q[pidx]] += np.diag(w**2)
-    for c0, (_r, j) in zip(lin.term_col, lin.term_eval):
+    for labelled, c0, (_r, j) in zip(lin.terms, lin.term_col, lin.term_eval):
+        if c0 < 0:  # a block without free parameters
+            continue
+        if labelled.block == "point":  # a term on a ground point: its 3 x 3 normal block
+            c[pt_q[labelled.index]] += j.T @ j
+            continue
         n = j.shape[1]
         a[c0 : c0 + n, c0 : c0 + n] += j.T @ j
     dets = np.linalg.det(c) if len(est) else np.zeros(0)

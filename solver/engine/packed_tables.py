@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from solver.blocks import registry as blocks
 from solver.kernels import (
     CAM_TAB,
     IMG_TAB,
@@ -27,7 +28,6 @@ from solver.kernels import (
     REC_OC,
     REC_PASS_SLOT,
 )
-from solver.observations.passes import refresh_segments
 from solver.state import AdjustmentState
 
 
@@ -89,8 +89,8 @@ def records(
 
 def current_tables(problem: AdjustmentState):
     """(image table, camera table, image free parameters (nimg, 24), camera free parameters);
-    pass segments are brought up to date with the passes' current states first."""
-    refresh_segments(problem)
+    the kinds' derived values (pass segments) are brought up to date with their blocks first."""
+    blocks.refresh(problem)
     img_tab, cam_tab = image_table(problem), camera_table(problem)
     img_p = np.zeros((len(problem.images), 24))
     for im in problem.images:

@@ -70,19 +70,12 @@ def first_appearance_ranks(block: np.ndarray, key: np.ndarray, n_blocks: int) ->
 
 
 def _parameter_keys(problem: AdjustmentState, rows: np.ndarray):
-    """Per row: the key of its image's parameter block (images may share one block), of its
-    camera's free interior orientation (-1: none) and of its pass (-1: none); and the arrays by key."""
+    """Per row: the key of its image's platform block (images may share one: its index among
+    the ``image`` kind's blocks), of its camera's free interior orientation (-1: none) and of
+    its pass (-1: none); and the platform blocks' arrays by key."""
     obs = problem.obs
-    image_key = np.empty(len(problem.images), dtype=np.int64)
-    arrays: dict[int, np.ndarray] = {}
-    image_arrays: list[np.ndarray] = []
-    for img in problem.images:  # per image, not per observation
-        k = arrays.get(id(img.params))
-        if k is None:
-            k = len(image_arrays)
-            arrays[id(img.params)] = k
-            image_arrays.append(img.params)
-        image_key[img.index] = k
+    image_key = np.array([img.platform.index for img in problem.images], dtype=np.int64)  # per image, not per observation
+    image_arrays = [block.params for block in problem.blocks["image"]]
     camera_free = np.array([c.nfree > 0 for c in problem.cameras] + [False], dtype=bool)  # [-1]: RPC images
     pass_of_image = np.array([img.pass_index for img in problem.images] + [-1], dtype=np.int64)
     img = obs.img[rows]

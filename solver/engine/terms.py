@@ -1,5 +1,5 @@
 """The residual terms of the observation families (:mod:`solver.observations.registry`): each acts
-on one parameter block (an image, a pass or a camera) and has the interface
+on one parameter block (of a kind of :mod:`solver.blocks.registry`) and has the interface
 :class:`solver.observations.family.Term`; Ceres residual blocks (:mod:`solver.engine.backend`)
 and the linearisation (:mod:`solver.engine.linalg`) both walk :func:`family_terms`, in the
 registry's order.
@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from solver.blocks import registry as blocks
 from solver.observations import registry
 from solver.observations.family import MAX_REFRESHES, REFRESH_TOL, Labelled
 from solver.state import AdjustmentState
@@ -24,9 +25,8 @@ def family_terms(problem: AdjustmentState) -> list[Labelled]:
 
 
 def block_owner(problem: AdjustmentState, labelled: Labelled) -> Any:
-    """The image, pass or camera state whose parameter block (``params``, ``nfree``) a term acts on."""
-    owners = {"image": problem.images, "pass": problem.passes, "camera": problem.cameras}[labelled.block]
-    return owners[labelled.index]
+    """The parameter block (``params``, ``nfree``) a term acts on (:func:`solver.blocks.registry.block_of`)."""
+    return blocks.block_of(problem, labelled.block, labelled.index)
 
 
 def refresh_family_terms(problem: AdjustmentState) -> float:

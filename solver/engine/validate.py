@@ -18,6 +18,7 @@ from typing import Any, Iterator
 import numpy as np
 from pyproj.exceptions import ProjError
 
+from solver.blocks import registry as blocks
 from solver.errors import JobError, Problem
 from solver.geometry.geodesy import UnknownCRSError, ecef_to_geodetic, parse_crs, to_ecef
 from solver.geometry.sensor import camera_chip, chip_indices, in_image_columns
@@ -471,6 +472,10 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     obs_issues, images_per_point, obs_per_image = _observation_problems(job, cameras)
     problems += obs_issues
     n_obs = 0
+    for kind in blocks.BLOCK_KINDS:  # the parameter blocks beyond each image's own (shared, cameras, passes, ...)
+        issues, n_kind = kind.check(job)
+        problems += issues
+        n_unknowns += n_kind
     datum: set[str] = set()  # how the families' observations define the datum (family.Count)
     for family in registry.FAMILIES:
         issues, count = family.check(job)

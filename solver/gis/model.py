@@ -46,7 +46,7 @@ HeightFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (lon_deg, lat_deg) 
 
 def _apply_report(problem: AdjustmentState, report: dict[str, Any]) -> None:
     """Set every estimated value of ``problem`` to the report's (in place)."""
-    from solver.observations.passes import refresh_segments
+    from solver.blocks import registry as blocks
 
     if report.get("kind") != "adjustment":
         raise ModelMismatch("the report is not that of an adjustment (kind 'adjustment'); a comparison report has one report per model")
@@ -82,7 +82,7 @@ def _apply_report(problem: AdjustmentState, report: dict[str, Any]) -> None:
         if entry is None:
             raise ModelMismatch(f"pass {ps.id!r} of the job is not in the report")
         ps.params[:] = [p["value"] for p in entry["parameters"]]
-    refresh_segments(problem)
+    blocks.refresh(problem)
 
 
 @dataclass

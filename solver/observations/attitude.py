@@ -40,9 +40,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from solver.blocks.platform import attitude_blocks, image_attitude_blocks
 from solver.errors import Problem
 from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled, ReportContext, per_row_groups
-from solver.observations.passes import attitude_blocks, image_attitude_blocks, pass_line_span
+from solver.observations.passes import pass_line_span
 from solver.observations.state_priors import StatePrior
 from solver.platforms import coef_index, get_model
 

@@ -2,8 +2,9 @@
 the residual terms it hands to the engine and of the labels its observations carry through the
 quality control (tests, reliability, removal, report flags).
 
-A family's terms act on one parameter block each: an image's platform parameters, a pass's
-state or a camera's interior orientation (:data:`BLOCKS`). Every stage walks the families in
+A family's terms act on one parameter block each, of a kind of :mod:`solver.blocks.registry`
+(an image's platform parameters, a pass's state, a camera's interior orientation, a ground
+point, or a kind a family brings). Every stage walks the families in
 the registry's order and their terms in the order the family gives them, so a term is known
 by its :class:`Labelled` entry (family, block, the family's own tag) and never by position.
 """
@@ -22,11 +23,6 @@ if TYPE_CHECKING:
 
 REFRESH_TOL = 0.01  # largest change of a whitened residual (in sigmas) that ends the refreshes
 MAX_REFRESHES = 20  # solves after the first one, at most, while some family's refresh changes a residual
-
-BLOCKS = ("image", "pass", "camera")
-"""The parameter blocks a term may act on: ``problem.images[i].params``,
-``problem.passes[i].params``, ``problem.cameras[i].params``."""
-
 
 class Term(Protocol):
     """Whitened residuals r(p) of one parameter block's free parameters p, with dr/dp."""
@@ -56,7 +52,8 @@ ImageTerm = Term  # the name the first families used
 @dataclass(frozen=True)
 class Labelled:
     """A family's term with what every stage needs to place it: the parameter block it acts on
-    (``block`` in :data:`BLOCKS`, ``index`` into that list of the problem) and ``tag``, the
+    (``block``: the name of a kind of :mod:`solver.blocks.registry`, or ``point``; ``index``: the
+    kind's index, for ``image`` the image's and for ``point`` the point's) and ``tag``, the
     family's own note for its tests (e.g. an attitude block's image indices)."""
 
     family: "ObservationFamily"
@@ -114,11 +111,12 @@ class ReportContext:
     warnings: list[str] = field(default_factory=list)
 
     def block(self, kind: str, index: int, size: int) -> np.ndarray | None:
-        """The covariance block (a-priori scale) of parameter block ``kind`` ``index`` with
-        ``size`` free parameters; None without a covariance or without free parameters."""
+        """The covariance block (a-priori scale) of parameter block ``kind`` ``index`` (as a
+        term's label names it) with ``size`` free parameters; None without a covariance or
+        without free parameters (not for the eliminated points)."""
         if self.covariance is None or size == 0:
             return None
-        c0 = int({"image": self.layout.img_col, "pass": self.layout.pass_col, "camera": self.layout.cam_col}[kind][index])
+        c0 = self.layout.column(kind, index)
         return self.covariance[c0 : c0 + size, c0 : c0 + size]
 
 

@@ -126,6 +126,16 @@ def structure(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, s
     by_point: dict[int, list[int]] = {}
     for i, p in enumerate(lin.obs_pt):
         by_point.setdefault(int(p), []).append(i)
+    # the families' terms: their global rows; those on an estimated point join its block
+    term_rows: list[np.ndarray] = []
+    row = n_obs_rows + 3 * len(lin.point_prior)
+    on_point: dict[int, list[int]] = {}
+    for k, (labelled, (res, _jac)) in enumerate(zip(lin.terms, lin.term_eval)):
+        term_rows.append(row + np.arange(len(res)))
+        row += len(res)
+        if labelled.block == "point" and labelled.index in pt_q:
+            on_point.setdefault(labelled.index, []).append(k)
+            by_point.setdefault(labelled.index, [])
     for p, idx_list in by_point.items():
         point = problem.points[p]
         idx = np.array(idx_list, dtype=np.int64)
@@ -141,9 +151,23 @@ def structure(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, s
                 rows = np.concatenate([rows, prior_row[p] + np.arange(3)])
                 jimg = np.vstack([jimg, np.zeros((3, len(cols)))])
                 jp = np.vstack([jp, np.diag(w)])
+            term_start = {}
+            for k in on_point.get(p, []):  # terms on the point: rows of the point only
+                jac = lin.term_eval[k][1]
+                term_start[k] = len(rows)
+                rows = np.concatenate([rows, term_rows[k]])
+                jimg = np.vstack([jimg, np.zeros((len(jac), len(cols)))])
+                jp = np.vstack([jp, jac])
         q, u, bt = _hat_block(jimg, jp, c_inv, s_inv[np.ix_(cols, cols)])
         b = len(st.blocks)
         st.blocks.append(Block(rows, q, cols, u, jp, c_inv, bt, p))
+        for k in on_point.get(p, []):
+            labelled = lin.terms[k]
+            for g in labelled.family.groups(problem, labelled):
+                st.groups.append(
+                    Group(g.kind, g.label, b, term_start[k] + np.asarray(g.rows), np.asarray(g.sigma, dtype=float), g.units, g.components,
+                          g.removal, g.sign, labelled.family)
+                )
         for t, i in enumerate(idx):
             k = int(sel[i])
             st.groups.append(
@@ -172,11 +196,11 @@ def structure(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, s
                     -1.0,
                 )
             )
-    # the families' terms: one block each, their tests as the family labels them
-    row = n_obs_rows + 3 * len(lin.point_prior)
-    for labelled, c0, (res, jac) in zip(lin.terms, lin.term_col, lin.term_eval):
-        rows = row + np.arange(len(res))
-        row += len(res)
+    # the families' other terms: one block each, their tests as the family labels them
+    for k, (labelled, c0, (res, jac)) in enumerate(zip(lin.terms, lin.term_col, lin.term_eval)):
+        if labelled.block == "point":  # with their point's block above
+            continue
+        rows = term_rows[k]
         specs = labelled.family.groups(problem, labelled)
         if not specs:
             continue

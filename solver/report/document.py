@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from solver.blocks import registry as blocks
+from solver.blocks.platform import attitude_groups
 from solver.engine.assemble import parameter_names
 from solver.engine.linalg import Covariance, Linearisation, covariance, linearise, schur
 from solver.geometry.geodesy import ecef_to_geodetic
@@ -19,7 +21,6 @@ from solver.kernels.rpc import RPC_START, rpc_image_to_ground
 from solver.observations import registry
 from solver.observations.ephemeris import line0_state_ecef
 from solver.observations.family import ReportContext
-from solver.observations.passes import attitude_groups
 from solver.quality.leave_one_out import leave_one_out
 from solver.quality.parameter_checks import high_correlations, implausible_sigmas
 from solver.quality.precision import checkpoint_precision, error_ellipses
@@ -96,6 +97,8 @@ def assess(problem: AdjustmentState, outcome) -> dict[str, Any]:
     images, gsds = _images_report(problem, lin, cov, var_factor)
     ctx = ReportContext(cov.images if cov is not None else None, lin.layout, var_factor, stats.sigma0_apriori, warnings)
     family_sections: dict[str, Any] = {}
+    for kind in blocks.BLOCK_KINDS:  # the blocks' own sections (cameras, passes, ...)
+        family_sections.update(kind.report(problem, ctx))
     for family in registry.FAMILIES:  # their warnings join the report's (ctx.warnings)
         family_sections.update(family.report(problem, ctx))
     gsd = float(np.mean(gsds)) if gsds else None

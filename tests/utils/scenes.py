@@ -284,9 +284,9 @@ PRISM_PITCH_DEG = {"backward": -23.8, "nadir": 0.0, "forward": 23.8}
 
 def _project_true(img: SyntheticImage, cam: dict, p: np.ndarray, line_guess: float, iop: dict[str, float] | None) -> tuple[float, float]:
     """Projection with the true interior orientation (chips and IOP) of ``cam``."""
+    from solver.blocks.cameras import iop_names
     from solver.geometry.sensor import camera_chip
     from solver.kernels import N_IOP, project_cam
-    from solver.observations.cameras import iop_names
     from solver.schema.job import Camera
 
     if not iop and not cam.get("chips"):

@@ -13,12 +13,12 @@ import pytest
 from fastapi.testclient import TestClient
 
 from solver.api import run
+from solver.blocks.cameras import iop_names
 from solver.engine.assemble import build_problem
 from solver.engine.validate import validate_job
 from solver.errors import JobError
 from solver.geometry.sensor import camera_chip
 from solver.kernels import N_IOP, camera_model
-from solver.observations.cameras import iop_names
 from solver.schema.job import Camera, load_job
 from solver.simulate import presets
 from solver.simulate.camera import CameraSpec, ChipSpec, prism_camera

@@ -207,8 +207,8 @@ def _exact_projections(job: dict):
     simulated truth is not model-consistent). Returns (job without noise, truth pass state,
     truth attitude per image, truth line-0 states per image)."""
     problem = prepare(load_job(job))
+    from solver.blocks.passes import state_at
     from solver.engine.backend import SolveControl, solve
-    from solver.observations.passes import state_at
 
     solve(problem, problem.job.options, SolveControl(None, None, 50))
     truth_pass = problem.passes[0].params.copy()
