@@ -19,7 +19,8 @@ from solver.engine.assemble import build_problem, parameter_names
 from solver.engine.initialize import initialise
 from solver.engine.linalg import check_rank, linearise, schur
 from solver.engine.validate import require_valid
-from solver.errors import Cancelled, Problem, RankDeficientError, UnusableSolution
+from solver.errors import Cancelled, JobError, Problem, RankDeficientError, UnusableSolution
+from solver.quality.control_fit import control_misfits, control_problems
 from solver.report.document import assess
 from solver.schema.job import Job
 from solver.schema.settings import JobSettings
@@ -41,6 +42,18 @@ def prepare(job: Job, models: dict[str, str] | None = None) -> AdjustmentState:
     problem = build_problem(job, models)
     initialise(problem)
     return problem
+
+
+def check_control(problem: AdjustmentState) -> list[str]:
+    """Control that does not fit the orientation the job starts from
+    (:mod:`solver.quality.control_fit`): a JobError naming a set that does not belong (unless
+    ``options.control_check`` is ``warn``), else the sentences for the report's warnings."""
+    misfits = control_misfits(problem)
+    refuse = JobSettings.from_options(problem.job.options).procedures.control_check == "refuse"
+    if refuse and any(m.refused for m in misfits):
+        raise JobError(control_problems([m for m in misfits if m.refused]))
+    return [m.sentence() + (" (adjusted anyway: options.control_check warn)" if m.refused else " (left to data snooping)")
+            for m in misfits]
 
 
 def assert_full_rank(problem: AdjustmentState) -> None:
@@ -111,6 +124,7 @@ def adjust_once(
     _progress(progress, frac(0.01), "validating")
     problem = prepare(job, models)
     _progress(progress, frac(0.05), "initial values computed")
+    foreign = check_control(problem)
     assert_full_rank(problem)
     if cancel is not None and cancel():
         raise Cancelled("cancelled before the solve")
@@ -123,6 +137,7 @@ def adjust_once(
         raise UnusableSolution.from_outcome(reasons, _outcome_detail(outcome))
     _progress(progress, frac(0.92), "assessing the solution")
     report = assess(problem, outcome)
+    report["warnings"] = foreign + report["warnings"]
     report["adjustment"]["total_time_s"] = time.perf_counter() - t_start
     _progress(progress, frac(1.0), "done", {"sigma0": report["adjustment"]["sigma0_aposteriori"]})
     return problem, report

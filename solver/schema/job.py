@@ -741,6 +741,12 @@ class SolverOptions(_Strict):
         description="drop the platform terms that are not significant, one at a time with a test of "
         "the constraint (quality.parsimony); null: off",
     )
+    control_check: Literal["refuse", "warn"] = Field(
+        default="refuse",
+        description="control points whose measurements lie far from where the orientation the job starts from "
+        "projects them (far outside the image, or beyond 20 times the stated uncertainty of a weighted orbit and "
+        "attitude): refuse the job naming them (refuse), or adjust anyway and name them in the report's warnings (warn)",
+    )
     weak_control: Literal["act", "warn"] = Field(
         default="act",
         description="when the control does not determine an attitude term (its sigma over half the image beyond "

@@ -82,6 +82,7 @@ class ProcedureConfig:
     models: tuple[str, ...]  # model comparison
     preanalysis: PreanalysisOptions | None  # planning
     weak_control: str = "act"  # the rule when the control does not determine an attitude term
+    control_check: str = "refuse"  # control that does not fit the delivered orientation (solver.quality.control_fit)
 
 
 @dataclass(frozen=True)
@@ -102,5 +103,5 @@ class JobSettings:
             BlockConfig(o.control, sc, o.ephemeris, o.attitude, o.line_model, o.line_correction),
             StatisticsConfig(o.sigma0_apriori, o.alpha, o.correlation_threshold, o.covariance, o.leave_one_out, o.quality_warnings),
             ProcedureConfig(o.blunder_detection, o.parsimony, bool(sc is not None and sc.significance_analysis), tuple(o.models),
-                            o.preanalysis, o.weak_control),
+                            o.preanalysis, o.weak_control, o.control_check),
         )
