@@ -1,4 +1,4 @@
-"""``pba import-sensor METADATA... [--image-id ID]... [-o fragment.json] [--check-rpc]``: vendors'
+"""``pba import-sensor METADATA... [--image-id ID]... [-o fragment.json] [--check-rpc] [--strict]``: vendors'
 sensor metadata (Maxar/DigitalGlobe support-data XML, DIMAP v1 of SPOT 1-5, DIMAP v2 of SPOT 6/7
 and Pleiades, INPE product XML of CBERS-4/4A and Amazonia-1) as a fragment of the job document:
 ``cameras`` (one per image), ``images`` (ephemeris, attitude samples, first-line time, a default
@@ -8,10 +8,16 @@ On standard error, per image: what was read and how far the job form is from the
 exact model (px); with ``--check-rpc`` also the exact model against the vendor's RPC of the
 same image (RMS and maximum px over image positions x heights; a DIMAP v2 product's RPC_*.XML is
 looked for beside its DIM_*.XML), or, without an RPC, with the product's own tie points or extent
-corners (metres; for CBERS, its corners in px). A reader's warnings (e.g. ephemeris states that
-disagree with their velocities, not used) are printed and kept in the note of the image. Exit 0,
-or 2 with a message
-naming the file and the element at fault (docs/sensor-metadata.md).
+corners (metres; for CBERS, its corners in px). The reader's screening (a conversion it made: ``note:``;
+samples it did not use: ``warning:``) is printed and kept in the job (``images[].sensor``).
+Then the self-check (:mod:`solver.sensors.self_check`): one line when every comparison is within
+its limit, a loud ``WARNING`` per comparison beyond it (``--strict``: exit 2 and write nothing).
+Exit 0, or 2 with a message naming the file and the element at fault (docs/sensor-metadata.md).
+
+``pba check-sensor METADATA... [--image-id ID]... [--rpc FILE]... [--json] [--strict]``: the
+self-check's table of every product: its corners and centres, its RPC (or the one given), and
+the job form, against the exact model and the job form, in pixels and metres with the limits
+(the role of ASP's ``cam_test``).
 
 ``pba simulate-measurements METADATA... [--image-id ID]... -o DIR``: a stand-in for a lab's own
 survey and image measurements when only the metadata is at hand: control, check and tie points
@@ -35,7 +41,8 @@ def _metadata_args(p: argparse.ArgumentParser) -> None:
     """The metadata files and their image ids (``import-sensor``, ``simulate-measurements``)."""
     p.add_argument("metadata", type=Path, nargs="+", help="Maxar/DigitalGlobe support-data XML, SPOT 1-5 DIMAP v1 "
                    "METADATA.DIM, SPOT 6/7 / Pleiades DIMAP v2 DIM_*.XML or INPE CBERS/Amazonia product XML, "
-                   "FILE#left or FILE#right for one camera of a two-camera record (one per image)")
+                   "FILE#left or FILE#right for one camera of a two-camera record, FILE#raw (FILE#right,raw) for "
+                   "measurements in the raw image an INPE record describes (its raster is a map grid); one per image")
     p.add_argument("--image-id", action="append", default=[], metavar="ID",
                    help="image id, once per file in order (default: the file name without extension)")
 
@@ -49,7 +56,19 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also compare the exact model with the vendor's RPC of each image (a DIMAP v2 product's "
                    "RPC_*.XML beside it), or else with the product's tie points or extent corners (standard error)")
     p.add_argument("--indent", type=int, default=2, help="JSON indentation (default 2)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 2 (writing nothing) when the self-check finds a reference beyond its limit (pba check-sensor)")
     p.set_defaults(func=run)
+
+    p = sub.add_parser("check-sensor", help="check vendor sensor metadata against everything it states: corners, scene "
+                       "centres, the vendor's RPC, and the job form (the orientation a job composed from it starts from)")
+    _metadata_args(p)
+    p.add_argument("--rpc", action="append", default=[], type=Path, metavar="FILE",
+                   help="an RPC of the image to compare with (NAME_RPC.TXT, .RPB, a raster with RPC tags; read by GDAL), "
+                   "once per metadata file in order; default: the product's own RPC where it has one")
+    p.add_argument("--json", action="store_true", help="the rows as JSON on standard output instead of the table")
+    p.add_argument("--strict", action="store_true", help="exit 2 when a reference is beyond its limit")
+    p.set_defaults(func=run_check)
 
     p = sub.add_parser("simulate-measurements", help="survey and image measurements simulated on vendor metadata's exact "
                        "models (a stand-in for your own): control.csv, checks.csv, ID.csv, truth.json")
@@ -98,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
         doc = fragment(products, ids)
     except MetadataError as exc:
         return _fail(str(exc))
-    for note in doc.pop("sensor_metadata"):
+    beyond = 0
+    for note, product in zip(doc.pop("sensor_metadata"), products):
         d = note["difference_px"]
         print(f"{note['image']}: {note['satellite']} ({note['band']}), first line {note['first_line_utc']} "
               f"(times in s since {note['time_origin_utc']}); job form vs exact model {d['rms']:.3f} px RMS, "
@@ -107,6 +127,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"{note['image']}: note: {w}", file=sys.stderr)
         for w in note.get("warnings", []):
             print(f"{note['image']}: warning: {w}", file=sys.stderr)
+        beyond += _self_check_summary(note["image"], product)
+    if beyond and args.strict:
+        return _fail(f"{beyond} self-check reference(s) beyond their limits (--strict): nothing written")
     if args.check_rpc:
         for image_id, p in zip(ids, products):
             if isinstance(p, DimapV2Product):
@@ -140,6 +163,68 @@ def run(args: argparse.Namespace) -> int:
     else:
         sys.stdout.write(text)
     return 0
+
+
+def _self_check_summary(image_id: str, product) -> int:  # noqa: ANN001 (a reader's product, imported lazily)
+    """Run the self-check of a product (:mod:`solver.sensors.self_check`) and print one line
+    when every reference is within its limit, a loud one per reference beyond it; how many were."""
+    from solver.sensors.self_check import self_check
+
+    check = self_check(product)
+    bad = check.failures()
+    if not bad:
+        worst = max(check.rows, key=lambda r: r.max_px / r.limit_px, default=None)
+        said = f" (closest to its limit: {worst.reference}, {worst.model}, {worst.max_px:.3f} of {worst.limit_px:g} px)" if worst else ""
+        print(f"{image_id}: self-check: {len(check.rows)} comparisons within their limits{said}", file=sys.stderr)
+    for r in bad:
+        print(f"{image_id}: WARNING: self-check: {r.reference} vs the {r.model} model: {r.max_px:.3f} px at worst "
+              f"({r.rms_px:.3f} px RMS over {r.points}), beyond {r.limit_px:g} px: pba check-sensor shows every comparison",
+              file=sys.stderr)
+    for n in check.notes:
+        if n.startswith("no job form"):
+            print(f"{image_id}: WARNING: self-check: {n}", file=sys.stderr)
+    return len(bad) + sum(1 for n in check.notes if n.startswith("no job form"))
+
+
+def run_check(args: argparse.Namespace) -> int:
+    """``pba check-sensor``: the self-check's table of every product (exit 2 with ``--strict``
+    when a reference is beyond its limit)."""
+    from solver.importers.errors import SourceError
+    from solver.importers.rpc import read_rpc
+    from solver.sensors.formats import read_product
+    from solver.sensors.self_check import format_table, self_check
+
+    def fail(message: str) -> int:
+        print(f"pba check-sensor: {message}", file=sys.stderr)
+        return 2
+
+    ids = _ids(args)
+    if isinstance(ids, str):
+        return fail(ids)
+    if args.rpc and len(args.rpc) != len(args.metadata):
+        return fail(f"{len(args.rpc)} --rpc for {len(args.metadata)} files: give one per file, or none")
+    try:
+        products = [read_product(p, str(p)) for p in args.metadata]
+    except MetadataError as exc:
+        return fail(str(exc))
+    rpcs = []
+    for path in args.rpc:
+        try:
+            rpcs.append(read_rpc(path, str(path)))
+        except SourceError as exc:
+            return fail("; ".join(str(p) for p in exc.source_problems))
+    checks = [self_check(p, rpcs[k] if rpcs else None, args.rpc[k].name if rpcs else "") for k, p in enumerate(products)]
+    if args.json:
+        sys.stdout.write(json.dumps([{"image": i, "file": c.file, "satellite": c.satellite, "passed": c.passed,
+                                      "rows": [r.as_dict() for r in c.rows], "notes": c.notes}
+                                     for i, c in zip(ids, checks)], indent=1) + "\n")
+    else:
+        for image_id, c in zip(ids, checks):
+            print("\n".join(format_table(c, image_id)))
+    beyond = sum(len(c.failures()) for c in checks)
+    if beyond:
+        print(f"pba check-sensor: {beyond} comparison(s) beyond their limits", file=sys.stderr)
+    return 2 if beyond and args.strict else 0
 
 
 def _check_dimap_v2(image_id: str, p) -> bool:  # noqa: ANN001 (DimapV2Product, imported lazily)

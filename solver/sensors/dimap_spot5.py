@@ -47,16 +47,18 @@ and the scene centre (``Dataset_Frame/Scene_Center``: ``FRAME_ROW``, ``FRAME_COL
 model has none (its tie points agree with the uncorrected model to centimetres, and the
 corrected attitude, estimated with that model, absorbs them); switch them on to see their size.
 
-The tie points and centres of SPOT 1-4 products are the vendor's systematic location: the
-exact model with the measured attitude meets them to 0.4-24 m (10-m pixels) on seven public
-scenes (docs/sensor-metadata.md). DIMAP v2 (SPOT 6/7, Pleiades) is
+The tie points and centres of SPOT 1-4 products are the vendor's systematic location, made
+without the attitude: on seven public scenes the exact model with zero angles meets all four
+corners of a scene to one common 0.4-2.7 m and its centre to 0.4-2.5 m, with the measured
+attitude (1-7 arcseconds) they are 1.5-24 m away (docs/sensor-metadata.md);
+:attr:`Spot5Product.systematic` is that attitude-free model, for the self-check. DIMAP v2 (SPOT 6/7, Pleiades) is
 :mod:`solver.sensors.dimap_v2`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -81,6 +83,9 @@ class Spot5Product:
     centre: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))  # (0 or 1, 5): Dataset_Frame/Scene_Center
     screening: Screening = field(default_factory=Screening)
     incidence_deg: float | None = None  # Scene_Source/INCIDENCE_ANGLE, as stated
+    # SPOT 1-4 (gyro attitude): the model without the attitude angles, in which the vendor
+    # located the tie points and the scene centre (module docstring); None for SPOT 5
+    systematic: LinescanModel | None = None
 
 
 def _utc(node: Node, tag: str) -> datetime:
@@ -254,7 +259,8 @@ def read_dimap_v1_root(root: Node, shown: str) -> Spot5Product:
     # the orbital frame from the velocities as the file gives them (inertial ones for SPOT 1-4, as
     # the vendor's location model: its tie points are met to metres); the model's velocities are
     # then screened and, where inertial, converted to Earth-fixed (solver.sensors.screening)
-    rot = orbital_to_ecef(lagrange(att_t, eph_t, pos), lagrange(att_t, eph_t, vel)) @ look_rotation(ypr[:, 0], ypr[:, 1], ypr[:, 2])
+    frame = orbital_to_ecef(lagrange(att_t, eph_t, pos), lagrange(att_t, eph_t, vel))
+    rot = frame @ look_rotation(ypr[:, 0], ypr[:, 1], ypr[:, 2])
     model = LinescanModel(
         lines=lines, columns=columns, epoch_utc=epoch.isoformat().replace("+00:00", "Z"),
         tlc_lines=np.array([0.0, 1.0]), tlc_times_s=np.array([t0, t0 + period]),
@@ -262,7 +268,11 @@ def read_dimap_v1_root(root: Node, shown: str) -> Spot5Product:
         attitude_times_s=att_t, attitude_wxyz=matrix_to_quaternion(rot), look_body=look.body,
         corrections=Corrections(aberration=False, light_time=False, refraction=False),
     )
+    raw_attitude = attitudes.find("Corrected_Attitudes") is None
     model, screening = screen_model(model, strip.child("Ephemeris").child("Points"), att)
+    # SPOT 1-4 locate their tie points and scene centre without the attitude (the orbital frame
+    # alone): the model of those points, for the self-check
+    systematic = replace(model, attitude_times_s=att_t, attitude_wxyz=matrix_to_quaternion(frame)) if raw_attitude else None
     corners = []
     geo = root.find("Geoposition")
     tie = geo.find("Geoposition_Points") if geo is not None else None
@@ -279,7 +289,7 @@ def read_dimap_v1_root(root: Node, shown: str) -> Spot5Product:
     instrument = scene.text("INSTRUMENT") if scene is not None and scene.find("INSTRUMENT") is not None else ""
     incidence = scene.number("INCIDENCE_ANGLE") if scene is not None and scene.find("INCIDENCE_ANGLE") is not None else None
     return Spot5Product(shown, mission, instrument, model, corners_array, period, look,
-                        _scene_centre(root, corners_array), screening, incidence)
+                        _scene_centre(root, corners_array), screening, incidence, systematic)
 
 
 def _scene_centre(root: Node, tie_points: np.ndarray) -> np.ndarray:

@@ -97,6 +97,10 @@ class CbersProduct:
     corners_used: np.ndarray  # (4,) bool: corners the pointing was fitted to
     warnings: list[str] = field(default_factory=list)  # the screening's notes and warnings, and the reader's
     screening: Screening = field(default_factory=Screening)
+    level: str = ""  # image/level: 2 (system corrected) or 4 (orthorectified)
+    projection: str = ""  # image/projectionName: the delivered raster's map grid ("" for a raw image)
+    pixel_m: float | None = None  # image/verticalPixelSize: the raster's grid spacing
+    raw_geometry: bool = False  # the measurements are in the raw image the record describes (FILE#raw)
 
 
 def _strip_namespace(root: Node) -> None:
@@ -159,10 +163,12 @@ def fit_pointing(corners: np.ndarray, c0: float, line_time, position, velocity, 
     return full(sol.x), sol.fun.reshape(-1, 2)
 
 
-def read_cbers(path: str | Path, shown: str | None = None, data: bytes | None = None, camera: str | None = None) -> CbersProduct:
+def read_cbers(path: str | Path, shown: str | None = None, data: bytes | None = None, camera: str | None = None,
+               raw_geometry: bool = False) -> CbersProduct:
     """The model of one camera of an INPE product XML (module docstring); ``camera`` "left" or
     "right" in two-camera records (default: the left one), ``data`` as for
-    :func:`solver.sensors.maxar.read_maxar`."""
+    :func:`solver.sensors.maxar.read_maxar`; ``raw_geometry``: the measurements are in the raw
+    image the record describes (not in the map-projected raster: see :func:`map_grid`)."""
     path = Path(path)
     shown = str(path) if shown is None else shown
     root = load(path, shown, data)
@@ -309,8 +315,27 @@ def read_cbers(path: str | Path, shown: str | None = None, data: bytes | None = 
             break
     screened = Screening(list(checked.notes), list(checked.warnings), checked.velocity_frame, checked.velocity_rms_m_s,
                          sorted(checked.dropped_duplicates + checked.dropped_inconsistent))
+    level = image.text("level") if image.find("level") is not None and (image.child("level").element.text or "").strip() else ""
+    projection = image.text("projectionName") if image.find("projectionName") is not None and \
+        (image.child("projectionName").element.text or "").strip() else ""
+    pixel = image.number("verticalPixelSize") if image.find("verticalPixelSize") is not None else None
     return CbersProduct(shown, satellite, instrument, chosen, names, model, corners, centre, period, focal, ifov, c0,
-                        x[:3].copy(), bm, att_t, rpy, checked, used, warnings, screened)
+                        x[:3].copy(), bm, att_t, rpy, checked, used, warnings, screened, level, projection, pixel, raw_geometry)
+
+
+def map_grid(p: CbersProduct) -> str | None:
+    """Why the product's raster is no pushbroom image (None when it is, or when the measurements
+    are declared raw): INPE delivers level 2 (system corrected) and level 4 (orthorectified)
+    products as rasters on a map grid (``projectionName``, ``verticalPixelSize``), resampled
+    from the raw acquisition; the record's lines, columns, times, states and corners are those of
+    the raw image, which the raster no longer has."""
+    if p.raw_geometry or not p.projection:
+        return None
+    kind = {"2": "system corrected", "4": "orthorectified"}.get(p.level, f"level {p.level or 'unknown'}")
+    size = f", {p.pixel_m:g} m" if p.pixel_m else ""
+    return (f"level {p.level or '?'} ({kind}): the delivered raster is a {p.projection} map grid{size} resampled from the raw "
+            "acquisition, while the record's lines, columns, times and corners are those of the raw image: measurements in "
+            "the raster are map positions, not pushbroom lines and columns")
 
 
 def pointing_rotation(p: CbersProduct) -> np.ndarray:

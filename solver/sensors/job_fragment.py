@@ -20,8 +20,8 @@ Mapping (docs/models.md sections 1, 9, 10):
   meet the ground where the exact model, with every correction, puts them at the product's
   mean height. What this cannot absorb (their change across the swath and with height) is in
   ``difference_px``.
-- SPOT 1-7 and Pleiades: the look angles (one model, :mod:`solver.sensors.detectors`) as one
-  straight chip (:func:`look_angle_source`).
+- SPOT 1-7 and Pleiades: the look angles (one model, :mod:`solver.sensors.detectors`) as
+  straight chips about the swath's middle direction (:func:`look_angle_source`).
 - Model: OA-J2 for Maxar's, SPOT 6/7's and Pleiades' short images, PASS-J2 for SPOT 1-5's long
   segments (it uses every ephemeris sample), with cubic attitude polynomials.
 - Attitude weights. Maxar's file states the *absolute* accuracy of its attitude (the
@@ -36,8 +36,17 @@ Mapping (docs/models.md sections 1, 9, 10):
   it is 2e-6 to 1.2e-5 deg per angle (6.7e-6 overall); a fixed value cannot serve both pairs
   (their scatter differs by a factor of two). Other formats keep their single (independent)
   sigma.
+- Ephemeris weights: the file's position covariance (Maxar) or 5 m; velocities 0.01 m/s, or
+  how far the file's velocities disagree with its positions when that is more (the screening's
+  RMS Hermite residual over the interval, intervals of 10 s or more: SPOT 1-4, 0.02-0.16 m/s).
 - Line times: a constant ``line_time_s = 1 / AVGLINERATE`` from the first line's time; a
-  TLC table that departs from it is counted in the difference.
+  TLC table that departs from it is counted in the difference. Lines imaged backwards in time
+  (Maxar ``SCANDIRECTION`` Reverse) cannot be expressed (a positive line time): refused.
+- INPE records of map-grid rasters (level 2 and 4) are refused unless the measurements are
+  declared raw (:func:`solver.sensors.inpe_cbers.map_grid`).
+- ``difference_px`` measures this form with the file's own ephemeris (Lagrange) and the attitude
+  samples slerped; the orientation the job will solve from (its platform model's orbit and
+  attitude polynomials) is checked by :mod:`solver.sensors.self_check`.
 - Times: seconds since 00:00 UTC of the product's first ephemeris date (``time_origin_utc``),
   shared by every product of one import so that the images of a pass share one scale.
 """
@@ -54,7 +63,8 @@ from solver.geometry.sensor import chip_index_of_column
 from solver.sensors.detectors import LookAngles
 from solver.sensors.dimap_spot5 import Spot5Product
 from solver.sensors.dimap_v2 import DimapV2Product
-from solver.sensors.inpe_cbers import CbersProduct, pointing_rotation
+from solver.sensors.errors import MetadataError
+from solver.sensors.inpe_cbers import CbersProduct, map_grid, pointing_rotation
 from solver.sensors.linescan import LinescanModel, matrix_to_quaternion, orbital_rows, quaternion_matrices
 from solver.sensors.maxar import MaxarProduct
 from solver.sensors.screening import Screening
@@ -144,8 +154,14 @@ class SensorSource:
 
 
 def maxar_source(p: MaxarProduct) -> SensorSource:
-    """A Maxar product's camera (one chip, module docstring) and axes."""
+    """A Maxar product's camera (one chip, module docstring) and axes; a reverse-scanned product
+    (its lines imaged backwards in time) is refused: the job's line time is positive."""
     m = p.model
+    if m.line_time(np.array([m.lines - 1.0]))[0] < m.line_time(np.array([0.0]))[0]:
+        raise MetadataError(p.file, "isd/IMD/IMAGE/SCANDIRECTION",
+                            "Reverse: the lines were imaged backwards in time, and a job's camera has a positive line time, so "
+                            "this product has no job form (pba check-sensor checks its exact model; pba import-rpc reads its RPC "
+                            "for an RPC block)")
     t = np.array([m.line_time(np.array([m.lines / 2.0]))[0]])
     cam_to_body = quaternion_matrices(p.camera_to_body_wxyz[None, :])[0]
     x_cam_ecef = m.rotation(t)[0] @ cam_to_body @ np.array([1.0, 0, 0])
@@ -265,6 +281,11 @@ def cbers_source(p: CbersProduct) -> SensorSource:
                    "dy_mm": float(((m.columns - 1) / 2.0 - p.centre_column) * CBERS_PIXEL_MM)}],
     }
     name = f"{p.satellite} {p.instrument}" + (f" {p.camera}" if p.camera else "")
+    why = map_grid(p)
+    if why is not None:
+        raise MetadataError(p.file, "prdf/image/projectionName",
+                            f"{why}. A rigorous job needs measurements in the raw image: name the file FILE#raw (or "
+                            "FILE#left,raw) if yours are; pba check-sensor checks the record's geometry either way")
     reader = [w for w in p.warnings if w not in p.screening.notes]
     return SensorSource(p.file, name, p.instrument, m, pointing_rotation(p), camera, 0.0, None, None,
                         default_model=LONG_STRIP_MODEL, **_screened(p.screening, reader))

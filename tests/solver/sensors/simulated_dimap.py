@@ -146,10 +146,11 @@ def polynomial_attitude(scene: Scene, offset_s: float, scale_s: float) -> tuple[
 
 
 def dimap_v2_xml(scene: Scene, profile: str = "S6_SENSOR", attitude: str = "list", rpc_name: str | None = None,
-                 corners_h: float | None = None) -> tuple[str, object]:
+                 corners_h: float | None = None, quaternion_step_s: float = 0.03125) -> tuple[str, object]:
     """The DIM_*.XML text of a simulated product and the truth attitude it carries (None: the
-    scene's own). ``attitude`` "list" (SPOT 6/7, Neo: Quaternion_List) or "polynomial"
-    (Pleiades 1A/1B); LINE_PERIOD in microseconds, or in ms for ``PHR_SENSOR``."""
+    scene's own). ``attitude`` "list" (SPOT 6/7, Neo: Quaternion_List, every
+    ``quaternion_step_s``) or "polynomial" (Pleiades 1A/1B); LINE_PERIOD in microseconds, or in
+    ms for ``PHR_SENSOR``."""
     t_end = (scene.lines - 1) * scene.period_s
     eph_t = np.arange(-4.0, t_end + 4.0, 0.5)
     p, v = scene.state(eph_t)
@@ -159,7 +160,7 @@ def dimap_v2_xml(scene: Scene, profile: str = "S6_SENSOR", attitude: str = "list
         for t, a, b in zip(eph_t, p, v))
     truth = None
     if attitude == "list":
-        qt = np.arange(-0.2, t_end + 0.2, 0.03125)
+        qt = np.arange(-0.2, t_end + 0.2 + quaternion_step_s, quaternion_step_s)
         q = scene.quaternions(qt)
         att = "<Quaternion_List>" + "".join(
             f"<Quaternion><Q_STATUS>NOMINAL</Q_STATUS><Q0>{float(a[0])!r}</Q0><Q1>{float(a[1])!r}</Q1><Q2>{float(a[2])!r}</Q2><Q3>{float(a[3])!r}</Q3>"

@@ -16,7 +16,9 @@ independent physical scene that has what those files showed:
 - truth: the detector's direction ``(-tan PSI_Y, tan PSI_X, -1)`` in the navigation frame,
   from the orbit position at the line's time, intersected with the geodetic height by pyproj
   (not our geodesy), without corrections (the vendor's location model has none); the four
-  corner tie points and the ``Scene_Center`` are the truth at height 0.
+  corner tie points and the ``Scene_Center`` are located at height 0 *without the attitude*
+  (the orbital frame alone), as the real files' are (their corners and centres meet the exact
+  model with zero angles to 0.4-2.7 m, with the measured angles 1.5-24 m away).
 
 Only the format's conventions are shared with the reader; no code of :mod:`solver.sensors` is
 used here.
@@ -90,28 +92,29 @@ class Spot14Scene:
         py, px = y0 + u * (y1 - y0), x0 + u * (x1 - x0)
         return np.column_stack([-np.tan(py), np.tan(px), -np.ones_like(py)])
 
-    def navigation_to_ecef(self, t: np.ndarray) -> np.ndarray:
+    def navigation_to_ecef(self, t: np.ndarray, attitude: bool = True) -> np.ndarray:
         """(n, 3, 3): the handbook's orbital frame (columns X2, Y2, Z2, from the file's velocity)
-        times its eq. 11 matrix of yaw, pitch, roll."""
+        times its eq. 11 matrix of yaw, pitch, roll (the identity without ``attitude``)."""
         p, _ = self.state(t)
         v = self.inertial_velocity(t)
         z = p / np.linalg.norm(p, axis=1, keepdims=True)
         x = np.cross(v, z)
         x /= np.linalg.norm(x, axis=1, keepdims=True)
         orbital = np.stack([x, np.cross(z, x), z], axis=2)
-        y, pch, r = self.angles(t).T
+        y, pch, r = (self.angles(t) if attitude else 0.0 * self.angles(t)).T
         cp, sp, cr, sr, cy, sy = np.cos(pch), np.sin(pch), np.cos(r), np.sin(r), np.cos(y), np.sin(y)
         m = np.stack([np.stack([cr * cy, -cr * sy, -sr], -1),
                       np.stack([cp * sy + sp * sr * cy, cp * cy - sp * sr * sy, sp * cr], -1),
                       np.stack([-sp * sy + cp * sr * cy, -sp * cy - cp * sr * sy, cp * cr], -1)], -2)
         return orbital @ m
 
-    def ground(self, line: np.ndarray, col: np.ndarray, h: np.ndarray) -> np.ndarray:
-        """ECEF (n, 3) of image positions (0-based) at geodetic heights ``h``: the truth."""
+    def ground(self, line: np.ndarray, col: np.ndarray, h: np.ndarray, attitude: bool = True) -> np.ndarray:
+        """ECEF (n, 3) of image positions (0-based) at geodetic heights ``h``: the truth (without
+        ``attitude``: the vendor's systematic location of its tie points)."""
         line, col, h = np.broadcast_arrays(*(np.atleast_1d(np.asarray(a, float)) for a in (line, col, h)))
         t = line * self.period_s
         s, _ = self.state(t)
-        d = np.einsum("nij,nj->ni", self.navigation_to_ecef(t), self.look(col))
+        d = np.einsum("nij,nj->ni", self.navigation_to_ecef(t, attitude), self.look(col))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
 
         def height(dist: np.ndarray) -> np.ndarray:
@@ -158,8 +161,9 @@ def metadata_dim(scene: Spot14Scene, mission: int = 2) -> str:
              f"<Look_Angles><DETECTOR_ID>{scene.columns}</DETECTOR_ID><PSI_X>{scene.psi_x[1]!r}</PSI_X><PSI_Y>{y1!r}</PSI_Y></Look_Angles>")
     rows = np.array([0, 0, scene.lines - 1, scene.lines - 1], float)
     cols = np.array([0, scene.columns - 1, scene.columns - 1, 0], float)
-    g = scene.geodetic(scene.ground(rows, cols, np.zeros(4)))
-    c = scene.geodetic(scene.ground(np.array([centre_line - 1.0]), np.array([scene.columns / 2 - 1.0]), np.zeros(1)))[0].tolist()
+    g = scene.geodetic(scene.ground(rows, cols, np.zeros(4), attitude=False))
+    c = scene.geodetic(scene.ground(np.array([centre_line - 1.0]), np.array([scene.columns / 2 - 1.0]), np.zeros(1),
+                                    attitude=False))[0].tolist()
     vertices = "".join(f"<Vertex><FRAME_LON>{x[0]!r}</FRAME_LON><FRAME_LAT>{x[1]!r}</FRAME_LAT><FRAME_ROW>{int(r) + 1}</FRAME_ROW>"
                        f"<FRAME_COL>{int(k) + 1}</FRAME_COL></Vertex>" for x, r, k in zip(g.tolist(), rows, cols))
     ties = "".join(f"<Tie_Point><TIE_POINT_CRS_X>{x[0]!r}</TIE_POINT_CRS_X><TIE_POINT_CRS_Y>{x[1]!r}</TIE_POINT_CRS_Y>"

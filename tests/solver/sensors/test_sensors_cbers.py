@@ -125,7 +125,7 @@ def test_duplicated_state_is_dropped_and_named(tmp_path) -> None:
 
 
 def test_fragment_and_import_sensor_command(tmp_path, capsys) -> None:
-    doc = fragment([read_product(f"{WFI4A}#right"), read_cbers(MUX4A)], ["R", "M"])
+    doc = fragment([read_product(f"{WFI4A}#right,raw"), read_cbers(MUX4A, raw_geometry=True)], ["R", "M"])
     notes = doc.pop("sensor_metadata")
     for c in doc["cameras"]:
         Camera(**c)
@@ -137,7 +137,7 @@ def test_fragment_and_import_sensor_command(tmp_path, capsys) -> None:
     for n in notes:
         assert n["difference_px"]["rms"] < 0.01  # the job form is this model (a straight chip in the fitted frame)
     out = tmp_path / "f.json"
-    assert main(["import-sensor", f"{WFI4A}#right", str(MUX4), "--image-id", "R", "--image-id", "M", "--check-rpc",
+    assert main(["import-sensor", f"{WFI4A}#right,raw", f"{MUX4}#raw", "--image-id", "R", "--image-id", "M", "--check-rpc",
                  "-o", str(out)]) == 0
     err = capsys.readouterr().err
     assert "R: warning:" in err and "samples 68-114" in err, err
@@ -172,6 +172,24 @@ def test_bad_files_exit_2_naming_file_and_element(tmp_path, capsys, case) -> Non
 def test_a_missing_camera_is_named(capsys) -> None:
     assert main(["import-sensor", f"{MUX4}#left"]) == 2
     assert "a one-camera record" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("path,level,kind", [(MUX4, "2", "system corrected"), (MUX4A, "4", "orthorectified")],
+                         ids=["L2", "L4"])
+def test_a_map_grid_raster_is_no_pushbroom_image(tmp_path, capsys, path, level, kind) -> None:
+    """INPE delivers level 2 and 4 products as UTM rasters resampled from the raw acquisition the
+    record describes (its corners' raw lines and columns lie elsewhere than its bounding box on
+    the map grid): a job from the record is refused with the reason unless the measurements are
+    declared raw (FILE#raw); pba check-sensor checks the record either way and says why."""
+    p = read_cbers(path)
+    assert (p.level, p.projection) == (level, "UTM") and p.pixel_m in (16.0, 20.0)
+    assert main(["import-sensor", str(path), "-o", str(tmp_path / "f.json")]) == 2
+    err = capsys.readouterr().err
+    assert "element prdf/image/projectionName" in err and f"level {level} ({kind})" in err and "FILE#raw" in err, err
+    assert main(["import-sensor", f"{path}#raw", "-o", str(tmp_path / "f.json")]) == 0
+    capsys.readouterr()
+    assert main(["check-sensor", str(path)]) == 0
+    assert "the delivered raster is a UTM map grid" in capsys.readouterr().out
 
 
 # time scales: published values (IERS Bulletin C; GPS - UTC = 0 at the GPS epoch 1980-01-06)
@@ -256,7 +274,7 @@ def test_direct_georeferencing_predicted_precision_by_monte_carlo() -> None:
     metadata perturbed in each run as the job's weights say it errs (every 1-s GPS state of the
     pass and every attitude sample independently, tests/solver/sensors/monte_carlo.py). The
     empirical 3-D check-point RMSE over the runs must match the RMSE the reports predict."""
-    a = read_cbers(MUX4)
+    a = read_cbers(MUX4, raw_geometry=True)
     b = backward_mate(a)
     base = fragment([a, b], ["A", "B"])
     base.pop("sensor_metadata")
@@ -266,3 +284,38 @@ def test_direct_georeferencing_predicted_precision_by_monte_carlo() -> None:
     assert len(points) == 24
     mc = direct_georeferencing(base, points, obs, MC_RUNS)
     assert MC_RATIO[0] <= mc["ratio"] <= MC_RATIO[1], mc
+
+
+def test_gps_to_utc_in_the_seconds_after_a_leap_second() -> None:
+    """GPS instants within 18 s after the leap second of 2016-12-31: GPS - UTC was 17 s until
+    2017-01-01T00:00:00 UTC (TAI - UTC 36 s, GPS = TAI - 19 s; IERS Bulletin C 52), so GPS
+    2017-01-01T00:00:00 to 00:00:16 are still 2016 in UTC. The leap count must be taken at the
+    UTC instant, not at the GPS label (which is 2017 already and says 18)."""
+    for s in range(17):
+        assert gps_to_utc(_utc(2017, 1, 1, 0, 0, s)) == _utc(2016, 12, 31, 23, 59, 43 + s)
+    assert gps_to_utc(_utc(2017, 1, 1, 0, 0, 18)) == _utc(2017, 1, 1)  # TAI - UTC 37 s from here on
+    # the same about the leap second of 2015-06-30 (GPS - UTC 16 s before, 17 s after)
+    assert gps_to_utc(_utc(2015, 7, 1, 0, 0, 5)) == _utc(2015, 6, 30, 23, 59, 49)
+    assert gps_to_utc(_utc(2015, 7, 1, 0, 0, 17)) == _utc(2015, 7, 1)
+
+
+LAW_S = 2e-6  # line times against the law the record was written from (its times have microseconds)
+SIM_CORNER_PX = 0.05  # corners of the simulated record (its camera is the reader's form: only rounding is left)
+
+
+def test_line_times_follow_the_law_a_record_is_written_from(tmp_path) -> None:
+    """A record written from a known line-time law (tests/solver/sensors/simulated_inpe.py): its
+    timeStamp lags the corners' first and last lines by 8 lines each (16 in all), and the reader
+    recovers the law: half the lag at each end, not the whole lag at the start."""
+    from simulated_inpe import InpeScene, record_xml
+    from simulated_spot14 import START, Spot14Scene
+
+    scene = InpeScene(Spot14Scene())
+    path = tmp_path / "CBERS_4_MUX_SIM_L2_BAND6.xml"
+    path.write_text(record_xml(scene))
+    p = read_cbers(path)
+    lines = np.array([0.0, 8.0, 3500.0, scene.lines - 1.0])
+    shift = (datetime.fromisoformat(p.model.epoch_utc.replace("Z", "+00:00")) - START).total_seconds()
+    assert np.abs(p.model.line_time(lines) + shift - scene.t(lines)).max() < LAW_S
+    c = corner_check(p)
+    assert c["fit_rms_px"] < SIM_CORNER_PX and max(h["px"] for h in c["held_out"]) < SIM_CORNER_PX, c

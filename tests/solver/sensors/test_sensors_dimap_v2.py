@@ -416,3 +416,23 @@ def test_import_rpc_reads_the_rfm_of_a_ground_segment_file(tmp_path) -> None:
     rpc = RPC.from_job(image["rpc"])
     a = rpc_agreement(read_product(REAL_PHR1B).model, rpc)
     assert a["rms_px"] < REAL_RFM_RMS_PX and a["max_px"] < REAL_RFM_MAX_PX, a
+
+
+SLERP_RAD = 1e-9  # the model's attitude against scipy's Slerp of the same samples (both exact: rounding)
+
+
+def test_the_attitude_is_slerped_between_the_two_samples_around_each_time(tmp_path, scene) -> None:
+    """Quaternions every 0.5 s (a coarse list, where interpolating from the wrong pair of samples
+    shows: 1e-6 rad here), against an independent slerp (scipy's) of the samples as read."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    text, _ = dimap_v2_xml(scene, "S6_SENSOR", "list", quaternion_step_s=0.5)
+    path = tmp_path / "DIM_coarse.XML"
+    path.write_text(text)
+    m = read_dimap_v2(path).model
+    t_s, q = m.attitude_times_s, m.attitude_wxyz
+    assert np.median(np.diff(t_s)) == pytest.approx(0.5, rel=1e-9)
+    ref = Slerp(t_s, Rotation.from_quat(q[:, [1, 2, 3, 0]]))
+    t = np.random.default_rng(7).uniform(t_s[0], t_s[-1], 200)
+    diff = (ref(t).inv() * Rotation.from_matrix(m.rotation(t))).magnitude()
+    assert diff.max() < SLERP_RAD, diff.max()

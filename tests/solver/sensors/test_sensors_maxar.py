@@ -397,3 +397,35 @@ def test_direct_georeferencing_predicted_precision_by_monte_carlo(products) -> N
     mc = direct_georeferencing(base, points, obs, MC_RUNS, attitude_white=False)
     ratio = mc["ratio"]
     assert MC_RATIO[0] <= ratio <= MC_RATIO[1], {k: v for k, v in mc.items() if not k.endswith("_runs_m")}
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_a_product_without_a_tlc_table_meets_its_rpc(tmp_path, name) -> None:
+    """No TLC list: line times from FIRSTLINETIME and AVGLINERATE alone (lines per second; a
+    rate read as a line period would put the last line thousands of lines off). The vendor's
+    RPC is the independent evidence (measured: 0.13-0.26 px RMS, as with the TLC list)."""
+    text = re.sub(r"<TLCLISTList>.*?</TLCLISTList>", "", (DATA / f"{name}.xml").read_text(), flags=re.S)
+    assert "<TLCLIST>" not in text and "<AVGLINERATE>" in text
+    path = tmp_path / f"{name}.xml"
+    path.write_text(text)
+    p = read_maxar(path)
+    a = rpc_agreement(p.model, p.rpc)
+    assert a["rms_px"] < RPC_RMS_PX and a["max_px"] < RPC_MAX_PX, a
+    doc = fragment([p], ["W"])
+    assert doc["cameras"][0]["line_time_s"] == pytest.approx(1.0 / p.avg_line_rate_hz, rel=1e-12)
+
+
+def test_an_rpc_product_and_an_empty_file_are_named_as_such(tmp_path, capsys) -> None:
+    """An ortho-ready support XML (RPB, no EPH/ATT) is an RPC product, not a broken sensor
+    model; an empty file is empty, not an unknown format."""
+    text = (DATA / "wv_test1.xml").read_text()
+    text = re.sub(r"<EPH>.*?</EPH>", "", re.sub(r"<ATT>.*?</ATT>", "", text, flags=re.S), flags=re.S)
+    ortho, empty = tmp_path / "ortho.xml", tmp_path / "empty.xml"
+    ortho.write_text(text)
+    empty.write_text("")
+    assert main(["import-sensor", str(ortho)]) == 2
+    assert "no EPH, ATT: no ephemeris and attitude, an RPC product" in capsys.readouterr().err
+    assert main(["import-rpc", str(ortho)]) == 0  # and that is where it goes
+    capsys.readouterr()
+    assert main(["import-sensor", str(empty)]) == 2
+    assert f"{empty}: empty (0 bytes)" in capsys.readouterr().err

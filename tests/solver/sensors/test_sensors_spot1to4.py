@@ -24,6 +24,7 @@ from datetime import datetime, timedelta
 import numpy as np
 import pytest
 from simulated_spot14 import START as START_SIM
+from spot14_jobs import product, truth_job
 
 from solver.cli import main
 from solver.sensors.dimap_spot5 import read_spot5
@@ -161,12 +162,7 @@ TANGENT_CENTRE_M = 100.0  # the scene centre with the tangents linear instead (m
 
 @pytest.fixture(scope="module")
 def sim14(tmp_path_factory):
-    from simulated_spot14 import Spot14Scene, metadata_dim
-
-    scene = Spot14Scene()
-    path = tmp_path_factory.mktemp("spot14") / "METADATA.DIM"
-    path.write_text(metadata_dim(scene))
-    return scene, path, read_spot5(path)
+    return product(tmp_path_factory.mktemp("spot14"))
 
 
 def test_the_inertial_velocities_are_found_and_converted(sim14) -> None:
@@ -190,8 +186,12 @@ def test_the_simulated_scene_meets_its_truth_corners_and_centre(sim14) -> None:
         assert d.max() < SIM_GROUND_M, d.max()
     assert p.centre.shape == (1, 5) and p.corners.shape == (4, 5)
     c = np.vstack([p.corners, p.centre])
-    d = np.linalg.norm(m.image_to_ecef(c[:, 0], c[:, 1], c[:, 4]) - geodetic_to_ecef(c[:, 2:5]), axis=1)
+    # the file's points are located without the attitude, as the real files': the reader's
+    # attitude-free model meets them, the model with the attitude is its size away (~10 m)
+    d = np.linalg.norm(p.systematic.image_to_ecef(c[:, 0], c[:, 1], c[:, 4]) - geodetic_to_ecef(c[:, 2:5]), axis=1)
     assert d.max() < SIM_GROUND_M, d
+    with_attitude = np.linalg.norm(m.image_to_ecef(c[:, 0], c[:, 1], c[:, 4]) - geodetic_to_ecef(c[:, 2:5]), axis=1)
+    assert with_attitude.min() > 10 * SIM_GROUND_M, with_attitude
     # the centre tells the interpolation of the two look angles apart (the corners cannot):
     # tangents linear in the column put it far away
     from solver.sensors.detectors import SPOT_NAVIGATION
@@ -200,36 +200,12 @@ def test_the_simulated_scene_meets_its_truth_corners_and_centre(sim14) -> None:
     tan_lin = np.array([[p.look.along[0] + u * (p.look.along[1] - p.look.along[0]),
                          p.look.across[0] + u * (p.look.across[1] - p.look.across[0]), 1.0]]) @ SPOT_NAVIGATION.T
     t = m.line_time(p.centre[:, 0])
-    ray = m.rotation(t)[0] @ tan_lin[0]
+    ray = p.systematic.rotation(t)[0] @ tan_lin[0]
     s = m.position(t)[0]
     from solver.sensors.linescan import intersect_ellipsoid
 
     wrong = intersect_ellipsoid(s[None], ray[None], np.zeros(1))
     assert np.linalg.norm(wrong[0] - geodetic_to_ecef(p.centre[:, 2:5])[0]) > TANGENT_CENTRE_M
-
-
-def _truth_job(scene, p, gcps: int, checks: int, seed: int, perturb: bool) -> dict:
-    """The fragment of ``p`` with ``gcps`` control and ``checks`` check points imaged by the
-    scene's truth at 0-2000 m, every observation perturbed as its weight says (``perturb``)."""
-    from monte_carlo import perturbed
-
-    from solver.sensors.job_fragment import fragment
-
-    doc = fragment([p], ["S"])
-    doc.pop("sensor_metadata")
-    g = np.random.default_rng(seed)
-    n = gcps + checks
-    L, C, H = g.uniform(60, scene.lines - 60, n), g.uniform(60, scene.columns - 60, n), g.uniform(0, 2000, n)
-    ground = scene.geodetic(scene.ground(L, C, H))
-    points = [{"id": f"P{k}", "role": "gcp" if k < gcps else "check", "coordinates": [float(v) for v in ground[k]],
-               "sigma_m": [0.5] * 3} for k in range(n)]
-    obs = [{"image": "S", "point": f"P{k}", "line": float(L[k]), "column": float(C[k]), "sigma_px": 0.3} for k in range(n)]
-    if perturb:
-        doc, obs = perturbed(doc, obs, g)
-        for q in points:  # the survey errs by its sigma too (east/north/up ~ degrees at these sizes)
-            q["coordinates"] = [q["coordinates"][0] + g.normal(0, 0.5) / 85e3, q["coordinates"][1] + g.normal(0, 0.5) / 111e3,
-                                q["coordinates"][2] + g.normal(0, 0.5)]
-    return {"schema_version": "1.0", "name": "spot14", "crs": "EPSG:4326", **doc, "points": points, "observations": obs}
 
 
 def test_the_job_as_delivered_meets_the_truth(sim14) -> None:
@@ -238,7 +214,7 @@ def test_the_job_as_delivered_meets_the_truth(sim14) -> None:
     from solver.gis.model import load_model
 
     scene, _, p = sim14
-    job = _truth_job(scene, p, 5, 0, 1, perturb=False)
+    job = truth_job(scene, p, 5, 0, 1, perturb=False)
     img = load_model(job, None).image("S")
     L, C = (a.ravel() for a in np.meshgrid(np.linspace(0, scene.lines - 1, 9), np.linspace(0, scene.columns - 1, 9), indexing="ij"))
     for h in (0.0, 2000.0):
@@ -255,7 +231,7 @@ def test_an_adjustment_with_17_control_points_reaches_sub_pixel_check_points(sim
     from solver.api import run
 
     scene, _, p = sim14
-    job = _truth_job(scene, p, 17, 26, 2, perturb=True)
+    job = truth_job(scene, p, 17, 26, 2, perturb=True)
     rep = run(job)
     a, cp = rep["adjustment"], rep["checkpoints"]
     assert 0.8 < a["sigma0_aposteriori"] < 1.25 and a["chi2"]["passed"], a["chi2"]
