@@ -326,3 +326,23 @@ def test_a_job_the_solver_rejects_fails_with_its_problems(
         assert st["status"] == "failed" and "invalid job" in st["message"]
         assert st["problems"][0]["code"] == "rank_deficient"
         assert c.get(f"/jobs/{job_id}/results").status_code == 422
+
+
+def test_control_of_another_image_is_a_422_naming_it(server: Server, keys: dict[str, str], tmp_path_factory) -> None:
+    """A SPOT 1-4 job composed from its metadata whose control was measured in a neighbouring
+    image (tests/solver/quality/test_control_fit.py): refused before solving, by name, as the
+    solver's other problems are."""
+    from spot14_jobs import product, truth_job
+
+    scene, _, p = product(tmp_path_factory.mktemp("spot14"))
+    job = truth_job(scene, p, 6, 2, 4, perturb=False)
+    control = {q["id"] for q in job["points"] if q["role"] == "gcp"}
+    for o in job["observations"]:
+        if o["point"] in control:
+            o["column"] -= 5700.0
+    with server.client(keys["bob"]) as c:
+        r = c.post("/processes/bundle-adjustment/execution", json=execute_body(job))
+        assert r.status_code == 422, r.text[:300]
+        err = r.json()["errors"][0]
+        assert err["code"] == "control_does_not_belong" and err["pointer"] == "/inputs/job/images/0", err
+        assert "these 6 control points" in err["message"] and "another image's points?" in err["message"], err

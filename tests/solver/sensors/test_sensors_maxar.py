@@ -155,7 +155,7 @@ def _cases() -> list[tuple[str, object, str]]:
         ("billion_laughs", lambda: BILLION_LAUGHS, "DTD or entities"),
         ("external_entity", lambda: EXTERNAL_ENTITY, "DTD or entities"),
         ("truncated", lambda: _original()[: len(_original()) // 2], "not well-formed"),
-        ("empty", lambda: "", "not a sensor metadata file we read"),
+        ("empty", lambda: "", "empty (0 bytes)"),
         ("not_metadata", lambda: "<kml/>", "not a sensor metadata file we read"),
         ("dimap_laughs", lambda: BILLION_LAUGHS.replace("isd", "Dimap_Document"), "DTD or entities"),
         ("missing_geo", lambda: re.sub(r"<GEO>.*</GEO>", "", _original(), flags=re.S), "element isd/GEO: missing"),
