@@ -157,7 +157,7 @@ def read_maxar(path: str | Path, shown: str | None = None, data: bytes | None = 
     if root.element.tag != "isd":
         raise root.error("not a Maxar support-data XML (root element isd expected)")
     root.check_counts()
-    missing = [t for t in ("EPH", "ATT", "GEO") if root.find(t) is None]
+    missing = [t for t in ("EPH", "ATT") if root.find(t) is None]
     if missing and root.find("RPB") is not None:  # an ortho-ready or RPC-only product: no sensor model
         raise root.error(f"no {', '.join(missing)}: no ephemeris and attitude, an RPC product (ortho-ready, or support "
                          "data without the sensor model); its RPB goes through pba import-rpc")

@@ -332,14 +332,10 @@ def test_control_of_another_image_is_a_422_naming_it(server: Server, keys: dict[
     """A SPOT 1-4 job composed from its metadata whose control was measured in a neighbouring
     image (tests/solver/quality/test_control_fit.py): refused before solving, by name, as the
     solver's other problems are."""
-    from spot14_jobs import product, truth_job
+    from spot14_jobs import foreign, product, truth_job
 
     scene, _, p = product(tmp_path_factory.mktemp("spot14"))
-    job = truth_job(scene, p, 6, 2, 4, perturb=False)
-    control = {q["id"] for q in job["points"] if q["role"] == "gcp"}
-    for o in job["observations"]:
-        if o["point"] in control:
-            o["column"] -= 5700.0
+    job = foreign(scene, truth_job(scene, p, 6, 2, 4, perturb=False))
     with server.client(keys["bob"]) as c:
         r = c.post("/processes/bundle-adjustment/execution", json=execute_body(job))
         assert r.status_code == 422, r.text[:300]

@@ -4,6 +4,7 @@ truth, for the tests of the reader, the self-check and the control check."""
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import numpy as np
@@ -47,3 +48,17 @@ def truth_job(scene: Spot14Scene, p, gcps: int, checks: int, seed: int, perturb:
             q["coordinates"] = [q["coordinates"][0] + np.degrees(de / (6378137.0 * np.cos(lat[k]))),
                                 q["coordinates"][1] + np.degrees(dn / 6378137.0), q["coordinates"][2] + du]
     return {"schema_version": "1.0", "name": "spot14", "crs": "EPSG:4326", **doc, "points": points, "observations": obs}
+
+
+def foreign(scene, job: dict, shift: float = 5700.0) -> dict:
+    """The control of a neighbouring image: each control point measured where it is, but its
+    ground the scene's at ``shift`` columns further right (beyond this image's edge, where the
+    neighbour sees it); check points kept."""
+    bad = copy.deepcopy(job)
+    pts = {p["id"]: p for p in bad["points"] if p["role"] == "gcp"}
+    for o in bad["observations"]:
+        if o["point"] in pts:
+            p = pts[o["point"]]
+            g = scene.geodetic(scene.ground(np.array([o["line"]]), np.array([o["column"] + shift]), np.array([p["coordinates"][2]])))
+            p["coordinates"] = [float(g[0, 0]), float(g[0, 1]), p["coordinates"][2]]
+    return bad
