@@ -13,12 +13,13 @@ the measurement:
   the focal length over the pixel pitch, ``r`` the range to the point, ``s_att`` the largest of
   the three angle sigmas, radians); beyond :data:`FAR_SIGMAS` times that and
   :data:`MIN_FAR_PX` pixels it does not belong;
-- **far outside the image**: whatever the image, a point whose projection lies more than
-  :data:`OUTSIDE_FRACTION` of the image's size beyond its lines or columns does not belong.
+- **far outside the image**: a point whose projection lies more than :data:`OUTSIDE_FRACTION`
+  of the image's size beyond its lines or columns does not belong.
 
-An image whose orientation comes from the control itself (no weighted attitude: the initial
-attitude is a resection on those very points) is judged by the second rule only, and a set
-that the resection can bend to fit passes it: there the adjustment's tests must find it.
+Only images whose orientation is stated are judged: one whose orientation comes from the
+control itself (no weighted states and attitude: the initial attitude is a resection on those
+very points, and with one or two points it may put anything anywhere) is not, and there the
+adjustment's tests must find a set that does not belong.
 
 The points are reported by name, grouped per image with their median offset ("image 'S': these
 43 control points G01, G02, ... are projected 5,721 columns to the right of and 358 lines below
@@ -134,7 +135,9 @@ def control_misfits(problem: AdjustmentState) -> list[Misfit]:
     for i, r in enumerate(rows):
         img = problem.images[obs.img[r]]
         counts[img.index] = counts.get(img.index, 0) + 1
-        if img.camera is None:  # RPC images: their bias priors say how far they may be
+        if img.camera is None or stated.get(img.index) is None:
+            # RPC images: their bias priors say how far they may be; an orientation that is not
+            # stated comes from a resection on these very points (module docstring)
             continue
         p = pts[obs.pt[r]]
         ok, line, col = _eval_record(rec[i], img_tab, cam_tab, p.known_lgs.astype(float).copy(), no_params, False)[:3]
