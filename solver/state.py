@@ -137,7 +137,3 @@ def rows_by_image(img_of_row: np.ndarray, n_images: int) -> list[np.ndarray]:
     order, bounds = grouped(img_of_row, n_images)
     return [order[bounds[i] : bounds[i + 1]] for i in range(n_images)]
 
-
-def is_kepler(image: ImageState) -> bool:
-    """Position from the image's own Earth-fixed state vector (Kepler, J2, orbit-attitude)."""
-    return image.model.kind.ecef_state

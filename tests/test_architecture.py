@@ -238,6 +238,45 @@ def test_the_kind_answers_what_the_checklist_says() -> None:
     assert set(re.findall(r"`(\w+)`", block.group(1))) == kind_interface(PlatformKind)
 
 
+# ---- the platform kind's capabilities are asked where the platforms live -----------------------
+
+CAPABILITY_READERS = ("solver/platforms", "solver/kernels", "solver/blocks")
+MOST_CAPABILITY_READS_ELSEWHERE = 5  # the model comparison, the pre-analysis's levelling, the state's kernel code
+
+
+def capability_reads(source: str, capabilities: set[str]) -> list[int]:
+    """Lines of ``source`` that read a capability of a platform kind (``<x>.kind.<capability>``)."""
+    return [
+        node.lineno
+        for node in ast.walk(ast.parse(source))
+        if isinstance(node, ast.Attribute) and node.attr in capabilities
+        and isinstance(node.value, ast.Attribute) and node.value.attr == "kind"
+    ]
+
+
+def test_the_platform_kinds_capabilities_are_read_by_the_platforms_kernels_and_blocks() -> None:
+    """Stages ask the parameter blocks (solver/blocks/), which ask the platform kind: outside the
+    platforms, the kernels and the blocks, at most a few reads of a kind's capabilities remain."""
+    from solver.platforms.kinds import PlatformKind
+
+    capabilities = kind_interface(PlatformKind)
+    reads = {}
+    for file in sorted((ROOT / "solver").rglob("*.py")):
+        rel = str(file.relative_to(ROOT))
+        if rel.startswith(CAPABILITY_READERS):
+            continue
+        lines = capability_reads(file.read_text(), capabilities)
+        if lines:
+            reads[rel] = lines
+    assert sum(len(v) for v in reads.values()) <= MOST_CAPABILITY_READS_ELSEWHERE, reads
+
+
+def test_the_capability_count_has_teeth() -> None:
+    caps = {"has_camera", "kernel"}
+    assert capability_reads("if img.model.kind.has_camera:\n    pass\nk = m.kind.kernel\n", caps) == [1, 3]
+    assert capability_reads("kind = 'x'\nif g.kind == 'y': pass\n", caps) == []
+
+
 def registering_modules(package: Path, root: Path = ROOT) -> set[str]:
     """Modules of ``package`` (a directory under ``root``) that call ``register(...)`` at import."""
     out = set()

@@ -213,6 +213,19 @@ def pass_problems(job: "Job") -> list[Problem]:
     return out
 
 
+def pass_images(job: "Job") -> dict[str, list[int]]:
+    """The images of each pass (pass id -> image indices) among the images whose model propagates
+    one orbit and that have their first line's epoch (validation counts the others' problems)."""
+    groups: dict[str, list[int]] = {}
+    for i, im in enumerate(job.images):
+        try:
+            if get_model(im.model.name).kind.shares_pass_orbit and im.first_line_time_s is not None:
+                groups.setdefault(pass_id(im.model.options), []).append(i)
+        except KeyError:
+            continue
+    return groups
+
+
 def n_passes(job: "Job") -> int:
     """The passes of the job's images whose model propagates one orbit (and whose orders are valid)."""
     ids = set()

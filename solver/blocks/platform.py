@@ -13,17 +13,23 @@ Terms label this kind ``image`` with an image's index (the block of that image).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from solver.blocks.kind import BlockDefaults
+from solver.blocks.platform_values import initial_platform_values
 from solver.errors import Problem
-from solver.platforms import get_model
+from solver.geometry.geodesy import A_WGS84_M, E2_WGS84, LocalFrame
+from solver.kernels.layout import N_KEPLER_CONST
+from solver.platforms import HELD, PlatformModel, get_model
+from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
+from solver.schema.job import Camera
 
 if TYPE_CHECKING:  # pragma: no cover
-    from solver.schema.job import Job
+    from solver.schema.job import Image, Job
     from solver.schema.settings import BlockConfig
     from solver.state import AdjustmentState, ImageState
 
@@ -53,6 +59,48 @@ class PlatformBlock:
     @property
     def nfree(self) -> int:
         return int(self.params.shape[0])
+
+
+def kepler_constants(model: PlatformModel, frame: LocalFrame, mounting_pitch_deg: float = 0.0) -> np.ndarray:
+    kc = np.zeros(N_KEPLER_CONST)
+    kc[16] = math.radians(mounting_pitch_deg)
+    kc[0:9] = frame.rotation_ecef_to_lgs.ravel()
+    kc[9:12] = frame.origin_ecef_m
+    kc[12] = GM_M3_S2
+    kc[13] = OMEGA_RAD_S
+    kc[14] = J2 if model.j2 else 0.0
+    kc[15] = AE_M
+    return kc
+
+
+def rpc_constants(image: Image, frame: LocalFrame) -> np.ndarray:
+    """kc of an RPC image (layout in :mod:`solver.kernels.rpc`): frame, ellipsoid, and the RPC
+    converted to our pixel convention (the one place where ``pixel_convention`` is applied)."""
+    from solver.geometry.rpc import RPC  # here: validation imports this module in the API process (no numba)
+    from solver.kernels.rpc import KC_A, KC_E2, RPC_LEN, RPC_START
+    rpc = RPC.from_job(image.rpc.model_dump(mode="json"))
+    kc = np.zeros(RPC_START + RPC_LEN)
+    kc[0:9] = frame.rotation_ecef_to_lgs.ravel()
+    kc[9:12] = frame.origin_ecef_m
+    kc[KC_A] = A_WGS84_M
+    kc[KC_E2] = E2_WGS84
+    r = kc[RPC_START:]
+    r[0:10] = (
+        rpc.line_off, rpc.samp_off, rpc.lat_off, rpc.long_off, rpc.height_off,
+        rpc.line_scale, rpc.samp_scale, rpc.lat_scale, rpc.long_scale, rpc.height_scale,
+    )
+    r[10:90] = np.concatenate([rpc.line_num, rpc.line_den, rpc.samp_num, rpc.samp_den])
+    return kc
+
+
+def platform_constants(model: PlatformModel, image: "Image", frame: LocalFrame, cameras: dict[str, Camera]) -> tuple[Camera | None, np.ndarray, float]:
+    """(camera, constants ``kc``, tau per line) of an image's platform model: a kind with a
+    camera has its camera, the frame, the orbit constants and its time scale; a kind without
+    (an RPC image) the RPC and the frame, no camera."""
+    if not model.kind.has_camera:  # the RPC and the frame are the image's constants
+        return None, rpc_constants(image, frame), 0.0
+    cam = cameras[image.camera]
+    return cam, kepler_constants(model, frame, cam.mounting_pitch_deg), model.tau_per_line(cam.line_time_s or 0.0)
 
 
 def _attitude_blocks(entries) -> list[list[int]]:
@@ -87,6 +135,12 @@ def image_attitude_blocks(images: list["ImageState"]) -> list[list[int]]:
     """:func:`_attitude_blocks` of a problem's images (with the models actually adjusted,
     which a model comparison may override)."""
     return _attitude_blocks((img.model, img.options, img.camera.id if img.camera else None) for img in images)
+
+
+def attitude_time_offset(img: "ImageState") -> float:
+    """Time (tau units) added to the image's tau to give the time of its angle polynomials (pass
+    images sharing a camera's attitude: the time since the pass reference epoch)."""
+    return img.model.kind.attitude_time_offset(img.kc)
 
 
 def attitude_groups(problem: "AdjustmentState") -> dict[int, list[str]]:
@@ -167,10 +221,137 @@ def _shared_unknowns(job: "Job") -> int:
     return n
 
 
+def model_option_problems(model: PlatformModel, options: dict[str, Any], loc: tuple) -> list[Problem]:
+    """Options the model does not take, orders of elements it does not order, a held position,
+    or nothing left to estimate (``loc`` is the image's ``model``)."""
+    out = [
+        Problem(
+            "invalid_model_options",
+            f"model {model.name} has no option {key!r}"
+            + (f" (its options: {', '.join(sorted(model.option_names))})" if model.option_names else ""),
+            (*loc, "options", key),
+        )
+        for key in options
+        if key not in model.option_names
+    ]
+    orders = options.get("orders") or {}
+    for e, order in orders.items():
+        if e not in model.order_elements():
+            out.append(
+                Problem(
+                    "invalid_model_options",
+                    f"model {model.name} takes orders of {', '.join(model.order_elements())} only",
+                    (*loc, "options", "orders", e),
+                )
+            )
+        elif e in ("X", "Y", "Z") and order == HELD:
+            out.append(
+                Problem(
+                    "invalid_model_options",
+                    f"the position element {e} cannot be held (order -1 holds an angle at <angle>_deg)",
+                    (*loc, "options", "orders", e),
+                )
+            )
+    if not out and not model.kind.shares_pass_orbit and not model.parameters(options):
+        out.append(
+            Problem(
+                "invalid_model_options",
+                f"model {model.name} with these orders estimates no parameter",
+                (*loc, "options", "orders"),
+            )
+        )
+    return out
+
+
+def rpc_image_problems(job: Job, im: Image, i: int, model: PlatformModel) -> list[Problem]:
+    """Problems of an image with an RPC or an RPC bias model: both or neither; an RPC image has
+    no camera, platform data, lines or self-calibration; its RPC must be usable (non-zero scales,
+    non-zero constant denominator terms); ``initial`` and ``bias_prior`` name its parameters."""
+    loc = ("images", i)
+    if model.kind.has_camera:
+        return [Problem("rpc_with_rigorous_model", f"image {im.id!r} has an rpc but the rigorous model {model.name}; "
+                        "use an RPC bias model (RPC-SHIFT, RPC-DRIFT, RPC-AFFINE) or leave rpc out", loc + ("rpc",))]
+    if im.rpc is None:
+        return [Problem("missing_rpc", f"image {im.id!r}: model {model.name} needs images[].rpc (an RPC00B)", loc + ("rpc",))]
+    out = []
+    for name in ("camera", "approx_state", "first_line_time_s", "ephemeris", "attitude"):
+        if getattr(im, name):
+            out.append(Problem("not_for_rpc_image", f"image {im.id!r} is an RPC image: {name} does not apply "
+                               "(the RPC is its whole sensor model)", loc + (name,)))
+    for name in ("line_scale", "samp_scale", "lat_scale", "long_scale", "height_scale"):
+        if getattr(im.rpc, name) == 0:
+            out.append(Problem("invalid_rpc", f"image {im.id!r}: rpc {name} is 0", loc + ("rpc", name)))
+    for name in ("line_den_coeff", "samp_den_coeff"):
+        if getattr(im.rpc, name)[0] == 0:
+            out.append(Problem("invalid_rpc", f"image {im.id!r}: the constant term of rpc {name} is 0", loc + ("rpc", name, 0)))
+    names = {p.name for p in model.parameters({})}
+    for name in ("initial", "bias_prior"):
+        unknown = sorted(set(getattr(im, name)) - names)
+        if unknown:
+            out.append(Problem("unknown_parameter", f"image {im.id!r}: model {model.name} has no parameter(s) "
+                               f"{', '.join(unknown)}", loc + (name, unknown[0])))
+    if model.options_doc == {} and im.model.options:
+        out.append(Problem("invalid_model_options", f"image {im.id!r}: model {model.name} takes no options", loc + ("model", "options")))
+    for k, ln in enumerate(job.lines):
+        if any(o.image == im.id for o in ln.observations):
+            out.append(Problem("not_for_rpc_image", f"line {ln.id!r} is observed in RPC image {im.id!r}: line observations "
+                               "need a rigorous model (their condition uses the projection centre and the image ray)",
+                               ("lines", k, "observations")))
+    return out
+
+
+def image_problems(job: "Job", i: int, cameras: dict[str, Any], state_of: Callable[[], Any]) -> tuple[list[Problem], Any, int | None]:
+    """Validation of image ``i``'s platform block: its model, options, initial values, its RPC
+    (RPC images) and, for a model that takes its position from the image's state, an initial
+    position (``state_of()``: its approximate state or None). Returns (problems, the model or
+    None, its number of parameters or None when they cannot be counted)."""
+    im = job.images[i]
+    problems: list[Problem] = []
+    try:
+        model = get_model(im.model.name)
+    except KeyError as exc:
+        return [Problem("unknown_model", str(exc.args[0]), ("images", i, "model", "name"))], None, None
+    if not model.kind.has_camera or im.rpc is not None:
+        rpc_issues = rpc_image_problems(job, im, i, model)
+        return rpc_issues, model, None if rpc_issues else len(model.parameters({}))
+    if im.camera not in cameras:
+        problems.append(
+            Problem("unknown_camera", f"image {im.id!r} uses unknown camera {im.camera!r}", ("images", i, "camera"))
+        )
+    option_problems = model_option_problems(model, im.model.options, ("images", i, "model"))
+    if option_problems:
+        return problems + option_problems, model, None
+    try:
+        params = model.parameters(im.model.options)
+    except ValueError as exc:
+        return problems + [Problem("invalid_model_options", str(exc), ("images", i, "model", "options"))], model, None
+    names = {p.name for p in params}
+    unknown = sorted(set(im.initial) - names)
+    if unknown:
+        problems.append(
+            Problem(
+                "unknown_parameter",
+                f"image {im.id!r}: model {model.name} has no parameter(s) {', '.join(unknown)}",
+                ("images", i, "initial"),
+            )
+        )
+    if model.kind.position_from_image_state and state_of() is None and not {"X0", "Y0", "Z0"} <= set(im.initial):
+        problems.append(
+            Problem(
+                "no_initial_position",
+                f"image {im.id!r} needs approx_state (position/velocity at line 0), an ephemeris "
+                "covering first_line_time_s, or initial values for X0, Y0, Z0 (and the other "
+                "position terms)",
+                ("images", i, "approx_state"),
+            )
+        )
+    return problems, model, len(params)
+
+
 class ImageKind(BlockDefaults):
-    """The images' platform parameters: one block per image or per shared attitude. Its values
-    are initialised and reported with the images (:mod:`solver.engine.initialize`, the report's
-    ``images`` section: they are the core); this kind builds, shares, counts and names them."""
+    """The images' platform parameters: one block per image or per shared attitude. This kind
+    checks, builds, shares, counts, initialises (:mod:`solver.blocks.platform_values`) and names
+    them; they are reported with the images (the report's ``images`` section, the core's)."""
 
     name = "image"
 
@@ -194,6 +375,10 @@ class ImageKind(BlockDefaults):
 
     def addressed(self, problem: "AdjustmentState") -> list[Any]:
         return [img.platform for img in problem.images]
+
+    def initialise(self, problem: "AdjustmentState", states: dict[int, Any]) -> list[Problem]:
+        """Position from the approximate states, attitude by resection (:mod:`solver.blocks.platform_values`)."""
+        return initial_platform_values(problem, states)
 
     def names(self, problem: "AdjustmentState") -> list[str]:
         out = []

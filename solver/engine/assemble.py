@@ -7,56 +7,22 @@ into the LGS inside the kernel (:mod:`solver.kernels`).
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
 from solver.blocks import registry as blocks
-from solver.geometry.geodesy import A_WGS84_M, E2_WGS84, LocalFrame, to_ecef
-from solver.geometry.rpc import RPC
+from solver.blocks.platform import kepler_constants, platform_constants  # noqa: F401 (kepler_constants: the tests' scenes use it)
+from solver.geometry.geodesy import A_WGS84_M, LocalFrame, to_ecef
 from solver.geometry.sensor import chip_indices, chip_of_index
-from solver.kernels import N_COEF, N_KEPLER_CONST, N_OBS_CONST
-from solver.kernels.rpc import KC_A, KC_E2, RPC_LEN, RPC_START
+from solver.kernels import N_COEF, N_OBS_CONST
 from solver.observations.line_data import build_lines, control_line_points_ecef, lines_ecef
-from solver.platforms import PlatformModel, get_model
-from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
-from solver.schema.job import Image, Job
+from solver.platforms import get_model
+from solver.schema.job import Job
 from solver.schema.settings import BlockConfig, JobSettings
 from solver.state import AdjustmentState, ImageState, Observations, PointState
 
-
-def kepler_constants(model: PlatformModel, frame: LocalFrame, mounting_pitch_deg: float = 0.0) -> np.ndarray:
-    kc = np.zeros(N_KEPLER_CONST)
-    kc[16] = math.radians(mounting_pitch_deg)
-    kc[0:9] = frame.rotation_ecef_to_lgs.ravel()
-    kc[9:12] = frame.origin_ecef_m
-    kc[12] = GM_M3_S2
-    kc[13] = OMEGA_RAD_S
-    kc[14] = J2 if model.j2 else 0.0
-    kc[15] = AE_M
-    return kc
-
-
 RPC_CHIP = "1"  # chip name of RPC image observations (one image, no chips)
-
-
-def rpc_constants(image: Image, frame: LocalFrame) -> np.ndarray:
-    """kc of an RPC image (layout in :mod:`solver.kernels.rpc`): frame, ellipsoid, and the RPC
-    converted to our pixel convention (the one place where ``pixel_convention`` is applied)."""
-    rpc = RPC.from_job(image.rpc.model_dump(mode="json"))
-    kc = np.zeros(RPC_START + RPC_LEN)
-    kc[0:9] = frame.rotation_ecef_to_lgs.ravel()
-    kc[9:12] = frame.origin_ecef_m
-    kc[KC_A] = A_WGS84_M
-    kc[KC_E2] = E2_WGS84
-    r = kc[RPC_START:]
-    r[0:10] = (
-        rpc.line_off, rpc.samp_off, rpc.lat_off, rpc.long_off, rpc.height_off,
-        rpc.line_scale, rpc.samp_scale, rpc.lat_scale, rpc.long_scale, rpc.height_scale,
-    )
-    r[10:90] = np.concatenate([rpc.line_num, rpc.line_den, rpc.samp_num, rpc.samp_den])
-    return kc
 
 
 def _footprints_ecef(job: Job) -> list[np.ndarray]:
@@ -195,12 +161,7 @@ def build_problem(job: Job, models: dict[str, str] | None = None, config: BlockC
         model = get_model((models or {}).get(im.id, im.model.name))
         opts = dict(im.model.options)
         free = model.free_indices(opts)
-        if not model.kind.has_camera:  # the RPC and the frame are the image's constants
-            cam, kc, tau_per_line = None, rpc_constants(im, frame), 0.0
-        else:
-            cam = cameras[im.camera]
-            kc = kepler_constants(model, frame, cam.mounting_pitch_deg)
-            tau_per_line = model.tau_per_line(cam.line_time_s or 0.0)
+        cam, kc, tau_per_line = platform_constants(model, im, frame, cameras)
         images.append(
             ImageState(
                 id=im.id,

@@ -1,15 +1,8 @@
-"""Initial values: platform state from the header/ephemeris, attitude by a closed-form resection.
+"""Initial values: every block kind's (:mod:`solver.blocks.registry`), the images' platform
+blocks first (:mod:`solver.blocks.platform_values`: platform state from the header/ephemeris,
+attitude by a closed-form resection), then what builds on them (the pass states).
 
-1. Position coefficients from the image's approximate state at line 0 (ECEF position, velocity,
-   and the rotating-frame acceleration of a J2 orbit), converted to each model's frame and time
-   variable; or from the job's ``initial`` values.
-2. Attitude: the rotation that best aligns the image rays of the control points with their
-   object-space directions (Wahba's problem, solved by SVD), converted to (omega, phi, kappa);
-   without control on the image, the nominal attitude from the flight direction and the
-   camera's mounting pitch. Rates start at zero. Refining the angles (or a whole resection) on
-   the control points before the bundle was measured and rejected: it moves each image along
-   its weakly determined pitch / along-track-position direction away from the header state, and
-   the bundle then needs 51+ instead of 8 (triplet) or 26 (20 triplets) iterations.
+1.-2. The images' platform blocks, then the pass states (the block kinds' ``initialise``).
    Then each observation family refines what its observations determine
    (:meth:`solver.observations.family.ObservationFamily.initialise`): measured attitude fits the
    angles' polynomials to the weighted samples (an agile satellite looks 10-30 degrees off the
@@ -20,144 +13,31 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from solver.blocks import registry as blocks
+from solver.blocks.platform_values import angles_from_matrix, apply_initial, nominal_attitude, rotating_frame_acceleration
 from solver.engine.native import in_threads
 from solver.errors import JobError, Problem
-from solver.kernels import gravity_and_gradient, intersect_all, platform_state
+from solver.kernels import intersect_all
 from solver.observations import registry
 from solver.observations.ephemeris import image_state
-from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
-from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
-from solver.state import AdjustmentState, ImageState, grouped, is_kepler, rows_by_image
+from solver.state import AdjustmentState, grouped
 
-
-def angles_from_matrix(m: np.ndarray) -> tuple[float, float, float]:
-    """(omega, phi, kappa) in rad of M = Rx(omega) Ry(phi) Rz(kappa)."""
-    phi = math.asin(max(-1.0, min(1.0, m[0, 2])))
-    kappa = math.atan2(-m[0, 1], m[0, 0])
-    omega = math.atan2(-m[1, 2], m[2, 2])
-    return omega, phi, kappa
-
-
-def _rotating_frame_acceleration(r: np.ndarray, v: np.ndarray) -> np.ndarray:
-    g, _ = gravity_and_gradient(r, GM_M3_S2, J2, AE_M)
-    return g + np.array(
-        [OMEGA_RAD_S**2 * r[0] + 2 * OMEGA_RAD_S * v[1], OMEGA_RAD_S**2 * r[1] - 2 * OMEGA_RAD_S * v[0], 0.0]
-    )
-
-
-def _set_position_from_state(img: ImageState, frame, r_ecef: np.ndarray, v_ecef: np.ndarray) -> None:
-    c = img.base
-    if is_kepler(img):
-        for e in range(3):
-            c[e * 4] = r_ecef[e]
-            c[e * 4 + 1] = v_ecef[e]
-        return
-    dt_dtau = img.tau_per_line and (img.camera.line_time_s / img.tau_per_line)
-    a = _rotating_frame_acceleration(r_ecef, v_ecef)
-    s = frame.to_lgs(r_ecef)
-    v = frame.vector_to_lgs(v_ecef)
-    a = frame.vector_to_lgs(a)
-    orders = img.model.effective_orders(img.options)
-    for e in range(3):
-        c[e * 4] = s[e]
-        if orders[e] >= 1:
-            c[e * 4 + 1] = v[e] * dt_dtau
-        if orders[e] >= 2:
-            c[e * 4 + 2] = 0.5 * a[e] * dt_dtau**2
-
-
-def _apply_initial(img: ImageState) -> None:
-    """Overwrite coefficients with the job's ``initial`` values (report units)."""
-    specs = {p.name: p for p in img.model.parameters(img.options)}
-    for name, value in img.initial.items():
-        spec = specs[name]
-        img.base[spec.index] = value / spec.to_report
-
-
-def _wahba(obj_dirs: np.ndarray, cam_dirs: np.ndarray) -> np.ndarray:
-    """Rotation M minimising sum |c_i - M d_i|^2 (unit vectors as rows)."""
-    h = obj_dirs.T @ cam_dirs
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
-    return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-
-
-def _nominal_attitude(img: ImageState, frame, v_ecef: np.ndarray | None) -> tuple[float, float, float]:
-    if v_ecef is None:
-        return 0.0, math.radians(img.camera.mounting_pitch_deg), 0.0
-    v = frame.vector_to_lgs(v_ecef)
-    kappa = math.atan2(-v[1], v[0])
-    return 0.0, math.radians(img.camera.mounting_pitch_deg), kappa
+# kept importable from here (tests, bench/ceres_reference): the platform blocks' initial values
+__all__ = ["angles_from_matrix", "initialise", "intersect_estimated_points", "nominal_attitude", "rotating_frame_acceleration"]
+_nominal_attitude = nominal_attitude
+_rotating_frame_acceleration = rotating_frame_acceleration
 
 
 def initialise(problem: AdjustmentState) -> None:
-    """Fill every image's parameters and every estimated point's coordinates (in place)."""
+    """Fill every block's parameters and every estimated point's coordinates (in place): the
+    block kinds in the registry's order (the images' platform blocks, then what builds on them:
+    the pass states), the families' refinements, the job's own initial values, the tie points."""
     job = problem.job
-    frame = problem.frame
+    states = {img.index: image_state(doc, job.options) for img, doc in zip(problem.images, job.images)}  # header or ephemeris
     issues: list[Problem] = []
-    states: dict[int, object] = {}
-    seen = _ControlSeen(problem)
-    for img, im_doc in zip(problem.images, job.images):
-        specs = {p.name: p for p in img.model.parameters(img.options)}
-        unknown = sorted(set(im_doc.initial) - set(specs))
-        if unknown:
-            issues.append(
-                Problem(
-                    "unknown_parameter",
-                    f"image {img.id!r}: model {img.model.name} has no parameter(s) {', '.join(unknown)}",
-                    ("images", img.index, "initial"),
-                )
-            )
-            continue
-        if not img.model.kind.has_camera:  # an RPC bias: 0, or the job's initial values
-            _apply_initial(img)
-            img.params[:] = img.base[img.free_idx]
-            continue
-        v_ecef = None
-        state = image_state(im_doc, job.options)  # approx_state or the interpolated ephemeris
-        states[img.index] = state
-        if state is not None:
-            r_ecef = np.array(state.position_ecef_m, dtype=float)
-            v_ecef = np.array(state.velocity_ecef_m_s, dtype=float)
-            if img.model.kind.position_from_image_state:  # pass states: the pass blocks' initialise below
-                _set_position_from_state(img, frame, r_ecef, v_ecef)
-        elif img.model.kind.position_from_image_state:
-            pos_names = {"X0", "Y0", "Z0"}
-            if not pos_names <= set(im_doc.initial):
-                issues.append(
-                    Problem(
-                        "no_initial_position",
-                        f"image {img.id!r} needs approx_state (position/velocity at line 0), an "
-                        "ephemeris covering first_line_time_s, or initial values for its position "
-                        "parameters",
-                        ("images", img.index, "approx_state"),
-                    )
-                )
-                continue
-        # held angles
-        held = img.model.held_values_rad(img.options, img.camera.mounting_pitch_deg)
-        for e, val in held.items():
-            img.base[coef_index(e, 0)] = val
-        # user-given position-related values before the attitude resection
-        _apply_initial(img)
-        img.params[:] = img.base[img.free_idx]
-        omega, phi, kappa = _attitude_by_resection(problem, img, v_ecef, seen)
-        orders = img.model.effective_orders(img.options)
-        for e, val in zip(ANGLES, (omega, phi, kappa)):
-            if orders[ELEMENTS.index(e)] != HELD:
-                img.base[coef_index(e, 0)] = val
-        if state is not None and state.attitude_deg is not None:
-            for e, val in zip(ANGLES, state.attitude_deg):
-                if orders[ELEMENTS.index(e)] != HELD:
-                    img.base[coef_index(e, 0)] = math.radians(val)
-        _apply_initial(img)
-        img.params[:] = img.base[img.free_idx]
-    for kind in blocks.BLOCK_KINDS:  # e.g. the pass states from the image states nearest their epochs
+    for kind in blocks.BLOCK_KINDS:  # the platform blocks, then e.g. the pass states from the image states nearest their epochs
         issues += kind.initialise(problem, states)
     if issues:
         raise JobError(issues)
@@ -165,61 +45,9 @@ def initialise(problem: AdjustmentState) -> None:
         family.initialise(problem)
     for img in problem.images:  # the job's own initial values win
         if img.initial:
-            _apply_initial(img)
+            apply_initial(img)
             img.params[:] = img.base[img.free_idx]
     intersect_estimated_points(problem)
-
-
-class _ControlSeen:
-    """Each image's observations of control points (``gcp``; ``known`` also with surveyed
-    coordinates), found once for all images."""
-
-    def __init__(self, problem: AdjustmentState):
-        obs = problem.obs
-        gcp = np.array([p.role == "gcp" for p in problem.points], dtype=bool)
-        known = gcp & np.array([p.known_lgs is not None for p in problem.points], dtype=bool)
-        self.rows = rows_by_image(obs.img, len(problem.images))
-        self.gcp_obs, self.known_obs = gcp[obs.pt], known[obs.pt]
-
-    def gcp(self, image: int) -> np.ndarray:
-        r = self.rows[image]
-        return r[self.gcp_obs[r]]
-
-    def known(self, image: int) -> np.ndarray:
-        r = self.rows[image]
-        return r[self.known_obs[r]]
-
-
-def _attitude_by_resection(problem: AdjustmentState, img: ImageState, v_ecef, seen: _ControlSeen) -> tuple[float, float, float]:
-    if img.model.kind.attitude_in_orbital_frame:
-        # relative to the orbital frame: nominally zero; without control in the image, the mean of
-        # its attitude samples (roll, pitch, yaw in that frame) when the job weights them
-        # (options.attitude): from zero, images pointed off nadir would start at nadir and the rays
-        # of tie points without control start (nearly) parallel. With control, zero as before: a
-        # start that close to the solution can end Ceres' iterations early on its relative step
-        # (measured: 0.49 px instead of 0.017 px on a WorldView-2 image with 4 control points).
-        samples = problem.job.images[img.index].attitude
-        controlled = len(seen.gcp(img.index)) > 0
-        if samples and problem.job.options.attitude is not None and not controlled:
-            return tuple(float(np.radians(np.mean([getattr(a, f) for a in samples]))) for f in ("roll_deg", "pitch_deg", "yaw_deg"))
-        return 0.0, 0.0, 0.0
-    obs = problem.obs
-    sel = seen.known(img.index)
-    if len(sel) < 3:
-        return _nominal_attitude(img, problem.frame, v_ecef)
-    coef = img.coef()
-    obj = []
-    cam = []
-    for k in sel:
-        oc = obs.oc[k]
-        s = platform_state(img.kind, coef, img.kc, oc[0] * oc[8])[0]
-        d = problem.points[obs.pt[k]].known_lgs - s
-        obj.append(d / np.linalg.norm(d))
-        y = (oc[1] - oc[7]) * oc[4] + oc[6]
-        c = np.array([oc[5], y, -oc[3]])
-        cam.append(c / np.linalg.norm(c))
-    m = _wahba(np.array(obj), np.array(cam))
-    return angles_from_matrix(m)
 
 
 def intersect_estimated_points(problem: AdjustmentState) -> None:

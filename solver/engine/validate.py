@@ -19,13 +19,14 @@ import numpy as np
 from pyproj.exceptions import ProjError
 
 from solver.blocks import registry as blocks
+from solver.blocks.platform import image_problems
 from solver.errors import JobError, Problem
 from solver.geometry.geodesy import UnknownCRSError, ecef_to_geodetic, parse_crs, to_ecef
 from solver.geometry.sensor import camera_chip, chip_indices, in_image_columns
 from solver.observations import registry
 from solver.observations.ephemeris import image_state
-from solver.platforms import HELD, PlatformModel, get_model
-from solver.schema.job import MAX_COMPARED_MODELS, Camera, Image, ImageObservation, Job
+from solver.platforms import get_model
+from solver.schema.job import MAX_COMPARED_MODELS, Camera, ImageObservation, Job
 
 # ellipsoidal heights of ground points: the deepest ocean trench to far above any aircraft
 MIN_HEIGHT_M = -5e4
@@ -71,48 +72,6 @@ def _column_problems(cam: Camera, o: ImageObservation, k: int) -> list[Problem]:
             return [Problem("outside_chip", msg, loc + ("column",))]
         return [Problem("outside_image", f"{what}: column {o.column} is on no CCD chip of camera {cam.id!r}", loc + ("column",))]
     return []
-
-def model_option_problems(model: PlatformModel, options: dict[str, Any], loc: tuple) -> list[Problem]:
-    """Options the model does not take, orders of elements it does not order, a held position,
-    or nothing left to estimate (``loc`` is the image's ``model``)."""
-    out = [
-        Problem(
-            "invalid_model_options",
-            f"model {model.name} has no option {key!r}"
-            + (f" (its options: {', '.join(sorted(model.option_names))})" if model.option_names else ""),
-            (*loc, "options", key),
-        )
-        for key in options
-        if key not in model.option_names
-    ]
-    orders = options.get("orders") or {}
-    for e, order in orders.items():
-        if e not in model.order_elements():
-            out.append(
-                Problem(
-                    "invalid_model_options",
-                    f"model {model.name} takes orders of {', '.join(model.order_elements())} only",
-                    (*loc, "options", "orders", e),
-                )
-            )
-        elif e in ("X", "Y", "Z") and order == HELD:
-            out.append(
-                Problem(
-                    "invalid_model_options",
-                    f"the position element {e} cannot be held (order -1 holds an angle at <angle>_deg)",
-                    (*loc, "options", "orders", e),
-                )
-            )
-    if not out and not model.kind.shares_pass_orbit and not model.parameters(options):
-        out.append(
-            Problem(
-                "invalid_model_options",
-                f"model {model.name} with these orders estimates no parameter",
-                (*loc, "options", "orders"),
-            )
-        )
-    return out
-
 
 def coordinate_problems(job: Job) -> list[Problem]:
     """Ground coordinates (points and line endpoints) that do not transform to ECEF or are not
@@ -208,43 +167,6 @@ def comparison_problems(models: list[str], location: tuple[str | int, ...]) -> l
     return out
 
 
-def rpc_image_problems(job: Job, im: Image, i: int, model: PlatformModel) -> list[Problem]:
-    """Problems of an image with an RPC or an RPC bias model: both or neither; an RPC image has
-    no camera, platform data, lines or self-calibration; its RPC must be usable (non-zero scales,
-    non-zero constant denominator terms); ``initial`` and ``bias_prior`` name its parameters."""
-    loc = ("images", i)
-    if model.kind.has_camera:
-        return [Problem("rpc_with_rigorous_model", f"image {im.id!r} has an rpc but the rigorous model {model.name}; "
-                        "use an RPC bias model (RPC-SHIFT, RPC-DRIFT, RPC-AFFINE) or leave rpc out", loc + ("rpc",))]
-    if im.rpc is None:
-        return [Problem("missing_rpc", f"image {im.id!r}: model {model.name} needs images[].rpc (an RPC00B)", loc + ("rpc",))]
-    out = []
-    for field in ("camera", "approx_state", "first_line_time_s", "ephemeris", "attitude"):
-        if getattr(im, field):
-            out.append(Problem("not_for_rpc_image", f"image {im.id!r} is an RPC image: {field} does not apply "
-                               "(the RPC is its whole sensor model)", loc + (field,)))
-    for field in ("line_scale", "samp_scale", "lat_scale", "long_scale", "height_scale"):
-        if getattr(im.rpc, field) == 0:
-            out.append(Problem("invalid_rpc", f"image {im.id!r}: rpc {field} is 0", loc + ("rpc", field)))
-    for field in ("line_den_coeff", "samp_den_coeff"):
-        if getattr(im.rpc, field)[0] == 0:
-            out.append(Problem("invalid_rpc", f"image {im.id!r}: the constant term of rpc {field} is 0", loc + ("rpc", field, 0)))
-    names = {p.name for p in model.parameters({})}
-    for field in ("initial", "bias_prior"):
-        unknown = sorted(set(getattr(im, field)) - names)
-        if unknown:
-            out.append(Problem("unknown_parameter", f"image {im.id!r}: model {model.name} has no parameter(s) "
-                               f"{', '.join(unknown)}", loc + (field, unknown[0])))
-    if model.options_doc == {} and im.model.options:
-        out.append(Problem("invalid_model_options", f"image {im.id!r}: model {model.name} takes no options", loc + ("model", "options")))
-    for k, ln in enumerate(job.lines):
-        if any(o.image == im.id for o in ln.observations):
-            out.append(Problem("not_for_rpc_image", f"line {ln.id!r} is observed in RPC image {im.id!r}: line observations "
-                               "need a rigorous model (their condition uses the projection centre and the image ray)",
-                               ("lines", k, "observations")))
-    return out
-
-
 def _camera_problems(job: Job) -> list[Problem]:
     """Cameras still naming a library camera, and duplicate chips."""
     problems: list[Problem] = []
@@ -265,60 +187,18 @@ def _camera_problems(job: Job) -> list[Problem]:
 
 
 def _image_problems(job: Job, cameras: dict[str, Camera]) -> tuple[list[Problem], int, list[dict[str, Any]]]:
-    """Each image's model, options, initial values and initial position: (problems, unknowns
-    of the images' own parameters, the per-image summary of the counts)."""
+    """Each image's model, options, initial values and initial position (the platform blocks'
+    checks, :func:`solver.blocks.platform.image_problems`): (problems, unknowns of the images'
+    own parameters, the per-image summary of the counts)."""
     problems: list[Problem] = []
     n_unknowns = 0
     image_info = []
     for i, im in enumerate(job.images):
-        try:
-            model = get_model(im.model.name)
-        except KeyError as exc:
-            problems.append(Problem("unknown_model", str(exc.args[0]), ("images", i, "model", "name")))
-            continue
-        if not model.kind.has_camera or im.rpc is not None:
-            rpc_issues = rpc_image_problems(job, im, i, model)
-            problems += rpc_issues
-            if not rpc_issues:
-                n_unknowns += len(model.parameters({}))
-                image_info.append({"id": im.id, "model": model.name, "n_parameters": len(model.parameters({}))})
-            continue
-        if im.camera not in cameras:
-            problems.append(
-                Problem("unknown_camera", f"image {im.id!r} uses unknown camera {im.camera!r}", ("images", i, "camera"))
-            )
-        option_problems = model_option_problems(model, im.model.options, ("images", i, "model"))
-        if option_problems:
-            problems += option_problems
-            continue
-        try:
-            params = model.parameters(im.model.options)
-        except ValueError as exc:
-            problems.append(Problem("invalid_model_options", str(exc), ("images", i, "model", "options")))
-            continue
-        names = {p.name for p in params}
-        unknown = sorted(set(im.initial) - names)
-        if unknown:
-            problems.append(
-                Problem(
-                    "unknown_parameter",
-                    f"image {im.id!r}: model {model.name} has no parameter(s) {', '.join(unknown)}",
-                    ("images", i, "initial"),
-                )
-            )
-        state = image_state(im, job.options)  # approx_state or the interpolated ephemeris
-        if state is None and model.kind.position_from_image_state and not {"X0", "Y0", "Z0"} <= set(im.initial):
-            problems.append(
-                Problem(
-                    "no_initial_position",
-                    f"image {im.id!r} needs approx_state (position/velocity at line 0), an ephemeris "
-                    "covering first_line_time_s, or initial values for X0, Y0, Z0 (and the other "
-                    "position terms)",
-                    ("images", i, "approx_state"),
-                )
-            )
-        n_unknowns += len(params)
-        image_info.append({"id": im.id, "model": model.name, "n_parameters": len(params)})
+        issues, model, n_params = image_problems(job, i, cameras, lambda im=im: image_state(im, job.options))
+        problems += issues
+        if n_params is not None:
+            n_unknowns += n_params
+            image_info.append({"id": im.id, "model": model.name, "n_parameters": n_params})
     return problems, n_unknowns, image_info
 
 

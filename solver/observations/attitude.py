@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from solver.blocks.platform import attitude_blocks, image_attitude_blocks
+from solver.blocks.platform import attitude_blocks, attitude_time_offset, image_attitude_blocks
 from solver.errors import Problem
 from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled, ReportContext, per_row_groups
 from solver.observations.passes import pass_line_span
@@ -115,6 +115,7 @@ def attitude_problems(job: "Job") -> list[tuple[str, str, tuple]]:
     out: list[tuple[str, str, tuple]] = []
     if job.options.attitude is None:
         return out
+    blocked = {i for block in attitude_blocks(job) for i in block}  # the images whose attitude is relative to the orbital frame
     for i, im in enumerate(job.images):
         if not im.attitude:
             continue
@@ -122,7 +123,7 @@ def attitude_problems(job: "Job") -> list[tuple[str, str, tuple]]:
             model = get_model(im.model.name)
         except KeyError:
             continue  # reported by the model check
-        if not model.kind.attitude_in_orbital_frame:
+        if i not in blocked:
             out.append(
                 (
                     "attitude_needs_orbital_frame",
@@ -159,7 +160,7 @@ def _block_terms(problem: "AdjustmentState") -> list[tuple[list[int], AttitudeTe
             continue
         img = problem.images[block[0]]
         t_first = job.images[block[0]].first_line_time_s
-        offset = img.model.kind.attitude_time_offset(img.kc)
+        offset = attitude_time_offset(img)
         where = {int(j): q for q, j in enumerate(img.free_idx)}
         rows_a, rows_b, rows_w = [], [], []
         for sample in samples:

@@ -37,9 +37,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from solver.blocks.platform_values import is_kepler
 from solver.errors import Problem
 from solver.schema.job import ApproxState, Image, SolverOptions
-from solver.state import is_kepler
 
 if TYPE_CHECKING:  # pragma: no cover
     from solver.state import AdjustmentState

@@ -12,13 +12,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from solver.blocks.passes import pass_problems
-from solver.blocks.platform import pass_id
+from solver.blocks.passes import pass_images, pass_problems
 from solver.errors import Problem
 from solver.kernels.layout import N_KEPLER_CONST, NODE_STEP_S, PASS_NODES, PASS_STEP, PASS_T0, PASS_T_OFF, PASS_X0, segment_length
 from solver.observations.ephemeris import image_state, usable
 from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled
-from solver.platforms import get_model
 
 if TYPE_CHECKING:  # pragma: no cover
     from solver.schema.job import Job
@@ -148,13 +146,7 @@ def n_pass_state_observations(job: "Job") -> int:
 
     eph = job.options.ephemeris
     by_samples = eph is not None and eph.sigma_position_m is not None
-    groups: dict[str, list[int]] = {}
-    for i, im in enumerate(job.images):
-        try:
-            if get_model(im.model.name).kind.shares_pass_orbit and im.first_line_time_s is not None:
-                groups.setdefault(pass_id(im.model.options), []).append(i)
-        except KeyError:
-            continue
+    groups = pass_images(job)
     n = 0
     for imgs in groups.values():
         sampled = [i for i in imgs if by_samples and usable(job.images[i])]

@@ -17,11 +17,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from solver.blocks.platform_values import is_kepler
 from solver.errors import Problem
 from solver.observations.ephemeris import ephemeris_problems, ephemeris_report, image_state
 from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled, ReportContext
 from solver.platforms import coef_index, get_model
-from solver.state import AdjustmentState, ImageState, is_kepler
+from solver.state import AdjustmentState, ImageState
 
 if TYPE_CHECKING:
     from solver.schema.job import Job
@@ -91,7 +92,7 @@ class BiasPrior(StatePrior):
 def bias_prior(problem: AdjustmentState, img: ImageState) -> StatePrior | None:
     """Weighted a-priori values of an RPC image's bias parameters (``images[].bias_prior``,
     report units: px, px/px): ``r = (p_k - value) / sigma`` per named parameter."""
-    given = problem.job.images[img.index].bias_prior if not img.model.kind.has_camera else {}
+    given = problem.job.images[img.index].bias_prior if img.camera is None else {}  # an RPC image
     if not given:
         return None
     col = {s.name: q for q, s in enumerate(img.model.parameters(img.options))}
@@ -128,7 +129,7 @@ def _count(job: "Job") -> tuple[list[Problem], Count]:
             model = get_model(im.model.name)
         except KeyError:
             continue
-        if not model.kind.has_camera or im.rpc is not None:
+        if im.rpc is not None:  # an RPC image (validation refuses an RPC model without its RPC)
             n += len(im.bias_prior)
             continue
         problems += ephemeris_problems(im, i)
@@ -140,10 +141,11 @@ def _count(job: "Job") -> tuple[list[Problem], Count]:
         if state is None or state.sigma_position_m is None:
             continue
         datum.add("states")
-        if model.kind.position_from_image_state:  # pass states: solver.observations.passes
-            n += sum(1 for name in ("X0", "Y0", "Z0") if name in names)
-            if state.sigma_velocity_m_s is not None:
-                n += sum(1 for name in ("ux", "uy", "uz", "X1", "Y1", "Z1") if name in names)
+        # the image's own position parameters (a pass model has none: its states observe the
+        # pass, solver.observations.passes)
+        n += sum(1 for name in ("X0", "Y0", "Z0") if name in names)
+        if state.sigma_velocity_m_s is not None:
+            n += sum(1 for name in ("ux", "uy", "uz", "X1", "Y1", "Z1") if name in names)
     return problems, Count(n_observations=n, datum=frozenset(datum))
 
 
