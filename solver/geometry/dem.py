@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 from pyproj import CRS, Transformer
 
+from solver.geometry.geodesy import transformer
 from solver.geometry.vertical import VerticalDatum, resolve
 
 M_PER_DEG = 111_319.49  # metres per degree on WGS 84's equator (cell sizes of geographic DEMs)
@@ -66,7 +67,7 @@ class Dem:
 
     def __post_init__(self) -> None:
         self.values = np.asarray(self.values, dtype=float)
-        self._to_dem = Transformer.from_crs(CRS.from_epsg(4326), self.crs, always_xy=True)
+        self._to_dem = transformer("EPSG:4326", self.crs)
 
     @cached_property
     def cell_m(self) -> float:
@@ -82,7 +83,7 @@ class Dem:
         rows, cols = self.values.shape
         a, b, c, d, e, f = self.transform
         x, y = c + a * cols / 2 + b * rows / 2, f + d * cols / 2 + e * rows / 2
-        lon, lat = Transformer.from_crs(self.crs, CRS.from_epsg(4326), always_xy=True).transform(x, y)
+        lon, lat = transformer(self.crs, "EPSG:4326").transform(x, y)
         return float(lon), float(lat)
 
     def _pixel(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -170,7 +171,7 @@ def read_dem(path: Path | str, vertical: str | None = None, bounds_lon_lat: tupl
         window = Window(0, 0, src.width, src.height)
         if bounds_lon_lat is not None:
             w, s, e, n = bounds_lon_lat
-            to_dem = Transformer.from_crs(CRS.from_epsg(4326), horizontal, always_xy=True)
+            to_dem = transformer("EPSG:4326", horizontal)
             xs, ys = to_dem.transform([w, e, w, e], [s, s, n, n])
             win = from_bounds(min(xs), min(ys), max(xs), max(ys), src.transform)
             col0 = max(int(np.floor(win.col_off)) - margin_cells, 0)

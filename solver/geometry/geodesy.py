@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 from pyproj import CRS, Transformer
@@ -43,26 +44,40 @@ def parse_crs(crs: str) -> CRS:
         raise UnknownCRSError(f"unknown CRS {crs!r}: {exc}") from None
 
 
-@lru_cache(maxsize=64)
+def _crs_text(crs: Any) -> str:
+    """A CRS as text PROJ reads: a string as given, a CRS object (pyproj's, rasterio's) as its WKT."""
+    return crs if isinstance(crs, str) else crs.to_wkt()
+
+
+def transformer(src: Any, dst: Any) -> Transformer:
+    """The transformer from ``src`` to ``dst`` (EPSG codes, PROJ strings, WKT or CRS objects)
+    with ``always_xy``: the one place transformers are built, so every caller has the axis order
+    of this module (x, y, z); cached (building one takes up to 0.1 s)."""
+    return _transformer(_crs_text(src), _crs_text(dst))
+
+
+@lru_cache(maxsize=128)
+def _transformer(src: str, dst: str) -> Transformer:
+    return Transformer.from_crs(parse_crs(src), parse_crs(dst), always_xy=True)
+
+
 def _to_ecef(crs: str) -> Transformer:
-    return Transformer.from_crs(parse_crs(crs), parse_crs(ECEF_CRS), always_xy=True)
+    return transformer(crs, ECEF_CRS)
 
 
-@lru_cache(maxsize=64)
 def _from_ecef(crs: str) -> Transformer:
-    return Transformer.from_crs(parse_crs(ECEF_CRS), parse_crs(crs), always_xy=True)
+    return transformer(ECEF_CRS, crs)
 
 
 @lru_cache(maxsize=64)
 def _to_ecef_3d(crs: str) -> Transformer:
-    """From a 2D CRS promoted to 3D (ellipsoidal height carried through); building it takes
-    ~0.1 s, so it is cached like the others."""
-    return Transformer.from_crs(parse_crs(crs).to_3d(), parse_crs(ECEF_CRS), always_xy=True)
+    """From a 2D CRS promoted to 3D (ellipsoidal height carried through)."""
+    return transformer(parse_crs(crs).to_3d(), ECEF_CRS)
 
 
 @lru_cache(maxsize=64)
 def _from_ecef_3d(crs: str) -> Transformer:
-    return Transformer.from_crs(parse_crs(ECEF_CRS), parse_crs(crs).to_3d(), always_xy=True)
+    return transformer(ECEF_CRS, parse_crs(crs).to_3d())
 
 
 def to_ecef(xyz: np.ndarray, crs: str) -> np.ndarray:

@@ -10,9 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from pyproj import Transformer
 
-from solver.geometry.geodesy import parse_crs
+from solver.geometry.geodesy import transformer
 
 
 class Dem:
@@ -27,7 +26,7 @@ class Dem:
             self.inverse = ~src.transform
             if src.crs is None:
                 raise ValueError(f"{path}: the DEM has no CRS")
-            self._to_dem = Transformer.from_crs(parse_crs("EPSG:4326"), src.crs, always_xy=True)
+            self._to_dem = transformer("EPSG:4326", src.crs)
         finite = self.values[np.isfinite(self.values)]
         self.range_m = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
 

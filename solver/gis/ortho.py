@@ -29,9 +29,8 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from pyproj import Transformer
 
-from solver.geometry.geodesy import ecef_to_geodetic, geodetic_to_ecef, parse_crs
+from solver.geometry.geodesy import ecef_to_geodetic, geodetic_to_ecef, transformer
 from solver.gis.model import AdjustedImage
 from solver.gis.rpc_image import RpcImage
 
@@ -40,7 +39,7 @@ Progress = Callable[[float, str], None]
 
 
 def _bounds(image: AdjustedImage, crs: str, heights: tuple[float, float], gsd: float):
-    to_crs = Transformer.from_crs(parse_crs("EPSG:4326"), parse_crs(crs), always_xy=True)
+    to_crs = transformer("EPSG:4326", crs)
     t = np.linspace(0.0, 1.0, 16)
     L, C = image.lines - 1.0, image.columns - 1.0
     line = np.concatenate([0 * t, t * L, L + 0 * t, t * L])
@@ -121,7 +120,7 @@ def orthorectify(
     elif method == "rigorous":
         from solver.gis.ortho_kernel import sample_block
 
-        to_geo = Transformer.from_crs(parse_crs(crs), parse_crs("EPSG:4326"), always_xy=True)
+        to_geo = transformer(crs, "EPSG:4326")
         rs, cs = _nodes(ny), _nodes(nx)
         rr, cc = np.meshgrid(rs, cs, indexing="ij")
         lon, lat = to_geo.transform(x0 + (cc.ravel() + 0.5) * gsd, y1 - (rr.ravel() + 0.5) * gsd)

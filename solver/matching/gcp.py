@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from solver.geometry.geodesy import transformer
 from solver.matching.features import MatchSettings
 from solver.matching.orientation import MatchImage, OrientationError
 from solver.matching.raster import RasterError
@@ -85,16 +86,12 @@ class Georaster:
         return cls(path, ds, gated)
 
     def to_lonlat(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        from pyproj import Transformer
-
-        t = Transformer.from_crs(self.dataset.crs.to_wkt(), "EPSG:4326", always_xy=True)
+        t = transformer(self.dataset.crs, "EPSG:4326")
         lon, lat = t.transform(x, y)
         return np.asarray(lon, float), np.asarray(lat, float)
 
     def from_lonlat(self, lon: np.ndarray, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        from pyproj import Transformer
-
-        t = Transformer.from_crs("EPSG:4326", self.dataset.crs.to_wkt(), always_xy=True)
+        t = transformer("EPSG:4326", self.dataset.crs)
         x, y = t.transform(lon, lat)
         return np.asarray(x, float), np.asarray(y, float)
 

@@ -21,13 +21,14 @@ at southern latitudes (phi close to -90 deg), which ruins conditioning.
 
 from __future__ import annotations
 
+from solver.geometry.geodesy import A_WGS84_M
 from solver.platforms.kinds import KEPLER
 from solver.platforms.registry import PlatformModel, register
 
 GM_M3_S2 = 3.986005e14  # seed 000 (GRS80)
 OMEGA_RAD_S = 7.292115e-5
 J2 = 1.08263e-3
-AE_M = 6378137.0
+AE_M = A_WGS84_M  # the semi-major axis (the same in GRS80 and WGS 84)
 
 _EQ = "S(t)=S0+u t+1/2 a(S0,u) t^2 (ECEF, rotating frame); omega, phi const; kappa poly in t"
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from solver.geometry.geodesy import geodetic_to_ecef
+from solver.geometry.geodesy import A_WGS84_M, geodetic_to_ecef
 
 # EGM2008 normalized zonal coefficients Cbar_n0, n = 2, 3, 4
 _CBAR_N0 = {2: -4.84165143790815e-4, 3: 9.57161207093473e-7, 4: 5.39965866638991e-7}
@@ -47,7 +47,7 @@ class EarthModel:
     """
 
     gm_m3_s2: float = 3.986004418e14
-    radius_m: float = 6378137.0
+    radius_m: float = A_WGS84_M
     omega_rad_s: float = 7.292115e-5
     zonal: dict[int, float] = field(default_factory=lambda: dict(J_EGM2008))
 
