@@ -33,18 +33,20 @@ ceres-headers:
 	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends libceres-dev >/dev/null) || \
 	  echo "could not install libceres-dev: solves will use the slower Python cost functions"; }
 
-# the compiled cost functions (solver/engine/native), rebuilt when their source or pyceres changes
+# the compiled cost functions (solver/engine/native), rebuilt when their source or pyceres changes,
+# then the numba kernels compiled into the installation's cache (solver/__pycache__) that every
+# process finds: one to three minutes of CPU once per installation and version of the kernels,
+# seconds when they are there already (pba warmup)
 native: $(STAMP) ceres-headers
 	$(BIN)/python scripts/build_native.py $(NATIVE_FLAGS)
+	$(BIN)/pba warmup
 
 # PostgreSQL and Redis on 127.0.0.1 for the scale-out tests: start them if they are not running.
 services:
 	@bash scripts/ensure-services.sh
 
-# pba warmup: the numba kernels compiled into their disk cache before the server starts
-# (one to two minutes the first time, a few seconds after), so no job waits for the compiler
+# native compiles the numba kernels too (pba warmup), so no job waits for the compiler
 serve: $(STAMP) native
-	$(BIN)/pba warmup
 	$(BIN)/pba serve --host 127.0.0.1 --port 8000
 
 # the tests run both evaluation paths; here the compiled one must exist (PBA_REQUIRE_NATIVE)

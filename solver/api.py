@@ -71,6 +71,29 @@ class ProgressFn(Protocol):
     def __call__(self, fraction: float, message: str, info: dict[str, Any] | None = None) -> None: ...
 
 
+KERNELS_COMPILING = "kernels_compiling"  # key of the progress info of a compiling notice
+
+
+@contextmanager
+def _kernel_notices(progress: ProgressFn | None) -> Iterator[ProgressFn | None]:
+    """The progress function, which also hears (at the fraction reached, with
+    ``info[KERNELS_COMPILING] = True``) when kernels missing from the cache compile, a minute or
+    more that would otherwise look like a hang (solver/kernels/cache.py)."""
+    if progress is None:
+        yield None
+        return
+    reached = [0.0]
+
+    def tracked(fraction: float, message: str, info: dict[str, Any] | None = None) -> None:
+        reached[0] = max(reached[0], fraction)
+        progress(fraction, message, info)
+
+    from solver.kernels.cache import compile_notices
+
+    with compile_notices(lambda message: progress(reached[0], message, {KERNELS_COMPILING: True})):
+        yield tracked
+
+
 CancelFn = Callable[[], bool]
 
 
@@ -113,7 +136,7 @@ def run(
             return compare(j, j.options.models, progress=progress, cancel=cancel, validated=validated)
         from solver.adjust import adjust_job
 
-        with _input_faults_as_job_errors(), handed_validation(j, validated):
+        with _input_faults_as_job_errors(), handed_validation(j, validated), _kernel_notices(progress) as progress:
             return adjust_job(j, progress=progress, cancel=cancel)
 
 
@@ -136,7 +159,7 @@ def compare(
     ``validated`` as in :func:`run`: the job is not checked again for each model."""
     from solver.compare import compare_models
 
-    with _input_faults_as_job_errors():
+    with _input_faults_as_job_errors(), _kernel_notices(progress) as progress:
         return compare_models(_as_job(job), models, progress=progress, cancel=cancel, validated=validated)
 
 

@@ -67,6 +67,10 @@ class ProgressBar:
         self.t0 = time.perf_counter()
 
     def __call__(self, fraction: float, message: str, info: dict[str, Any] | None = None) -> None:
+        if info and info.get("kernels_compiling"):  # a notice of its own line, bar or not
+            self.stream.write(("\n" if self.enabled else "") + message + "\n")
+            self.stream.flush()
+            return
         if not self.enabled:
             return
         n = int(round(fraction * self.width))

@@ -2,16 +2,17 @@
 
 The kernels are compiled on first use and cached on disk (``cache=True``) in a directory keyed
 on a digest of the kernel sources (:mod:`solver.kernels.cache`: ``pba-kernels-<digest>`` under
-``NUMBA_CACHE_DIR``, or ``solver/__pycache__``), so a warm-up after an upgrade compiles the new
-kernels instead of loading the old ones. A cold compile of every kernel takes one to two minutes on a small
-machine; a cached one loads in about a second. Without a warm-up that minute is paid by the
-first job a fresh server or worker runs, while its user watches the progress stand still.
+the installation's ``solver/__pycache__``, which every process of the installation finds), so a
+warm-up after an upgrade compiles the new kernels instead of loading the old ones. A cold
+compile of every kernel takes one to three minutes of CPU on a small machine; a cached one loads
+in a few seconds. Without a warm-up those minutes are paid by the first job a fresh installation
+runs (its progress then says that kernels are compiling).
 
 :func:`compile_kernels` adjusts a few tiny simulated jobs that between them reach every kernel
 (every platform-model kind with its Jacobians, self-calibration, ephemeris observations, the
 propagated pass state, straight lines with both line models, covariance and check points).
-The Docker image runs it at build time; ``make serve`` and the test suite run it once before
-they start processes that solve.
+``make native`` (and so ``make serve`` and ``make test``) and the Docker build run it once per
+installation.
 """
 
 from __future__ import annotations
@@ -75,19 +76,23 @@ def compile_kernels(say: Say | None = None) -> float:
     """Run the warm-up adjustments (compiling or loading every kernel); their total seconds."""
     from solver.api import run
     from solver.engine import native
+    from solver.kernels.cache import compile_notices
 
     t0 = time.perf_counter()
     state = native.status()
     if say is not None:
         prefix = "" if state.path == "compiled" else "WARNING: "
         say(f"{prefix}residual evaluation: {state.path} ({state.reason})")
-    if state.path == "compiled":  # every C callback, those no warm-up job reaches too
-        from solver.kernels import callbacks
+    with compile_notices(say or (lambda _message: None)):
+        if state.path == "compiled":  # every C callback, those no warm-up job reaches too
+            from solver.kernels import callbacks
 
-        callbacks.load_all()
-    for label, job in warmup_jobs():
-        t = time.perf_counter()
-        report = run(job)
-        if say is not None:
-            say(f"{label}: {time.perf_counter() - t:.1f} s, sigma0 {report['adjustment']['sigma0_aposteriori']:.2f}")
+            callbacks.load_all()
+        jobs = list(warmup_jobs())
+        for k, (label, job) in enumerate(jobs, 1):
+            t = time.perf_counter()
+            report = run(job)
+            if say is not None:
+                say(f"{label}: {time.perf_counter() - t:.1f} s, sigma0 {report['adjustment']['sigma0_aposteriori']:.2f} "
+                    f"(job {k} of {len(jobs)})")
     return time.perf_counter() - t0

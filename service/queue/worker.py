@@ -40,18 +40,33 @@ def worker_id(pid: int | None = None) -> str:
 
 
 def warm_up() -> None:
-    """Import the solver (and pyceres) before the first job, so its latency is not paid then."""
+    """Import the solver (and pyceres) before the first job, so its latency is not paid then.
+    Kernels missing from the installation's cache compile here, before the worker takes a job,
+    and the log says so (a minute or more)."""
     import solver.api  # noqa: F401
 
     try:
         import solver.adjust  # noqa: F401
-        import solver.kernels.lines  # noqa: F401  (loaded lazily by a solve: here from the disk cache, before the first job)
-        from solver.engine import native
+        from solver.kernels.cache import compile_notices
 
-        if native.module() is not None:
-            from solver.kernels import callbacks
+        said: list[str] = []
 
-            callbacks.load_all()  # the compiled path's C callbacks (loaded on first use otherwise)
+        def say(message: str) -> None:
+            said.append(message)
+            log.warning(message)
+
+        with compile_notices(say):
+            import solver.kernels.lines  # noqa: F401  (loaded lazily by a solve: here from the disk cache, before the first job)
+            from solver.engine import native
+
+            if native.module() is not None:
+                from solver.kernels import callbacks
+
+                callbacks.load_all()  # the compiled path's C callbacks (loaded on first use otherwise)
+        if said:  # a cold cache (no warm-up at installation): every other kernel now, not in the first jobs
+            from solver.warmup import compile_kernels
+
+            compile_kernels(say=log.warning)
     except (ImportError, RuntimeError) as exc:  # RuntimeError: PBA_EVALUATION=compiled without the extension
         log.warning("solver engine not importable yet: %s", exc)
 

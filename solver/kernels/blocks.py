@@ -32,7 +32,7 @@ from solver.kernels.layout import (
     REC_SIGMA,
 )
 from solver.kernels.layout import JIT as _JIT
-from solver.kernels.projection import project_observation
+from solver.kernels.projection import project_observation, runtime_flag
 from solver.kernels.propagation import PASS_COEF_INDEX, PASS_INDEX, ensure_segment
 
 
@@ -200,7 +200,7 @@ def observation_blocks_into(lo, hi, rec, img_tab, cam_tab, img_p, cam_p, pts, pt
             for j in range(nc):
                 iop[int(ct[2 + j])] = cam_p[cm, j]
         good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di = project_observation(
-            int(it[IT_KIND]), coef, it[KC_START:], p, oc, iop, int(r[REC_CHIP]), r[REC_CHIP_LEN], True
+            int(it[IT_KIND]), coef, it[KC_START:], p, oc, iop, int(r[REC_CHIP]), r[REC_CHIP_LEN], runtime_flag(True)
         )
         if dl_di.shape[0] == 0:
             dl_di = np.zeros(N_IOP)

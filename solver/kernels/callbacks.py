@@ -58,6 +58,7 @@ from solver.kernels.layout import (
     PIXEL_MAP,
 )
 from solver.kernels.lines import line_distances, planes_model, pushbroom_line
+from solver.kernels.projection import runtime_flag
 from solver.kernels.propagation import PASS_T_OFF, ensure_segment, pass_state
 
 # descriptor of a residual block (int64 words)
@@ -133,14 +134,12 @@ def _point_block_callback(block, table, parameters, residuals, jacobians, want):
             params[s, q] = src[q]
     res = _doubles_at(residuals, 2 * nrec)
     rows = 2 * nrec
+    jacs = np.empty((nslots, rows * width))
     if want == 0:
-        scratch_p = np.empty(3 * rows)
-        scratch = np.empty((nslots, rows * width))
-        return point_obs_block(rec, img_tab, cam_tab, point, params, res, scratch_p, scratch, False)
+        return point_obs_block(rec, img_tab, cam_tab, point, params, res, np.empty(3 * rows), jacs, runtime_flag(False))
     jptr = carray(jacobians, (nslots + 1,), dtype=np.int64)
     jac_p = _doubles(jptr[0], 3 * rows)
-    jacs = np.empty((nslots, rows * width))
-    ok = point_obs_block(rec, img_tab, cam_tab, point, params, res, jac_p, jacs, True)
+    ok = point_obs_block(rec, img_tab, cam_tab, point, params, res, jac_p, jacs, runtime_flag(True))
     for s in range(nslots):
         n = rows * sizes[s + 1]
         dst = _doubles(jptr[s + 1], n)
@@ -171,8 +170,8 @@ def _fixed_block_callback(block, table, parameters, residuals, jacobians, want):
     rows = 2 * nrec
     jacs = np.empty((nslots, rows * width))
     if want == 0:
-        return fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, jacs, False)
-    ok = fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, jacs, True)
+        return fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, jacs, runtime_flag(False))
+    ok = fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, jacs, runtime_flag(True))
     jptr = carray(jacobians, (nslots,), dtype=np.int64)
     for s in range(nslots):
         n = rows * sizes[s]

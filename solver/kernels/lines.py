@@ -20,7 +20,7 @@ import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: b
 from solver.kernels.layout import FORM_Y
 from solver.kernels.layout import JIT as _JIT
 from solver.kernels.platform import platform_state
-from solver.kernels.projection import project
+from solver.kernels.projection import project, runtime_flag
 from solver.kernels.rotation import rotation_and_derivatives
 
 
@@ -178,7 +178,7 @@ def _closest_point(kind, coef, kc, p1, u, oc0, ml, mc, si):
     for it in range(12):
         for k in range(3):
             q[k] = p1[k] + si * u[k]
-        good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(kind, coef, kc, q, oc, True)
+        good, ln, cl, dl_dc, dl_dp, dc_dc, dc_dp = project(kind, coef, kc, q, oc, runtime_flag(True))
         tl = dl_dp[0] * u[0] + dl_dp[1] * u[1] + dl_dp[2] * u[2]
         tc = dc_dp[0] * u[0] + dc_dp[1] * u[1] + dc_dp[2] * u[2]
         t2 = tl * tl + tc * tc
@@ -213,8 +213,8 @@ def line_distances(kind, coef, kc, p1, p2, ocs, s, want_jac: bool):
     jp = np.zeros((n, 6))
     if n == 0 or s.shape[0] != n or ocs.shape[1] < 9 or p1.shape[0] != 3 or p2.shape[0] != 3:
         return False, dist, jc, jp
-    g1, l1, c1, _a, _b, _c, _d = project(kind, coef, kc, p1, ocs[0].copy(), False)
-    g2, l2, c2, _a, _b, _c, _d = project(kind, coef, kc, p2, ocs[n - 1].copy(), False)
+    g1, l1, c1, _a, _b, _c, _d = project(kind, coef, kc, p1, ocs[0].copy(), runtime_flag(False))
+    g2, l2, c2, _a, _b, _c, _d = project(kind, coef, kc, p2, ocs[n - 1].copy(), runtime_flag(False))
     chord2 = (l2 - l1) ** 2 + (c2 - c1) ** 2
     chord = g1 and g2 and np.isfinite(chord2) and chord2 > 1e-12
     all_ok = True

@@ -6,7 +6,8 @@ call; it dispatches the camera-less RPC kind to :mod:`solver.kernels.rpc`."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import intrinsic
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.kernels.layout import JIT as _JIT
@@ -21,6 +22,19 @@ from solver.kernels.platform import (
     platform_state,
 )
 from solver.kernels.rpc import rpc_project, rpc_ray
+
+
+@intrinsic
+def runtime_flag(typingctx, flag):
+    """``flag`` typed as a plain bool, not as the literal ``True``/``False`` a constant is typed
+    as: a kernel called with a literal flag is compiled once per literal (its whole call tree
+    twice over, a quarter of a cold compile), with a runtime flag once for both."""
+    sig = types.boolean(flag)
+
+    def codegen(context, builder, signature, args):
+        return context.cast(builder, args[0], signature.args[0], types.boolean)
+
+    return sig, codegen
 
 
 @njit(**_JIT)
@@ -291,7 +305,7 @@ def project_cam(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac
 @njit(**_JIT)
 def ideal_direction(oc, iop, chip: int, chip_len: float):
     """Camera-frame direction (x_i, y_i, -F) of the observed pixel (unnormalised)."""
-    xi, yi, big_f, _a, _b, _c, _d = camera_model(oc, iop, chip, chip_len, oc[1], False)
+    xi, yi, big_f, _a, _b, _c, _d = camera_model(oc, iop, chip, chip_len, oc[1], runtime_flag(False))
     out = np.empty(3)
     out[0] = xi
     out[1] = yi
