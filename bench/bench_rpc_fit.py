@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path[:0] = [str(Path(__file__).resolve().parents[1]), str(Path(__file__).resolve().parents[1] / "tests")]  # the solver package first (tests/solver is a folder of tests, not it), then tests/utils: the model-consistent scenes
 
 from utils.gis_scenes import MODEL_KINDS, VIEWS, prism_butted, single_chip  # noqa: E402
 

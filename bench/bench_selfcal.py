@@ -14,7 +14,7 @@ from pathlib import Path
 from solver.adjust import adjust_job
 from solver.schema.job import load_job
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # tests/utils: the model-consistent scenes
+sys.path[:0] = [str(Path(__file__).resolve().parents[1]), str(Path(__file__).resolve().parents[1] / "tests")]  # the solver package first (tests/solver is a folder of tests, not it), then tests/utils: the model-consistent scenes
 
 from utils.scenes import block_job  # noqa: E402
 

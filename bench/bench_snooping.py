@@ -31,7 +31,7 @@ import numpy as np
 
 from solver.api import run
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # tests/utils: the model-consistent scenes
+sys.path[:0] = [str(Path(__file__).resolve().parents[1]), str(Path(__file__).resolve().parents[1] / "tests")]  # the solver package first (tests/solver is a folder of tests, not it), then tests/utils: the model-consistent scenes
 
 
 def _rmse(report) -> float:
