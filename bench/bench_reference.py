@@ -56,20 +56,22 @@ sys.path.insert(0, str(HERE))
 from ceres_reference.reference import STARTS, build, export, run  # noqa: E402
 
 
-def exported(n_obs: int, seed: int, start: str = "service") -> tuple[Path, dict[str, Any]]:
+def exported(n_obs: int, seed: int, start: str = "service", layout: str = "disjoint", states: bool = True) -> tuple[Path, Path, dict[str, Any]]:
+    """The job's JSON (bench_scale's block of that layout) and the reference's input written from it."""
     import bench_scale
 
-    doc = bench_scale.block_for(n_obs, "P2", seed)
-    suffix = "" if start == "service" else f"-{start}"
+    job = bench_scale.generate(n_obs, "P2", seed, layout, states)
+    doc = json.loads(job.read_text())
+    suffix = ("" if start == "service" else f"-{start}") + ("" if layout == "disjoint" else f"-{layout}") + ("" if states else "-nostates")
     path = Path(tempfile.gettempdir()) / f"pba-p2-reference-{n_obs}-{seed}{suffix}.txt"
     if not path.is_file():
         export(doc, path, start)
-    return path, doc
+    return job, path, doc
 
 
-def ours(n_obs: int, seed: int) -> dict[str, Any]:
+def ours(job: Path) -> dict[str, Any]:
     t0 = time.perf_counter()
-    out = subprocess.run([sys.executable, str(HERE / "bench_scale.py"), "--child", str(n_obs), "--model", "P2", "--seed", str(seed)],
+    out = subprocess.run([sys.executable, str(HERE / "bench_scale.py"), "--child", str(job)],
                          check=True, capture_output=True, text=True)
     r = json.loads(out.stdout.strip().splitlines()[-1])
     r["process_s"] = time.perf_counter() - t0
@@ -114,14 +116,17 @@ def main() -> None:
                     help="the reference's initial values: the service's (exported after its initial values) or "
                     "the ephemeris alone (header position and velocity, nominal attitude, tie points intersected "
                     "from those rays: what a program without the service's resection on control points starts from)")
+    ap.add_argument("--connected", action="store_true", help="bench_scale's connected strip instead of the 100k P2 block of "
+                    "disjoint triplets (bench_scale.py --disjoint)")
+    ap.add_argument("--no-states", action="store_true", help="with --connected: header states not weighted")
     args = ap.parse_args()
     exe = build()
-    path, doc = exported(args.observations, args.seed, args.start)
+    job, path, doc = exported(args.observations, args.seed, args.start, "connected" if args.connected else "disjoint", not args.no_states)
     if args.check:
         print("solutions:", json.dumps(check(doc, exe, path, args.threads)), flush=True)
     mine, theirs = [], []
     for k in range(args.repeat):
-        mine.append(ours(args.observations, args.seed))
+        mine.append(ours(job))
         theirs.append(run(exe, path, args.threads, form=args.form, settings=args.settings))
         a, b = mine[-1], theirs[-1]
         print(f"run {k + 1}: ours {a['run_s']:.2f} s end to end ({a['process_s']:.2f} s process), {a['iterations']} it, "
