@@ -165,3 +165,25 @@ def test_the_docs_table_is_the_scripts_output() -> None:
                 assert abs(float(a) - float(b)) <= TABLE_PX + 1e-3 * abs(float(b)), (w, f)
             except ValueError:
                 assert a == b, (w, f)
+
+
+GDAL_CORNER_PX = 0.5  # GDAL's pixel (0, 0) is the top-left corner; ours the top-left centre
+SAME_EVALUATOR_PX = 1e-6  # our RPC evaluator against GDAL's transformer on the same points (both evaluate the same ratio)
+
+
+def test_the_rpc_reference_through_gdals_transformer() -> None:
+    """The self-check's RPC rows evaluate the vendor's RPC with our evaluator; GDAL's RPC
+    transformer (an independent implementation) gives the same agreement with the exact model."""
+    from solver.gis.rpc_io import gdal_ground_to_image, gdal_rpc
+    from solver.sensors.agreement import image_grid
+
+    p = read_product(PUBLIC[1])
+    L, C, H = image_grid(p.model, p.rpc)
+    g = p.model.image_to_ground(L, C, H)
+    rows, cols = gdal_ground_to_image(gdal_rpc(p.rpc), g[:, 0], g[:, 1], g[:, 2])
+    ours_l, ours_c = p.rpc.project(g[:, 0], g[:, 1], g[:, 2])
+    assert np.abs(rows - GDAL_CORNER_PX - ours_l).max() < SAME_EVALUATOR_PX
+    assert np.abs(cols - GDAL_CORNER_PX - ours_c).max() < SAME_EVALUATOR_PX
+    row = next(r for r in self_check(p, job_form=False).rows if r.reference.startswith("vendor RPC"))
+    gdal = np.hypot(rows - GDAL_CORNER_PX - L, cols - GDAL_CORNER_PX - C)
+    assert abs(float(np.sqrt(np.mean(gdal**2))) - row.rms_px) < 1e-4 and abs(float(gdal.max()) - row.max_px) < 1e-4
