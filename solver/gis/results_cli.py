@@ -9,7 +9,7 @@ import io
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from solver.geometry.geodesy import GEODETIC_CRS
 
@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--crs", default=GEODETIC_CRS, help="CRS of the ground columns (default EPSG:4979: lon,lat,height)")
     p.add_argument("--sigmas", action="store_true", help="add propagated standard deviations sigma_line_px, sigma_column_px")
     p.add_argument("-o", "--output", type=Path, help="CSV to write (default stdout)")
-    p.set_defaults(func=cmd_ground_to_image)
+    p.set_defaults(func=announcing(cmd_ground_to_image))
 
     p = sub.add_parser("image-to-ground", help="ground coordinates of image positions with the adjusted model (CSV)")
     _job_report(p, optional=True)
@@ -40,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dem", type=Path, help="DEM raster (ellipsoidal heights, m) instead of the height column")
     p.add_argument("--sigmas", action="store_true", help="add propagated standard deviations sigma_east_m, sigma_north_m")
     p.add_argument("-o", "--output", type=Path, help="CSV to write (default stdout)")
-    p.set_defaults(func=cmd_image_to_ground)
+    p.set_defaults(func=announcing(cmd_image_to_ground))
 
     p = sub.add_parser("export-rpc", help="RPC00B fitted to the adjusted model: _RPC.TXT, .RPB or GeoTIFF tags")
     _job_report(p)
@@ -49,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dem", type=Path, help="DEM whose height range the fit grid spans (default: the job's points +- 100 m)")
     p.add_argument("--per-chip", action="store_true", help="one RPC per CCD chip (NAME_<chip>_RPC.TXT), columns of the chip's sub-image")
     p.add_argument("--fit-report", type=Path, help="JSON with the fit and check-grid residuals")
-    p.set_defaults(func=cmd_export_rpc)
+    p.set_defaults(func=announcing(cmd_export_rpc))
 
     p = sub.add_parser("ortho", help="orthorectify an image's raster with the adjusted orientation (GeoTIFF)")
     p.add_argument("raster", type=Path, help="the image's raster (raw geometry, as delivered)")
@@ -70,7 +70,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("-o", "--output", type=Path, required=True, help="orthoimage (GeoTIFF)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_ortho)
+    p.set_defaults(func=announcing(cmd_ortho))
 
     p = sub.add_parser("resample", help="the image resampled to an ideal single-array camera, with its RPC (or per-chip sub-images)")
     p.add_argument("raster", type=Path, help="the image's raster (raw geometry, as delivered)")
@@ -80,13 +80,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--per-chip", action="store_true", help="instead: each chip's sub-image NAME_<chip>.tif with its NAME_<chip>_RPC.TXT")
     p.add_argument("-o", "--output", type=Path, required=True, help="NAME.tif (its RPC is written beside it as NAME_RPC.TXT)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_resample)
+    p.set_defaults(func=announcing(cmd_resample))
 
     p = sub.add_parser("export-geojson", help="points with discrepancy vectors and image footprints (GeoJSON, CRS84)")
     p.add_argument("job", type=Path, help="job document (JSON)")
     p.add_argument("report", type=Path, help="its report (pba run -o)")
     p.add_argument("-o", "--output", type=Path, help="GeoJSON to write (default stdout)")
-    p.set_defaults(func=cmd_export_geojson)
+    p.set_defaults(func=announcing(cmd_export_geojson))
+
+
+def announcing(command: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """``command`` saying on standard error when the adjustment's kernels compile (a first run
+    after an install: a minute or more), as ``pba run`` does (solver.kernels.cache.compile_notices)."""
+    def run(args: argparse.Namespace) -> int:
+        from solver.kernels.cache import compile_notices
+
+        with compile_notices(lambda message: print(message, file=sys.stderr, flush=True)):
+            return command(args)
+
+    return run
 
 
 def _fail(message: str) -> int:

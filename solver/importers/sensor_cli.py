@@ -34,6 +34,7 @@ import json
 import sys
 from pathlib import Path
 
+from solver.gis.results_cli import announcing
 from solver.sensors.errors import MetadataError
 
 
@@ -58,7 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--indent", type=int, default=2, help="JSON indentation (default 2)")
     p.add_argument("--strict", action="store_true",
                    help="exit 2 (writing nothing) when the self-check finds a reference beyond its limit (pba check-sensor)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=announcing(run))
 
     p = sub.add_parser("check-sensor", help="check vendor sensor metadata against everything it states: corners, scene "
                        "centres, the vendor's RPC, and the job form (the orientation a job composed from it starts from)")
@@ -68,7 +69,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "once per metadata file in order; default: the product's own RPC where it has one")
     p.add_argument("--json", action="store_true", help="the rows as JSON on standard output instead of the table")
     p.add_argument("--strict", action="store_true", help="exit 2 when a reference is beyond its limit")
-    p.set_defaults(func=run_check)
+    p.set_defaults(func=announcing(run_check))
 
     p = sub.add_parser("simulate-measurements", help="survey and image measurements simulated on vendor metadata's exact "
                        "models (a stand-in for your own): control.csv, checks.csv, ID.csv, truth.json")

@@ -187,3 +187,21 @@ def test_the_rpc_reference_through_gdals_transformer() -> None:
     row = next(r for r in self_check(p, job_form=False).rows if r.reference.startswith("vendor RPC"))
     gdal = np.hypot(rows - GDAL_CORNER_PX - L, cols - GDAL_CORNER_PX - C)
     assert abs(float(np.sqrt(np.mean(gdal**2))) - row.rms_px) < 1e-4 and abs(float(gdal.max()) - row.max_px) < 1e-4
+
+
+def test_check_sensor_says_when_kernels_compile(monkeypatch, capsys) -> None:
+    """The job form runs the adjustment's kernels: on a first run after an install they compile
+    (a minute or more), and the command says so as pba run does (the notices themselves are the
+    kernel cache's: solver.kernels.cache.compile_notices, tested there)."""
+    from contextlib import contextmanager
+
+    from solver.kernels import cache
+
+    @contextmanager
+    def notices(say):
+        say("compiling the adjustment's kernels (first run): a minute or more")
+        yield
+
+    monkeypatch.setattr(cache, "compile_notices", notices)
+    assert main(["check-sensor", str(PUBLIC[4])]) == 0
+    assert "compiling the adjustment's kernels (first run)" in capsys.readouterr().err
