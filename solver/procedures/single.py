@@ -21,6 +21,7 @@ from solver.engine.linalg import check_rank, linearise, schur
 from solver.engine.validate import require_valid
 from solver.errors import Cancelled, JobError, Problem, RankDeficientError, UnusableSolution
 from solver.quality.control_fit import control_misfits, control_problems
+from solver.quality.datum import DatumAnalysis, analyse_datum
 from solver.report.document import assess
 from solver.schema.job import Job
 from solver.schema.settings import JobSettings
@@ -56,10 +57,14 @@ def check_control(problem: AdjustmentState) -> list[str]:
             for m in misfits]
 
 
-def assert_full_rank(problem: AdjustmentState) -> None:
-    """Raise RankDeficientError naming the parameters the control geometry does not fix."""
+def assert_full_rank(problem: AdjustmentState) -> DatumAnalysis:
+    """Raise RankDeficientError naming the parameters the control geometry does not fix, and
+    the directions of the datum it leaves undetermined (:mod:`solver.quality.datum`: refused
+    unless ``options.datum.undetermined`` is ``"report"``); the datum analysis."""
     lin = linearise(problem)
     parts = schur(lin, problem)
+    datum_options = Settings.from_options(problem.job.options).blocks.datum
+    datum = analyse_datum(problem, lin, parts, parameter_names(problem), datum_options.max_sigma_m)
     issues = []
     for q in np.flatnonzero(parts.point_singular):
         p = problem.points[parts.est_points[q]]
@@ -68,6 +73,16 @@ def assert_full_rank(problem: AdjustmentState) -> None:
                 "point_geometry_singular",
                 f"point {p.id!r}: its rays are (nearly) parallel, its coordinates cannot be determined",
                 ("points", p.index),
+            )
+        )
+    if datum.undetermined and datum_options.undetermined == "refuse":
+        issues.append(
+            Problem(
+                "datum_undetermined",
+                f"the datum is not determined: {datum.message()}. Defined by: "
+                f"{', '.join(datum.defined_by) or 'nothing'}. Remedies: " + "; ".join(datum.remedies),
+                ("points",),
+                datum.to_report(),
             )
         )
     rank = check_rank(parts, parameter_names(problem), fast=True)
@@ -89,6 +104,7 @@ def assert_full_rank(problem: AdjustmentState) -> None:
         )
     if issues:
         raise RankDeficientError(issues)
+    return datum
 
 
 def solve_problem(problem: AdjustmentState, control):
@@ -125,7 +141,7 @@ def adjust_once(
     problem = prepare(job, models)
     _progress(progress, frac(0.05), "initial values computed")
     foreign = check_control(problem)
-    assert_full_rank(problem)
+    datum = assert_full_rank(problem)
     if cancel is not None and cancel():
         raise Cancelled("cancelled before the solve")
     control = SolveControl(progress, cancel, JobSettings.from_options(job.options).solve.max_iterations, (frac(0.08), frac(0.9)))
@@ -138,6 +154,9 @@ def adjust_once(
     _progress(progress, frac(0.92), "assessing the solution")
     report = assess(problem, outcome)
     report["warnings"] = foreign + report["warnings"]
+    report["quality"]["datum"] = datum.to_report()
+    if datum.undetermined:
+        report["warnings"].insert(0, f"the datum is not determined: {datum.message()} (quality.datum)")
     report["adjustment"]["total_time_s"] = time.perf_counter() - t_start
     _progress(progress, frac(1.0), "done", {"sigma0": report["adjustment"]["sigma0_aposteriori"]})
     return problem, report

@@ -670,6 +670,21 @@ class PreanalysisOptions(_Strict):
     )
 
 
+class DatumOptions(_Strict):
+    """The datum analysis before the solve (docs/datum.md): which directions of the block as a
+    whole (a common shift, tilt, rotation or scale of the tie points) the job leaves undetermined."""
+
+    undetermined: Literal["refuse", "report"] = Field(
+        default="refuse",
+        description="a job whose datum has an undetermined direction is refused before the solve, with the "
+        "direction named and the remedies (refuse), or adjusted and the report says it (report)",
+    )
+    max_sigma_m: _num(gt=0, le=1e7) = Field(
+        default=100.0,
+        description="a direction whose predicted sigma (metres of tie-point motion) exceeds this is undetermined",
+    )
+
+
 # The solver reads these as four objects (how to solve, which blocks, which statistics, which
 # procedures): solver.schema.settings.JobSettings.from_options; the wire format stays this one.
 class SolverOptions(_Strict):
@@ -746,6 +761,11 @@ class SolverOptions(_Strict):
         description="control points whose measurements lie far from where the orientation the job starts from "
         "projects them (far outside the image, or beyond 20 times the stated uncertainty of a weighted orbit and "
         "attitude): refuse the job naming them (refuse), or adjust anyway and name them in the report's warnings (warn)",
+    )
+    datum: DatumOptions = Field(
+        default_factory=DatumOptions,
+        description="the datum analysis before the solve: what defines the datum, and refusing (or reporting) "
+        "a job that leaves a direction of it undetermined (quality.datum)",
     )
     weak_control: Literal["act", "warn"] = Field(
         default="act",

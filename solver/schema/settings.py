@@ -21,10 +21,11 @@ deprecated ``kernel``, which nothing reads.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from solver.schema.job import (
     AttitudeOptions,
+    DatumOptions,
     BlunderDetection,
     EphemerisOptions,
     Parsimony,
@@ -57,6 +58,7 @@ class BlockConfig:
     attitude: AttitudeOptions | None  # weighted attitude samples
     line_model: str  # rigorous | equivalent_planes
     line_correction: str  # iterated | initial | none
+    datum: DatumOptions = field(default_factory=DatumOptions)  # the datum analysis: refuse or report an undetermined direction
 
 
 @dataclass(frozen=True)
@@ -100,7 +102,7 @@ class JobSettings:
         sc = o.self_calibration
         return cls(
             SolveSettings(o.max_iterations, o.function_tolerance, o.parameter_tolerance, o.loss, o.loss_scale),
-            BlockConfig(o.control, sc, o.ephemeris, o.attitude, o.line_model, o.line_correction),
+            BlockConfig(o.control, sc, o.ephemeris, o.attitude, o.line_model, o.line_correction, o.datum),
             StatisticsConfig(o.sigma0_apriori, o.alpha, o.correlation_threshold, o.covariance, o.leave_one_out, o.quality_warnings),
             ProcedureConfig(o.blunder_detection, o.parsimony, bool(sc is not None and sc.significance_analysis), tuple(o.models),
                             o.preanalysis, o.weak_control, o.control_check),

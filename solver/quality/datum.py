@@ -1,0 +1,285 @@
+"""The datum explained before solving: what defines it, and which of its directions the job
+leaves undetermined, in words.
+
+The datum of a block is where the block sits as a whole: a common shift of all tie points in
+east, north and height, a tilt of their heights, a rotation about the vertical and a scale.
+Control points, weighted platform states with measured attitude, the RPCs' bias priors and
+DEM heights define it; tie points alone do not. For each of these seven directions of the tie
+points (a linear function f = g^T y of their LGS coordinates) its predicted standard deviation
+follows from the normal matrix N = J^T J of the whitened observations (a-priori sigma0 = 1,
+the parameters in their own units: the points in metres)::
+
+    sigma_f^2 = g^T C^-1 g + u^T S^-1 u,   u = B C^-1 g
+
+with N = [[A, B], [B^T, C]] (A the images' and cameras' parameters, C the points' 3 x 3
+blocks) and S = A - B C^-1 B^T the reduced matrix the rank check factors
+(:mod:`solver.engine.linalg`). A direction whose sigma exceeds ``options.datum.max_sigma_m``
+(or that lies in the null space of S: infinite) is *not determined*; the analysis names it
+("a common height shift of all tie points"), the image parameters that move with it
+(largest covariance with it, relative to their own sigmas: "b: a0"), and the remedies.
+By default such a job is refused before the solve (a 4xx problem, exit 2); with
+``options.datum.undetermined = "report"`` it is adjusted and the report says so.
+
+Independent of the sigmas, the analysis says what each image is tied by (its control points,
+its priors, or only tie points: then its orientation comes from the other images).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.linalg import lapack
+
+from solver.engine.linalg import Linearisation, SchurParts
+from solver.state import AdjustmentState
+
+DIRECTIONS = (
+    ("shift_east", "a common shift of all tie points east-west", "m"),
+    ("shift_north", "a common shift of all tie points north-south", "m"),
+    ("shift_height", "a common height shift of all tie points", "m"),
+    ("tilt_east", "a tilt of the tie points' heights east-west (height difference across the block)", "m"),
+    ("tilt_north", "a tilt of the tie points' heights north-south (height difference across the block)", "m"),
+    ("rotation", "a rotation of the tie points about the vertical (displacement at the block's edge)", "m"),
+    ("scale", "a scale of the tie points' horizontal positions (displacement at the block's edge)", "m"),
+)
+CHUNK = 65_536  # observations per pass of B C^-1 G (memory: CHUNK x width x 7 doubles)
+MIN_TIE_POINTS = 3  # fewer ties: no directions of their own to speak of (tilts and rotation need spread)
+NAMED_PARAMETERS = 6  # image parameters named per undetermined direction, at most
+NULL_TOL = 1e-15  # eigenvalues of the Jacobi-scaled S below this times the largest: null space (the rank check's)
+NULL_SHARE = 1e-6  # a direction whose coupling to the images lies this much in the null space is not determined at all
+REMEDIES = (
+    "give control points (role gcp) spread over the block",
+    "give a DEM (pba job --dem DEM.tif): its heights define the height datum",
+    "give the RPC images bias priors (pba job --bias-prior PX): the RPCs' own ground reference",
+    "weight the platform states and the attitude (options.ephemeris, options.attitude)",
+    "or adjust anyway and have the report say it: options.datum.undetermined = \"report\"",
+)
+
+
+@dataclass
+class DatumAnalysis:
+    """What defines the datum, the seven directions' sigmas, the undetermined ones in words,
+    and what ties each image."""
+
+    defined_by: list[str]
+    directions: list[dict[str, Any]]
+    undetermined: list[dict[str, Any]]
+    images: dict[str, str]
+    max_sigma_m: float
+    remedies: list[str] = field(default_factory=lambda: list(REMEDIES))
+
+    def to_report(self) -> dict[str, Any]:
+        return {
+            "defined_by": self.defined_by,
+            "max_sigma_m": self.max_sigma_m,
+            "directions": self.directions,
+            "undetermined": self.undetermined,
+            "images": self.images,
+            **({"remedies": self.remedies} if self.undetermined else {}),
+        }
+
+    def message(self) -> str:
+        """One sentence for a refusal or a warning."""
+        parts = []
+        for u in self.undetermined:
+            sigma = "not determined at all" if u["sigma_m"] is None else f"sigma {u['sigma_m']:.3g} m"
+            moved = f"; it moves {', '.join(u['parameters'])}" if u["parameters"] else ""
+            parts.append(f"{u['words']} is not determined ({sigma}{moved})")
+        return "; ".join(parts)
+
+
+def _tie_functionals(problem: AdjustmentState, parts: SchurParts) -> tuple[np.ndarray, np.ndarray, list[float]]:
+    """The seven directions as weights G (n_est, 3, 7) on the estimated points' LGS coordinates
+    (zero but for usable tie points), the tie points' mask, and each direction's scale note."""
+    est = parts.est_points
+    n = len(est)
+    g = np.zeros((n, 3, len(DIRECTIONS)))
+    ties = np.array([problem.points[p].role == "tie" for p in est], dtype=bool) & ~parts.point_singular
+    k = int(ties.sum())
+    if k < MIN_TIE_POINTS:
+        return g, ties, []
+    xyz = np.array([problem.points[p].xyz for p in est])[ties]
+    centre = xyz.mean(axis=0)
+    x, y = xyz[:, 0] - centre[0], xyz[:, 1] - centre[1]
+    radius = float(np.sqrt(np.mean(x**2 + y**2))) or 1.0
+    sx, sy = float(np.sum(x**2)) or 1.0, float(np.sum(y**2)) or 1.0
+    sr = float(np.sum(x**2 + y**2)) or 1.0
+    extent_x = float(np.ptp(x)) or 1.0
+    extent_y = float(np.ptp(y)) or 1.0
+    rows = np.flatnonzero(ties)
+    g[rows, 0, 0] = 1.0 / k
+    g[rows, 1, 1] = 1.0 / k
+    g[rows, 2, 2] = 1.0 / k
+    g[rows, 2, 3] = x / sx * extent_x  # least-squares slope of the heights along east, times the extent
+    g[rows, 2, 4] = y / sy * extent_y
+    g[rows, 0, 5] = -y / sr * radius  # least-squares rotation (rad) times the mean radius
+    g[rows, 1, 5] = x / sr * radius
+    g[rows, 0, 6] = x / sr * radius  # least-squares scale times the mean radius
+    g[rows, 1, 6] = y / sr * radius
+    return g, ties, [extent_x, extent_y, radius]
+
+
+def _b_c_inv(lin: Linearisation, parts: SchurParts, v: np.ndarray, n_f: int) -> np.ndarray:
+    """u = B V for point-space vectors already multiplied by C^-1 (``v``: (n_est, 3, k))."""
+    k = v.shape[2]
+    u = np.zeros((n_f, k))
+    pt_q = -np.ones(int(lin.obs_pt.max()) + 1 if len(lin.obs_pt) else 0, dtype=np.int64)
+    pt_q[parts.est_points] = np.arange(len(parts.est_points))
+    q_of = pt_q[lin.obs_pt] if len(lin.obs_pt) else np.zeros(0, dtype=np.int64)
+    for lo in range(0, len(q_of), CHUNK):
+        q = q_of[lo : lo + CHUNK]
+        has = q >= 0
+        if not has.any():
+            continue
+        jpt = lin.jpt[lo : lo + CHUNK][has]
+        jf = lin.jf[lo : lo + CHUNK][has]
+        cols = lin.fcol[lo : lo + CHUNK][has]
+        t = np.einsum("iab,ibk->iak", jpt, v[q[has]])  # (m, 2, k): the image residuals' change per unit
+        contrib = np.einsum("iaj,iak->ijk", jf, t)  # (m, width, k)
+        ok = cols >= 0
+        for c in range(k):  # bincount: np.add.at is ten times slower
+            u[:, c] += np.bincount(cols[ok], weights=contrib[..., c][ok], minlength=n_f)
+    return u
+
+
+def _solve_reduced(s: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(S^+ u; the relative size of each column of u's part in the null space of S; that part,
+    in the Jacobi-scaled parameters), on the Jacobi-scaled S."""
+    if s.size == 0:
+        return np.zeros_like(u), np.zeros(u.shape[1]), np.zeros_like(u)
+    diag = np.clip(np.diag(s), 1e-300, None)
+    d = np.sqrt(diag)
+    sn = s / np.outer(d, d)
+    un = u / d[:, None]
+    factor, info = lapack.dpotrf(sn, lower=1, clean=1)
+    if info == 0:  # positive definite to working precision: a weak direction shows in its sigma
+        x, _ = lapack.dpotrs(factor, un, lower=1)
+        return x / d[:, None], np.zeros(u.shape[1]), np.zeros_like(u)
+    w, vec = np.linalg.eigh(sn)
+    wmax = max(float(w[-1]), 1e-300)
+    null = w <= NULL_TOL * wmax
+    proj = vec.T @ un
+    inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
+    x = vec @ (inv_w[:, None] * proj)
+    norm = np.linalg.norm(un, axis=0)
+    in_null = np.linalg.norm(proj[null], axis=0) / np.where(norm > 0, norm, 1.0)
+    return x / d[:, None], in_null, vec[:, null] @ proj[null]
+
+
+def _defined_by(problem: AdjustmentState) -> list[str]:
+    """The sources of the datum in words (counts from the job)."""
+    job = problem.job
+    out = []
+    gcps = [p for p in job.points if p.role == "gcp"]
+    if gcps:
+        weighted = sum(1 for p in gcps if p.sigma_m is not None and job.options.control == "weighted")
+        out.append(f"{len(gcps)} control point{'s' if len(gcps) != 1 else ''}" + (f" ({weighted} weighted)" if weighted else ""))
+    control_lines = [ln for ln in job.lines if getattr(ln, "role", None) == "control"]
+    if control_lines:
+        out.append(f"{len(control_lines)} control line{'s' if len(control_lines) != 1 else ''}")
+    priors = [im.id for im in job.images if im.bias_prior]
+    if priors:
+        out.append(f"the RPCs' bias priors ({len(priors)} image{'s' if len(priors) != 1 else ''}: {', '.join(priors)})")
+    states = [im.id for im in problem.images if _has_state_prior(problem, im)]
+    if states:
+        out.append(f"weighted platform states ({', '.join(states)})")
+    if job.options.attitude is not None and any(im.attitude for im in job.images):
+        out.append("measured attitude (" + ", ".join(im.id for im in job.images if im.attitude) + ")")
+    return out
+
+
+def _has_state_prior(problem: AdjustmentState, img: Any) -> bool:
+    from solver.observations.state_priors import state_prior
+
+    try:
+        return state_prior(problem, img) is not None
+    except (ValueError, KeyError, TypeError):
+        return False
+
+
+def _image_ties(problem: AdjustmentState) -> dict[str, str]:
+    """What ties each image to the datum, in words."""
+    job = problem.job
+    gcps = {p.id for p in job.points if p.role == "gcp"}
+    ties = {p.id for p in job.points if p.role == "tie"}
+    n_gcp: dict[str, int] = {}
+    n_tie: dict[str, int] = {}
+    for o in job.observations:
+        if o.point in gcps:
+            n_gcp[o.image] = n_gcp.get(o.image, 0) + 1
+        elif o.point in ties:
+            n_tie[o.image] = n_tie.get(o.image, 0) + 1
+    states = {im.id for im in problem.images if _has_state_prior(problem, im)}
+    out = {}
+    for im in job.images:
+        own = []
+        if n_gcp.get(im.id):
+            own.append(f"{n_gcp[im.id]} control point observations")
+        if im.bias_prior:
+            own.append("its RPC bias priors")
+        if im.id in states:
+            own.append("its weighted platform state")
+        if im.attitude and job.options.attitude is not None:
+            own.append("its measured attitude")
+        if own:
+            out[im.id] = ", ".join(own) + (f"; {n_tie.get(im.id, 0)} tie point observations" if n_tie.get(im.id) else "")
+        else:
+            out[im.id] = (f"tie points only ({n_tie.get(im.id, 0)} observations): its orientation comes from the other "
+                          "images through them")
+    return out
+
+
+def analyse_datum(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, names: list[str],
+                  max_sigma_m: float) -> DatumAnalysis:
+    """The analysis of the module docstring at the current (initial) parameters."""
+    n_f = parts.s.shape[0]
+    g, ties, _scales = _tie_functionals(problem, parts)
+    directions: list[dict[str, Any]] = []
+    undetermined: list[dict[str, Any]] = []
+    if ties.sum() >= MIN_TIE_POINTS:
+        v = np.einsum("qab,qbk->qak", parts.c_inv, g)
+        u = _b_c_inv(lin, parts, v, n_f)
+        x, in_null, null_part = _solve_reduced(parts.s, u)
+        var = np.einsum("qak,qak->k", g, v) + np.einsum("jk,jk->k", u, x)
+        s_inv_diag: np.ndarray | None = None
+        for k, (key, words, _unit) in enumerate(DIRECTIONS):
+            infinite = bool(in_null[k] > NULL_SHARE)
+            sigma = None if infinite else float(np.sqrt(max(var[k], 0.0)))
+            entry = {"direction": key, "words": words, "sigma_m": sigma}
+            directions.append(entry)
+            if sigma is None or sigma > max_sigma_m:
+                if infinite:  # the parameters of the null space that move with it
+                    moved = _largest(np.abs(null_part[:, k]), names)
+                else:
+                    if s_inv_diag is None:
+                        s_inv_diag = _reduced_inverse_diagonal(parts.s)
+                    moved = _moving_parameters(x[:, k], s_inv_diag, names)
+                undetermined.append({**entry, "parameters": moved})
+    return DatumAnalysis(_defined_by(problem), directions, undetermined, _image_ties(problem), max_sigma_m)
+
+
+def _reduced_inverse_diagonal(s: np.ndarray) -> np.ndarray:
+    """diag(S^+) (pseudo-inverse where S is singular): the image parameters' own variances."""
+    d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
+    w, vec = np.linalg.eigh(s / np.outer(d, d))
+    keep = w > NULL_TOL * max(float(w[-1]), 1e-300)
+    return ((vec[:, keep] ** 2) / w[keep]).sum(axis=1) / d**2
+
+
+def _moving_parameters(cov: np.ndarray, var: np.ndarray, names: list[str]) -> list[str]:
+    """The image parameters most correlated with an undetermined direction (their covariance
+    with it relative to their own sigma), named "image/parameter"."""
+    if cov.size == 0:
+        return []
+    return _largest(np.abs(cov) / np.sqrt(np.where(var > 0, var, np.inf)), names)
+
+
+def _largest(weight: np.ndarray, names: list[str]) -> list[str]:
+    """The names of the largest weights (at least half the largest; at most NAMED_PARAMETERS)."""
+    if weight.size == 0:
+        return []
+    order = np.argsort(-weight)
+    top = float(weight[order[0]])
+    return [names[j] for j in order[:NAMED_PARAMETERS] if top > 0 and weight[j] >= 0.5 * top]
