@@ -63,7 +63,7 @@ def assert_full_rank(problem: AdjustmentState) -> DatumAnalysis:
     unless ``options.datum.undetermined`` is ``"report"``); the datum analysis."""
     lin = linearise(problem)
     parts = schur(lin, problem)
-    datum_options = Settings.from_options(problem.job.options).blocks.datum
+    datum_options = JobSettings.from_options(problem.job.options).blocks.datum
     datum = analyse_datum(problem, lin, parts, parameter_names(problem), datum_options.max_sigma_m)
     issues = []
     for q in np.flatnonzero(parts.point_singular):
