@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 
 from solver.schema.job import (
     AttitudeOptions,
-    DatumOptions,
     BlunderDetection,
+    DatumOptions,
     EphemerisOptions,
     Parsimony,
     PreanalysisOptions,
