@@ -191,12 +191,15 @@ def _defined_by(problem: AdjustmentState) -> list[str]:
 
 
 def _has_state_prior(problem: AdjustmentState, img: Any) -> bool:
-    from solver.observations.state_priors import state_prior
+    """The image's platform state is a weighted observation (its header state or interpolated
+    ephemeris with sigmas; the pass models' too)."""
+    from solver.observations.ephemeris import image_state
 
     try:
-        return state_prior(problem, img) is not None
+        state = image_state(problem.job.images[img.index], problem.job.options)
     except (ValueError, KeyError, TypeError):
         return False
+    return state is not None and state.sigma_position_m is not None
 
 
 def _image_ties(problem: AdjustmentState) -> dict[str, str]:

@@ -33,9 +33,9 @@ PRIOR_PX = 10.0
 def rpc_triplet() -> dict:
     from solver.simulate import presets
     from solver.simulate.rpc import RpcSettings
-    from solver.simulate.scene import Settings
+    from solver.simulate.scene import SceneSettings
 
-    s = Settings(preset="prism-triplet", seed=1, rpc=RpcSettings("RPC-SHIFT", {"a0": 5.0, "b0": -3.0}))
+    s = SceneSettings(preset="prism-triplet", seed=1, rpc=RpcSettings("RPC-SHIFT", {"a0": 5.0, "b0": -3.0}))
     return presets.prism_triplet(s, gcps=6, checks=10, tie_points=60).job()
 
 
