@@ -21,7 +21,7 @@ from solver.engine.linalg import check_rank, linearise, schur
 from solver.engine.validate import require_valid
 from solver.errors import Cancelled, JobError, Problem, RankDeficientError, UnusableSolution
 from solver.quality.control_fit import control_misfits, control_problems
-from solver.quality.datum import DatumAnalysis, analyse_datum
+from solver.quality.datum import DatumAnalysis, analyse_datum, datum_problem
 from solver.report.document import assess
 from solver.schema.job import Job
 from solver.schema.settings import JobSettings
@@ -76,15 +76,7 @@ def assert_full_rank(problem: AdjustmentState) -> DatumAnalysis:
             )
         )
     if datum.undetermined and datum_options.undetermined == "refuse":
-        issues.append(
-            Problem(
-                "datum_undetermined",
-                f"the datum is not determined: {datum.message()}. Defined by: "
-                f"{', '.join(datum.defined_by) or 'nothing'}. Remedies: " + "; ".join(datum.remedies),
-                ("points",),
-                datum.to_report(),
-            )
-        )
+        issues.append(datum_problem(datum.to_report()))
     rank = check_rank(parts, parameter_names(problem), fast=True)
     if rank.deficient:
         names = ", ".join(n for n, _ in rank.null_parameters) or "(spread over many parameters)"

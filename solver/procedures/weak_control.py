@@ -39,9 +39,10 @@ from __future__ import annotations
 from typing import Any
 
 from solver.engine.validate import handed_like
-from solver.errors import JobError
+from solver.errors import JobError, RankDeficientError
 from solver.platforms import ELEMENTS, get_model
 from solver.procedures.single import Adjust
+from solver.quality.datum import datum_problem
 from solver.schema.job import Job
 
 RULE = ("when an attitude term's sigma over half the image exceeds options.quality_warnings.attitude_sigma_deg "
@@ -127,12 +128,18 @@ def _band_warning(job: Job) -> tuple[dict[str, dict[str, Any]], str | None]:
 def weak_control_rule(job: Job, adjust: Adjust, progress) -> dict[str, Any]:
     """Adjust ``job`` under the rule of the module docstring (``adjust``: the adjustment with the
     rule off) and return the last report, with ``quality.weak_control`` when it acted."""
-    plain = job.model_copy(update={"options": job.options.model_copy(update={"weak_control": "warn"})})
-    with handed_like(job, plain):  # only the rule's own option differs: validated as the job was
+    # the datum analysis reports (not refuses) the first adjustment: weak control leaves the
+    # attitude's rates, and so the block's tilts, undetermined, which is what the rule acts on
+    own_datum = job.options.datum
+    first_datum = own_datum.model_copy(update={"undetermined": "report"})
+    plain = job.model_copy(update={"options": job.options.model_copy(update={"weak_control": "warn", "datum": first_datum})})
+    with handed_like(job, plain):  # only the procedures' own options differ: validated as the job was
         report = adjust(plain, (0.0, 0.5))
     extent, band = _band_warning(plain)
     narrow = set(_narrow(extent))
     flagged = [f for f in _undetermined(report) if f["image"] in narrow]
+    if not flagged and report["quality"].get("datum", {}).get("undetermined") and own_datum.undetermined == "refuse":
+        raise RankDeficientError([datum_problem(report["quality"]["datum"])])
     if not flagged:
         if band:
             report["warnings"].insert(0, band)
@@ -141,11 +148,14 @@ def weak_control_rule(job: Job, adjust: Adjust, progress) -> dict[str, Any]:
         return report
     images = {f["image"] for f in flagged}
     trial = _constant_attitude(plain, report, images)
+    trial = trial.model_copy(update={"options": trial.options.model_copy(update={"datum": own_datum})})
     section: dict[str, Any] = {"rule": RULE, "undetermined": flagged, "orders": _orders(trial, {i.id for i in trial.images}),
                                "control_extent": extent, "check_rmse_3d_m_before": report["checkpoints"]["rmse_m"].get("3d")}
     try:
         final = adjust(trial, (0.5, 1.0))
     except JobError as exc:
+        if exc.code == "datum_undetermined" and own_datum.undetermined == "refuse":
+            raise  # the rule could not make the datum determined: the job's refusal stands
         report["quality"]["weak_control"] = {**section, "action": "none",
                                              "ended": f"the adjustment with constant attitude failed: {exc.problems[0].message[:160]}"}
         return report

@@ -33,6 +33,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from solver.engine.linalg import Linearisation, SchurParts
+from solver.errors import Problem
 from solver.state import AdjustmentState
 
 DIRECTIONS = (
@@ -82,12 +83,29 @@ class DatumAnalysis:
 
     def message(self) -> str:
         """One sentence for a refusal or a warning."""
-        parts = []
-        for u in self.undetermined:
-            sigma = "not determined at all" if u["sigma_m"] is None else f"sigma {u['sigma_m']:.3g} m"
-            moved = f"; it moves {', '.join(u['parameters'])}" if u["parameters"] else ""
-            parts.append(f"{u['words']} is not determined ({sigma}{moved})")
-        return "; ".join(parts)
+        return undetermined_message(self.undetermined)
+
+
+def undetermined_message(undetermined: list[dict[str, Any]]) -> str:
+    """The undetermined directions (``quality.datum.undetermined``) in one sentence."""
+    parts = []
+    for u in undetermined:
+        sigma = "not determined at all" if u["sigma_m"] is None else f"sigma {u['sigma_m']:.3g} m"
+        moved = f"; it moves {', '.join(u['parameters'])}" if u["parameters"] else ""
+        parts.append(f"{u['words']} is not determined ({sigma}{moved})")
+    return "; ".join(parts)
+
+
+def datum_problem(section: dict[str, Any]) -> Problem:
+    """The refusal of a job whose datum analysis (``quality.datum``, :meth:`DatumAnalysis.to_report`)
+    found undetermined directions."""
+    return Problem(
+        "datum_undetermined",
+        f"the datum is not determined: {undetermined_message(section['undetermined'])}. Defined by: "
+        f"{', '.join(section['defined_by']) or 'nothing'}. Remedies: " + "; ".join(section.get("remedies", REMEDIES)),
+        ("points",),
+        section,
+    )
 
 
 def _tie_functionals(problem: AdjustmentState, parts: SchurParts) -> tuple[np.ndarray, np.ndarray, list[float]]:
@@ -245,7 +263,7 @@ def analyse_datum(problem: AdjustmentState, lin: Linearisation, parts: SchurPart
         v = np.einsum("qab,qbk->qak", parts.c_inv, g)
         u = _b_c_inv(lin, parts, v, n_f)
         x, in_null, null_part = _solve_reduced(parts.s, u)
-        var = np.einsum("qak,qak->k", g, v) + np.einsum("jk,jk->k", u, x)
+        var = np.einsum("qak,qak->k", g, v) + np.einsum("jk,jk->k", u, x)  # as functional_variances, keeping x
         s_inv_diag: np.ndarray | None = None
         for k, (key, words, _unit) in enumerate(DIRECTIONS):
             infinite = bool(in_null[k] > NULL_SHARE)
@@ -286,3 +304,38 @@ def _largest(weight: np.ndarray, names: list[str]) -> list[str]:
     order = np.argsort(-weight)
     top = float(weight[order[0]])
     return [names[j] for j in order[:NAMED_PARAMETERS] if top > 0 and weight[j] >= 0.5 * top]
+
+
+def functional_variances(lin: Linearisation, parts: SchurParts, g: np.ndarray) -> np.ndarray:
+    """g^T N^-1 g (a-priori scale) of point-space functionals ``g`` (n_est, 3, k) on the
+    estimated points' LGS coordinates (module docstring; infinite where S is singular along it)."""
+    v = np.einsum("qab,qbk->qak", parts.c_inv, g)
+    u = _b_c_inv(lin, parts, v, parts.s.shape[0])
+    x, in_null, _ = _solve_reduced(parts.s, u)
+    var = np.einsum("qak,qak->k", g, v) + np.einsum("jk,jk->k", u, x)
+    return np.where(in_null > NULL_SHARE, np.inf, var)
+
+
+def dem_bias_test(residual_w: np.ndarray, a_w: np.ndarray, hat: float, alpha: float) -> dict[str, Any]:
+    """The test of a common DEM bias b (metres) added to every DEM height, from the whitened
+    residuals ``residual_w`` of the DEM heights, the whitened design column of b ``a_w`` (1/sigma
+    per DEM height) and ``hat`` = a^T H a (H = J N^-1 J^T, the hat matrix of the whole
+    adjustment; :func:`functional_variances` of the DEM rows' Jacobian onto the points)::
+
+        b = a^T r / (a^T a - hat),  sigma_b = 1 / sqrt(a^T a - hat),  w = b / sigma_b
+
+    (the estimate b would take as one more parameter; a^T a - hat = a^T Q_vv P a). ``w`` is
+    standard normal without a bias; |w| beyond the two-sided ``alpha`` quantile rejects. When the
+    DEM alone defines the heights, a^T a - hat is about zero: not testable."""
+    from solver.quality.distributions import normal_quantile
+
+    info = float(a_w @ a_w) - hat
+    critical = float(normal_quantile(1.0 - alpha / 2.0))
+    if not np.isfinite(info) or info <= 1e-6 * float(a_w @ a_w):
+        return {"testable": False, "critical": critical,
+                "reason": "the DEM alone fixes the heights: a common DEM bias moves every height with it and cannot be seen"}
+    b = float(a_w @ residual_w) / info
+    sigma = 1.0 / np.sqrt(info)
+    w = b / sigma
+    return {"testable": True, "bias_m": b, "sigma_m": float(sigma), "w": float(w), "critical": critical,
+            "passed": bool(abs(w) <= critical)}

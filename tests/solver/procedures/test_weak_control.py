@@ -12,6 +12,7 @@ import pytest
 
 from solver.api import run
 from solver.cli import main
+from solver.errors import JobError
 from solver.procedures.weak_control import BAND_FRACTION, _band_warning, _narrow, control_extent
 from solver.schema.job import load_job
 
@@ -63,9 +64,13 @@ def test_the_default_acts_on_undetermined_attitude_and_says_so(triplet) -> None:
 
     warned = copy.deepcopy(weak)
     warned["options"]["weak_control"] = "warn"
+    with pytest.raises(JobError, match="tilt of the tie points' heights"):  # the datum analysis sees it
+        run(warned)
+    warned["options"]["datum"] = {"undetermined": "report"}
     before = run(warned)
     assert before["checkpoints"]["rmse_m"]["3d"] > WITHOUT_RULE_M
     assert "weak_control" not in before["quality"]
+    assert {"tilt_east", "tilt_north"} & {u["direction"] for u in before["quality"]["datum"]["undetermined"]}
 
     rep = run(weak)
     wc = rep["quality"]["weak_control"]
