@@ -187,3 +187,75 @@ def read_dem(path: Path | str, vertical: str | None = None, bounds_lon_lat: tupl
     c0, r0 = float(window.col_off), float(window.row_off)
     corner = (t.c + c0 * t.a + r0 * t.b, t.f + c0 * t.d + r0 * t.e)  # the window's first corner
     return Dem(values, (t.a, t.b, corner[0], t.d, t.e, corner[1]), horizontal, datum, shown)
+
+
+MAX_JOB_CELLS = 4_000_000  # cells a job may carry (16 MB of float32; a 60 x 60 km scene at 30 m)
+
+
+def ellipsoidal_grid(dem: Dem) -> np.ndarray:
+    """The DEM's values as WGS 84 ellipsoidal heights, cell by cell (its geoid undulation at
+    each cell centre added; the values themselves for an ellipsoidal DEM)."""
+    if dem.vertical.ellipsoidal:
+        return dem.values.copy()
+    rows, cols = dem.values.shape
+    a, b, c, d, e, f = dem.transform
+    cc, rr = np.meshgrid(np.arange(cols) + 0.5, np.arange(rows) + 0.5)
+    x, y = c + a * cc + b * rr, f + d * cc + e * rr
+    lon, lat = Transformer.from_crs(dem.crs, CRS.from_epsg(4326), always_xy=True).transform(x.ravel(), y.ravel())
+    return dem.values + dem.vertical.undulation(np.asarray(lon), np.asarray(lat)).reshape(rows, cols)
+
+
+def grid_to_job(dem: Dem, max_cells: int = MAX_JOB_CELLS) -> dict:
+    """The job document's ``dem.grid`` of ``dem``: its heights converted to ellipsoidal ones
+    (so that the solver needs no geoid grid), float32 little-endian, row-major, base64; NaN
+    where there is no data. A DEM of more than ``max_cells`` cells is averaged over blocks of
+    k x k cells (the smallest k that fits; the cell size, and so the height sigma's resolution
+    term, grows by k)."""
+    import base64
+
+    values = ellipsoidal_grid(dem)
+    a, b, c, d, e, f = dem.transform
+    k = 1
+    while values.size / (k * k) > max_cells:
+        k += 1
+    if k > 1:
+        rows, cols = (values.shape[0] // k) * k, (values.shape[1] // k) * k
+        blocks = values[:rows, :cols].reshape(rows // k, k, cols // k, k)
+        with np.errstate(invalid="ignore"):
+            values = np.nanmean(blocks, axis=(1, 3)) if np.isfinite(blocks).any() else blocks.mean(axis=(1, 3))
+        a, b, d, e = a * k, b * k, d * k, e * k
+    data = values.astype("<f4").tobytes()
+    return {
+        "crs": dem.crs.to_wkt(),
+        "transform": [float(a), float(b), float(c), float(d), float(e), float(f)],
+        "rows": int(values.shape[0]),
+        "columns": int(values.shape[1]),
+        "heights": base64.b64encode(data).decode("ascii"),
+        "source": dem.source + (f" (averaged over {k} x {k} cells)" if k > 1 else ""),
+        "vertical": dem.vertical.name + ("" if dem.vertical.ellipsoidal else ", converted to WGS 84 ellipsoidal heights"),
+    }
+
+
+def grid_from_job(grid: dict) -> Dem:
+    """The :class:`Dem` of a job's ``dem.grid`` (ellipsoidal heights). Raises :class:`DemError`
+    when the heights do not decode to rows x columns float32 values."""
+    import base64
+    import binascii
+
+    try:
+        raw = base64.b64decode(grid["heights"], validate=True)
+    except (binascii.Error, ValueError):
+        raise DemError("dem.grid.heights is not base64") from None
+    rows, cols = int(grid["rows"]), int(grid["columns"])
+    if len(raw) != 4 * rows * cols:
+        raise DemError(f"dem.grid.heights holds {len(raw) // 4} values, rows x columns is {rows * cols}")
+    values = np.frombuffer(raw, dtype="<f4").astype(float).reshape(rows, cols)
+    try:
+        crs = CRS.from_user_input(grid["crs"])
+    except Exception as exc:  # pyproj raises CRSError; any failure is the same bad input
+        raise DemError(f"dem.grid.crs: {exc}") from None
+    a, b, _c, d, e, _f = grid["transform"]
+    if a * e - b * d == 0:
+        raise DemError("dem.grid.transform is singular")
+    ellipsoidal = VerticalDatum(None, "WGS 84 ellipsoidal heights", "the job (converted when it was composed)")
+    return Dem(values, tuple(float(t) for t in grid["transform"]), crs, ellipsoidal, str(grid.get("source", "DEM")))

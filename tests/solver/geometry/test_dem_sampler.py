@@ -140,3 +140,32 @@ def test_real_srtm_crop_with_its_egm96_heights() -> None:
     np.testing.assert_allclose(part.sample(lon_q, lat_q)[0], dem.sample(lon_q, lat_q)[0], atol=1e-9)
     with pytest.raises(DemError, match="does not cover"):
         read_dem(path, "egm96", bounds_lon_lat=(6.0, 45.0, 6.1, 45.1))
+
+
+FLOAT32_M = 1e-4  # heights of ~1,000 m carried as float32 in the job (6e-5 m steps)
+
+
+def test_a_dem_carried_in_the_job_reads_back_ellipsoidal() -> None:
+    """``grid_to_job`` converts the EGM96 heights to ellipsoidal ones cell by cell; the job's
+    grid samples as the file does through its datum (no geoid grid needed to read it back)."""
+    from solver.geometry.dem import grid_from_job, grid_to_job
+
+    dem = read_dem(DATA / "srtm_ventoux.tif", "egm96")
+    grid = grid_to_job(dem)
+    assert (grid["rows"], grid["columns"]) == dem.values.shape
+    assert "EGM96" in grid["vertical"] and "converted" in grid["vertical"]
+    back = grid_from_job(grid)
+    assert back.vertical.ellipsoidal
+    rng = np.random.default_rng(4)
+    lon, lat = rng.uniform(5.17, 5.22, 200), rng.uniform(44.19, 44.22, 200)
+    want, want_slope = dem.sample(lon, lat)
+    got, got_slope = back.sample(lon, lat)
+    # the undulation is taken at cell centres and interpolated: its own curvature over 90 m is < 1 mm
+    np.testing.assert_allclose(got, want, atol=FLOAT32_M + 1e-3)
+    np.testing.assert_allclose(got_slope, want_slope, atol=1e-4)
+    # too many cells for a job: averaged over k x k blocks, the cell k times larger
+    small = grid_from_job(grid_to_job(dem, max_cells=1000))
+    assert small.values.size <= 1000 and small.cell_m == pytest.approx(3 * dem.cell_m, rel=0.01)
+    assert np.nanmean(small.values) == pytest.approx(np.nanmean(back.values[: small.values.shape[0] * 3, : small.values.shape[1] * 3]), abs=0.01)
+    with pytest.raises(DemError, match="holds"):
+        grid_from_job({**grid, "rows": grid["rows"] + 1})
