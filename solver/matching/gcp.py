@@ -6,7 +6,11 @@
    candidate; a cell without texture gives none.
 2. **Ground.** The candidate's map coordinates (the orthophoto's CRS and geotransform, pixel
    centres) become longitude and latitude, and its ellipsoidal height comes from the DEM
-   (bilinear; ``--dem``, which must hold ellipsoidal heights) or is the constant ``--height``.
+   (bilinear, :mod:`solver.geometry.dem`; ``--dem``, its vertical datum from the file or
+   ``--dem-vertical``, converted to ellipsoidal heights) or is the constant ``--height``. With
+   ``--dem-sigma`` (the DEM's stated accuracy) each point gets survey sigmas: the orthophoto's
+   pixel horizontally (its georeferencing, at best) and the DEM height's sigma of
+   docs/datum.md (the accuracy, the slope times that pixel, the DEM's cell against it).
 3. **Prediction.** The image model (the job's orientation, or the raster's RPC) projects that
    ground point into the image. The local affine from orthophoto pixels to image pixels is
    taken by finite differences (2 orthophoto pixels, with the DEM's heights).
@@ -153,18 +157,50 @@ class GcpResult:
 def control_points_csv(points: list[dict[str, Any]]) -> str:
     """The control points table the importers read (:mod:`solver.importers.points_csv`):
     ``id,x,y,z,role`` with the CRS in a comment (``--crs EPSG:4979`` for ``pba job --gcps``)."""
+    if points and all("sigma_m" in p for p in points):
+        rows = [f"# crs: {GCP_CRS}", "id,x,y,z,sigma_x,sigma_y,sigma_z,role"]
+        rows += [f"{p['id']},{p['coordinates'][0]:.9f},{p['coordinates'][1]:.9f},{p['coordinates'][2]:.3f},"
+                 f"{p['sigma_m'][0]:.3f},{p['sigma_m'][1]:.3f},{p['sigma_m'][2]:.3f},{p['role']}" for p in points]
+        return "\n".join(rows) + "\n"
     rows = [f"# crs: {GCP_CRS}", "id,x,y,z,role"]
     rows += [f"{p['id']},{p['coordinates'][0]:.9f},{p['coordinates'][1]:.9f},{p['coordinates'][2]:.3f},{p['role']}" for p in points]
     return "\n".join(rows) + "\n"
 
 
-def _heights(dem: Georaster | None, height_m: float | None, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+class DemHeights:
+    """The DEM under the orthophoto (:func:`solver.geometry.dem.read_dem`: its window, its
+    vertical datum resolved): ``sample(lon, lat)`` -> ellipsoidal heights."""
+
+    def __init__(self, path: Path, vertical: str | None, ortho: Georaster):
+        from solver.geometry.dem import read_dem
+
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise RasterError(f"{path}: no such file")
+        t = np.linspace(0.0, 1.0, 3)
+        rr, cc = np.meshgrid(t * ortho.dataset.height, t * ortho.dataset.width, indexing="ij")
+        lon, lat = ortho.to_lonlat(*ortho.pixel_to_map(rr.ravel() - 0.5, cc.ravel() - 0.5))
+        self.dem = read_dem(self.path, vertical, bounds_lon_lat=(lon.min(), lat.min(), lon.max(), lat.max()))
+
+    def sample(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+        return self.dem.sample(lon, lat)[0]
+
+    def slope(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+        """|grad h| (m/m)."""
+        s = self.dem.sample(lon, lat)[1]
+        return np.hypot(s[:, 0], s[:, 1])
+
+    def close(self) -> None:
+        return None
+
+
+def _heights(dem: DemHeights | None, height_m: float | None, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
     if dem is not None:
         return dem.sample(lon, lat)
     return np.full(np.shape(lon), float(height_m))
 
 
-def _predict(image: MatchImage, ortho: Georaster, dem: Georaster | None, height_m: float | None, row: np.ndarray, col: np.ndarray):
+def _predict(image: MatchImage, ortho: Georaster, dem: DemHeights | None, height_m: float | None, row: np.ndarray, col: np.ndarray):
     """(image line, image column, lon, lat, h) of orthophoto pixels."""
     from solver.geometry.geodesy import geodetic_to_ecef
 
@@ -270,23 +306,43 @@ def _consistent(pred: np.ndarray, meas: np.ndarray, lines: int, columns: int) ->
 
 
 def match_gcps(image: MatchImage, ortho_path: Path, dem_path: Path | None, height_m: float | None,
-               settings: MatchSettings = MatchSettings(), progress: Callable[[float, str], None] | None = None) -> GcpResult:
+               settings: MatchSettings = MatchSettings(), progress: Callable[[float, str], None] | None = None,
+               dem_vertical: str | None = None, dem_sigma_m: float | None = None) -> GcpResult:
     """Control points of ``image`` from the orthophoto (module docstring). ``height_m``: the
-    terrain's ellipsoidal height where there is no DEM (one of the two is needed)."""
+    terrain's ellipsoidal height where there is no DEM (one of the two is needed);
+    ``dem_vertical``: the DEM's vertical datum where its file does not state it;
+    ``dem_sigma_m``: the DEM's accuracy (the points then get survey sigmas)."""
     say = progress or (lambda f, m: None)
     if dem_path is None and height_m is None:
-        raise GcpError("give the terrain: --dem DEM (ellipsoidal heights) or --height METRES")
+        raise GcpError("give the terrain: --dem DEM or --height METRES (ellipsoidal)")
     ortho = Georaster.open(ortho_path, "orthophoto")
-    dem = Georaster.open(dem_path, "DEM") if dem_path is not None else None
     try:
-        return _match(image, ortho, dem, height_m, settings, say)
+        dem = DemHeights(dem_path, dem_vertical, ortho) if dem_path is not None else None
+        result = _match(image, ortho, dem, height_m, settings, say)
+        if dem is not None:
+            result.summary["dem"] = {"path": str(dem.path), "vertical": dem.dem.vertical.to_dict(), "cell_m": round(dem.dem.cell_m, 3)}
+            if dem_sigma_m is not None:
+                _dem_sigmas(result, dem, ortho, dem_sigma_m)
+        return result
     finally:
         ortho.close()
-        if dem is not None:
-            dem.close()
 
 
-def _match(image: MatchImage, ortho: Georaster, dem: Georaster | None, height_m: float | None, s: MatchSettings, say) -> GcpResult:
+def _dem_sigmas(result: GcpResult, dem: DemHeights, ortho: Georaster, dem_sigma_m: float) -> None:
+    """Survey sigmas of the points (module docstring, step 2), in place."""
+    from solver.geometry.dem import height_sigma
+
+    t = ortho.dataset.transform
+    lat = np.array([p["coordinates"][1] for p in result.points])
+    lon = np.array([p["coordinates"][0] for p in result.points])
+    pixel = abs(t.a) * (111_319.49 * np.cos(np.radians(lat)) if ortho.dataset.crs.is_geographic else 1.0)
+    vertical = height_sigma(dem_sigma_m, dem.slope(lon, lat), pixel, dem.dem.cell_m, pixel)
+    for p, sh, sv in zip(result.points, np.broadcast_to(pixel, lat.shape), vertical, strict=True):
+        p["sigma_m"] = [round(float(sh), 3), round(float(sh), 3), round(float(sv), 3)]
+    result.summary["dem"]["sigma_m"] = dem_sigma_m
+
+
+def _match(image: MatchImage, ortho: Georaster, dem: DemHeights | None, height_m: float | None, s: MatchSettings, say) -> GcpResult:
     import cv2
 
     cv2.setNumThreads(1)

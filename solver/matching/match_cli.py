@@ -56,7 +56,11 @@ def register_gcp(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("image", metavar="IMAGE", help="the image's raster, as PATH or ID=PATH (ID: the job's image id)")
     p.add_argument("ortho", type=Path, metavar="ORTHO", help="georeferenced orthophoto (GDAL: GeoTIFF, JPEG 2000, ...)")
-    p.add_argument("--dem", type=Path, help="DEM of ellipsoidal heights (m) under the orthophoto (GDAL, georeferenced)")
+    p.add_argument("--dem", type=Path, help="DEM under the orthophoto (GDAL, georeferenced): the control points' heights")
+    p.add_argument("--dem-vertical", metavar="DATUM", help="the DEM's vertical datum where its file does not state it: ellipsoid, "
+                   "egm96 (SRTM), egm2008 (Copernicus DEM) or a vertical CRS (EPSG:code); see docs/datum.md")
+    p.add_argument("--dem-sigma", type=float, metavar="METRES", help="the DEM's vertical accuracy (one sigma): the control points "
+                   "get survey sigmas (the orthophoto's pixel horizontally, the DEM height's sigma vertically)")
     p.add_argument("--height", type=float, help="the terrain's ellipsoidal height (m) where there is no DEM")
     p.add_argument("--job", type=Path, help="job document orienting the image (default: the raster's own RPC)")
     p.add_argument("--report", type=Path, help="the job's report (adjusted orientation; default: the job's initial one)")
@@ -87,8 +91,11 @@ def cmd_match_gcp(args: argparse.Namespace) -> int:
         settings = settings_from_args(args)
         if args.height is not None and not math.isfinite(args.height):
             raise ValueError("--height must be a number of metres")
+        if args.dem_sigma is not None and not (math.isfinite(args.dem_sigma) and args.dem_sigma > 0):
+            raise ValueError("--dem-sigma must be a positive number of metres")
         images, _heights = load_images(args)
-        result = match_gcps(images[0], args.ortho, args.dem, args.height, settings, _bar(not args.quiet))
+        result = match_gcps(images[0], args.ortho, args.dem, args.height, settings, _bar(not args.quiet),
+                            dem_vertical=args.dem_vertical, dem_sigma_m=args.dem_sigma)
     except (RasterError, OrientationError, GcpError, ModelMismatch, ValueError) as exc:
         return _fail(str(exc), "match-gcp")
     except ValidationError as exc:

@@ -78,9 +78,14 @@ def test_control_points_match_the_truth(scene_files, image, pixel_m):
     scene, d = scene_files
     ortho, dem = _ortho(scene, d, pixel_m)
     out, meas, summary = d / f"g-{image}.csv", d / f"m-{image}.csv", d / f"s-{image}.json"
-    assert main(["match-gcp", str(d / f"sim.{image}.tif"), str(ortho), "--dem", str(dem), "--job", str(d / "sim.json"),
-                 "-o", str(out), "--measurements", str(meas), "--summary", str(summary), "-q", *GRID]) == 0
+    assert main(["match-gcp", str(d / f"sim.{image}.tif"), str(ortho), "--dem", str(dem), "--dem-vertical", "ellipsoid", "--job", str(d / "sim.json"),
+                 "--dem-sigma", "2", "-o", str(out), "--measurements", str(meas), "--summary", str(summary), "-q", *GRID]) == 0
     points = {p["id"]: p for p in read_points(out.read_text(), out.name)}
+    # survey sigmas: the orthophoto's pixel horizontally, the DEM height's sigma (its 2 m, the slope
+    # times the pixel; the simulated DEM has the orthophoto's cells) vertically
+    for p in points.values():
+        assert p["sigma_m"][0] == pytest.approx(pixel_m, rel=0.01) and p["sigma_m"][1] == p["sigma_m"][0]
+        assert 2.0 <= p["sigma_m"][2] < 2.0 + pixel_m, p
     measurements = read_measurements(meas.read_text(), meas.name)
     assert len(measurements) >= MIN_CONTROL_POINTS and all(p["role"] == "gcp" for p in points.values())
     geom = scene.images[[g.id for g in scene.images].index(image)]
@@ -113,7 +118,8 @@ def test_bad_inputs_exit_2(scene_files, tmp_path, capsys):
     _fails([*base, str(ortho)], capsys, "--dem", "--height")
     _fails([*base, str(d / "sim.back.tif"), "--height", "500"], capsys, "georeferenced")
     far, far_dem = _ortho(scene, d, 15.0, shift_deg=1.0)
-    _fails([*base, str(far), "--dem", str(far_dem)], capsys, "does not fall")
+    _fails([*base, str(far), "--dem", str(far_dem), "--dem-vertical", "ellipsoid"], capsys, "does not fall")
+    _fails([*base, str(ortho), "--dem", str(dem)], capsys, "does not state its vertical datum", "egm96")
     cut = tmp_path / "cut.tif"
     cut.write_bytes(ortho.read_bytes()[:2000])
-    _fails([*base, str(cut), "--dem", str(dem)], capsys, "cut.tif")
+    _fails([*base, str(cut), "--dem", str(dem), "--dem-vertical", "ellipsoid"], capsys, "cut.tif")
