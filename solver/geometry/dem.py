@@ -37,6 +37,18 @@ M_PER_DEG = 111_319.49  # metres per degree on WGS 84's equator (cell sizes of g
 STEP_M = 1.0  # metres east / north of the finite differences that map the DEM's axes onto the LGS's
 
 
+def metres_per_degree(lat_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Metres per degree of longitude and of latitude on the WGS 84 ellipsoid at ``lat_deg``
+    (the prime-vertical radius times cos(lat), the meridian radius)."""
+    from solver.geometry.geodesy import A_WGS84_M, E2_WGS84
+
+    phi = np.radians(np.asarray(lat_deg, dtype=float))
+    w2 = 1.0 - E2_WGS84 * np.sin(phi) ** 2
+    n = A_WGS84_M / np.sqrt(w2)
+    m = A_WGS84_M * (1.0 - E2_WGS84) / w2**1.5
+    return np.radians(1.0) * n * np.cos(phi), np.radians(1.0) * m
+
+
 class DemError(ValueError):
     """A DEM that cannot be used (unreadable, no CRS, no heights where asked)."""
 
@@ -118,9 +130,11 @@ class Dem:
         positions; NaN outside the DEM or next to a no-data cell."""
         lon = np.atleast_1d(np.asarray(lon_deg, dtype=float))
         lat = np.atleast_1d(np.asarray(lat_deg, dtype=float))
-        # the DEM's axes against local east / north: finite differences of STEP_M metres
-        dlon = STEP_M / (M_PER_DEG * np.cos(np.radians(lat)))
-        dlat = STEP_M / M_PER_DEG
+        # the DEM's axes against local east / north: finite differences of STEP_M metres on the
+        # ellipsoid (its radii of curvature at the latitude)
+        m_lon, m_lat = metres_per_degree(lat)
+        dlon = STEP_M / m_lon
+        dlat = STEP_M / m_lat
         xs, ys = self._to_dem.transform(np.concatenate([lon, lon + dlon, lon]), np.concatenate([lat, lat, lat + dlat]))
         xs, ys = np.asarray(xs).reshape(3, -1), np.asarray(ys).reshape(3, -1)
         col, row = self._pixel(xs[0], ys[0])
