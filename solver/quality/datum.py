@@ -17,8 +17,11 @@ blocks) and S = A - B C^-1 B^T the reduced matrix the rank check factors
 (or that lies in the null space of S: infinite) is *not determined*; the analysis names it
 ("a common height shift of all tie points"), the image parameters that move with it
 (largest covariance with it, relative to their own sigmas: "b: a0"), and the remedies.
-By default such a job is refused before the solve (a 4xx problem, exit 2); with
-``options.datum.undetermined = "report"`` it is adjusted and the report says so.
+A direction not determined at all (the null space) refuses the job before the solve (a 4xx
+problem, exit 2); one whose sigma is only too large at the initial values is confirmed at the
+solution (initial values far from the truth can make a determined direction look weak) and
+refused there. With ``options.datum.undetermined = "report"`` the job is adjusted and the
+report says so.
 
 Independent of the sigmas, the analysis says what each image is tied by (its control points,
 its priors, or only tie points: then its orientation comes from the other images).
@@ -70,9 +73,11 @@ class DatumAnalysis:
     images: dict[str, str]
     max_sigma_m: float
     remedies: list[str] = field(default_factory=lambda: list(REMEDIES))
+    at: str = "initial values"  # where the normal matrix was formed: "initial values" or "solution"
 
     def to_report(self) -> dict[str, Any]:
         return {
+            "at": self.at,
             "defined_by": self.defined_by,
             "max_sigma_m": self.max_sigma_m,
             "directions": self.directions,

@@ -21,7 +21,7 @@ import solver.engine.backend as backend
 import solver.engine.linalg as linalg
 import solver.errors as errors
 from solver.api import compare, run
-from solver.errors import JobError
+from solver.errors import JobError, RankDeficientError
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 OBSERVATION_COSTS = (backend.ImageBatchCost, backend.PointCost)
@@ -146,6 +146,9 @@ def test_correlations_stay_within_one_when_every_observation_is_at_one_pixel() -
     doc = triplet(self_calibration={"estimate": ["df", "a0", "b0"]})
     for o in doc["observations"]:
         o["line"], o["column"] = 100.0, 200.0
+    with pytest.raises(RankDeficientError, match="the datum is not determined"):  # refused by default (docs/datum.md)
+        run(copy.deepcopy(doc))
+    doc["options"]["datum"] = {"undetermined": "report"}
     rep = run(copy.deepcopy(doc))
     rhos = [p["rho"] for p in rep["correlations"]["pairs"]]
     assert all(-1.0 <= r <= 1.0 for r in rhos), max(map(abs, rhos))
