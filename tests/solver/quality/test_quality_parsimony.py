@@ -67,7 +67,9 @@ def test_attitude_sigma_beyond_plausibility_is_named():
     determined (0.15-1.1 deg over the image measured) and the report names them."""
     job = _oa_job({"omega": 3, "phi": 3, "kappa": 3}, n_gcp=4)
     job["options"]["weak_control"] = "warn"  # only the warnings (the default acts on them: test_weak_control.py)
+    job["options"]["datum"] = {"undetermined": "report"}  # the datum analysis sees the same (refused by default)
     rep = adjust_job(load_job(job))
+    assert {u["direction"] for u in rep["quality"]["datum"]["undetermined"]} & {"tilt_east", "tilt_north"}
     warn = [w for w in rep["quality"]["warnings"] if w["kind"] == "implausible_sigma"]
     assert warn
     for w in warn:
