@@ -74,8 +74,9 @@ def degraded_dem(height: Callable[[np.ndarray, np.ndarray], np.ndarray], bounds_
     """Write the degraded DEM of the terrain ``height(lon, lat)`` (ellipsoidal metres) over
     ``bounds_lon_lat`` (west, south, east, north, degrees) to ``path``; returns what was done
     (cells, the noise's realised standard deviation and mean, the bias)."""
-    import rasterio
     from affine import Affine
+
+    from solver.raster_gate import create_raster
 
     d = degradation.cell_arcsec * ARCSEC
     w, s, e, n = bounds_lon_lat
@@ -94,7 +95,7 @@ def degraded_dem(height: Callable[[np.ndarray, np.ndarray], np.ndarray], bounds_
         values = _ellipsoidal_to(crs, glon, glat, values)
     profile = dict(driver="GTiff", dtype="float32", width=cols, height=rows, count=1, crs=crs,
                    transform=Affine(d, 0.0, w, 0.0, -d, n), compress="deflate", nodata=-32768.0)
-    with rasterio.open(path, "w", **profile) as dst:
+    with create_raster(path, **profile) as dst:
         dst.write(values.astype(np.float32), 1)
     return {"cells": [rows, cols], "cell_arcsec": degradation.cell_arcsec, "bias_m": degradation.bias_m,
             "noise_std_m": float(noise.std()), "noise_mean_m": float(noise.mean()), "crs": crs}
