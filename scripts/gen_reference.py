@@ -47,6 +47,10 @@ UNIT_SUFFIXES = (
 # number, "count": a number of things. tests/test_docs.py fails when a numeric field has neither a
 # unit in its name nor an entry here.
 FIELD_UNITS = {
+    "DemGrid.transform": "the grid CRS's units (a, b, d, e per cell; c, f at the first cell's corner)",
+    "DemGrid.rows": "cells",
+    "DemGrid.columns": "cells",
+    "DemHeights.loss_scale": "sigmas of a DEM height",
     "BiasPrior.value": "px (a0, b0) or px/px (the others)",
     "BiasPrior.sigma": "as `value`",
     "BlunderDetection.alpha0": "1 (probability)",

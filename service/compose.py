@@ -65,6 +65,8 @@ BOUNDS: dict[str, dict[str, Any]] = {
     "sigma_px": {"gt": 0, "le": 1e6},
     "match_tolerance_m": {"gt": 0, "le": 1e6},
     "bias_prior_px": {"gt": 0, "le": 1e6},
+    "dem_sigma_m": {"gt": 0, "le": 1e4},
+    "dem_vertical": {"max_length": 64},
     "first_line_time_s": {"allow_inf_nan": False},
 }
 DESCRIPTIONS = {
@@ -77,6 +79,9 @@ DESCRIPTIONS = {
     "asp_gcp": "ASP GCP files naming their images",
     "camera": "camera by name (a camera file's, a preset, the camera library's)",
     "crs": "CRS of the point tables",
+    "dem": "a DEM raster (GeoTIFF, JPEG 2000): its heights of the tie points become observations (job.dem)",
+    "dem_sigma_m": "the DEM's vertical accuracy, one sigma (m)",
+    "dem_vertical": "the DEM's vertical datum where its file does not state it: ellipsoid, egm96, egm2008 or EPSG:code",
 }
 
 

@@ -373,7 +373,16 @@ def _add_family_blocks(out: CeresProblem, problem: AdjustmentState, control: Sol
         else:
             cf = ImageTermCost(labelled.term, owner.nfree, control)
             out.python_blocks += 1
-        out.add(cf, None, [owner.params])
+        robust = getattr(labelled.term, "loss", None)  # optional: a family's own robust loss (DEM heights)
+        out.add(cf, _term_loss(robust()) if robust is not None else None, [owner.params])
+
+
+def _term_loss(spec: tuple[str, float] | None) -> Any:
+    """A term's robust loss from its ``(name, scale)`` (whitened units): "huber", "cauchy", or
+    None / "none" for plain least squares."""
+    if spec is None or spec[0] == "none":
+        return None
+    return pyceres.HuberLoss(spec[1]) if spec[0] == "huber" else pyceres.CauchyLoss(spec[1])
 
 
 def build_ceres_problem(problem: AdjustmentState, options: SolveSettings, control: SolveControl) -> CeresProblem:

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 from pathlib import PurePath
 from typing import Any
 
+import numpy as np
+
 from solver.geometry.geodesy import UnknownCRSError, parse_crs
 from solver.importers.asp_gcp import read_asp_gcp
 from solver.importers.attitude_csv import read_attitude
@@ -97,6 +99,9 @@ class ComposeRequest:
     models: list[str] = field(default_factory=lambda: ["K2"])  # of the images with a camera
     rpc_model: str = "RPC-DRIFT"  # bias model of the RPC images without their own
     bias_prior_px: float | None = None  # a 0 +- this prior on every RPC image's bias terms (rpc_bias_priors)
+    dem: SourceFile | None = None  # a DEM raster: heights of the tie points as observations (job.dem)
+    dem_sigma_m: float = 5.0  # the DEM's vertical accuracy, one sigma
+    dem_vertical: str | None = None  # the DEM's vertical datum where its file does not state it
     options: dict[str, Any] = field(default_factory=dict)
     name: str = "job"
     time_scale: str | None = None
@@ -209,7 +214,65 @@ def compose_job(req: ComposeRequest, camera_lookup: CameraLookup = preset_lookup
     }
     if options:
         job["options"] = options
+    if req.dem is not None:
+        job["dem"] = dem_section(req.dem, req.dem_sigma_m, req.dem_vertical, dem_area(job))
+        g = job["dem"]["grid"]
+        notes.append(f"DEM {req.dem.name}: {g['rows']} x {g['columns']} cells, {g['vertical']}; sigma {req.dem_sigma_m:g} m")
     return Composed(job, notes)
+
+
+DEM_MARGIN = 0.2  # of the area's extent added on each side (the points move; the images reach further)
+
+
+def dem_area(job: dict[str, Any]) -> tuple[float, float, float, float] | None:
+    """(west, south, east, north) degrees the job's images cover: the RPCs' ground domains
+    (offset +- scale) and the points' coordinates, widened by DEM_MARGIN; None when unknown."""
+    lon: list[float] = []
+    lat: list[float] = []
+    for im in job.get("images", []):
+        rpc = im.get("rpc")
+        if rpc:
+            lon += [rpc["long_off"] - abs(rpc["long_scale"]), rpc["long_off"] + abs(rpc["long_scale"])]
+            lat += [rpc["lat_off"] - abs(rpc["lat_scale"]), rpc["lat_off"] + abs(rpc["lat_scale"])]
+    coords = [p for p in job.get("points", []) if p.get("coordinates")]
+    if coords:
+        xyz = np.array([p["coordinates"] for p in coords], dtype=float)
+        crs = {p.get("crs", job.get("crs", DEFAULT_CRS)) for p in coords}
+        if len(crs) == 1:
+            from solver.geometry.geodesy import ecef_to_geodetic, to_ecef
+
+            llh = ecef_to_geodetic(to_ecef(xyz, crs.pop()))
+            lon += list(llh[:, 0])
+            lat += list(llh[:, 1])
+    if not lon:
+        return None
+    w, e, s, n = min(lon), max(lon), min(lat), max(lat)
+    dx, dy = max(e - w, 1e-3) * DEM_MARGIN, max(n - s, 1e-3) * DEM_MARGIN
+    return (w - dx, s - dy, e + dx, n + dy)
+
+
+def dem_section(f: SourceFile, sigma_m: float, vertical: str | None, area: tuple[float, float, float, float] | None) -> dict[str, Any]:
+    """The job's ``dem``: the DEM's window over ``area`` (the whole DEM when None) with its
+    heights converted to ellipsoidal ones (:func:`solver.geometry.dem.grid_to_job`). A DEM that
+    cannot be read, states no vertical datum, needs a geoid grid that is not here or does not
+    cover the area is a located problem of the file."""
+    from solver.geometry.dem import DemError, grid_to_job, read_dem
+    from solver.geometry.vertical import VerticalDatumError
+
+    if not (0.0 < sigma_m < float("inf")):
+        raise fail("dem_sigma_m", 0, "", f"{sigma_m}: a positive number of metres is expected", "bad_argument")
+    try:
+        if f.path:
+            dem = read_dem(f.path, vertical, bounds_lon_lat=area)
+        else:
+            from rasterio.io import MemoryFile
+
+            with MemoryFile(f.data) as mem:
+                dem = read_dem(mem.name, vertical, bounds_lon_lat=area)
+            dem.source = f.name
+    except (DemError, VerticalDatumError) as exc:
+        raise fail(f.name, 0, "", str(exc), "unusable_dem") from None
+    return {"grid": grid_to_job(dem), "sigma_m": float(sigma_m)}
 
 
 def _measurements(

@@ -71,6 +71,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bias-prior", type=float, metavar="PX",
                    help="a 0 +- PX prior on every RPC image's bias terms (offsets in px; drift terms PX over the "
                    "image's extent): the RPCs' own ground reference defines the datum")
+    p.add_argument("--dem", metavar="DEM", help="a DEM raster (GeoTIFF, JPEG 2000; an SRTM .hgt tile: gdal_translate it to GeoTIFF first): its heights of the tie points become "
+                   "observations, re-read as the points move (job.dem; docs/datum.md)")
+    p.add_argument("--dem-sigma", type=float, default=5.0, metavar="METRES",
+                   help="the DEM's vertical accuracy, one sigma (default 5; SRTM about 6, Copernicus DEM about 3)")
+    p.add_argument("--dem-vertical", metavar="DATUM", help="the DEM's vertical datum where its file does not state it: ellipsoid, "
+                   "egm96 (SRTM), egm2008 (Copernicus DEM) or a vertical CRS (EPSG:code)")
     p.add_argument("--time-scale", help="time scale of time files that do not state one (GPS, UTC, ...)")
     p.add_argument("--columns", action="append", default=[], metavar="FILE:NAME=COLUMN[,...]",
                    help="map a file's column names onto the format's (e.g. survey.csv:E=x,N=y,H=z)")
@@ -185,6 +191,9 @@ def request_from_args(args: argparse.Namespace) -> ComposeRequest:
         models=[m.strip() for m in args.model.split(",") if m.strip()],
         rpc_model=rpc_model,
         bias_prior_px=args.bias_prior,
+        dem=SourceFile(args.dem, b"", path=args.dem) if args.dem else None,
+        dem_sigma_m=args.dem_sigma,
+        dem_vertical=args.dem_vertical,
         options=options,
         name=args.name,
         time_scale=args.time_scale,

@@ -27,7 +27,7 @@ fake family this way and follows it through every stage.
 
 from __future__ import annotations
 
-from solver.observations import attitude, interior, lines, passes, state_priors
+from solver.observations import attitude, dem_heights, interior, lines, passes, state_priors
 from solver.observations.family import ObservationFamily
 
 FAMILIES: tuple[ObservationFamily, ...] = (
@@ -36,4 +36,5 @@ FAMILIES: tuple[ObservationFamily, ...] = (
     lines.FAMILY,  # straight-line control: "lines"
     passes.FAMILY,  # weighted states of the pass-propagated models: "passes"
     interior.FAMILY,  # interior orientation priors: "cameras"
+    dem_heights.FAMILY,  # DEM heights of the tie points (job.dem): "dem"
 )

@@ -70,7 +70,7 @@ class DatumAnalysis:
     defined_by: list[str]
     directions: list[dict[str, Any]]
     undetermined: list[dict[str, Any]]
-    images: dict[str, str]
+    images: list[dict[str, str]]
     max_sigma_m: float
     remedies: list[str] = field(default_factory=lambda: list(REMEDIES))
     at: str = "initial values"  # where the normal matrix was formed: "initial values" or "solution"
@@ -225,7 +225,7 @@ def _has_state_prior(problem: AdjustmentState, img: Any) -> bool:
     return state is not None and state.sigma_position_m is not None
 
 
-def _image_ties(problem: AdjustmentState) -> dict[str, str]:
+def _image_ties(problem: AdjustmentState) -> list[dict[str, str]]:
     """What ties each image to the datum, in words."""
     job = problem.job
     gcps = {p.id for p in job.points if p.role == "gcp"}
@@ -238,7 +238,7 @@ def _image_ties(problem: AdjustmentState) -> dict[str, str]:
         elif o.point in ties:
             n_tie[o.image] = n_tie.get(o.image, 0) + 1
     states = {im.id for im in problem.images if _has_state_prior(problem, im)}
-    out = {}
+    out = []
     for im in job.images:
         own = []
         if n_gcp.get(im.id):
@@ -250,10 +250,11 @@ def _image_ties(problem: AdjustmentState) -> dict[str, str]:
         if im.attitude and job.options.attitude is not None:
             own.append("its measured attitude")
         if own:
-            out[im.id] = ", ".join(own) + (f"; {n_tie.get(im.id, 0)} tie point observations" if n_tie.get(im.id) else "")
+            tied = ", ".join(own) + (f"; {n_tie.get(im.id, 0)} tie point observations" if n_tie.get(im.id) else "")
         else:
-            out[im.id] = (f"tie points only ({n_tie.get(im.id, 0)} observations): its orientation comes from the other "
-                          "images through them")
+            tied = (f"tie points only ({n_tie.get(im.id, 0)} observations): its orientation comes from the other "
+                    "images through them")
+        out.append({"image": im.id, "tied_by": tied})
     return out
 
 

@@ -412,6 +412,44 @@ class Image(_Strict):
     )
 
 
+MAX_DEM_CELLS = 4_000_000  # as solver.geometry.dem.MAX_JOB_CELLS: a 60 x 60 km scene at 30 m
+
+
+class DemGrid(_Strict):
+    """A DEM carried in the job (``pba job --dem`` writes it): WGS 84 ellipsoidal heights in
+    metres on a grid of ``rows`` x ``columns`` cells of the horizontal ``crs``, under the affine
+    ``transform`` (a, b, c, d, e, f: x = c + a col + b row, y = f + d col + e row at the cells'
+    corners), as base64 float32 little-endian values, row-major, NaN where there is no data."""
+
+    crs: str = Field(min_length=1, max_length=8192)
+    transform: tuple[Num, Num, Num, Num, Num, Num]
+    rows: _int(ge=2, le=MAX_DEM_CELLS)
+    columns: _int(ge=2, le=MAX_DEM_CELLS)
+    heights: str = Field(max_length=4 * ((4 * MAX_DEM_CELLS + 2) // 3), description="base64 of rows x columns float32 (little-endian), ellipsoidal metres")
+    source: str = Field(default="DEM", max_length=1024, description="the file the grid was read from")
+    vertical: str = Field(default="WGS 84 ellipsoidal heights", max_length=512,
+                          description="the file's vertical datum and its conversion to ellipsoidal heights")
+
+    @model_validator(mode="after")
+    def _cells(self) -> "DemGrid":
+        if self.rows * self.columns > MAX_DEM_CELLS:
+            raise ValueError(f"a DEM grid of at most {MAX_DEM_CELLS} cells")
+        return self
+
+
+class DemHeights(_Strict):
+    """DEM heights as observations of the tie points (docs/datum.md): the DEM's height at each
+    tie point's horizontal position, re-read as the point moves, weighted by the DEM's accuracy,
+    the local slope and the DEM's cell against the images' pixels."""
+
+    grid: DemGrid
+    sigma_m: SigmaM = Field(description="the DEM's vertical accuracy, one sigma (SRTM about 6 m, Copernicus DEM about 3 m)")
+    loss: Literal["huber", "cauchy", "none"] = Field(
+        default="huber", description="robust loss of the DEM heights (points on roofs, trees or water are not on the DEM's surface)")
+    loss_scale: _num(gt=0, le=1e3) = Field(default=3.0, description="where the loss starts, in sigmas of a DEM height")
+    excluded: list[_Id] = Field(default_factory=list, description="tie points whose DEM height is not used (data snooping's removals)")
+
+
 class GroundPoint(_Strict):
     """A ground point: control (gcp), check, or tie (unknown coordinates).
 
@@ -790,6 +828,7 @@ class Job(_Strict):
     lines: list[GroundLine] = Field(
         default_factory=list, description="straight lines (control or check) and their image observations"
     )
+    dem: DemHeights | None = Field(default=None, description="DEM heights as observations of the tie points")
     options: SolverOptions = Field(default_factory=SolverOptions)
 
     @model_validator(mode="before")

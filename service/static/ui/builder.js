@@ -26,6 +26,7 @@
     sensor: "vendor sensor metadata (Maxar XML, DIMAP)",
     cameras: "camera file (JSON)",
     raster: "raster of an image (for tie points)",
+    dem: "DEM (heights of the tie points)",
     asp_gcp: "ASP GCP (several images)",
     ignore: "ignore",
   };
@@ -77,6 +78,8 @@
   function guess(name, text) {
     const lower = name.toLowerCase();
     const stem = name.replace(/\.[^.]+$/, "");
+    // a DEM: SRTM's .hgt tiles, or a raster whose name says so (any raster can be set to DEM)
+    if (lower.endsWith(".hgt") || (RASTER.test(name) && /(^|[-_.])(dem|dsm|dtm|srtm|copdem|cop30|glo30)([-_.]|$)/.test(lower))) return { kind: "dem" };
     if (RASTER.test(name)) return { kind: "raster", image: stem };
     if (lower.endsWith(".json")) return { kind: "cameras" };
     // an image's RPC: GDAL's NAME_RPC.TXT, NAME.RPB, a DIMAP RPC_NAME.XML (a raster's RPC: its sidecar, or pba import-rpc)
@@ -221,8 +224,15 @@
       camera_files: of("cameras"),
       sigma_px: Number($("b-sigma").value) || 0.5,
       time_scale: $("b-time-scale").value.trim() || null,
+      bias_prior_px: Number($("b-bias-prior").value) || null,
       columns: Object.fromEntries(Object.entries(st.columns).filter(([, m]) => Object.keys(m).length)),
     };
+    const dem = of("dem");
+    if (dem.length) {
+      out.dem = dem[0];
+      out.dem_sigma_m = Number($("b-dem-sigma").value) || 5;
+      out.dem_vertical = $("b-dem-vertical").value || null;
+    }
     const opt = $("b-options").value.trim();
     out.options = opt ? JSON.parse(opt) : {};
     return out;
@@ -441,7 +451,7 @@
       if (ev.dataTransfer && ev.dataTransfer.files.length) addFiles(ev.dataTransfer.files);
     });
     $("builder-input").addEventListener("change", () => { addFiles($("builder-input").files); $("builder-input").value = ""; });
-    for (const id of ["b-name", "b-crs", "b-models", "b-sigma", "b-time-scale", "b-options"]) $(id).addEventListener("input", () => schedule());
+    for (const id of ["b-name", "b-crs", "b-models", "b-sigma", "b-time-scale", "b-options", "b-bias-prior", "b-dem-sigma", "b-dem-vertical"]) $(id).addEventListener("input", () => schedule());
     $("builder-submit").addEventListener("click", useAndSubmit);
     $("builder-match").addEventListener("click", findTiePoints);
     $("b-raster-paths").addEventListener("input", updateMatch);

@@ -260,11 +260,13 @@ def test_the_spec_carries_every_field_of_the_solvers_request() -> None:
         "images": [image], "gcps": ["g.csv"], "checks": ["c.csv"], "points": ["p.csv"], "asp_gcp": ["x.gcp"],
         "camera_files": ["cams.json"], "camera": "default-cam", "crs": "EPSG:32722", "models": ["K1", "K2"],
         "rpc_model": "RPC-AFFINE", "options": {"covariance": False}, "name": "n", "time_scale": "UTC",
-        "sigma_px": 0.3, "match_tolerance_m": 2.0, "bias_prior_px": 4.0, "map_crs": "EPSG:4326", "columns": {"g.csv": {"E": "x"}},
+        "sigma_px": 0.3, "match_tolerance_m": 2.0, "bias_prior_px": 4.0,
+        "dem": "dem.tif", "dem_sigma_m": 3.0, "dem_vertical": "egm96", "map_crs": "EPSG:4326", "columns": {"g.csv": {"E": "x"}},
         "measurements": ["ties.csv"],
     }
     names = [*image["measurements"], *(image[k] for k in ("ephemeris", "attitude", "state", "rpc", "sensor"))]
     names += [n for k in ("gcps", "checks", "points", "asp_gcp", "camera_files", "measurements") for n in spec[k]]
+    names.append(spec["dem"])
     uploads = {n: n.encode() for n in names}
     req = _request(parse_spec(json.dumps(spec)), uploads)
     for f in fields(ComposeRequest):
