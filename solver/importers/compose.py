@@ -264,11 +264,17 @@ def dem_section(f: SourceFile, sigma_m: float, vertical: str | None, area: tuple
     try:
         if f.path:
             dem = read_dem(f.path, vertical, bounds_lon_lat=area)
-        else:
-            from rasterio.io import MemoryFile
+        else:  # an upload: a file of its own in a folder of its own, the only raster space of the read
+            import tempfile
+            from pathlib import Path
 
-            with MemoryFile(f.data) as mem:
-                dem = read_dem(mem.name, vertical, bounds_lon_lat=area)
+            from solver.raster_gate import RasterSpace, confined
+
+            with tempfile.TemporaryDirectory(prefix="pba-dem-") as tmp:
+                path = Path(tmp) / "dem.raster"
+                path.write_bytes(f.data)
+                with confined(RasterSpace.of(tmp)):
+                    dem = read_dem(path, vertical, bounds_lon_lat=area)
             dem.source = f.name
     except (DemError, VerticalDatumError) as exc:
         raise fail(f.name, 0, "", str(exc), "unusable_dem") from None

@@ -52,3 +52,58 @@ def test_term_is_its_linearisation() -> None:
     np.testing.assert_allclose(r, a @ p - b, atol=1e-12)
     np.testing.assert_allclose(j, a)
     assert r[0] == pytest.approx(0.5 * (2.5 + 0.2 - 0.05 + 2.0))
+
+
+# ---- the family in an adjustment: a rigorous block (orbit and attitude measured, no control) ----
+
+DEM_NOISE_M = 3.0
+
+
+@pytest.fixture(scope="module")
+def pass_triplet_with_dem(tmp_path_factory):
+    """A simulated PRISM triplet (PASS-J2, ephemeris and attitude weighted, no control point)
+    and a DEM degraded from its true terrain (1" cells, 3 m correlated noise, no bias)."""
+    import json
+
+    from solver.cli import main
+    from solver.geometry.dem import grid_to_job, read_dem
+    from solver.simulate.dem import DemDegradation, degraded_dem
+    from solver.simulate.terrain import Terrain
+
+    d = tmp_path_factory.mktemp("dem")
+    out = d / "tri.json"
+    assert main(["simulate", "prism-triplet", "-o", str(out), "--seed", "2", "--model", "PASS-J2",
+                 "--weight-ephemeris", "2,0.01", "--gcps", "0", "--checks", "10", "--tie-points", "40"]) == 0
+    job = json.loads(out.read_text())
+    truth = json.loads(out.with_name("tri.truth.json").read_text())
+    t = truth["terrain"]
+    terrain = Terrain(**{k: tuple(v) if isinstance(v, list) else v for k, v in t.items()})
+    lon = [p["lon_deg"] for p in truth["points"]]
+    lat = [p["lat_deg"] for p in truth["points"]]
+    bounds = (min(lon) - 0.02, min(lat) - 0.02, max(lon) + 0.02, max(lat) + 0.02)
+    degraded_dem(terrain.height, bounds, DemDegradation(noise_m=DEM_NOISE_M, seed=2), d / "dem.tif")
+    job["dem"] = {"grid": grid_to_job(read_dem(d / "dem.tif")), "sigma_m": DEM_NOISE_M}
+    return job, truth
+
+
+def test_dem_heights_in_a_rigorous_block(pass_triplet_with_dem) -> None:
+    """The DEM family on exact-model images (no RPC): every tie point gets its DEM height, the
+    normalised residuals are about 1, the datum says the DEM takes part, and the tie points'
+    heights are within their predicted sigmas of the truth."""
+    import copy
+
+    from solver.api import run
+
+    job, truth = pass_triplet_with_dem
+    rep = run(copy.deepcopy(job))
+    dem = rep["dem"]
+    ties = [p for p in job["points"] if p["role"] == "tie"]
+    assert dem["statistics"]["n"] == len(ties) and not dem["outside"]
+    # the residuals are below their sigmas by the heights' redundancy (the adjusted heights follow the
+    # DEM in part): the whole adjustment's variance factor is the test of the weights
+    assert 0.2 < dem["statistics"]["rms_normalised"] < 1.5
+    assert 0.8 < rep["adjustment"]["sigma0_aposteriori"] < 1.25
+    assert dem["cell_m"] == pytest.approx(30.9, abs=1.0)  # 1 arc second north-south
+    true = {p["id"]: p for p in truth["points"]}
+    z = [(t["height_m"] - true[t["id"]]["height_m"]) / t["sigma_m"][2] for t in rep["tie_points"]]
+    assert np.sqrt(np.mean(np.square(z))) < 2.0
