@@ -308,7 +308,7 @@ def run_tutorial(page: Path, workdir: Path, timeout_s: float, substitutions: dic
     image crops, ``tests/data/vendor/`` and ``tests/data/matching/``, as a clone does) with ``pba`` and ``python`` of this environment
     first on the PATH; each key of ``substitutions`` (e.g. the page's port) replaced by its value."""
     shutil.copytree(ROOT / "examples", workdir / "examples")
-    for data in ("vendor", "matching"):
+    for data in ("vendor", "matching", "dem"):
         shutil.copytree(ROOT / "tests" / "data" / data, workdir / "tests" / "data" / data)
     script = ["set -euo pipefail"]
     text = page.read_text()
@@ -416,6 +416,26 @@ def test_tutorial_worldview_pair_runs(tmp_path: Path) -> None:
     assert missing_outputs(page.read_text(), proc.stdout + proc.stderr) == [], proc.stdout[-3000:] + proc.stderr[-3000:]
     for made in ("fragment.json", "direct.report.json", "adjusted.report.json", "rpc-shift.report.json", "L_RPC.TXT"):
         assert (tmp_path / "wv2" / made).is_file(), made
+
+
+@pytest.mark.slow
+def test_tutorial_no_control_runs(tmp_path: Path) -> None:
+    """Real Pleiades images, their RPCs and a public SRTM crop, no control point: the job is
+    composed, matched and adjusted; the datum comes from the bias priors and the DEM, and the
+    DEM heights agree with the tie points' (the report's dem section)."""
+    import json
+
+    page = ROOT / "docs" / "tutorials" / "no-control.md"
+    proc = run_tutorial(page, tmp_path, timeout_s=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    report = json.loads((tmp_path / "report.json").read_text())
+    datum = report["quality"]["datum"]
+    assert any(d.startswith("heights from the DEM") for d in datum["defined_by"]) and not datum["undetermined"]
+    height = next(d["sigma_m"] for d in datum["directions"] if d["direction"] == "shift_height")
+    assert height < 3.0  # the DEM's 89 heights, against 20 m from the bias priors alone
+    stats = report["dem"]["statistics"]
+    assert stats["n"] >= 50 and abs(stats["weighted_mean_m"]) < 3.0 and stats["rms_normalised"] < 1.5
+    assert "refused" in proc.stdout + proc.stderr or "datum is not determined" in proc.stdout + proc.stderr
 
 
 @pytest.mark.slow

@@ -210,6 +210,9 @@ def _defined_by(problem: AdjustmentState) -> list[str]:
         out.append(f"weighted platform states ({', '.join(states)})")
     if job.options.attitude is not None and any(im.attitude for im in job.images):
         out.append("measured attitude (" + ", ".join(im.id for im in job.images if im.attitude) + ")")
+    if job.dem is not None:
+        n = sum(1 for p in job.points if p.role == "tie" and p.id not in set(job.dem.excluded))
+        out.append(f"heights from the DEM ({n} tie points, {job.dem.grid.source})")
     return out
 
 
