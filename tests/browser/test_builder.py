@@ -149,3 +149,28 @@ def test_build_an_image_from_its_sensor_metadata(page: Any, local_server: Server
     assert [c["id"] for c in built["cameras"]] == ["wv_mvp_1"]
     im = built["images"][0]
     assert im["model"]["name"] == "OA-J2" and im["ephemeris"] and im["attitude"]
+
+
+def test_build_an_rpc_pair_with_bias_priors_and_a_dem(page: Any, local_server: Server, tmp_path: Path) -> None:
+    """Two real RPC images (their GDAL sidecars), a tie-point table and the SRTM crop named as a
+    DEM: the builder sends the DEM, its vertical datum and sigma and the bias prior; the
+    composed job carries the DEM's ellipsoidal grid and a prior on every bias term."""
+    data = ROOT / "tests" / "data"
+    ties = []
+    for im in ("ventoux_left", "ventoux_right"):  # one measurement file per image, named after it
+        ties.append(tmp_path / f"{im}-ties.csv")
+        ties[-1].write_text("point,line,column\n" + "".join(f"T{k},{100 + 30 * k},{120 + 25 * k}\n" for k in range(8)))
+    dem = tmp_path / "srtm-dem.tif"
+    dem.write_bytes((data / "dem" / "srtm_ventoux.tif").read_bytes())
+    page.goto(f"{local_server.url}/ui")
+    page.select_option("#b-dem-vertical", "egm96")
+    page.fill("#b-dem-sigma", "6")
+    page.fill("#b-bias-prior", "4")
+    page.set_input_files("#builder-input", [str(data / "matching" / "ventoux_left_RPC.TXT"),
+                                            str(data / "matching" / "ventoux_right_RPC.TXT"), *map(str, ties), str(dem)])
+    expect(page.locator('select.b-kind[data-file="srtm-dem.tif"]')).to_have_value("dem")
+    expect(page.locator("#builder-json")).to_have_value(re.compile('"dem"'), timeout=60_000)
+    built = json.loads(page.locator("#builder-json").input_value())
+    assert built["dem"]["sigma_m"] == 6.0 and "EGM96" in built["dem"]["grid"]["vertical"]
+    assert all(set(im["bias_prior"]) == {"a0", "a_line", "b0", "b_line"} for im in built["images"])
+    assert built["images"][0]["bias_prior"]["a0"]["sigma"] == 4.0
