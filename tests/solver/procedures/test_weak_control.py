@@ -12,7 +12,6 @@ import pytest
 
 from solver.api import run
 from solver.cli import main
-from solver.errors import JobError
 from solver.procedures.weak_control import BAND_FRACTION, _band_warning, _narrow, control_extent
 from solver.schema.job import load_job
 
@@ -64,13 +63,16 @@ def test_the_default_acts_on_undetermined_attitude_and_says_so(triplet) -> None:
 
     warned = copy.deepcopy(weak)
     warned["options"]["weak_control"] = "warn"
-    with pytest.raises(JobError, match="tilt of the tie points' heights"):  # the datum analysis sees it
-        run(warned)
     warned["options"]["datum"] = {"undetermined": "report"}
     before = run(warned)
     assert before["checkpoints"]["rmse_m"]["3d"] > WITHOUT_RULE_M
     assert "weak_control" not in before["quality"]
-    assert {"tilt_east", "tilt_north"} & {u["direction"] for u in before["quality"]["datum"]["undetermined"]}
+    # the datum analysis sees the weakness: the tie points' tilts are far less determined than
+    # with full control (measured, seed 1: 78 and 77 m at the solution, 105 and 111 m at the
+    # initial values, against 1.4 m with full control)
+    tilts = {d["direction"]: d["sigma_m"] for d in before["quality"]["datum"]["directions"]}
+    full_tilts = {d["direction"]: d["sigma_m"] for d in run(copy.deepcopy(triplet))["quality"]["datum"]["directions"]}
+    assert min(tilts["tilt_east"], tilts["tilt_north"]) > 5 * max(full_tilts["tilt_east"], full_tilts["tilt_north"])
 
     rep = run(weak)
     wc = rep["quality"]["weak_control"]
