@@ -39,7 +39,7 @@ HOOKS = ("check", "terms", "refresh", "groups", "report", "without", "removal_de
 
 def test_registry_lists_every_family_with_the_whole_interface() -> None:
     names = [f.name for f in registry.FAMILIES]
-    assert names == ["ephemeris", "attitude", "lines", "passes", "interior"]
+    assert names == ["ephemeris", "attitude", "lines", "passes", "interior", "dem"]
     for family in registry.FAMILIES:
         for hook in HOOKS:
             assert callable(getattr(family, hook)), (family.name, hook)
