@@ -199,7 +199,13 @@ def child(path: Path) -> dict[str, Any]:
     single.prepare = _timed(stages, "prepare", single.prepare)
     single.assert_full_rank = _timed(stages, "rank_check", single.assert_full_rank)
     single.solve_problem = _timed(stages, "solve", single.solve_problem)
-    single.assess = _timed(stages, "report", single.assess)
+    if hasattr(single, "Solution"):  # the report built from the solution: its statistics and covariance, then its sections
+        single.Solution = _timed(stages, "report", single.Solution)
+        from solver.report.solution import Solution
+
+        Solution.report = _timed(stages, "report", Solution.report)
+    else:  # an older tree: one assess per adjustment
+        single.assess = _timed(stages, "report", single.assess)
     ceres: dict[str, float] = {}
     summarise = getattr(backend, "summarise", None)  # absent in older trees
 

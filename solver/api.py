@@ -31,6 +31,7 @@ from pyproj.exceptions import ProjError
 
 from solver.errors import JobError, Problem
 from solver.schema.job import Job, load_job
+from solver.schema.settings import JobSettings
 
 # failures that only the numbers of a document can cause in code that passed its tests
 CLIENT_FAULTS = (ArithmeticError, np.linalg.LinAlgError, ProjError)
@@ -128,16 +129,17 @@ def run(
     :func:`validate`'s counts, e.g. at a server's submission); when it was made by this code
     the job is not checked again.
     """
-    from solver.engine.validate import handed_validation
+    from solver.engine.validate import handed
 
     with _gc_paused():
         j = _as_job(job)
-        if j.options.models:
-            return compare(j, j.options.models, progress=progress, cancel=cancel, validated=validated)
+        models = list(JobSettings.of(j).procedures.models)
+        if models:
+            return compare(j, models, progress=progress, cancel=cancel, validated=validated)
         from solver.adjust import adjust_job
 
-        with _input_faults_as_job_errors(), handed_validation(j, validated), _kernel_notices(progress) as progress:
-            return adjust_job(j, progress=progress, cancel=cancel)
+        with _input_faults_as_job_errors(), _kernel_notices(progress) as progress:
+            return adjust_job(handed(j, validated), progress=progress, cancel=cancel)
 
 
 def validation_record(summary: dict[str, Any]) -> dict[str, Any]:

@@ -13,7 +13,7 @@ from typing import Any, Callable
 import numpy as np
 
 from solver.adjust import adjust_job
-from solver.engine.validate import comparison_problems, handed_validation
+from solver.engine.validate import comparison_problems, handed
 from solver.errors import JobError
 from solver.platforms import get_model
 from solver.schema.job import Job
@@ -63,27 +63,27 @@ def compare_models(
     if problems:
         raise JobError(problems)
     plain = job.model_copy(update={"options": job.options.model_copy(update={"models": []})})
-    with handed_validation(plain, validated):
-        reports: dict[str, Any] = {}
-        table = []
-        n = len(models)
-        for k, name in enumerate(models):
-            # an RPC bias model replaces the models of the RPC images, a rigorous one those of the others
-            rpc = not get_model(name).kind.has_camera  # an RPC bias model
-            override = {im.id: name for im in job.images if (im.rpc is not None) == rpc}
-            if not override:
-                kind = "RPC" if rpc else "camera (rigorous)"
-                table.append({"model": name, "error": f"the job has no {kind} image for model {name}"})
-                reports[name] = {"error": {"message": table[-1]["error"]}}
-                continue
-            try:
-                rep = adjust_job(plain, progress=progress, cancel=cancel, models=override, fraction_range=(k / n, (k + 1) / n))
-            except JobError as exc:
-                reports[name] = {"error": exc.to_dict() | {"message": str(exc)}}
-                table.append({"model": name, "error": str(exc)})
-                continue
-            reports[name] = rep
-            table.append(_row(name, rep))
+    subject = handed(plain, validated)  # the counts handed for the job serve every model's adjustment
+    reports: dict[str, Any] = {}
+    table = []
+    n = len(models)
+    for k, name in enumerate(models):
+        # an RPC bias model replaces the models of the RPC images, a rigorous one those of the others
+        rpc = not get_model(name).kind.has_camera  # an RPC bias model
+        override = {im.id: name for im in job.images if (im.rpc is not None) == rpc}
+        if not override:
+            kind = "RPC" if rpc else "camera (rigorous)"
+            table.append({"model": name, "error": f"the job has no {kind} image for model {name}"})
+            reports[name] = {"error": {"message": table[-1]["error"]}}
+            continue
+        try:
+            rep = adjust_job(subject, progress=progress, cancel=cancel, models=override, fraction_range=(k / n, (k + 1) / n))
+        except JobError as exc:
+            reports[name] = {"error": exc.to_dict() | {"message": str(exc)}}
+            table.append({"model": name, "error": str(exc)})
+            continue
+        reports[name] = rep
+        table.append(_row(name, rep))
     return {"kind": "comparison", "job_name": job.name, "models": list(models), "reports": reports, "table": table}
 
 

@@ -25,6 +25,7 @@ from solver.errors import Problem
 from solver.kernels.layout import IOP_CHIP, IOP_OPTICAL, MAX_CHIPS, N_IOP
 from solver.schema.iop_names import camera_iop_names
 from solver.schema.job import Camera, Job, SelfCalibration
+from solver.schema.settings import JobSettings
 
 if TYPE_CHECKING:  # pragma: no cover
     from solver.schema.settings import BlockConfig
@@ -107,7 +108,7 @@ _FROM_JOB: Any = object()
 def build_cameras(job: Job, sc: SelfCalibration | None = _FROM_JOB) -> list[CameraState]:
     """The cameras' IOP states (every camera of the job, in order); ``sc``: which parameters are
     estimated (None: none; by default the job's ``options.self_calibration``)."""
-    sc = job.options.self_calibration if sc is _FROM_JOB else sc
+    sc = JobSettings.of(job).blocks.self_calibration if sc is _FROM_JOB else sc
     states = []
     for i, cam in enumerate(job.cameras):
         names = iop_names(cam)
@@ -140,7 +141,7 @@ def build_cameras(job: Job, sc: SelfCalibration | None = _FROM_JOB) -> list[Came
 def validate_self_calibration(job: Job) -> list[tuple[str, str, tuple]]:
     """(code, message, location) of every self-calibration problem."""
     out = []
-    sc = job.options.self_calibration
+    sc = JobSettings.of(job).blocks.self_calibration
     if sc is None:
         # the kernels' IOP vector holds MAX_CHIPS chips: a camera with more chips can be used
         # without interior orientation only (its chips' offsets are in each observation's constants)

@@ -26,6 +26,7 @@ import numpy as np
 from solver.errors import Problem
 from solver.platforms import ANGLES, ELEMENTS, HELD, coef_index
 from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
+from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState, ImageState, rows_by_image
 
 
@@ -191,7 +192,7 @@ def _attitude_by_resection(problem: AdjustmentState, img: ImageState, v_ecef, se
         # (measured: 0.49 px instead of 0.017 px on a WorldView-2 image with 4 control points).
         samples = problem.job.images[img.index].attitude
         controlled = len(seen.gcp(img.index)) > 0
-        if samples and problem.job.options.attitude is not None and not controlled:
+        if samples and JobSettings.of(problem.job).blocks.attitude is not None and not controlled:
             return tuple(float(np.radians(np.mean([getattr(a, f) for a in samples]))) for f in ("roll_deg", "pitch_deg", "yaw_deg"))
         return 0.0, 0.0, 0.0
     obs = problem.obs

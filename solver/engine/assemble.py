@@ -154,7 +154,7 @@ def build_problem(job: Job, models: dict[str, str] | None = None, config: BlockC
     ecef = ground_points_ecef(job)
     line_ecef = lines_ecef(job) if job.lines else {}
     frame = control_frame(job, ecef, control_line_points_ecef(job, line_ecef))
-    weighted = job.options.control == "weighted"
+    weighted = JobSettings.of(job).blocks.control == "weighted"
 
     images: list[ImageState] = []
     for i, im in enumerate(job.images):

@@ -22,6 +22,7 @@ from solver.errors import JobError, Problem
 from solver.kernels import intersect_all
 from solver.observations import registry
 from solver.observations.ephemeris import image_state
+from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState, grouped
 
 # kept importable from here (tests, bench/ceres_reference): the platform blocks' initial values
@@ -35,7 +36,8 @@ def initialise(problem: AdjustmentState) -> None:
     block kinds in the registry's order (the images' platform blocks, then what builds on them:
     the pass states), the families' refinements, the job's own initial values, the tie points."""
     job = problem.job
-    states = {img.index: image_state(doc, job.options) for img, doc in zip(problem.images, job.images)}  # header or ephemeris
+    ephemeris = JobSettings.of(job).blocks.ephemeris
+    states = {img.index: image_state(doc, ephemeris) for img, doc in zip(problem.images, job.images)}  # header or ephemeris
     issues: list[Problem] = []
     for kind in blocks.BLOCK_KINDS:  # the platform blocks, then e.g. the pass states from the image states nearest their epochs
         issues += kind.initialise(problem, states)

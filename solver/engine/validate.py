@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import hashlib
 from collections import Counter, defaultdict
-from contextlib import contextmanager
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 from pyproj.exceptions import ProjError
@@ -27,6 +27,7 @@ from solver.observations import registry
 from solver.observations.ephemeris import image_state
 from solver.platforms import get_model
 from solver.schema.job import MAX_COMPARED_MODELS, Camera, ImageObservation, Job
+from solver.schema.settings import JobSettings
 
 # ellipsoidal heights of ground points: the deepest ocean trench to far above any aircraft
 MIN_HEIGHT_M = -5e4
@@ -193,8 +194,9 @@ def _image_problems(job: Job, cameras: dict[str, Camera]) -> tuple[list[Problem]
     problems: list[Problem] = []
     n_unknowns = 0
     image_info = []
+    settings = JobSettings.of(job)
     for i, im in enumerate(job.images):
-        issues, model, n_params = image_problems(job, i, cameras, lambda im=im: image_state(im, job.options))
+        issues, model, n_params = image_problems(job, i, cameras, lambda im=im: image_state(im, settings.blocks.ephemeris))
         problems += issues
         if n_params is not None:
             n_unknowns += n_params
@@ -314,7 +316,7 @@ def _point_counts(job: Job, images_per_point: dict[str, int]) -> tuple[list[Prob
     (problems, observations, unknowns)."""
     problems: list[Problem] = []
     n_obs = n_unknowns = 0
-    weighted = job.options.control == "weighted"
+    weighted = JobSettings.of(job).blocks.control == "weighted"
     for j, p in enumerate(job.points):
         seen = images_per_point.get(p.id, 0)
         if p.role != "check":
@@ -347,8 +349,9 @@ def collect_problems(job: Job) -> tuple[list[Problem], dict[str, Any]]:
     problems += image_issues
     problems += _crs_problems(job)
     problems += coordinate_problems(job)
-    if job.options.models:
-        problems += comparison_problems(job.options.models, ("options", "models"))
+    models = JobSettings.of(job).procedures.models
+    if models:
+        problems += comparison_problems(list(models), ("options", "models"))
     obs_issues, images_per_point, obs_per_image = _observation_problems(job, cameras)
     problems += obs_issues
     n_obs = 0
@@ -410,8 +413,7 @@ def validate_job(job: Job) -> dict[str, Any]:
 
 # packages whose code decides what a valid job is (the checks, the families', the models', the
 # schema's): a validation made elsewhere is taken only when it ran this very code
-CHECKING_CODE = ("engine/validate.py", "errors.py", "observations", "platforms", "schema", "geometry")
-_handed: dict[int, tuple[Job, dict[str, Any]]] = {}
+CHECKING_CODE = ("engine/validate.py", "errors.py", "blocks", "observations", "platforms", "schema", "geometry")
 
 
 @lru_cache(maxsize=1)
@@ -432,43 +434,45 @@ def validation_record(counts: dict[str, Any]) -> dict[str, Any]:
     return {"fingerprint": fingerprint(), "counts": counts}
 
 
-@contextmanager
-def handed_validation(job: Job, record: dict[str, Any] | None) -> Iterator[bool]:
-    """Within the block, :func:`require_valid` of this very ``job`` object returns the counts
-    of ``record`` (:func:`validation_record`) instead of checking again, when the record was
-    made by this code (same fingerprint); yields whether it was taken. A changed copy of the
-    job (snooping's removals, parsimony's models) is another object and is checked."""
-    taken = isinstance(record, dict) and record.get("fingerprint") == fingerprint() and isinstance(record.get("counts"), dict)
-    if taken:
-        _handed[id(job)] = (job, record["counts"])  # type: ignore[index]
-    try:
-        yield taken
-    finally:
-        if taken:
-            _handed.pop(id(job), None)
+@dataclass(frozen=True)
+class ValidatedJob:
+    """A job and the counts its validation gave (:func:`collect_problems`): what a caller that
+    validated hands to what solves (a server's submission to its worker, a procedure to the
+    adjustments it repeats), so the job is not checked again. A changed job is a new
+    :class:`~solver.schema.job.Job` and is checked; :meth:`with_job` is for a copy that differs
+    only in what validation does not look at (a procedure's own option)."""
+
+    job: Job
+    counts: dict[str, Any]
+
+    def with_job(self, job: Job) -> "ValidatedJob":
+        return ValidatedJob(job, self.counts)
 
 
-@contextmanager
-def handed_like(original: Job, copy: Job) -> Iterator[None]:
-    """Within the block, a ``copy`` of ``original`` that differs only in what validation does not
-    look at (e.g. a procedure's own option) takes the counts handed for ``original``, if any."""
-    handed = _handed.get(id(original))
-    if handed is None or handed[0] is not original or id(copy) in _handed:
-        yield
-        return
-    _handed[id(copy)] = (copy, handed[1])
-    try:
-        yield
-    finally:
-        _handed.pop(id(copy), None)
+def record_taken(record: dict[str, Any] | None) -> bool:
+    """Whether a validation record (:func:`validation_record`) was made by this code (same fingerprint)."""
+    return isinstance(record, dict) and record.get("fingerprint") == fingerprint() and isinstance(record.get("counts"), dict)
+
+
+def handed(job: Job, record: dict[str, Any] | None) -> "Job | ValidatedJob":
+    """``job`` with the counts of ``record`` when the record was made by this code, else ``job``
+    as it is (checked when it is solved)."""
+    return ValidatedJob(job, record["counts"]) if record_taken(record) else job  # type: ignore[index]
+
+
+def validated(job: "Job | ValidatedJob") -> ValidatedJob:
+    """``job`` validated: a :class:`ValidatedJob` as handed, or a job checked now
+    (:class:`JobError` with every problem)."""
+    return job if isinstance(job, ValidatedJob) else ValidatedJob(job, require_valid(job))
+
+
+def job_of(job: "Job | ValidatedJob") -> Job:
+    """The job itself, validated or not."""
+    return job.job if isinstance(job, ValidatedJob) else job
 
 
 def require_valid(job: Job) -> dict[str, Any]:
-    """Raise :class:`JobError` with every problem, or return the counts (those handed for
-    this job object by :func:`handed_validation`, without checking again)."""
-    handed = _handed.get(id(job))
-    if handed is not None and handed[0] is job:
-        return handed[1]
+    """Raise :class:`JobError` with every problem, or return the counts."""
     problems, counts = collect_problems(job)
     if problems:
         raise JobError(problems)

@@ -46,6 +46,7 @@ from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelle
 from solver.observations.passes import pass_line_span
 from solver.observations.state_priors import StatePrior
 from solver.platforms import coef_index, get_model
+from solver.schema.settings import JobSettings
 
 if TYPE_CHECKING:
     from solver.schema.job import AttitudeSample, Job
@@ -104,7 +105,7 @@ def block_samples(job: "Job", images: list[int]) -> list["AttitudeSample"]:
 
 def n_attitude_observations(job: "Job") -> int:
     """How many weighted attitude observations :func:`attitude_terms` will make (validation)."""
-    if job.options.attitude is None:
+    if JobSettings.of(job).blocks.attitude is None:
         return 0
     return sum(3 * len(block_samples(job, block)) for block in attitude_blocks(job))
 
@@ -113,7 +114,7 @@ def attitude_problems(job: "Job") -> list[tuple[str, str, tuple]]:
     """(code, message, location) of attitude samples that cannot be used as asked."""
 
     out: list[tuple[str, str, tuple]] = []
-    if job.options.attitude is None:
+    if JobSettings.of(job).blocks.attitude is None:
         return out
     blocked = {i for block in attitude_blocks(job) for i in block}  # the images whose attitude is relative to the orbital frame
     for i, im in enumerate(job.images):
@@ -148,7 +149,7 @@ def _block_terms(problem: "AdjustmentState") -> list[tuple[list[int], AttitudeTe
     """(image indices of the block, its term) per attitude block with samples: one linear term
     of 3 rows per sample on the block's parameters (those of its first image)."""
     job = problem.job
-    opts = job.options.attitude
+    opts = JobSettings.of(job).blocks.attitude
     if opts is None:
         return []
     w_angle = [1.0 / math.radians(s) for s in opts.sigma_deg]
@@ -197,7 +198,7 @@ def attitude_report(problem: "AdjustmentState") -> list[dict]:
     residuals (measured - adjusted, deg) at the current parameters: RMS and largest absolute
     value per angle (roll, pitch, yaw)."""
     out = []
-    opts = problem.job.options.attitude
+    opts = JobSettings.of(problem.job).blocks.attitude
     for block, term in _block_terms(problem):
         resid = -np.degrees(term.raw(problem.images[term.image_index].params)).reshape(-1, 3)  # measured - model
         out.append(

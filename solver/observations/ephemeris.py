@@ -39,7 +39,8 @@ import numpy as np
 
 from solver.blocks.platform_values import is_kepler
 from solver.errors import Problem
-from solver.schema.job import ApproxState, Image, SolverOptions
+from solver.schema.job import ApproxState, EphemerisOptions, Image, SolverOptions
+from solver.schema.settings import JobSettings
 
 if TYPE_CHECKING:  # pragma: no cover
     from solver.state import AdjustmentState
@@ -166,9 +167,10 @@ class Ephemeris:
         )
 
 
-def _nodes(options: SolverOptions | None) -> int:
-    eph = getattr(options, "ephemeris", None) if options is not None else None
-    return eph.nodes if eph is not None else DEFAULT_NODES
+def _ephemeris_options(ephemeris: EphemerisOptions | SolverOptions | None) -> EphemerisOptions | None:
+    """``options.ephemeris`` (:class:`solver.schema.settings.BlockConfig` ``ephemeris``); a whole
+    ``SolverOptions`` is taken for its ``ephemeris`` (callers outside the stages, as bench/)."""
+    return ephemeris.ephemeris if isinstance(ephemeris, SolverOptions) else ephemeris
 
 
 def usable(image: Image) -> bool:
@@ -186,8 +188,9 @@ def interpolated_state(image: Image, nodes: int = DEFAULT_NODES) -> tuple[np.nda
     return Ephemeris.from_image(image).interpolate(float(image.first_line_time_s), nodes)
 
 
-def image_state(image: Image, options: SolverOptions | None = None) -> ApproxState | None:
-    """The approximate line-0 state the solver uses for ``image`` (or None: there is none).
+def image_state(image: Image, ephemeris: EphemerisOptions | SolverOptions | None = None) -> ApproxState | None:
+    """The approximate line-0 state the solver uses for ``image`` (or None: there is none);
+    ``ephemeris``: the job's ``options.ephemeris`` (its settings' ``blocks.ephemeris``).
 
     * ``options.ephemeris`` given and the image has a usable ephemeris: the interpolated state,
       weighted by ``options.ephemeris`` sigmas (unweighted if it gives none); the attitude of
@@ -195,11 +198,11 @@ def image_state(image: Image, options: SolverOptions | None = None) -> ApproxSta
     * otherwise the image's ``approx_state`` as written (with its own sigmas), if any;
     * otherwise the interpolated ephemeris state, unweighted, if the image has a usable one.
     """
-    eph_opts = getattr(options, "ephemeris", None) if options is not None else None
+    eph_opts = _ephemeris_options(ephemeris)
     doc = image.approx_state
     if doc is not None and eph_opts is None:
         return doc
-    state = interpolated_state(image, _nodes(options))
+    state = interpolated_state(image, eph_opts.nodes if eph_opts is not None else DEFAULT_NODES)
     if state is None:
         return doc
     r, v = state
@@ -261,8 +264,8 @@ def ephemeris_report(problem: "AdjustmentState") -> dict[str, Any]:
     adjusted correction (model line-0 state - interpolated ephemeris state, seed 001's XT ...
     uzT) at the current parameters. Images without an ephemeris are not listed."""
     job = problem.job
-    nodes = _nodes(job.options)
-    eph_opts = job.options.ephemeris
+    eph_opts = JobSettings.of(job).blocks.ephemeris
+    nodes = eph_opts.nodes if eph_opts is not None else DEFAULT_NODES
     images = []
     for img in problem.images:
         doc = job.images[img.index]

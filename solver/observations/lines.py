@@ -98,6 +98,7 @@ from solver.observations.line_data import (
     on_a_chip,
 )
 from solver.platforms import ANGLES, ELEMENTS, HELD
+from solver.schema.settings import JobSettings
 
 ANDERSON_MEMORY = 6  # refreshes remembered by the Anderson mixing of the corrections
 MIN_IMAGE_LENGTH_PX = 1.0  # a line whose image is shorter is edge-on / projects to a point
@@ -553,7 +554,7 @@ def collect_line_problems(job, cameras: dict, images: dict) -> tuple[list[Proble
     problems: list[Problem] = []
     counts: dict[str, Any] = {"n_observations": 0, "per_image": {}, "n_control": 0}
     seen_ids: dict[str, int] = {}
-    rigorous = job.options.line_model == "rigorous"
+    rigorous = JobSettings.of(job).blocks.line_model == "rigorous"
     converted = lines_ecef(job)
     if job.lines and (getattr(job.options, "self_calibration", None) is not None or any(
         any(float(v) != 0.0 for v in (cam.iop or {}).values() if isinstance(v, (int, float)))
@@ -642,9 +643,10 @@ def _distances_now(problem, li: LineImage) -> np.ndarray:
 def lines_report(problem, s_inv: np.ndarray | None, img_col: np.ndarray | None, sigma0_apriori: float) -> dict[str, Any]:
     """The report's ``lines`` section (docs/report-contract.md)."""
     ls: LineSet | None = getattr(problem, "lines", None)
+    blocks = JobSettings.of(problem.job).blocks
     out: dict[str, Any] = {
-        "model": problem.job.options.line_model,
-        "correction": problem.job.options.line_correction if problem.job.options.line_model == "equivalent_planes" else None,
+        "model": blocks.line_model,
+        "correction": blocks.line_correction if blocks.line_model == "equivalent_planes" else None,
         "refresh_changes": [],
         "resolves": 0,
         "items": [],

@@ -17,6 +17,7 @@ from solver.errors import Problem
 from solver.kernels.layout import N_KEPLER_CONST, NODE_STEP_S, PASS_NODES, PASS_STEP, PASS_T0, PASS_T_OFF, PASS_X0, segment_length
 from solver.observations.ephemeris import image_state, usable
 from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled
+from solver.schema.settings import JobSettings
 
 if TYPE_CHECKING:  # pragma: no cover
     from solver.schema.job import Job
@@ -109,7 +110,7 @@ def pass_terms(problem: "AdjustmentState") -> list[PassStateTerm]:
     """
 
     job = problem.job
-    eph = job.options.ephemeris
+    eph = JobSettings.of(job).blocks.ephemeris
     out = []
     for ps in problem.passes:
         template = problem.images[ps.images[0]].kc
@@ -126,7 +127,7 @@ def pass_terms(problem: "AdjustmentState") -> list[PassStateTerm]:
         for i in ps.images:
             if i in sampled:
                 continue
-            doc = image_state(job.images[i], job.options)
+            doc = image_state(job.images[i], eph)
             if doc is None or doc.sigma_position_m is None:
                 continue
             b = list(doc.position_ecef_m)
@@ -144,7 +145,7 @@ def n_pass_state_observations(job: "Job") -> int:
     """Number of weighted state observations :func:`pass_terms` will make (for validation; the
     pass span is taken from the images' first-line epochs and line counts)."""
 
-    eph = job.options.ephemeris
+    eph = JobSettings.of(job).blocks.ephemeris
     by_samples = eph is not None and eph.sigma_position_m is not None
     groups = pass_images(job)
     n = 0
@@ -156,7 +157,7 @@ def n_pass_state_observations(job: "Job") -> int:
         for i in imgs:
             if i in sampled:
                 continue
-            doc = image_state(job.images[i], job.options)
+            doc = image_state(job.images[i], eph)
             if doc is not None and doc.sigma_position_m is not None:
                 n += 6 if doc.sigma_velocity_m_s is not None else 3
     return n

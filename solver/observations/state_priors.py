@@ -22,6 +22,7 @@ from solver.errors import Problem
 from solver.observations.ephemeris import ephemeris_problems, ephemeris_report, image_state
 from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled, ReportContext
 from solver.platforms import coef_index, get_model
+from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState, ImageState
 
 if TYPE_CHECKING:
@@ -50,7 +51,7 @@ class StatePrior:
 
 def state_prior(problem: AdjustmentState, img: ImageState) -> StatePrior | None:
     """The weighted state observation of ``img``, or None if the job gives no sigma."""
-    doc = image_state(problem.job.images[img.index], problem.job.options)  # header or ephemeris
+    doc = image_state(problem.job.images[img.index], JobSettings.of(problem.job).blocks.ephemeris)  # header or ephemeris
     if doc is None or doc.sigma_position_m is None:
         return None
     r = np.array(doc.position_ecef_m, dtype=float)
@@ -137,7 +138,7 @@ def _count(job: "Job") -> tuple[list[Problem], Count]:
             names = {p.name for p in model.parameters(im.model.options)}
         except (ValueError, TypeError, KeyError):
             continue
-        state = image_state(im, job.options)  # approx_state or the interpolated ephemeris
+        state = image_state(im, JobSettings.of(job).blocks.ephemeris)  # approx_state or the interpolated ephemeris
         if state is None or state.sigma_position_m is None:
             continue
         datum.add("states")
@@ -159,7 +160,7 @@ def _without_states(job: "Job", removals: list[tuple]) -> "Job":
     images = []
     for im in job.images:
         if im.id in gone:
-            state = image_state(im, job.options)
+            state = image_state(im, JobSettings.of(job).blocks.ephemeris)
             state = state.model_copy(update={"sigma_position_m": None, "sigma_velocity_m_s": None})
             im = im.model_copy(update={"approx_state": state, "ephemeris": []})
         images.append(im)

@@ -6,52 +6,58 @@ from __future__ import annotations
 
 from typing import Any
 
+from solver.engine.validate import ValidatedJob, job_of
 from solver.procedures.single import Adjust
+from solver.report.solution import Solution
 from solver.schema.job import Job
+from solver.schema.settings import JobSettings
 
 
-def significance_analysis(job: Job, adjust: Adjust, progress) -> dict[str, Any]:
+def significance_analysis(job: Job | ValidatedJob, adjust: Adjust, progress) -> Solution:
     """Seed 001 Figure 14: adjust, drop the interior-orientation parameter whose |estimate| is
     smallest relative to its sigma if it is below its sigma, re-adjust; repeat. Every step is
     reported; the final report is that of the last adjustment (``adjust``: the adjustment with
     the analysis off)."""
-    sc = job.options.self_calibration
+    job = job_of(job)
+    sc = JobSettings.from_options(job.options).blocks.self_calibration
     exclude = list(sc.exclude)
     steps = []
-    report: dict[str, Any] = {}
+    dropped: list[str] = []
+    solution: Solution | None = None
     for step in range(200):
         lo = 1.0 - 0.5**step
         hi = 1.0 - 0.5 ** (step + 1)
         j = job.model_copy(
             update={"options": job.options.model_copy(update={"self_calibration": sc.model_copy(update={"exclude": list(exclude), "significance_analysis": False})})}
         )
-        report = adjust(j, (lo, hi))
+        solution = adjust(j, (lo, hi))
+        cameras = solution.cameras()
         weak = [
-            (abs(p["value"]) / p["sigma"], cam["id"], p)
-            for cam in report["cameras"]
-            for p in cam["parameters"]
-            if p["estimated"] and p["sigma"] and abs(p["value"]) < sc.significance_threshold * p["sigma"]
+            (abs(p.value) / p.sigma, cam.id, p)
+            for cam in cameras
+            for p in cam.parameters
+            if p.estimated and p.sigma and abs(p.value) < sc.significance_threshold * p.sigma
         ]
-        cp = report["checkpoints"]["rmse_m"]
-        entry = {
+        entry: dict[str, Any] = {
             "step": step,
-            "sigma0": report["adjustment"]["sigma0_aposteriori"],
-            "n_iop": sum(p["estimated"] for c in report["cameras"] for p in c["parameters"]),
-            "check_rmse_m": cp,
+            "sigma0": solution.sigma0,
+            "n_iop": sum(p.estimated for c in cameras for p in c.parameters),
+            "check_rmse_m": solution.check_rmse_m(),
             "dropped": None,
         }
         steps.append(entry)
         if not weak:
             break
         ratio, cam_id, p = min(weak, key=lambda w: w[0])
-        entry["dropped"] = {"name": f"{cam_id}/{p['name']}", "value": p["value"], "sigma": p["sigma"], "ratio": ratio}
-        exclude.append(f"{cam_id}/{p['name']}")
-    report["parameter_analysis"] = {
+        entry["dropped"] = {"name": f"{cam_id}/{p.name}", "value": p.value, "sigma": p.sigma, "ratio": ratio}
+        dropped.append(f"{cam_id}/{p.name}")
+        exclude.append(f"{cam_id}/{p.name}")
+    solution.set_section("parameter_analysis", {
         "rule": f"drop, one at a time, the parameter with the smallest |estimate|/sigma while below {sc.significance_threshold:g}",
         "steps": steps,
-        "dropped": [s["dropped"]["name"] for s in steps if s["dropped"]],
-        "correlated_pairs": [p for p in report["correlations"]["pairs"] if "IOP" in p.get("kinds", "")],
-    }
+        "dropped": dropped,
+        "correlated_pairs": solution.interior_correlations(),
+    })
     if progress is not None:
         progress(1.0, "significance analysis done", {})
-    return report
+    return solution

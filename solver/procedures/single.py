@@ -1,10 +1,12 @@
-"""One adjustment of a job: validate, build, initialise, check rank, solve, assess.
+"""One adjustment of a job: validate, build, initialise, check rank, solve; its outcome a
+:class:`solver.report.solution.Solution` (what the procedures read, and the report built from it).
 
 Small verbs, one per step (as Ceres' bundle_adjuster.cc); pyceres is used only through
 :mod:`solver.engine.backend`, imported when a solve runs (the server process never loads it).
 The procedures that adjust more than once (:mod:`solver.procedures.snooping`,
 :mod:`solver.procedures.parsimony`, :mod:`solver.procedures.significance`) are built on
-:func:`adjust_once`.
+:func:`adjust_once`. A job handed validated (:class:`solver.engine.validate.ValidatedJob`) is not
+checked again.
 """
 
 from __future__ import annotations
@@ -18,17 +20,18 @@ import numpy as np
 from solver.engine.assemble import build_problem, parameter_names
 from solver.engine.initialize import initialise
 from solver.engine.linalg import check_rank, linearise, schur
-from solver.engine.validate import require_valid
+from solver.engine.validate import ValidatedJob, validated
 from solver.errors import Cancelled, JobError, Problem, RankDeficientError, UnusableSolution
 from solver.quality.control_fit import control_misfits, control_problems
 from solver.quality.datum import DatumAnalysis, analyse_datum, datum_problem
-from solver.report.document import assess
+from solver.report.document import assess  # noqa: F401 (the report of a problem at its solution, for benchmarks and tests)
+from solver.report.solution import Solution
 from solver.schema.job import Job
 from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState
 
-Adjust = Callable[[Job, tuple[float, float]], dict[str, Any]]
-"""``adjust(job, fraction_range) -> report``: the adjustment a procedure repeats (the progress
+Adjust = Callable[["Job | ValidatedJob", tuple[float, float]], Solution]
+"""``adjust(job, fraction_range) -> solution``: the adjustment a procedure repeats (the progress
 of that run mapped into ``fraction_range`` of the whole)."""
 
 
@@ -37,10 +40,9 @@ def _progress(progress, fraction: float, message: str, info: dict | None = None)
         progress(fraction, message, info or {})
 
 
-def prepare(job: Job, models: dict[str, str] | None = None) -> AdjustmentState:
-    """Validated, assembled and initialised problem (raises JobError on bad input)."""
-    require_valid(job)
-    problem = build_problem(job, models)
+def prepare(job: Job | ValidatedJob, models: dict[str, str] | None = None) -> AdjustmentState:
+    """Validated (unless handed validated), assembled and initialised problem (raises JobError on bad input)."""
+    problem = build_problem(validated(job).job, models)
     initialise(problem)
     return problem
 
@@ -77,7 +79,7 @@ def assert_full_rank(problem: AdjustmentState) -> DatumAnalysis:
                 ("points", p.index),
             )
         )
-    if any(u["sigma_m"] is None for u in datum.undetermined) and datum_options.undetermined == "refuse":
+    if datum.unbounded and datum_options.undetermined == "refuse":
         issues.append(datum_problem(datum.to_report()))
     rank = check_rank(parts, parameter_names(problem), fast=True)
     if rank.deficient:
@@ -132,13 +134,13 @@ def solve_problem(problem: AdjustmentState, control):
 
 
 def adjust_once(
-    job: Job,
+    job: Job | ValidatedJob,
     progress: Callable[..., None] | None = None,
     cancel: Callable[[], bool] | None = None,
     models: dict[str, str] | None = None,
     fraction_range: tuple[float, float] = (0.0, 1.0),
-) -> tuple[AdjustmentState, dict[str, Any]]:
-    """One adjustment of ``job``: the problem at its solution and the report."""
+) -> Solution:
+    """One adjustment of ``job``: the problem at its solution (the report is built from it when asked)."""
     from solver.engine.backend import SolveControl  # imports pyceres: workers only
 
     f0, f1 = fraction_range
@@ -154,7 +156,7 @@ def adjust_once(
     datum = assert_full_rank(problem)
     if cancel is not None and cancel():
         raise Cancelled("cancelled before the solve")
-    control = SolveControl(progress, cancel, JobSettings.from_options(job.options).solve.max_iterations, (frac(0.08), frac(0.9)))
+    control = SolveControl(progress, cancel, JobSettings.from_options(problem.job.options).solve.max_iterations, (frac(0.08), frac(0.9)))
     outcome = solve_problem(problem, control)
     if outcome.cancelled:
         raise Cancelled(f"cancelled after {outcome.iterations} iterations")
@@ -163,14 +165,14 @@ def adjust_once(
         raise UnusableSolution.from_outcome(reasons, _outcome_detail(outcome))
     _progress(progress, frac(0.92), "assessing the solution")
     datum = confirm_datum(problem, datum)
-    report = assess(problem, outcome)
-    report["warnings"] = foreign + report["warnings"]
-    report["quality"]["datum"] = datum.to_report()
+    solution = Solution(problem, outcome, time.perf_counter() - t_start, datum)
+    for k, sentence in enumerate(foreign):  # the control that does not fit, first among the warnings
+        solution.prepend_warning(sentence, k)
+    solution.set_quality({"datum": datum.to_report()})
     if datum.undetermined:
-        report["warnings"].insert(0, f"the datum is not determined: {datum.message()} (quality.datum)")
-    report["adjustment"]["total_time_s"] = time.perf_counter() - t_start
-    _progress(progress, frac(1.0), "done", {"sigma0": report["adjustment"]["sigma0_aposteriori"]})
-    return problem, report
+        solution.prepend_warning(f"the datum is not determined: {datum.message()} (quality.datum)")
+    _progress(progress, frac(1.0), "done", {"sigma0": solution.sigma0})
+    return solution
 
 
 def _outcome_detail(outcome) -> dict[str, Any]:

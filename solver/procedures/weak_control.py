@@ -36,29 +36,26 @@ rates' absolute values, extrapolated from the band, are what puts the check poin
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
-from solver.engine.validate import handed_like
+from solver.engine.validate import ValidatedJob, job_of
 from solver.errors import JobError, RankDeficientError
 from solver.platforms import ELEMENTS, get_model
 from solver.procedures.single import Adjust
 from solver.quality.datum import datum_problem
+from solver.report.solution import Solution
 from solver.schema.job import Job
+from solver.schema.settings import JobSettings
 
 RULE = ("when an attitude term's sigma over half the image exceeds options.quality_warnings.attitude_sigma_deg "
         "(the control does not determine it), hold that image's attitude (its attitude block's) at its constants "
         "and adjust again, once")
 
 
-def _undetermined(report: dict[str, Any]) -> list[dict[str, Any]]:
-    """The report's undetermined attitude terms (``implausible_sigma`` warnings), short form."""
-    return [{"image": w["image"], "parameter": w["parameter"], "angle_sigma_deg": w["angle_sigma_deg"]}
-            for w in report["quality"]["warnings"] if w.get("kind") == "implausible_sigma"]
-
-
-def _constant_attitude(job: Job, report: dict[str, Any], images: set[str]) -> Job:
+def _constant_attitude(job: Job, solution: Solution, images: set[str]) -> Job:
     """``job`` with the attitude elements of the blocks of ``images`` held at their constants."""
-    blocks = {im["id"]: set(im.get("attitude_shared_with") or [im["id"]]) for im in report["images"]}
+    blocks = {im.id: set(im.shared_with or [im.id]) for im in solution.images()}
     chosen = set().union(*(blocks.get(i, {i}) for i in images))
     new_images = []
     for im in job.images:
@@ -83,7 +80,19 @@ def _orders(job: Job, images: set[str]) -> dict[str, dict[str, int]]:
 BAND_FRACTION = 0.5  # control spanning less than this fraction of an image's lines is a band
 
 
-def control_extent(job: Job) -> dict[str, dict[str, Any]]:
+@dataclass(frozen=True)
+class ControlExtent:
+    """The first and last line of an image's control-point observations (None: no control
+    point) and the fraction of its lines between them."""
+
+    lines: list[float] | None
+    fraction: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"lines": self.lines, "fraction": self.fraction}
+
+
+def control_extent(job: Job) -> dict[str, ControlExtent]:
     """Per image with a camera: the first and last line of its control-point observations and
     the fraction of its lines between them (one pass over the observations)."""
     gcps = {p.id for p in job.points if p.role == "gcp"}
@@ -94,89 +103,92 @@ def control_extent(job: Job) -> dict[str, dict[str, Any]]:
         if o.point in gcps:
             lo[o.image] = min(lo.get(o.image, o.line), o.line)
             hi[o.image] = max(hi.get(o.image, o.line), o.line)
-    out: dict[str, dict[str, Any]] = {}
+    out: dict[str, ControlExtent] = {}
     for im in job.images:
         cam = cams.get(im.camera) if im.camera else None
         if cam is None or not cam.lines:
             continue
         if im.id not in lo:
-            out[im.id] = {"lines": None, "fraction": 0.0}
+            out[im.id] = ControlExtent(None, 0.0)
             continue
-        out[im.id] = {"lines": [float(lo[im.id]), float(hi[im.id])], "fraction": (hi[im.id] - lo[im.id]) / cam.lines}
+        out[im.id] = ControlExtent([float(lo[im.id]), float(hi[im.id])], (hi[im.id] - lo[im.id]) / cam.lines)
     return out
 
 
-def _narrow(extent: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+def _narrow(extent: dict[str, ControlExtent]) -> dict[str, ControlExtent]:
     """The images whose control spans a band. An image without any control point is not one:
     its orientation comes from elsewhere (the other images' control through tie points, or the
     measured orbit and attitude of direct georeferencing)."""
-    return {i: e for i, e in extent.items() if e["lines"] is not None and e["fraction"] < BAND_FRACTION}
+    return {i: e for i, e in extent.items() if e.lines is not None and e.fraction < BAND_FRACTION}
 
 
-def _band_warning(job: Job) -> tuple[dict[str, dict[str, Any]], str | None]:
+def _band_warning(job: Job) -> tuple[dict[str, ControlExtent], str | None]:
     extent = control_extent(job)
     narrow = _narrow(extent)
     if not narrow or not extent:
         return extent, None
-    shown = ", ".join(f"{i} {e['fraction']:.0%}" + (f" (lines {e['lines'][0]:.0f}-{e['lines'][1]:.0f})" if e["lines"] else "")
+    shown = ", ".join(f"{i} {e.fraction:.0%}" + (f" (lines {e.lines[0]:.0f}-{e.lines[1]:.0f})" if e.lines else "")
                       for i, e in sorted(narrow.items()))
     return extent, (f"weak control: the control spans a band of the images' lines ({shown}): the attitude rates "
                     "are not determined by it, so beyond the band the orientation is extrapolated and the check points "
                     "there can be off by more than the predicted precision")
 
 
-def weak_control_rule(job: Job, adjust: Adjust, progress) -> dict[str, Any]:
+def weak_control_rule(job: Job | ValidatedJob, adjust: Adjust, progress) -> Solution:
     """Adjust ``job`` under the rule of the module docstring (``adjust``: the adjustment with the
-    rule off) and return the last report, with ``quality.weak_control`` when it acted."""
+    rule off) and return the last solution, with ``quality.weak_control`` when it acted."""
+    original = job_of(job)
     # the datum analysis reports (not refuses) the first adjustment: weak control leaves the
     # attitude's rates, and so the block's tilts, undetermined, which is what the rule acts on
-    own_datum = job.options.datum
+    own_datum = JobSettings.of(original).blocks.datum
     first_datum = own_datum.model_copy(update={"undetermined": "report"})
-    plain = job.model_copy(update={"options": job.options.model_copy(update={"weak_control": "warn", "datum": first_datum})})
-    with handed_like(job, plain):  # only the procedures' own options differ: validated as the job was
-        report = adjust(plain, (0.0, 0.5))
-    extent, band = _band_warning(plain)
-    narrow = set(_narrow(extent))
-    flagged = [f for f in _undetermined(report) if f["image"] in narrow]
-    if not flagged and report["quality"].get("datum", {}).get("undetermined") and own_datum.undetermined == "refuse":
-        raise RankDeficientError([datum_problem(report["quality"]["datum"])])
+    plain = original.model_copy(update={"options": original.options.model_copy(update={"weak_control": "warn", "datum": first_datum})})
+    # only the procedures' own options differ: validated as the job was
+    solution = adjust(job.with_job(plain) if isinstance(job, ValidatedJob) else plain, (0.0, 0.5))
+    extent_of, band = _band_warning(plain)
+    narrow = set(_narrow(extent_of))
+    extent = {i: e.as_dict() for i, e in extent_of.items()}
+    flagged = [f for f in solution.undetermined_attitude() if f.image in narrow]
+    datum = solution.datum
+    if not flagged and datum is not None and datum.undetermined and own_datum.undetermined == "refuse":
+        raise RankDeficientError([datum_problem(datum.to_report())])
     if not flagged:
         if band:
-            report["warnings"].insert(0, band)
-            report["quality"]["weak_control"] = {"rule": RULE, "undetermined": [], "action": "none",
-                                                 "control_extent": extent, "ended": "no attitude term undetermined"}
-        return report
-    images = {f["image"] for f in flagged}
-    trial = _constant_attitude(plain, report, images)
+            solution.prepend_warning(band)
+            solution.set_quality({"weak_control": {"rule": RULE, "undetermined": [], "action": "none",
+                                                   "control_extent": extent, "ended": "no attitude term undetermined"}})
+        return solution
+    images = {f.image for f in flagged}
+    trial = _constant_attitude(plain, solution, images)
     trial = trial.model_copy(update={"options": trial.options.model_copy(update={"datum": own_datum})})
-    section: dict[str, Any] = {"rule": RULE, "undetermined": flagged, "orders": _orders(trial, {i.id for i in trial.images}),
-                               "control_extent": extent, "check_rmse_3d_m_before": report["checkpoints"]["rmse_m"].get("3d")}
+    section: dict[str, Any] = {"rule": RULE, "undetermined": [f.as_dict() for f in flagged], "orders": _orders(trial, {i.id for i in trial.images}),
+                               "control_extent": extent, "check_rmse_3d_m_before": solution.check_rmse_3d_m()}
     try:
         final = adjust(trial, (0.5, 1.0))
     except JobError as exc:
         if exc.code == "datum_undetermined" and own_datum.undetermined == "refuse":
             raise  # the rule could not make the datum determined: the job's refusal stands
-        report["quality"]["weak_control"] = {**section, "action": "none",
-                                             "ended": f"the adjustment with constant attitude failed: {exc.problems[0].message[:160]}"}
-        return report
-    remaining = _undetermined(final)
-    final["quality"]["weak_control"] = {
+        solution.set_quality({"weak_control": {**section, "action": "none",
+                                               "ended": f"the adjustment with constant attitude failed: {exc.problems[0].message[:160]}"}})
+        return solution
+    remaining = final.undetermined_attitude()
+    final.set_quality({"weak_control": {
         **section,
         "action": "attitude held at its constants in " + ", ".join(sorted(images)) + " (and their attitude blocks)",
-        "check_rmse_3d_m_after": final["checkpoints"]["rmse_m"].get("3d"),
-        "still_undetermined": remaining,
+        "check_rmse_3d_m_after": final.check_rmse_3d_m(),
+        "still_undetermined": [f.as_dict() for f in remaining],
         "ended": ("every attitude term determined" if not remaining else
                   "terms still undetermined: the control cannot determine them (add control or attitude data)"),
-    }
-    names = ", ".join(sorted({f"{f['image']}/{f['parameter']}" for f in flagged}))
-    final["warnings"].insert(0, f"weak control: the control did not determine {names}: the attitude of "
-                                f"{', '.join(sorted(images))} was held at its constants and adjusted again "
-                                "(quality.weak_control); its rates are not modelled")
+    }})
+    names = ", ".join(sorted({f"{f.image}/{f.parameter}" for f in flagged}))
+    final.prepend_warning(f"weak control: the control did not determine {names}: the attitude of "
+                          f"{', '.join(sorted(images))} was held at its constants and adjusted again "
+                          "(quality.weak_control); its rates are not modelled")
     if band:
-        final["warnings"].insert(1, band)
+        final.prepend_warning(band, 1)
     if remaining:
-        final["warnings"].insert(1, "weak control: " + ", ".join(sorted({f"{f['image']}/{f['parameter']}" for f in remaining}))
-                                 + " remain undetermined: the control cannot determine them; add control or attitude data")
+        final.prepend_warning("weak control: " + ", ".join(sorted({f"{f.image}/{f.parameter}" for f in remaining}))
+                              + " remain undetermined: the control cannot determine them; add control or attitude data", 1)
     if progress is not None:
         progress(1.0, "weak-control rule done", {})
     return final

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solver.errors import Problem
+from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState
 
 FAR_SIGMAS = 20.0  # an offset beyond this many predicted sigmas ...
@@ -99,7 +100,8 @@ def _side(value: float, unit: str) -> str:
 def _stated_sigmas(problem: AdjustmentState) -> dict[int, tuple[float, float, float] | None]:
     """Per image: (position m, attitude rad, bias rad) sigmas of a stated orientation, or None."""
     job = problem.job
-    eph, att = job.options.ephemeris, job.options.attitude
+    blocks = JobSettings.of(job).blocks
+    eph, att = blocks.ephemeris, blocks.attitude
     out: dict[int, tuple[float, float, float] | None] = {}
     for k, im in enumerate(job.images):
         pos = None

@@ -90,6 +90,11 @@ class DatumAnalysis:
         """One sentence for a refusal or a warning."""
         return undetermined_message(self.undetermined)
 
+    @property
+    def unbounded(self) -> bool:
+        """Some direction is not determined at all (no finite sigma), not only weakly."""
+        return any(u["sigma_m"] is None for u in self.undetermined)
+
 
 def undetermined_message(undetermined: list[dict[str, Any]]) -> str:
     """The undetermined directions (``quality.datum.undetermined``) in one sentence."""

@@ -42,6 +42,7 @@ from solver.quality.reliability import (
     structure,
     weakest_direction,
 )
+from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState
 
 EIGEN_TOL = REDUNDANCY_NEAR_ZERO  # eigenvalues of Q_gg below this (redundancy ~0) carry no test
@@ -159,7 +160,7 @@ def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
     res = lin.residuals
     dof = len(res) - lin.layout.n_params
     vtpv = float(res @ res)
-    s0_apriori = problem.job.options.sigma0_apriori
+    s0_apriori = JobSettings.of(problem.job).statistics.sigma0_apriori
     out = Snoop(st, [], res, dof, vtpv, options.variance, options.alpha0, options.beta, s0_apriori)
     robust_scale = None
     if robust:
@@ -356,6 +357,40 @@ def reliability_section(sn: Snoop) -> dict[str, Any]:
         "groups": items,
         "unchecked_control_points": unchecked,
     }
+
+
+def predicted_decision(sn: Snoop, t: Test, inflate: float, s2: tuple[float, int] | None = None, whole: bool = False) -> tuple[dict[str, Any], bool]:
+    """:func:`predicted_test` and whether the observation passes it (it may be reinstated)."""
+    test = predicted_test(sn, t, inflate, s2, whole)
+    return test, bool(test["passed"])
+
+
+@dataclass
+class CollateralEntry:
+    """An observation removed with a rejected one (:func:`solver.quality.removal.remove`'s
+    collateral) as a ``quality.rejected`` entry; ``image_point``: an image point of the core (its
+    image and point), else a family's (a line image left with fewer than two points)."""
+
+    entry: dict[str, Any]
+    image_point: bool
+    image: str | None
+    point: str | None
+
+
+def collateral_entries(collateral: list[dict[str, Any]]) -> list[CollateralEntry]:
+    """The ``quality.rejected`` entries of ``collateral`` removals (no test of their own)."""
+    out = []
+    for c in collateral:
+        if c.get("kind", "image_point") != "image_point":
+            label = {k: v for k, v in c.items() if k not in ("units", "components")}
+            e = {**label, "w": None, "critical": None, "dof": 0, "estimated_error": None, "units": c["units"],
+                 "components": c["components"], "removed": True, "collateral": True}
+            out.append(CollateralEntry(e, False, c.get("image"), c.get("point")))
+            continue
+        e = {"kind": "image_point", **c, "w": None, "critical": None, "dof": 0, "estimated_error": None,
+             "units": "px", "components": ["line", "column"], "removed": True, "collateral": True}
+        out.append(CollateralEntry(e, True, c["image"], c["point"]))
+    return out
 
 
 def predicted_test(sn: Snoop, t: Test, inflate: float, s2: tuple[float, int] | None = None, whole: bool = False) -> dict[str, Any]:

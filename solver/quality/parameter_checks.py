@@ -113,7 +113,13 @@ def constraint_test(delta_vtpv: float, q: int, vtpv: float, dof: int, alpha: flo
     """Test of the hypothesis that ``q`` parameters are zero, from the increase of the weighted
     sum of squares when they are held: ``F = (dvtpv / q) / (vtpv / dof)``, accepted (the
     constraint is compatible with the data, the terms can go) below the ``1 - alpha`` quantile
-    of F(q, dof)."""
+    of F(q, dof). The report's entry (:func:`constraint_decision` gives it with its decision)."""
+    return constraint_decision(delta_vtpv, q, vtpv, dof, alpha)[0]
+
+
+def constraint_decision(delta_vtpv: float, q: int, vtpv: float, dof: int, alpha: float) -> tuple[dict[str, Any], bool]:
+    """:func:`constraint_test`'s entry and whether the constraint is accepted."""
     f = (max(delta_vtpv, 0.0) / q) / (vtpv / dof) if dof > 0 and vtpv > 0 else math.inf
     crit = f_quantile(1.0 - alpha, q, dof) if dof > 0 else math.inf
-    return {"statistic": float(f), "dof": [q, dof], "critical": crit, "alpha": alpha, "passed": bool(f <= crit)}
+    passed = bool(f <= crit)
+    return {"statistic": float(f), "dof": [q, dof], "critical": crit, "alpha": alpha, "passed": passed}, passed

@@ -43,6 +43,7 @@ from solver.quality.precision import (
     survey_covariance,
 )
 from solver.schema.job import Job
+from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState
 
 PROJECTION_PASSES = 3  # re-project from the last projection (the line search starts at the observed line)
@@ -91,7 +92,7 @@ def level_nominal_attitude(problem: AdjustmentState, images: list[int]) -> None:
         im_doc = problem.job.images[i]
         if img.model.kind.attitude_in_orbital_frame:
             continue
-        state = image_state(im_doc, problem.job.options)
+        state = image_state(im_doc, JobSettings.of(problem.job).blocks.ephemeris)
         if state is None or state.attitude_deg is not None or set(im_doc.initial) & {"omega", "phi", "kappa"}:
             continue
         orders = img.model.effective_orders(img.options)
@@ -184,7 +185,7 @@ def plan_observations(job: Job) -> tuple[list[dict[str, Any]], set[str], dict[st
     missing = planning_problems(job)
     if missing:
         raise JobError(missing)
-    pre = job.options.preanalysis
+    pre = JobSettings.of(job).procedures.preanalysis
     sigma = pre.sigma_px if pre is not None else 0.5
     samples, sample_ids = _line_samples(job, pre.line_points if pre is not None else 8)
     ext = job
@@ -251,7 +252,7 @@ def preanalyse(job: Job) -> dict[str, Any]:
             )
         )
     cov = covariance(lin, parts, problem)
-    var = job.options.sigma0_apriori**2
+    var = JobSettings.of(job).statistics.sigma0_apriori**2
     n_obs = len(lin.residuals)
     lay = lin.layout
     tables = current_tables(problem)
@@ -307,7 +308,7 @@ def preanalyse(job: Job) -> dict[str, Any]:
             "n_observations": n_obs,
             "n_unknowns": lay.n_params,
             "dof": n_obs - lay.n_params,
-            "sigma0_apriori": job.options.sigma0_apriori,
+            "sigma0_apriori": JobSettings.of(job).statistics.sigma0_apriori,
             "n_planned_image_points": len(planned),
             "n_planned_line_points": sum(len(o["points"]) for obs in planned_lines.values() for o in obs),
             "condition": rank.condition if np.isfinite(rank.condition) else None,
@@ -316,7 +317,7 @@ def preanalyse(job: Job) -> dict[str, Any]:
         "parameters": [{"name": n, "sigma": float(s)} for n, s in zip(names, s_img)],
         "checkpoints": {"n": len(checks), "points": checks, "predicted_rmse_m": predicted},
         "points": ground,
-        "quality": {"warnings": high_correlations(cov.images, names, job.options.quality_warnings.correlation)},
+        "quality": {"warnings": high_correlations(cov.images, names, JobSettings.of(job).statistics.quality_warnings.correlation)},
         "observations": planned,
         "lines": [
             {"id": gl.id, "images": [o["image"] for o in planned_lines.get(gl.id, [])],

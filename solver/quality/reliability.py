@@ -74,6 +74,16 @@ class Group:
     def dim(self) -> int:
         return len(self.local)
 
+    @property
+    def point(self) -> str | None:
+        """The ground point of an image point or a survey (None for a family's observation without one)."""
+        return self.label.get("point")
+
+    @property
+    def fixed(self) -> bool:
+        """An observation of a fixed control point (its coordinates held; no sigma to reinstate it with)."""
+        return bool(self.label.get("fixed"))
+
 
 @dataclass
 class Structure:

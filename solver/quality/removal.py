@@ -8,8 +8,20 @@ two image points cannot be intersected: its last image point goes too (``collate
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from solver.observations import registry
-from solver.schema.job import Job
+from solver.schema.job import ImageObservation, Job
+
+
+@dataclass
+class Candidate:
+    """A removed image point (``obs``: its measurement) or control point's survey (``obs``
+    None), of ``point``: what the reinstatement puts back (:func:`with_candidates`, :func:`reinstate`)."""
+
+    kind: str  # image_point | control_point
+    obs: ImageObservation | None
+    point: str
 
 
 def remove(job: Job, removals: list[tuple]) -> tuple[Job, list[dict]]:
@@ -55,21 +67,21 @@ def _rays(job: Job) -> dict[str, int]:
     return count
 
 
-def testable(current: Job, item: dict) -> bool:
+def testable(current: Job, item: Candidate) -> bool:
     """Whether a removed observation (``item``: kind, obs, point) can be predicted from the
     adjustment of ``current``: its ground point must be determined without it (a control point
     in ``current``, or a tie point with two rays; a survey: its point with two rays)."""
     points = {p.id: p for p in current.points}
-    p = points.get(item["point"])
+    p = points.get(item.point)
     if p is None:
         return False
-    rays = _rays(current).get(item["point"], 0)
-    if item["kind"] == "image_point":
+    rays = _rays(current).get(item.point, 0)
+    if item.kind == "image_point":
         return p.role == "gcp" or (p.role == "tie" and rays >= 2)
     return p.role == "tie" and rays >= 2
 
 
-def whole_points(current: Job, items: list[dict]) -> set[str]:
+def whole_points(current: Job, items: list[Candidate]) -> set[str]:
     """Points that ``current`` no longer has and whose removed observations among ``items``
     determine them on their own (two rays, or a survey and a ray): those observations are
     tested together, against the final orientation (``snooping.predicted_test``, ``whole``)."""
@@ -77,23 +89,23 @@ def whole_points(current: Job, items: list[dict]) -> set[str]:
     rays: dict[str, int] = {}
     survey: set[str] = set()
     for it in items:
-        if it["point"] in present:
+        if it.point in present:
             continue
-        if it["kind"] == "image_point":
-            rays[it["point"]] = rays.get(it["point"], 0) + 1
+        if it.kind == "image_point":
+            rays[it.point] = rays.get(it.point, 0) + 1
         else:
-            survey.add(it["point"])
+            survey.add(it.point)
     return {p for p, n in rays.items() if n >= 2 or (n >= 1 and p in survey)}
 
 
-def with_candidates(current: Job, original: Job, items: list[dict]) -> Job:
+def with_candidates(current: Job, original: Job, items: list[Candidate]) -> Job:
     """``current`` with the removed observations ``items`` put back with inflated sigmas
     (``INFLATE``): image points appended to ``observations`` (in the order of ``items``), a
     control point's survey restored from ``original``."""
     orig_points = {p.id: p for p in original.points}
-    surveys = {it["point"] for it in items if it["kind"] == "control_point"}
+    surveys = {it.point for it in items if it.kind == "control_point"}
     present = {p.id for p in current.points}
-    gone = [orig_points[pid] for pid in dict.fromkeys(it["point"] for it in items) if pid not in present]
+    gone = [orig_points[pid] for pid in dict.fromkeys(it.point for it in items) if pid not in present]
     points = []
     for p in list(current.points) + gone:
         if p.id in surveys:
@@ -103,22 +115,22 @@ def with_candidates(current: Job, original: Job, items: list[dict]) -> Job:
             p = p.model_copy(update={"role": "tie", "coordinates": None, "sigma_m": None, "crs": None})
         points.append(p)
     obs = list(current.observations) + [
-        it["obs"].reweighted(it["obs"].sigma_px * INFLATE) for it in items if it["kind"] == "image_point"
+        it.obs.reweighted(it.obs.sigma_px * INFLATE) for it in items if it.kind == "image_point"
     ]
     return current.model_copy(update={"points": points, "observations": obs})
 
 
-def reinstate(current: Job, original: Job, items: list[dict]) -> Job:
+def reinstate(current: Job, original: Job, items: list[Candidate]) -> Job:
     """``current`` with ``items`` back as they were measured."""
     orig_points = {p.id: p for p in original.points}
-    surveys = {it["point"] for it in items if it["kind"] == "control_point"}
+    surveys = {it.point for it in items if it.kind == "control_point"}
     present = {p.id for p in current.points}
     points = [orig_points[p.id] if p.id in surveys else p for p in current.points]
-    for pid in dict.fromkeys(it["point"] for it in items):
+    for pid in dict.fromkeys(it.point for it in items):
         if pid not in present:
             p = orig_points[pid]
             if p.role == "gcp" and pid not in surveys:
                 p = p.model_copy(update={"role": "tie", "coordinates": None, "sigma_m": None, "crs": None})
             points.append(p)
-    obs = list(current.observations) + [it["obs"] for it in items if it["kind"] == "image_point"]
+    obs = list(current.observations) + [it.obs for it in items if it.kind == "image_point"]
     return current.model_copy(update={"points": points, "observations": obs})

@@ -17,6 +17,7 @@ from solver.kernels import platform_state
 from solver.kernels.rpc import RPC_START, rpc_image_to_ground
 from solver.observations.ephemeris import line0_state_ecef
 from solver.quality.precision import error_ellipses
+from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState, rows_by_image
 
 
@@ -184,7 +185,7 @@ def observations_report(problem: AdjustmentState, lin, cov: Covariance | None) -
         return []
     res = lin.res_obs.reshape(-1, 2)
     sig = obs.oc[sel, 2]
-    s0 = problem.job.options.sigma0_apriori
+    s0 = JobSettings.of(problem.job).statistics.sigma0_apriori
     standardized: list[list[Any]] = [[None, None]] * len(sel)
     if cov is not None and cov.leverage is not None:
         r = 1.0 - np.asarray(cov.leverage, dtype=float).reshape(-1, 2)

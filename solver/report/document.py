@@ -35,6 +35,12 @@ def _covariance(lin: Linearisation, problem: AdjustmentState, warnings: list[str
 
 def assess(problem: AdjustmentState, outcome) -> dict[str, Any]:
     """Statistics, covariance, check points and the report, at the current parameters."""
+    return build_sections(report_inputs(problem, outcome))
+
+
+def report_inputs(problem: AdjustmentState, outcome) -> ReportInputs:
+    """What the report's sections are built from (:class:`solver.report.sections.ReportInputs`),
+    at the current parameters: the statistics and the covariance, computed once."""
     job = problem.job
     stats = JobSettings.from_options(job.options).statistics
     lin = linearise(problem)
@@ -57,5 +63,4 @@ def assess(problem: AdjustmentState, outcome) -> dict[str, Any]:
         if creeping is not None:
             warnings.append(creeping)
 
-    inputs = ReportInputs(problem, outcome, lin, cov, n_obs, n_unk, dof, vtpv, sigma0, var_factor, stats, warnings)
-    return build_sections(inputs)
+    return ReportInputs(problem, outcome, lin, cov, n_obs, n_unk, dof, vtpv, sigma0, var_factor, stats, warnings)

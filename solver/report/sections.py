@@ -64,6 +64,7 @@ class ReportInputs:
     warnings: list[str]
     sections: dict[str, Any] = field(default_factory=dict)
     gsds: list[float] = field(default_factory=list)  # the images' ground sample distances (m)
+    built: int = 0  # the registry's entries built so far (in its order)
 
     def context(self) -> ReportContext:
         """The blocks' and families' view of these inputs."""
@@ -210,11 +211,25 @@ SECTIONS: tuple[ReportSection, ...] = (
 )
 
 
+def build_through(inputs: ReportInputs, name: str | None = None) -> None:
+    """Build the registry's entries in order, each once, until section ``name`` exists (None:
+    all of them): a section asked for early (a procedure reading the check points) is built
+    with everything before it, so the warnings keep the registry's order."""
+    registry = SECTIONS
+    while inputs.built < len(registry) and (name is None or name not in inputs.sections):
+        inputs.sections.update(registry[inputs.built].build(inputs))
+        inputs.built += 1
+
+
+def ordered(sections: dict[str, Any]) -> dict[str, Any]:
+    """The sections in the published key order: :data:`SECTION_ORDER`, the others, then :data:`LAST`."""
+    report = dict(sections)
+    first = {k: report.pop(k) for k in SECTION_ORDER if k in report}
+    last = {k: report.pop(k) for k in LAST if k in report}
+    return {**first, **report, **last}
+
+
 def build_sections(inputs: ReportInputs) -> dict[str, Any]:
     """Every registered section, in the registry's order, then in the published key order."""
-    for section in SECTIONS:
-        inputs.sections.update(section.build(inputs))
-    report = dict(inputs.sections)
-    ordered = {k: report.pop(k) for k in SECTION_ORDER if k in report}
-    last = {k: report.pop(k) for k in LAST if k in report}
-    return {**ordered, **report, **last}
+    build_through(inputs)
+    return ordered(inputs.sections)

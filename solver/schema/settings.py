@@ -28,6 +28,7 @@ from solver.schema.job import (
     BlunderDetection,
     DatumOptions,
     EphemerisOptions,
+    Job,
     Parsimony,
     PreanalysisOptions,
     QualityWarnings,
@@ -95,6 +96,11 @@ class JobSettings:
     blocks: BlockConfig
     statistics: StatisticsConfig
     procedures: ProcedureConfig
+
+    @classmethod
+    def of(cls, job: Job) -> "JobSettings":
+        """The settings of a job (:meth:`from_options` of its ``options``)."""
+        return cls.from_options(job.options)
 
     @classmethod
     def from_options(cls, o: SolverOptions) -> "JobSettings":

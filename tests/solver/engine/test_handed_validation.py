@@ -1,6 +1,7 @@
 """A job validated once: the counts of a validation made elsewhere (a server's submission)
-are handed to the solve, which then does not check that job again; a record made by other
-code, or a changed copy of the job, is checked as before."""
+are handed to the solve as a value (:class:`solver.engine.validate.ValidatedJob`), which then
+does not check that job again; a record made by other code, or a changed copy of the job, is
+checked as before."""
 
 from __future__ import annotations
 
@@ -44,18 +45,19 @@ def test_a_handed_validation_is_not_repeated(checks: list[int]) -> None:
 def test_a_record_of_other_code_or_another_job_is_not_taken(checks: list[int]) -> None:
     job = load_job(single_image_job("K2", seed=3)[0])
     record = solver.api.validation_record(solver.api.validate(job))
-    with validate.handed_validation(job, {**record, "fingerprint": "other code"}) as taken:
-        n = len(checks)
-        validate.require_valid(job)
-        assert not taken and len(checks) == n + 1
+    n = len(checks)
+    other = validate.handed(job, {**record, "fingerprint": "other code"})
+    assert other is job  # not taken: the job as it is
+    validate.validated(other)
+    assert len(checks) == n + 1  # checked
+    taken = validate.handed(job, record)
+    assert isinstance(taken, validate.ValidatedJob) and taken.job is job
+    n = len(checks)
+    assert validate.validated(taken).counts == record["counts"] and len(checks) == n  # not checked again
     copy = job.model_copy(update={"observations": job.observations[:2]})
-    with validate.handed_validation(job, record) as taken:
-        assert taken
-        n = len(checks)
-        assert validate.require_valid(job) == record["counts"] and len(checks) == n
-        with pytest.raises(JobError):  # the copy lost its observations: checked, refused
-            validate.require_valid(copy)
-    assert validate._handed == {}  # nothing kept after the block
+    with pytest.raises(JobError):  # the copy lost its observations: checked, refused
+        validate.validated(copy)
+    assert len(checks) == n + 1
 
 
 def test_a_comparison_takes_the_handed_validation_for_every_model(checks: list[int]) -> None:

@@ -52,9 +52,9 @@ def _weak(job: dict) -> dict:
 def test_control_extent_names_the_band(triplet) -> None:
     extent = control_extent(load_job(_weak(triplet)))
     nadir = next(v for k, v in extent.items() if "nadir" in k)
-    assert nadir["fraction"] < 0.2 < BAND_FRACTION
+    assert nadir.fraction < 0.2 < BAND_FRACTION
     full = control_extent(load_job(triplet))
-    assert all(e["fraction"] > BAND_FRACTION for e in full.values())
+    assert all(e.fraction > BAND_FRACTION for e in full.values())
 
 
 def test_the_default_acts_on_undetermined_attitude_and_says_so(triplet) -> None:
@@ -107,9 +107,9 @@ def test_an_image_with_only_tie_points_is_not_control_in_a_band(triplet) -> None
     job = load_job(_without_control_in(triplet, "forward"))
     extent = control_extent(job)
     forward = next(k for k in extent if "forward" in k)
-    assert extent[forward]["lines"] is None and extent[forward]["fraction"] == 0.0
+    assert extent[forward].lines is None and extent[forward].fraction == 0.0
     assert forward not in _narrow(extent)
-    assert all(e["fraction"] > BAND_FRACTION for k, e in extent.items() if k != forward)
+    assert all(e.fraction > BAND_FRACTION for k, e in extent.items() if k != forward)
     _, band = _band_warning(job)
     assert band is None  # the other images' control spans their lines: no band anywhere
 

@@ -102,7 +102,8 @@ def test_image_point_effects_match_a_biased_readjustment(exact_block) -> None:
     control-point surveys): the named ray's MDB moves the tie and check points as predicted."""
     job = exact_block
     base = run(copy.deepcopy(job))
-    problem, report = adjust_once(load_job(copy.deepcopy(job)))
+    solution = adjust_once(load_job(copy.deepcopy(job)))
+    problem, report = solution.problem, solution.report()
     sn = snoop(problem, BlunderDetection())
     keep = [k for k, g in enumerate(sn.structure.groups) if g.kind == "image_point"]
     st = Structure(sn.structure.blocks, [sn.structure.groups[k] for k in keep], sn.structure.s_inv)

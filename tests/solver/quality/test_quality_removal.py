@@ -15,7 +15,7 @@ from utils.scenes import block_job
 from solver.adjust import adjust_once
 from solver.api import run
 from solver.quality.outlier_tests import predicted_test, snoop
-from solver.quality.removal import INFLATE, with_candidates
+from solver.quality.removal import INFLATE, Candidate, with_candidates
 from solver.schema.job import BlunderDetection, load_job
 
 # the predicted w of a removed observation vs the test inside the adjustment: the nonlinearity of
@@ -45,11 +45,11 @@ def test_test_outside_the_adjustment_equals_the_w_test_inside(block) -> None:
     k = ties[7]
     job["observations"][k]["column"] += 6.0
     full = load_job(copy.deepcopy(job))
-    problem, _ = adjust_once(full)
+    problem = adjust_once(full).problem
     inside = next(t for t in snoop(problem, DEFAULTS).tests if t.group.removal == ("observation", k))
     without = full.model_copy(update={"observations": [o for i, o in enumerate(full.observations) if i != k]})
-    item = {"kind": "image_point", "obs": full.observations[k], "point": full.observations[k].point}
-    aug_problem, _ = adjust_once(with_candidates(without, full, [item]))
+    item = Candidate("image_point", full.observations[k], full.observations[k].point)
+    aug_problem = adjust_once(with_candidates(without, full, [item])).problem
     sn = snoop(aug_problem, DEFAULTS)
     n = len(without.observations)
     t = next(t for t in sn.tests if t.group.removal == ("observation", n))
@@ -192,17 +192,14 @@ def test_a_point_removed_whole_is_tested_against_the_final_orientation() -> None
     k = next(i for i, o in enumerate(job["observations"]) if o["point"] == gcp["id"])
     job["observations"][k]["column"] += 3.0  # w ~ 6 inside
     full = load_job(copy.deepcopy(job))
-    problem, _ = adjust_once(full)
+    problem = adjust_once(full).problem
     inside = next(t for t in snoop(problem, DEFAULTS).tests if t.group.removal == ("observation", k))
     p_idx = next(i for i, p in enumerate(full.points) if p.id == gcp["id"])
     without, _collateral = remove(full, [("observation", k), ("control", p_idx)])
     assert gcp["id"] not in {p.id for p in without.points}
-    items = [
-        {"kind": "image_point", "obs": full.observations[k], "point": gcp["id"]},
-        {"kind": "control_point", "obs": None, "point": gcp["id"]},
-    ]
+    items = [Candidate("image_point", full.observations[k], gcp["id"]), Candidate("control_point", None, gcp["id"])]
     assert whole_points(without, items) == {gcp["id"]}
-    aug, _ = adjust_once(with_candidates(without, full, items))
+    aug = adjust_once(with_candidates(without, full, items)).problem
     sn = snoop(aug, DEFAULTS)
     t = next(t for t in sn.tests if t.group.kind == "image_point" and t.group.label["point"] == gcp["id"])
     out = predicted_test(sn, t, INFLATE, whole=True)

@@ -39,7 +39,9 @@ DEFAULTS = BlunderDetection()
 
 
 def _adjusted(job: dict):
-    return adjust_once(load_job(copy.deepcopy(job)))
+    """(problem at its solution, its report)."""
+    solution = adjust_once(load_job(copy.deepcopy(job)))
+    return solution.problem, solution.report()
 
 
 @pytest.fixture(scope="module")
