@@ -37,6 +37,7 @@ from scipy.linalg import lapack
 
 from solver.engine.linalg import Linearisation, SchurParts
 from solver.errors import Problem
+from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState
 
 DIRECTIONS = (
@@ -202,7 +203,7 @@ def _defined_by(problem: AdjustmentState) -> list[str]:
     out = []
     gcps = [p for p in job.points if p.role == "gcp"]
     if gcps:
-        weighted = sum(1 for p in gcps if p.sigma_m is not None and job.options.control == "weighted")
+        weighted = sum(1 for p in gcps if p.sigma_m is not None and JobSettings.of(job).blocks.control == "weighted")
         out.append(f"{len(gcps)} control point{'s' if len(gcps) != 1 else ''}" + (f" ({weighted} weighted)" if weighted else ""))
     control_lines = [ln for ln in job.lines if getattr(ln, "role", None) == "control"]
     if control_lines:
@@ -213,7 +214,7 @@ def _defined_by(problem: AdjustmentState) -> list[str]:
     states = [im.id for im in problem.images if _has_state_prior(problem, im)]
     if states:
         out.append(f"weighted platform states ({', '.join(states)})")
-    if job.options.attitude is not None and any(im.attitude for im in job.images):
+    if JobSettings.of(job).blocks.attitude is not None and any(im.attitude for im in job.images):
         out.append("measured attitude (" + ", ".join(im.id for im in job.images if im.attitude) + ")")
     if job.dem is not None:
         n = sum(1 for p in job.points if p.role == "tie" and p.id not in set(job.dem.excluded))
@@ -255,7 +256,7 @@ def _image_ties(problem: AdjustmentState) -> list[dict[str, str]]:
             own.append("its RPC bias priors")
         if im.id in states:
             own.append("its weighted platform state")
-        if im.attitude and job.options.attitude is not None:
+        if im.attitude and JobSettings.of(job).blocks.attitude is not None:
             own.append("its measured attitude")
         if own:
             tied = ", ".join(own) + (f"; {n_tie.get(im.id, 0)} tie point observations" if n_tie.get(im.id) else "")
