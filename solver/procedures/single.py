@@ -23,7 +23,7 @@ from solver.engine.linalg import check_rank, linearise, schur
 from solver.engine.validate import ValidatedJob, validated
 from solver.errors import Cancelled, JobError, Problem, RankDeficientError, UnusableSolution
 from solver.quality.control_fit import control_misfits, control_problems
-from solver.quality.datum import DatumAnalysis, analyse_datum, datum_problem
+from solver.quality.datum import DatumAnalysis, analyse_datum, datum_problem, dem_bias
 from solver.report.document import assess  # noqa: F401 (the report of a problem at its solution, for benchmarks and tests)
 from solver.report.solution import Solution
 from solver.schema.job import Job
@@ -168,7 +168,13 @@ def adjust_once(
     solution = Solution(problem, outcome, time.perf_counter() - t_start, datum)
     for k, sentence in enumerate(foreign):  # the control that does not fit, first among the warnings
         solution.prepend_warning(sentence, k)
-    solution.set_quality({"datum": datum.to_report()})
+    quality: dict[str, Any] = {"datum": datum.to_report()}
+    if job.dem is not None:  # the test of a common DEM bias, at the solution
+        lin = linearise(problem)
+        bias = dem_bias(problem, lin, schur(lin, problem), JobSettings.from_options(job.options).statistics.alpha)
+        if bias is not None:
+            quality["dem_bias"] = bias
+    solution.set_quality(quality)
     if datum.undetermined:
         solution.prepend_warning(f"the datum is not determined: {datum.message()} (quality.datum)")
     _progress(progress, frac(1.0), "done", {"sigma0": solution.sigma0})

@@ -354,3 +354,25 @@ def dem_bias_test(residual_w: np.ndarray, a_w: np.ndarray, hat: float, alpha: fl
     w = b / sigma
     return {"testable": True, "bias_m": b, "sigma_m": float(sigma), "w": float(w), "critical": critical,
             "passed": bool(abs(w) <= critical)}
+
+
+def dem_bias(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, alpha: float) -> dict[str, Any] | None:
+    """:func:`dem_bias_test` of the DEM heights of ``problem`` (the family named "dem") at its
+    current parameters: a = 1/sigma per DEM height, r its whitened residual, and a^T H a from the
+    DEM rows' Jacobian onto the points (w_i^2 dv/dp per point). None without DEM heights."""
+    dem_terms = [t for t in lin.terms if t.family.name == "dem" and t.block == "point"]
+    if not dem_terms:
+        return None
+    pt_q = {int(p): q for q, p in enumerate(parts.est_points)}
+    g = np.zeros((len(parts.est_points), 3, 1))
+    a_w, r_w = [], []
+    for labelled in dem_terms:
+        term = labelled.term
+        q = pt_q.get(int(labelled.index))
+        r, jac = term.evaluate(problem.points[labelled.index].xyz)
+        a_w.append(term.w)
+        r_w.append(float(r[0]))
+        if q is not None:
+            g[q, :, 0] += term.w * jac[0]  # J_i^T a_i (whitened row times a_i = w_i)
+    hat = float(functional_variances(lin, parts, g)[0])
+    return dem_bias_test(np.array(r_w), np.array(a_w), hat, alpha)

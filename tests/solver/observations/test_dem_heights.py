@@ -107,3 +107,24 @@ def test_dem_heights_in_a_rigorous_block(pass_triplet_with_dem) -> None:
     true = {p["id"]: p for p in truth["points"]}
     z = [(t["height_m"] - true[t["id"]]["height_m"]) / t["sigma_m"][2] for t in rep["tie_points"]]
     assert np.sqrt(np.mean(np.square(z))) < 2.0
+
+
+def test_the_dem_bias_test_finds_a_bias_of_three_sigma(pass_triplet_with_dem) -> None:
+    """The report's test of a common DEM bias: without one it passes; the DEM raised by three
+    times the test's own sigma (the orbit and attitude fix the heights too), it finds it."""
+    import copy
+
+    from solver.api import run
+    from solver.geometry.dem import grid_from_job, grid_to_job
+
+    job, _truth = pass_triplet_with_dem
+    clean = run(copy.deepcopy(job))["quality"]["dem_bias"]
+    assert clean["testable"] and clean["passed"], clean
+    j = copy.deepcopy(job)
+    dem = grid_from_job(j["dem"]["grid"])
+    injected = 3.0 * clean["sigma_m"]
+    dem.values = dem.values + injected
+    j["dem"]["grid"] = grid_to_job(dem)
+    biased = run(j)["quality"]["dem_bias"]
+    assert not biased["passed"] and biased["w"] > biased["critical"], biased
+    assert biased["bias_m"] == pytest.approx(clean["bias_m"] + injected, abs=0.5 * clean["sigma_m"])
