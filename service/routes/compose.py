@@ -8,6 +8,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, File, Form, UploadFile
 from fastapi.concurrency import run_in_threadpool
+from pydantic import BaseModel, Field
 
 from service.compose import (
     MAX_FILES,
@@ -59,6 +60,30 @@ async def compose_job(
     referenced = {name for _, name in references(parsed)}
     uploads = {name: await f.read() for name, f in named.items() if name in referenced}
     return await run_in_threadpool(compose_uploads, parsed, uploads, services.store, user)
+
+
+class SensorFormat(BaseModel):
+    """A vendor metadata format the composition reads (solver.sensors.readers)."""
+
+    name: str
+    description: str
+    roots: list[str] = Field(description="XML root elements that name the format")
+    file_names: list[str] = Field(description="file names (glob, any case) that name the format alone")
+
+
+class ComposeFormats(BaseModel):
+    """What the composition recognises without being told (the web page's job builder asks)."""
+
+    sensor: list[SensorFormat]
+
+
+@router.get("/compose/formats", response_model=ComposeFormats)
+async def compose_formats() -> ComposeFormats:
+    """The vendor sensor-metadata formats the composition reads: their XML roots and the file
+    names that name them (the job builder recognises dropped files by them)."""
+    from solver.sensors.readers import describe
+
+    return ComposeFormats(sensor=[SensorFormat(**f) for f in describe()])
 
 
 async def _count(f: UploadFile) -> tuple[int, int]:

@@ -1,29 +1,25 @@
-"""Which reader a metadata file needs, by its root element: ``isd`` (Maxar support data,
+"""Which reader a metadata file needs: the first of the registered readers
+(:data:`solver.sensors.readers.READERS`) that recognises it: today ``isd`` (Maxar support data,
 :mod:`solver.sensors.maxar`), ``Dimap_Document`` (DIMAP v1 of SPOT 1-5,
 :mod:`solver.sensors.dimap_spot5`; DIMAP v2 of SPOT 6/7 and Pleiades,
 :mod:`solver.sensors.dimap_v2`, told apart by ``METADATA_FORMAT``'s version),
 ``PHR_Dimap_Document`` (Pleiades ground-segment metadata, :mod:`solver.sensors.phr_dimap`) or ``prdf`` (INPE
-product XML of CBERS-4/4A and Amazonia-1: :mod:`solver.sensors.inpe_cbers`; ``FILE#left`` or
+product XML of CBERS-4/4A and Amazonia-1: :mod:`solver.sensors.inpe_cbers`). ``FILE#left`` or
 ``FILE#right`` names the camera of a two-camera record, the left one by default, and ``#raw``
 (``FILE#raw``, ``FILE#right,raw``) declares that the image measurements are in the raw image the
-record describes, not in the map-projected raster INPE delivers)."""
+record describes, not in the map-projected raster INPE delivers."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from solver.sensors.dimap_spot5 import Spot5Product, dimap_version, read_dimap_v1_root
-from solver.sensors.dimap_v2 import DimapV2Product, read_dimap_v2_root
+from solver.sensors import readers
 from solver.sensors.errors import MetadataError
-from solver.sensors.inpe_cbers import CbersProduct, read_cbers
-from solver.sensors.maxar import MaxarProduct, read_maxar
-from solver.sensors.phr_dimap import is_phr_dimap, read_phr_dimap_root
-from solver.sensors.xmlsafe import load, read_bytes
+from solver.sensors.readers import HEAD_BYTES, ReadRequest, formats_text
+from solver.sensors.xmlsafe import read_bytes
 
-FORMATS = ("Maxar/DigitalGlobe support-data XML (root isd), DIMAP v1 of SPOT 1-5 (METADATA.DIM), DIMAP v2 "
-           "of SPOT 6/7 and Pleiades (DIM_*.XML; root Dimap_Document), Pleiades ground-segment metadata "
-           "(root PHR_Dimap_Document) or INPE product XML of CBERS-4/4A, Amazonia-1 (root prdf)")
-Product = MaxarProduct | Spot5Product | DimapV2Product | CbersProduct
+FORMATS = formats_text()  # the registered readers (solver.sensors.readers) at import, listed for messages
+Product = object  # a registered reader's product (solver.sensors.readers.READERS)
 CAMERA_SUFFIXES = ("#left", "#right")
 SUFFIX_WORDS = ("left", "right", "raw")  # after '#': a camera, and/or raw (INPE records)
 
@@ -42,7 +38,8 @@ def split_suffix(path: str | Path) -> tuple[Path, str | None, bool]:
 
 
 def read_product(path: str | Path, shown: str | None = None, data: bytes | str | None = None) -> Product:
-    """The product of a metadata file (or of its bytes ``data``), by its root element
+    """The product of a metadata file (or of its bytes ``data``), read by the first registered
+    reader (:data:`solver.sensors.readers.READERS`) that recognises it and takes it
     (MetadataError naming the file when none of them)."""
     path, camera, raw = split_suffix(path)
     shown = str(path) if shown is None else shown
@@ -52,21 +49,12 @@ def read_product(path: str | Path, shown: str | None = None, data: bytes | str |
     if data is None:
         data = read_bytes(path, shown)
     if not data.strip():
-        raise MetadataError(shown, "", f"empty ({len(data)} bytes): a metadata file expected ({FORMATS})")
-    head = data[:4096]
-    if b"<isd>" in head or b"<isd " in head:
-        return read_maxar(path, shown, data)
-    if b"<Dimap_Document" in head:
-        root = load(path, shown, data)
-        version = dimap_version(root)
-        if version.startswith("1."):
-            return read_dimap_v1_root(root, shown)
-        if version.startswith("2."):
-            return read_dimap_v2_root(root, path if from_disk else Path(""), shown)
-        raise root.error(f"DIMAP version {version or 'unknown'}: 1.x (SPOT 1-5) or 2.x (SPOT 6/7, Pleiades) expected",
-                         "Metadata_Identification/METADATA_FORMAT")
-    if is_phr_dimap(head):
-        return read_phr_dimap_root(load(path, shown, data), shown)
-    if b"<prdf" in head:
-        return read_cbers(path, shown, data, camera, raw_geometry=raw)
-    raise MetadataError(shown, "", f"not a sensor metadata file we read: {FORMATS} expected")
+        raise MetadataError(shown, "", f"empty ({len(data)} bytes): a metadata file expected ({formats_text()})")
+    head = data[:HEAD_BYTES]
+    request = ReadRequest(path, shown, data, from_disk, camera, raw)
+    for reader in readers.READERS:
+        if reader.detect(head):
+            product = reader.read(request)
+            if product is not None:
+                return product
+    raise MetadataError(shown, "", f"not a sensor metadata file we read: {formats_text()} expected")

@@ -67,6 +67,7 @@ from solver.sensors.errors import MetadataError
 from solver.sensors.inpe_cbers import CbersProduct, map_grid, pointing_rotation
 from solver.sensors.linescan import LinescanModel, matrix_to_quaternion, orbital_rows, quaternion_matrices
 from solver.sensors.maxar import MaxarProduct
+from solver.sensors.readers import reader_of
 from solver.sensors.screening import Screening
 
 KABSCH_DETECTORS = 9
@@ -300,17 +301,12 @@ DEFAULT_SIGMA_POSITION_M = 5.0  # when the file states none
 DEFAULT_SIGMA_ATTITUDE_DEG = 0.002
 
 
-def source(p: MaxarProduct | Spot5Product | DimapV2Product | CbersProduct | SensorSource) -> SensorSource:
-    """What the fragment needs of a product of any format."""
+def source(p: Any) -> SensorSource:
+    """What the fragment needs of a product of any registered format (its reader's ``source``,
+    :mod:`solver.sensors.readers`), or a SensorSource as it is."""
     if isinstance(p, SensorSource):
         return p
-    if isinstance(p, MaxarProduct):
-        return maxar_source(p)
-    if isinstance(p, DimapV2Product):
-        return dimap_v2_source(p)
-    if isinstance(p, CbersProduct):
-        return cbers_source(p)
-    return spot5_source(p)
+    return reader_of(p).source_of(p)
 
 
 def fragment(

@@ -139,53 +139,65 @@ def best_heights(model: LinescanModel, rows: np.ndarray) -> np.ndarray:
 
 
 def vendor_points(product: Any) -> tuple[list[VendorPoints], list[str]]:
-    """The located points a product states (module docstring) and notes on those left out."""
-    from solver.sensors.dimap_spot5 import Spot5Product
-    from solver.sensors.dimap_v2 import DimapV2Product
-    from solver.sensors.inpe_cbers import CbersProduct
-    from solver.sensors.maxar import MaxarProduct
+    """The located points a product states (module docstring) and notes on those left out: its
+    registered reader's ``points`` (:mod:`solver.sensors.readers`)."""
+    from solver.sensors.readers import reader_of
 
+    return reader_of(product).points_of(product)
+
+
+def spot5_points(product: Any) -> tuple[list[VendorPoints], list[str]]:
+    """DIMAP v1 (SPOT 1-5): the tie points inside the look-angle table and the scene centre."""
     notes: list[str] = []
     m = product.model
-    if isinstance(product, Spot5Product):
-        c = product.corners
-        inside = (c[:, 1] >= 0) & (c[:, 1] <= m.columns - 1)
-        if (~inside).any():
-            notes.append(f"{int((~inside).sum())} tie points lie beyond the look-angle table's columns: not checked")
-        sysm = product.systematic
-        if sysm is not None:
-            notes.append("SPOT 1-4 locate their tie points and scene centre without the attitude: the exact model is "
-                         "compared with them without it, the job form with them moved by the attitude's effect")
-        tag = ", located without the attitude" if sysm is not None else ""
-        out = [VendorPoints(f"corners (tie points{tag})", c[inside], located_by=sysm)] if inside.any() else []
-        if product.centre.shape[0]:
-            out.append(VendorPoints(f"scene centre{' (' + tag[2:] + ')' if tag else ''}", product.centre, located_by=sysm))
-        elif c.shape[0]:
-            notes.append("the Dataset_Frame's scene centre is not checked: its vertices are not the tie points")
-        return out, notes
-    if isinstance(product, DimapV2Product):
-        c = product.corners
-        if c.shape[0] == 0:
-            return [], ["the product states no extent corners"]
-        if np.all(np.isfinite(c[:, 4])):
-            return [VendorPoints("extent corners", c)], notes
-        rows = c.copy()
-        rows[:, 4] = best_heights(m, c)
-        notes.append("the extent corners state no height: each is compared at the height that brings it closest "
-                     f"({rows[:, 4].min():.0f} to {rows[:, 4].max():.0f} m), so only its miss across that direction counts")
-        return [VendorPoints("extent corners (each at its best height)", rows, True)], notes
-    if isinstance(product, MaxarProduct):
-        c = product.corners
-        ul = c[(c[:, 0] == 0) & (c[:, 1] == 0)] if c.shape[0] else c
-        if c.shape[0] > ul.shape[0]:
-            notes.append("Maxar's UR, LR and LL corners bound the band's valid pixels, whose extent the file does not "
-                         "give: not checked")
-        return ([VendorPoints("first-line first-column corner (IMD ULLON, ULLAT, ULHAE)", ul)] if ul.shape[0] else []), notes
-    if isinstance(product, CbersProduct):
-        notes.append("the model is fitted to the record's corners: the corners are checked each from the other three; "
-                     "the centre CT is not the image's centre (it lies 12-16 km along track from the corners' centre)")
-        return [VendorPoints("corners", product.corners[product.corners_used])], notes
-    return [], notes
+    c = product.corners
+    inside = (c[:, 1] >= 0) & (c[:, 1] <= m.columns - 1)
+    if (~inside).any():
+        notes.append(f"{int((~inside).sum())} tie points lie beyond the look-angle table's columns: not checked")
+    sysm = product.systematic
+    if sysm is not None:
+        notes.append("SPOT 1-4 locate their tie points and scene centre without the attitude: the exact model is "
+                     "compared with them without it, the job form with them moved by the attitude's effect")
+    tag = ", located without the attitude" if sysm is not None else ""
+    out = [VendorPoints(f"corners (tie points{tag})", c[inside], located_by=sysm)] if inside.any() else []
+    if product.centre.shape[0]:
+        out.append(VendorPoints(f"scene centre{' (' + tag[2:] + ')' if tag else ''}", product.centre, located_by=sysm))
+    elif c.shape[0]:
+        notes.append("the Dataset_Frame's scene centre is not checked: its vertices are not the tie points")
+    return out, notes
+
+
+def dimap_v2_points(product: Any) -> tuple[list[VendorPoints], list[str]]:
+    """DIMAP v2 (SPOT 6/7, Pleiades): the extent corners, each at its best height when they state none."""
+    m = product.model
+    c = product.corners
+    if c.shape[0] == 0:
+        return [], ["the product states no extent corners"]
+    if np.all(np.isfinite(c[:, 4])):
+        return [VendorPoints("extent corners", c)], []
+    rows = c.copy()
+    rows[:, 4] = best_heights(m, c)
+    notes = ["the extent corners state no height: each is compared at the height that brings it closest "
+             f"({rows[:, 4].min():.0f} to {rows[:, 4].max():.0f} m), so only its miss across that direction counts"]
+    return [VendorPoints("extent corners (each at its best height)", rows, True)], notes
+
+
+def maxar_points(product: Any) -> tuple[list[VendorPoints], list[str]]:
+    """Maxar: the first-line first-column corner (the others bound the valid pixels only)."""
+    notes: list[str] = []
+    c = product.corners
+    ul = c[(c[:, 0] == 0) & (c[:, 1] == 0)] if c.shape[0] else c
+    if c.shape[0] > ul.shape[0]:
+        notes.append("Maxar's UR, LR and LL corners bound the band's valid pixels, whose extent the file does not "
+                     "give: not checked")
+    return ([VendorPoints("first-line first-column corner (IMD ULLON, ULLAT, ULHAE)", ul)] if ul.shape[0] else []), notes
+
+
+def cbers_points(product: Any) -> tuple[list[VendorPoints], list[str]]:
+    """INPE CBERS: the corners the model is fitted to (each checked from the other three)."""
+    notes = ["the model is fitted to the record's corners: the corners are checked each from the other three; "
+             "the centre CT is not the image's centre (it lies 12-16 km along track from the corners' centre)"]
+    return [VendorPoints("corners", product.corners[product.corners_used])], notes
 
 
 def _exact_point_row(model: LinescanModel, vp: VendorPoints, limit_px: float) -> CheckRow:

@@ -23,7 +23,7 @@
     ephemeris: "ephemeris",
     attitude: "attitude",
     rpc: "RPC of an image (RPC00B)",
-    sensor: "vendor sensor metadata (Maxar XML, DIMAP)",
+    sensor: "vendor sensor metadata (the formats the server reads)",
     cameras: "camera file (JSON)",
     raster: "raster of an image (for tie points)",
     dem: "DEM (heights of the tie points)",
@@ -43,7 +43,7 @@
     ephemeris: ["time_s", "x", "y", "z", "vx", "vy", "vz"],
     attitude: ["time_s", "roll_deg", "pitch_deg", "yaw_deg"],
   };
-  const st = { files: [], library: [], cameras: {}, timer: null, seq: 0, job: null, valid: false, columns: {} };
+  const st = { files: [], library: [], cameras: {}, timer: null, seq: 0, job: null, valid: false, columns: {}, sensorFormats: [] };
 
   function el(tag, attrs, ...children) {
     const e = document.createElement(tag);
@@ -75,6 +75,19 @@
     return [];
   }
 
+  // the sensor format a file name names alone (a format's file_names, globs in any case): the
+  // image is the name without the glob's literal prefix and its extension (DIM_N.XML -> N)
+  function sensorFileName(name, stem) {
+    for (const f of st.sensorFormats) {
+      for (const glob of f.file_names) {
+        const g = glob.toLowerCase();
+        const re = new RegExp("^" + g.split("*").map((s) => s.replace(/[.+?^${}()|[\]\\]/g, "\\$&")).join(".*") + "$");
+        if (re.test(name.toLowerCase())) return { kind: "sensor", image: stem.slice(g.split("*")[0].length) };
+      }
+    }
+    return null;
+  }
+
   function guess(name, text) {
     const lower = name.toLowerCase();
     const stem = name.replace(/\.[^.]+$/, "");
@@ -86,10 +99,13 @@
     if (lower.endsWith("_rpc.txt")) return { kind: "rpc", image: name.slice(0, -8) };
     if (lower.endsWith(".rpb")) return { kind: "rpc", image: stem };
     if (lower.startsWith("rpc_") && lower.endsWith(".xml")) return { kind: "rpc", image: stem.slice(4) };
-    // vendor sensor metadata (camera, ephemeris, attitude, line times): Maxar's XML (root isd),
-    // DIMAP v1 METADATA.DIM, DIMAP v2 DIM_NAME.XML, the Pleiades ground segment's PHR_Dimap_Document, INPE's prdf
-    if (lower.startsWith("dim_") && lower.endsWith(".xml")) return { kind: "sensor", image: stem.slice(4) };
-    if (lower.endsWith(".dim") || (lower.endsWith(".xml") && /<(isd|Dimap_Document|PHR_Dimap_Document|prdf)[\s>]/.test(text.slice(0, 4096)))) {
+    // vendor sensor metadata (camera, ephemeris, attitude, line times): the formats the server
+    // reads (GET jobs/compose/formats): a file name that names one (DIM_NAME.XML: image NAME), or
+    // an XML file whose root is one of theirs
+    const sensor = sensorFileName(name, stem);
+    if (sensor) return sensor;
+    const roots = st.sensorFormats.flatMap((f) => f.roots);
+    if (lower.endsWith(".xml") && roots.length && new RegExp(`<(${roots.join("|")})[\\s>]`).test(text.slice(0, 4096))) {
       return { kind: "sensor", image: stem };
     }
     if (lower.endsWith(".points") || lower.endsWith(".gcp")) return { kind: "measurements", image: stem };
@@ -441,6 +457,13 @@
     } catch (e) { /* the library stays empty; camera files still work */ }
   }
 
+  async function loadFormats() {
+    try {
+      const r = await fetch("jobs/compose/formats", { headers: headers() });
+      if (r.ok) st.sensorFormats = (await r.json()).sensor;
+    } catch (e) { /* no sensor formats known: vendor files are then chosen by hand */ }
+  }
+
   function init() {
     const drop = $("builder-drop");
     drop.addEventListener("dragover", (ev) => { ev.preventDefault(); drop.classList.add("dragover"); });
@@ -457,6 +480,7 @@
     $("b-raster-paths").addEventListener("input", updateMatch);
     $("key-form").addEventListener("submit", () => setTimeout(loadLibrary, 100));
     render();
+    loadFormats();
     loadLibrary();
   }
 
