@@ -169,9 +169,9 @@ def adjust_once(
     for k, sentence in enumerate(foreign):  # the control that does not fit, first among the warnings
         solution.prepend_warning(sentence, k)
     quality: dict[str, Any] = {"datum": datum.to_report()}
-    if job.dem is not None:  # the test of a common DEM bias, at the solution
+    if problem.job.dem is not None:  # the test of a common DEM bias, at the solution (the job as solved: handed validated or not)
         lin = linearise(problem)
-        bias = dem_bias(problem, lin, schur(lin, problem), JobSettings.from_options(job.options).statistics.alpha)
+        bias = dem_bias(problem, lin, schur(lin, problem), JobSettings.of(problem.job).statistics.alpha)
         if bias is not None:
             quality["dem_bias"] = bias
     solution.set_quality(quality)
