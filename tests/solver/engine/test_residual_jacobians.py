@@ -4,9 +4,9 @@ Two consumers evaluate the residuals: Ceres (the cost functions of :mod:`solver.
 the point blocks, the fixed-point blocks, the families' terms) and the covariance
 (:func:`solver.engine.linalg.linearise`: the observation blocks, the weighted control points'
 survey priors and the families' terms). Both are checked here, column by column, against central
-differences of their own residuals, on four scenes that together contain every observation
+differences of their own residuals, on five scenes that together contain every observation
 family of the registry (state priors, RPC bias priors, measured attitude, straight lines, pass
-ephemeris samples, interior-orientation priors), fixed and estimated points, chips with free
+ephemeris samples, interior-orientation priors, DEM heights), fixed and estimated points, chips with free
 interior orientation, pass-propagated and RPC images. A family added to the registry without a
 scene here fails :func:`test_the_scenes_hold_every_family_and_every_cost_function`.
 """
@@ -82,7 +82,30 @@ def _rpc_scene() -> dict:
     return job
 
 
-SCENES = {"orbital": _orbital_scene, "lines": _lines_scene, "pass": _pass_scene, "rpc": _rpc_scene}
+def _dem_scene() -> dict:
+    """The pass-propagated triplet's tie points on a sloped, rough DEM (an ellipsoidal grid of
+    1-arc-second cells around the points, 4 m noise): the DEM heights family's terms. A term is
+    linear around the position it was sampled at, so here its rows, columns and whitening are
+    checked; its gradient against the DEM itself is test_dem_heights' central differences."""
+    from pyproj import CRS
+
+    from solver.geometry.dem import Dem, grid_to_job
+    from solver.geometry.geodesy import ecef_to_geodetic
+    from solver.geometry.vertical import resolve
+
+    job = _pass_job("PASS-J2", ephemeris=True)
+    problem = prepare(load_job(job))
+    ties = [p for p in problem.points if p.role == "tie"]
+    lon0, lat0, _h = ecef_to_geodetic(problem.frame.to_ecef(np.array([p.xyz for p in ties]))).mean(axis=0)
+    d, n = 1.0 / 3600, 1200  # 1", 20' across: the points and their moves stay inside
+    cols, rows = np.meshgrid(np.arange(n), np.arange(n))
+    values = 400.0 + 0.15 * cols * 30 - 0.08 * rows * 30 + np.random.default_rng(7).normal(0, 4.0, (n, n))
+    dem = Dem(values, (d, 0.0, lon0 - n * d / 2, 0.0, -d, lat0 + n * d / 2), CRS.from_epsg(4326), resolve(None, "ellipsoid"))
+    job["dem"] = {"grid": grid_to_job(dem), "sigma_m": 4.0}
+    return job
+
+
+SCENES = {"orbital": _orbital_scene, "lines": _lines_scene, "pass": _pass_scene, "rpc": _rpc_scene, "dem": _dem_scene}
 
 
 @pytest.fixture(scope="module", params=sorted(SCENES))
