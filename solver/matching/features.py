@@ -64,7 +64,9 @@ class PairMatches:
 def _sift(image8: np.ndarray, n: int):
     import cv2
 
-    sift = cv2.SIFT_create(nfeatures=n)
+    # precise upscale: OpenCV's default doubling puts every keypoint 0.25 px (of its input) down
+    # and right of the feature; k times that after a read decimated by k
+    sift = cv2.SIFT_create(nfeatures=n, enable_precise_upscale=True)
     kps, desc = sift.detectAndCompute(image8, None)
     if desc is None or not kps:
         return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
@@ -123,6 +125,28 @@ def _band(kb: np.ndarray, s0: np.ndarray, s1: np.ndarray, search_px: float) -> n
     return perp * perp + beyond * beyond <= search_px * search_px
 
 
+def band_matches(da: np.ndarray, db: np.ndarray, kb: np.ndarray, s0: np.ndarray, s1: np.ndarray, s: MatchSettings, counts: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (into a's and b's features) of the matches that pass the band, the ratio test and
+    the mutual check (module docstring): descriptors ``da`` (na, 128), ``db`` (nb, 128); b's
+    positions ``kb`` (nb, 2); a's epipolar segments ``s0``, ``s1`` (na, 2) in b. Counts the
+    candidates (a features with a b feature in their band) and the survivors of each test."""
+    dist = np.where(_band(kb, s0, s1, s.search_px), _distances(da, db), np.inf)
+    rows = np.arange(len(da))
+    best = np.argmin(dist, axis=1)
+    d1 = dist[rows, best]
+    if dist.shape[1] > 1:
+        d2 = np.partition(dist, 1, axis=1)[:, 1]
+    else:
+        d2 = np.full(len(da), np.inf)
+    ok = np.isfinite(d1) & (d1 < s.ratio * d2)
+    counts["candidates"] = counts.get("candidates", 0) + int(np.isfinite(d1).sum())
+    counts["ratio"] = counts.get("ratio", 0) + int(ok.sum())
+    back = np.argmin(dist, axis=0)
+    ok &= back[best] == rows
+    counts["mutual"] = counts.get("mutual", 0) + int(ok.sum())
+    return rows[ok], best[ok]
+
+
 def match_tile(a: MatchImage, b: MatchImage, mapping: PairMapping, centre: np.ndarray, s: MatchSettings, counts: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
     """SIFT matches (pa, pb) of one tile of a centred at ``centre`` (module docstring)."""
     cell = min(a.lines, a.columns) / s.grid
@@ -148,21 +172,8 @@ def match_tile(a: MatchImage, b: MatchImage, mapping: PairMapping, centre: np.nd
     if not len(kb):
         return empty
     counts["features"] = counts.get("features", 0) + len(ka)
-    dist = np.where(_band(kb, s0, s1, s.search_px), _distances(da, db), np.inf)
-    rows = np.arange(len(ka))
-    best = np.argmin(dist, axis=1)
-    d1 = dist[rows, best]
-    if dist.shape[1] > 1:
-        d2 = np.partition(dist, 1, axis=1)[:, 1]
-    else:
-        d2 = np.full(len(ka), np.inf)
-    ok = np.isfinite(d1) & (d1 < s.ratio * d2)
-    counts["candidates"] = counts.get("candidates", 0) + int(np.isfinite(d1).sum())
-    counts["ratio"] = counts.get("ratio", 0) + int(ok.sum())
-    back = np.argmin(dist, axis=0)
-    ok &= back[best] == rows
-    counts["mutual"] = counts.get("mutual", 0) + int(ok.sum())
-    pa, pb = ka[ok], kb[best[ok]]
+    ia, ib = band_matches(da, db, kb, s0, s1, s, counts)
+    pa, pb = ka[ia], kb[ib]
     if len(pa) < MIN_TILE_MATCHES:
         return empty
     keep = _ransac(pa, pb, s.ransac_px * k)

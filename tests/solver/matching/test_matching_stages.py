@@ -1,0 +1,290 @@
+"""Each filtering stage of ``pba match`` on its own: the decision of the stage on inputs built so
+that the right answer is known (distances at the ratio threshold, features just inside and
+outside the band, a template against noise, two features chained into one track, a sheared
+mapping, a blob at a known sub-pixel position). The end-to-end tests (test_matching.py,
+test_matching_real.py) check final accuracy on clean scenes, where a loosened stage does not
+show; these fail when a stage's threshold or geometry is wrong.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import rasterio
+
+from solver.matching.features import MatchSettings, _detect, band_matches
+from solver.matching.orientation import MatchImage, PairMapping
+from solver.matching.pipeline import PairMatches
+from solver.matching.raster import Raster
+from solver.matching.refine import correlate, epipolar_check
+from solver.matching.tracks import link
+
+pytestmark = pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")
+
+SETTINGS = MatchSettings()
+
+
+class ArrayRaster:
+    """An in-memory band with the reads correlation uses (:class:`Raster`'s ``window``)."""
+
+    def __init__(self, values: np.ndarray):
+        self.values = values.astype(np.float32)
+        self.lines, self.columns = values.shape
+        self.stretch = (float(values.min()), float(values.max()))
+
+    def window(self, row0: int, col0: int, rows: int, cols: int) -> np.ndarray:
+        r0, c0 = max(row0, 0), max(col0, 0)
+        return self.values[r0:min(row0 + rows, self.lines), c0:min(col0 + cols, self.columns)]
+
+
+class AffineModel:
+    """A flat-earth stand-in for a sensor model: 'ground' is (line, column, height) of image a;
+    image b sees it through ``b = A (line, column) + t + height * parallax``."""
+
+    def __init__(self, a: np.ndarray, t: np.ndarray, parallax: np.ndarray):
+        self.a, self.t, self.parallax = a, t, parallax
+
+    def image_to_ground(self, line, column, height_m=None):
+        line, column = np.atleast_1d(line), np.atleast_1d(column)
+        return np.column_stack([line, column, np.full(len(line), float(height_m))])
+
+    def ground_to_image(self, ground):
+        b = ground[:, :2] @ self.a.T + self.t + ground[:, 2:3] * self.parallax
+        return b[:, 0], b[:, 1], None
+
+
+def _image(name: str, raster, model=None) -> MatchImage:
+    return MatchImage(name, raster, model)  # type: ignore[arg-type]
+
+
+# --- ratio test -----------------------------------------------------------------------------
+
+def _one_feature_two_candidates(d1: float, d2: float):
+    """One a feature (descriptor 0) whose band holds two b features at descriptor distances d1, d2."""
+    da = np.zeros((1, 128), np.float32)
+    db = np.zeros((2, 128), np.float32)
+    db[0, 0], db[1, 1] = d1, d2
+    kb = np.array([[100.0, 100.0], [100.0, 105.0]])
+    s0, s1 = np.array([[100.0, 90.0]]), np.array([[100.0, 110.0]])
+    return da, db, kb, s0, s1
+
+
+@pytest.mark.parametrize(("d1", "accepted"), [(70.0, True), (79.9, True), (80.1, False), (90.0, False), (99.0, False)])
+def test_ratio_test_at_the_threshold(d1, accepted):
+    """Lowe's ratio 0.8: the best candidate (distance d1) is kept only when it is clearly better
+    than the second (d2 = 100): 79.9 passes, 80.1 does not, nor anything closer to d2."""
+    counts: dict[str, int] = {}
+    ia, ib = band_matches(*_one_feature_two_candidates(d1, 100.0), SETTINGS, counts)
+    assert counts["candidates"] == 1
+    assert len(ia) == int(accepted), (d1, counts)
+    assert counts["ratio"] == int(accepted)
+    if accepted:
+        assert list(ib) == [0]
+
+
+# --- the epipolar band ----------------------------------------------------------------------
+
+@pytest.mark.parametrize(("offset", "inside"), [
+    ((29.0, 0.0), True), ((-29.0, 0.0), True), ((31.0, 0.0), False), ((-31.0, 0.0), False),  # across the segment
+    ((0.0, 29.0), True), ((0.0, 31.0), False),  # beyond its far end
+    ((0.0, -69.0), True), ((0.0, -71.0), False),  # beyond its near end (the segment is 40 px long)
+    ((20.0, 20.0), True), ((22.0, 22.0), False),  # beyond the corner: a distance of 28.3 and 31.1 px
+])
+def test_band_holds_features_within_search_px_of_the_segment(offset, inside):
+    """A b feature is a candidate when it lies within search_px (30) of the a feature's epipolar
+    segment: 29 px away it is, 31 px away it is not, across or beyond either end."""
+    da = np.zeros((1, 128), np.float32)
+    db = np.zeros((1, 128), np.float32)
+    s0, s1 = np.array([[500.0, 460.0]]), np.array([[500.0, 500.0]])  # along the columns, 40 px
+    kb = s1 + np.array([offset])
+    counts: dict[str, int] = {}
+    ia, _ib = band_matches(da, db, kb, s0, s1, SETTINGS, counts)
+    assert counts["candidates"] == int(inside)
+    assert len(ia) == int(inside)
+
+
+def test_band_on_a_slanted_segment():
+    """The band's distance is Euclidean whatever the segment's direction (here 30 degrees)."""
+    u = np.array([np.sin(np.radians(30.0)), np.cos(np.radians(30.0))])
+    n = np.array([u[1], -u[0]])
+    s0 = np.array([[300.0, 300.0]])
+    s1 = s0 + 50.0 * u
+    da = np.zeros((1, 128), np.float32)
+    db = np.zeros((1, 128), np.float32)
+    for dist, inside in ((29.5, True), (30.5, False)):
+        for side in (1.0, -1.0):
+            kb = s0 + 25.0 * u + side * dist * n
+            ia, _ = band_matches(da, db, kb, s0, s1, SETTINGS, {})
+            assert len(ia) == int(inside), (dist, side)
+
+
+def test_mutual_check_keeps_one_of_two_a_features_wanting_the_same_b_feature():
+    da = np.zeros((2, 128), np.float32)
+    da[1, 0] = 3.0
+    db = np.zeros((1, 128), np.float32)
+    kb = np.array([[100.0, 100.0]])
+    s0, s1 = np.array([[100.0, 90.0]] * 2), np.array([[100.0, 110.0]] * 2)
+    counts: dict[str, int] = {}
+    ia, ib = band_matches(da, db, kb, s0, s1, SETTINGS, counts)
+    assert counts["ratio"] == 2 and counts["mutual"] == 1
+    assert list(ia) == [0] and list(ib) == [0]
+
+
+# --- correlation: a template against noise --------------------------------------------------
+
+def _texture(shape, seed: int) -> np.ndarray:
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(seed)
+    return 1000.0 + 400.0 * gaussian_filter(rng.normal(size=shape), 1.5)
+
+
+def test_correlation_finds_a_template_and_refuses_noise():
+    """A template cut from a textured image is found again at a sub-pixel shift (NCC near 1,
+    position within 0.05 px); the same template against an unrelated texture of the same
+    statistics peaks far below min_ncc (0.7) and is refused."""
+    from scipy.ndimage import shift as nd_shift
+
+    base = _texture((120, 120), 1)
+    half = SETTINGS.template_half_px
+    centre = np.array([60, 60])
+    tpl = base[centre[0] - half:centre[0] + half + 1, centre[1] - half:centre[1] + half + 1].astype(np.float32)
+    moved = nd_shift(base, (2.3, -1.6), order=3, mode="reflect")  # the point is at (62.3, 58.4)
+    got = correlate(tpl, _image("b", ArrayRaster(moved)), np.array([61.0, 60.0]), np.eye(2), SETTINGS.min_ncc)
+    assert got is not None
+    assert got[1] > 0.95
+    assert np.allclose(got[0], [62.3, 58.4], atol=0.05), got
+    noise = _texture((120, 120), 2)
+    assert correlate(tpl, _image("n", ArrayRaster(noise)), np.array([61.0, 60.0]), np.eye(2), SETTINGS.min_ncc) is None
+    # the peak on noise is found, just not accepted: with no threshold it would be a match
+    found = correlate(tpl, _image("n", ArrayRaster(noise)), np.array([61.0, 60.0]), np.eye(2), -1.0)
+    assert found is None or found[1] < SETTINGS.min_ncc
+
+
+# --- the pair mapping's Jacobian ------------------------------------------------------------
+
+def test_pair_mapping_jacobian_of_a_sheared_mapping():
+    """d(b line, b column) / d(a line, a column) of a sheared, rotated and scaled mapping: the
+    analytic matrix, and central differences of the mapping itself (1e-6 relative: the mapping
+    is bilinear between grid nodes, exact for an affine map)."""
+    A = np.array([[0.97, 0.35], [-0.12, 1.08]])  # shear: A is far from symmetric
+    model = AffineModel(A, np.array([5.0, -7.0]), np.array([0.01, 0.002]))
+    raster = ArrayRaster(np.zeros((400, 300)))
+    pm = PairMapping(_image("a", raster, model), _image("b", raster, model), (0.0, 500.0))
+    line, col = 123.4, 211.7
+    jac = pm.jacobian(line, col)
+    assert np.allclose(jac, A, rtol=1e-6, atol=1e-9), jac
+    h = 0.5
+    fd = np.empty((2, 2))
+    for k, d in enumerate((np.array([h, 0.0]), np.array([0.0, h]))):
+        bl_p, bc_p = pm.at_heights(line + d[0], col + d[1])
+        bl_m, bc_m = pm.at_heights(line - d[0], col - d[1])
+        mid = len(pm.heights) // 2
+        fd[:, k] = [(bl_p[mid, 0] - bl_m[mid, 0]) / (2 * h), (bc_p[mid, 0] - bc_m[mid, 0]) / (2 * h)]
+    assert np.allclose(jac, fd, rtol=1e-6, atol=1e-9), (jac, fd)
+
+
+def test_correlation_through_a_sheared_mapping():
+    """The template is found in an image sheared against it when correlation resamples with the
+    mapping's Jacobian (a transposed Jacobian would resample with the wrong shear)."""
+    import cv2
+
+    base = _texture((200, 200), 3)
+    A = np.array([[1.0, 0.3], [0.0, 1.0]])  # b line = a line + 0.3 a column
+    # b(p) = base(A^-1 (p - t)): warp base into b's geometry
+    t = np.array([-20.0, 0.0])
+    ll, cc = np.meshgrid(np.arange(200.0), np.arange(200.0), indexing="ij")
+    Ai = np.linalg.inv(A)
+    src_l = Ai[0, 0] * (ll - t[0]) + Ai[0, 1] * (cc - t[1])
+    src_c = Ai[1, 0] * (ll - t[0]) + Ai[1, 1] * (cc - t[1])
+    b = cv2.remap(base.astype(np.float32), src_c.astype(np.float32), src_l.astype(np.float32), cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    model = AffineModel(A, t, np.zeros(2))
+    pm = PairMapping(_image("a", ArrayRaster(base), model), _image("b", ArrayRaster(b), model), (0.0, 1.0))
+    half = SETTINGS.template_half_px
+    centre = np.array([100, 90])
+    tpl = base[centre[0] - half:centre[0] + half + 1, centre[1] - half:centre[1] + half + 1].astype(np.float32)
+    truth = A @ centre + t
+    got = correlate(tpl, _image("b", ArrayRaster(b)), truth + np.array([1.2, -0.8]), pm.jacobian(100.0, 90.0), SETTINGS.min_ncc)
+    assert got is not None and got[1] > 0.95
+    assert np.allclose(got[0], truth, atol=0.05), (got, truth)
+
+
+# --- tracks: linking and the spread check ---------------------------------------------------
+
+def _pm(a: int, b: int, pa, pb) -> PairMatches:
+    return PairMatches(a, b, np.array(pa, float), np.array(pb, float))
+
+
+def test_two_features_10_px_apart_chained_into_one_track_are_dropped():
+    """Image 0's features A and B (10 px apart) each match image 1's P and image 2's Q, and
+    P matches Q: the component holds A and B, two different features; it is dropped whole."""
+    A, B = [50.0, 50.0], [50.0, 60.0]
+    P, Q = [70.0, 40.0], [30.0, 45.0]
+    pairs = [_pm(0, 1, [A], [P]), _pm(0, 2, [B], [Q]), _pm(1, 2, [P], [Q])]
+    tracks, dropped = link(pairs, 3, scale=2.0)
+    assert dropped == 1 and tracks == []
+    # the same chain with A and B one pixel apart is one feature seen twice: one track
+    pairs = [_pm(0, 1, [A], [P]), _pm(0, 2, [[50.0, 51.0]], [Q]), _pm(1, 2, [P], [Q])]
+    tracks, dropped = link(pairs, 3, scale=2.0)
+    assert dropped == 0 and len(tracks) == 1 and sorted(tracks[0].members) == [0, 1, 2]
+
+
+def test_link_radius_scales_with_the_decimation():
+    """Two pairs' ends of one feature in image 1, 2.5 px apart (within 1.5 px x the decimation 2
+    of the detection, beyond 1.5 px): one three-image track at decimation 2, two two-image
+    tracks at decimation 1."""
+    pairs = [_pm(0, 1, [[10.0, 10.0]], [[40.0, 40.0]]), _pm(1, 2, [[40.0, 42.5]], [[80.0, 80.0]])]
+    tracks, dropped = link(pairs, 3, scale=2.0)
+    assert dropped == 0 and [sorted(t.members) for t in tracks] == [[0, 1, 2]]
+    assert np.allclose(tracks[0].members[1], [40.0, 41.25])
+    tracks, _ = link(pairs, 3, scale=1.0)
+    assert sorted(sorted(t.members) for t in tracks) == [[0, 1], [1, 2]]
+
+
+# --- the epipolar check after correlation ---------------------------------------------------
+
+def test_epipolar_check_removes_a_match_off_its_epipolar_line():
+    """Matches scattered by 0.1 px about their epipolar lines (plus a smooth orientation error)
+    and one 1 px off: the check removes that one alone and states a sigma near 0.1 px."""
+    rng = np.random.default_rng(5)
+    A = np.eye(2)
+    model = AffineModel(A, np.array([3.0, 2.0]), np.array([0.0, 0.02]))  # epipolar lines along the columns
+    raster = ArrayRaster(np.zeros((500, 500)))
+    pm = PairMapping(_image("a", raster, model), _image("b", raster, model), (0.0, 500.0))
+    ref = rng.uniform(20, 480, size=(200, 2))
+    pos = ref @ A.T + np.array([3.0, 2.0]) + np.column_stack([rng.uniform(0, 500, 200) * 0.0, rng.uniform(0, 10, 200)])
+    pos[:, 0] += 0.4 + 0.001 * ref[:, 1] + rng.normal(0, 0.1, 200)  # smooth error + matching scatter
+    pos[17, 0] += 1.0
+    keep, sigma, _resid = epipolar_check(ref, pos, pm, SETTINGS.search_px)
+    assert not keep[17]
+    assert keep.sum() >= 197
+    assert 0.08 < sigma < 0.12
+
+
+# --- detection on decimated windows: a blob at a known sub-pixel position -------------------
+
+def _blob_raster(tmp_path, centre: tuple[float, float], sigma: float = 3.0, size: int = 160) -> Raster:
+    ll, cc = np.meshgrid(np.arange(size, dtype=float), np.arange(size, dtype=float), indexing="ij")
+    values = 500.0 + 30000.0 * np.exp(-((ll - centre[0]) ** 2 + (cc - centre[1]) ** 2) / (2 * sigma**2))
+    path = tmp_path / "blob.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=size, height=size, count=1, dtype="uint16") as dst:
+        dst.write(np.rint(values).astype(np.uint16), 1)
+    return Raster.open(path)
+
+
+@pytest.mark.parametrize("centre", [(80.0, 80.0), (77.3, 84.6)])
+def test_decimated_detection_finds_a_blob_where_it_is(tmp_path, centre):
+    """SIFT on a window read decimated by 2 (the default) finds a Gaussian blob (our convention:
+    pixel centres at integers) within 0.2 px of its true position; so does full resolution.
+    The decimated grid's pixel (i, j) is centred on full-resolution (2 i + 0.5, 2 j + 0.5):
+    dropping that half pixel moves every feature by 0.5 px along both axes."""
+    raster = _blob_raster(tmp_path, centre)
+    try:
+        image = _image("blob", raster)
+        for k in (1, 2):
+            pos, _desc = _detect(image, 20, 20, 120, 120, k, 0)
+            assert len(pos), k
+            err = np.hypot(*(pos - np.array(centre)).T)
+            assert float(err.min()) < 0.2, (k, pos, centre)
+    finally:
+        raster.close()
