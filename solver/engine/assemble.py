@@ -79,12 +79,12 @@ def _chip_indices(job: Job, images: list, obs_img: np.ndarray) -> np.ndarray:
     if not len(observations):
         return out
     columns = np.fromiter((o.column for o in observations), dtype=float, count=len(observations))
-    by_camera: dict[int, list[int]] = {}
-    cams: dict[int, Any] = {}
+    by_camera: dict[str, list[int]] = {}  # camera id (unique in a valid job) -> its images
+    cams: dict[str, Any] = {}
     for im in images:
         if im.camera is not None:
-            by_camera.setdefault(id(im.camera), []).append(im.index)
-            cams[id(im.camera)] = im.camera
+            by_camera.setdefault(im.camera.id, []).append(im.index)
+            cams[im.camera.id] = im.camera
     for key, image_indices in by_camera.items():
         ks = np.flatnonzero(np.isin(obs_img, image_indices))
         out[ks] = chip_indices(cams[key], columns[ks], [observations[k].chip for k in ks.tolist()])
@@ -154,7 +154,8 @@ def build_problem(job: Job, models: dict[str, str] | None = None, config: BlockC
     ecef = ground_points_ecef(job)
     line_ecef = lines_ecef(job) if job.lines else {}
     frame = control_frame(job, ecef, control_line_points_ecef(job, line_ecef))
-    weighted = JobSettings.of(job).blocks.control == "weighted"
+    config = config if config is not None else JobSettings.of(job).blocks
+    weighted = config.control == "weighted"  # a control point with a survey sigma is a block of its own
 
     images: list[ImageState] = []
     for i, im in enumerate(job.images):
@@ -204,7 +205,7 @@ def build_problem(job: Job, models: dict[str, str] | None = None, config: BlockC
     obs = Observations(obs_img, obs_pt, oc, chips, np.arange(n), obs_cam, obs_chip)
     lines = build_lines(job, frame, images, line_ecef) if job.lines else None
     problem = AdjustmentState(job, frame, images, points, obs, lines)
-    blocks.build(problem, config if config is not None else JobSettings.from_options(job.options).blocks)
+    blocks.build(problem, config)
     return problem
 
 
