@@ -210,6 +210,52 @@ def test_documented_block_kinds_are_the_registry() -> None:
     assert _documented_block_kinds() == want
 
 
+SECTION_LINE = r"^\s*\d+\. `(\w+)`: (.*)$"  # a report section's entry: its name, the sections it builds
+READER_LINE = r"^\s*\d+\. `([\w-]+)` \(`(solver/sensors/\w+\.py)`\): (.*)$"  # a format: name, module, roots
+
+
+def _documented_list(marker: str, pattern: str) -> list[tuple[str, ...]]:
+    """The entries of the list between ``<!-- marker: begin -->`` and ``<!-- marker: end -->``."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    block = re.search(rf"<!-- {marker}: begin -->\n(.*?)<!-- {marker}: end -->", text, re.S)
+    assert block, f"docs/architecture.md has lost its list of {marker}"
+    return re.findall(pattern, block.group(1), re.M)
+
+
+def snake(name: str) -> str:
+    """``_BlockKinds`` -> ``block_kinds``: the name the page gives a report section's entry."""
+    return re.sub(r"(?<!^)([A-Z])", r"_\1", name.lstrip("_")).lower()
+
+
+def test_documented_report_sections_are_the_registry() -> None:
+    """The report's entries in the order they are built (the keys each builds:
+    tests/solver/report/test_report_sections.py checks them on a report)."""
+    from solver.report import sections
+
+    documented = [name for name, _ in _documented_list("report sections", SECTION_LINE)]
+    assert documented == [snake(type(entry).__name__) for entry in sections.SECTIONS]
+
+
+def test_documented_readers_are_the_registry() -> None:
+    """The sensor formats in the order they are tried, the module of their product (or of their
+    detection) and the XML roots the job builder learns."""
+    from solver.sensors import readers
+
+    documented = [(name, path, tuple(re.findall(r"`(\w+)`", rest)))
+                  for name, path, rest in _documented_list("readers", READER_LINE)]
+    want = [(r.name, (r.products[0] if r.products else r.detect).__module__.replace(".", "/") + ".py", r.roots)
+            for r in readers.READERS]
+    assert documented == want
+
+
+def test_the_documented_list_checks_have_teeth() -> None:
+    assert snake("_BlockKinds") == "block_kinds" and snake("_Header") == "header"
+    text = "  1. `maxar` (`solver/sensors/maxar.py`): root `isd`.\n  2. `x-y` (`solver/sensors/x.py`): roots `a`, `b`.\n"
+    assert re.findall(READER_LINE, text, re.M) == [
+        ("maxar", "solver/sensors/maxar.py", "root `isd`."), ("x-y", "solver/sensors/x.py", "roots `a`, `b`.")]
+    assert re.findall(SECTION_LINE, "  10. `quality`: `quality` (leave-one-out).\n", re.M) == [("quality", "`quality` (leave-one-out).")]
+
+
 # ---- platform models: the checklist of docs/architecture.md holds ------------------------------
 
 def _platform_checklist() -> str:

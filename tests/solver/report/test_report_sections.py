@@ -9,6 +9,7 @@ warning joins the report's; without the line it is not there.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -66,3 +67,36 @@ def test_a_fake_section_is_built_placed_and_counted_independently(with_histogram
 
 def test_without_the_registry_line_there_is_no_such_section() -> None:
     assert "standardized_histogram" not in run(_triplet())
+
+
+def _documented_sections() -> list[set[str]]:
+    """The sections docs/architecture.md says each registry entry builds, in the registry's order
+    (the entries' names and order: tests/test_architecture.py)."""
+    text = (EXAMPLES.parent / "docs" / "architecture.md").read_text()
+    block = re.search(r"<!-- report sections: begin -->\n(.*?)<!-- report sections: end -->", text, re.S)
+    assert block, "docs/architecture.md has lost its list of report sections"
+    return [set(re.findall(r"`(\w+)`", rest)) for rest in re.findall(r"^\s*\d+\. `\w+`: (.*)$", block.group(1), re.M)]
+
+
+def test_each_entry_builds_the_sections_the_architecture_page_names(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each entry of the registry builds only the sections the page names for it, and every
+    section of the report comes from the entry the page says (the triplet has no pass, line or
+    DEM: the kinds' and families' entries build some of theirs)."""
+    built: list[set[str]] = []
+
+    class Recording:
+        def __init__(self, entry: Any) -> None:
+            self.entry = entry
+
+        def build(self, inputs: ReportInputs) -> dict[str, Any]:
+            out = self.entry.build(inputs)
+            built.append(set(out))
+            return out
+
+    monkeypatch.setattr(sections, "SECTIONS", tuple(Recording(e) for e in sections.SECTIONS))
+    report = run(_triplet())
+    documented = _documented_sections()
+    assert len(built) == len(documented) == len(sections.SECTIONS)
+    for keys, named in zip(built, documented):
+        assert keys <= named, (keys, named)
+    assert set(report) == set().union(*built) and {"cameras", "ephemeris"} <= set(report)
