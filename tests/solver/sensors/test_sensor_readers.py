@@ -15,13 +15,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from tolerances import SAME_NUMBER_REL
 
 from solver.sensors import readers
 from solver.sensors.errors import MetadataError
 from solver.sensors.formats import read_product
 from solver.sensors.job_fragment import fragment, maxar_source
 from solver.sensors.maxar import MaxarProduct, read_maxar
-from solver.sensors.self_check import maxar_points, vendor_points
+from solver.sensors.self_check import maxar_points, self_check, vendor_points
 
 DATA = Path(__file__).parents[2] / "data" / "vendor" / "stereopipeline"
 MODULE = __name__  # the fake module's functions are named "module:function", as a real one's
@@ -40,6 +41,14 @@ class FakeProduct:
     @property
     def file(self) -> str:
         return self.inner.file
+
+    @property
+    def screening(self) -> Any:  # what the reading repaired or noted (solver.sensors.screening)
+        return self.inner.screening
+
+    @property
+    def rpc(self) -> Any:  # the vendor's RPC in the file, which the self-check compares with
+        return self.inner.rpc
 
 
 def fake_read(request: readers.ReadRequest) -> FakeProduct:
@@ -101,6 +110,14 @@ def test_a_fake_format_is_read_fragmented_checked_and_described(with_fake: None,
     # the self-check's located points come from the fake's own function
     points, notes = vendor_points(product)
     assert notes[-1] == "fake vendor" and len(points) == len(maxar_points(product.inner)[0])
+    # the whole self-check (pba check-sensor, pba import-sensor) of the fake: the Maxar file's rows
+    # (the same model and points; the job form composed through the fake's registered source)
+    fake_check, maxar_check = self_check(product), self_check(product.inner)
+    assert "fake vendor" in fake_check.notes and fake_check.passed == maxar_check.passed
+    assert [(r.reference, r.model, r.points) for r in fake_check.rows] == [(r.reference, r.model, r.points) for r in maxar_check.rows]
+    assert any(r.model == "job form" for r in fake_check.rows)
+    for f, m in zip(fake_check.rows, maxar_check.rows):  # one computation twice: the same numbers
+        assert f.rms_px == pytest.approx(m.rms_px, rel=SAME_NUMBER_REL, abs=1e-12)
 
     # the builder learns it: its root and file name in the description the server gives
     described = {f["name"]: f for f in readers.describe()}
