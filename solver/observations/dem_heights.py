@@ -260,11 +260,22 @@ class DemHeightsFamily(FamilyDefaults):
         return {"dem": dem_report(problem, st)}
 
     def without(self, job: "Job", removals: list[tuple]) -> tuple["Job", list[dict[str, Any]]]:
+        """``job`` with the removed DEM heights in ``dem.excluded``; a tie point the same
+        removals leave with fewer than two rays leaves the job (solver.quality.removal.remove),
+        and so leaves ``dem.excluded`` (which names tie points only)."""
         gone = [r[1] for r in removals if r and r[0] == "dem_height"]
-        if not gone or job.dem is None:
+        if job.dem is None or not removals:
             return job, []
-        dem = job.dem.model_copy(update={"excluded": list(dict.fromkeys([*job.dem.excluded, *gone]))})
-        return job.model_copy(update={"dem": dem}), []
+        dropped_obs = {r[1] for r in removals if r and r[0] == "observation"}
+        rays: dict[str, int] = {}
+        for k, o in enumerate(job.observations):
+            if k not in dropped_obs:
+                rays[o.point] = rays.get(o.point, 0) + 1
+        staying = {p.id for p in job.points if p.role == "tie" and rays.get(p.id, 0) >= 2}
+        excluded = [pid for pid in dict.fromkeys([*job.dem.excluded, *gone]) if pid in staying]
+        if excluded == list(job.dem.excluded):
+            return job, []
+        return job.model_copy(update={"dem": job.dem.model_copy(update={"excluded": excluded})}), []
 
     def flag(self, report: dict[str, Any], removed: list[dict[str, Any]]) -> None:
         section = report.get("dem")

@@ -201,8 +201,11 @@ class _Snooping:
                 continue
             if any(m.group.fixed or m.group.family is not None for m in c):
                 # a fixed control point (its rays share one loss block per image in the robust
-                # solve) and the image-only terms (lines, ephemeris, attitude: the loss does not
-                # act on them) cannot be reinstated: the least-squares loop tests them
+                # solve) and the families' terms (lines, ephemeris, attitude; a point's DEM
+                # height) cannot be reinstated: the least-squares loop tests them. Their block
+                # waits too: a DEM height off by tens of metres pulls its point, and the next
+                # worst test of the block, one of its rays, would be removed in its place
+                blocks.update(m.group.block for m in c)
                 continue
             if self.n_removed + len(c) > limit:
                 break

@@ -128,3 +128,109 @@ def test_the_dem_bias_test_finds_a_bias_of_three_sigma(pass_triplet_with_dem) ->
     biased = run(j)["quality"]["dem_bias"]
     assert not biased["passed"] and biased["w"] > biased["critical"], biased
     assert biased["bias_m"] == pytest.approx(clean["bias_m"] + injected, abs=0.5 * clean["sigma_m"])
+
+
+# ---- DEM blunders: tie points on roofs or under trees (the DEM off by tens of metres there) ----
+
+BLUNDER_M = 25.0  # the DEM off at a blundered point: 8 sigmas of a DEM height (3 m), above its MDB (15-20 m)
+BLUNDER_RADIUS_M = 45.0  # cells within this of the point are off: 1.5 cells, the point on a plateau
+
+
+def _blundered(job: dict, truth: dict, offsets: dict[str, float]) -> dict:
+    """``job`` with its DEM off by ``offsets[point]`` at every cell centre within
+    :data:`BLUNDER_RADIUS_M` of the point's true position, and default data snooping."""
+    import copy
+
+    from solver.geometry.dem import grid_from_job, grid_to_job, metres_per_degree
+
+    j = copy.deepcopy(job)
+    dem = grid_from_job(j["dem"]["grid"])
+    a, _b, c, _d, e, f = dem.transform
+    rows, cols = dem.values.shape
+    lon_c, lat_c = c + a * (np.arange(cols) + 0.5), f + e * (np.arange(rows) + 0.5)
+    true = {p["id"]: p for p in truth["points"]}
+    values = dem.values.copy()
+    for pid, off in offsets.items():
+        m_lon, m_lat = metres_per_degree(np.array([true[pid]["lat_deg"]]))
+        dx = (lon_c - true[pid]["lon_deg"]) * m_lon[0]
+        dy = (lat_c - true[pid]["lat_deg"]) * m_lat[0]
+        values[np.hypot(dx[None, :], dy[:, None]) <= BLUNDER_RADIUS_M] += off
+    dem.values = values
+    j["dem"]["grid"] = grid_to_job(dem)
+    j["options"] = {**j.get("options", {}), "blunder_detection": {}}
+    return j
+
+
+@pytest.fixture(scope="module")
+def controlled_triplet_with_dem(tmp_path_factory):
+    """The PASS-J2 triplet of seed 2 with 4 control points (its horizontal datum: without
+    control this block's tie points are 20-120 m off horizontally, so a DEM is sampled away
+    from where the blunders are; bench/bench_dem_blunders.py) and a degraded DEM."""
+    import json
+
+    from solver.cli import main
+    from solver.geometry.dem import grid_to_job, read_dem
+    from solver.simulate.dem import DemDegradation, degraded_dem
+    from solver.simulate.terrain import Terrain
+
+    d = tmp_path_factory.mktemp("dem_blunders")
+    out = d / "tri.json"
+    assert main(["simulate", "prism-triplet", "-o", str(out), "--seed", "2", "--model", "PASS-J2",
+                 "--weight-ephemeris", "2,0.01", "--gcps", "4", "--checks", "10", "--tie-points", "40"]) == 0
+    job = json.loads(out.read_text())
+    truth = json.loads(out.with_name("tri.truth.json").read_text())
+    t = truth["terrain"]
+    terrain = Terrain(**{k: tuple(v) if isinstance(v, list) else v for k, v in t.items()})
+    lon = [p["lon_deg"] for p in truth["points"]]
+    lat = [p["lat_deg"] for p in truth["points"]]
+    bounds = (min(lon) - 0.02, min(lat) - 0.02, max(lon) + 0.02, max(lat) + 0.02)
+    degraded_dem(terrain.height, bounds, DemDegradation(noise_m=DEM_NOISE_M, seed=102), d / "dem.tif")
+    job["dem"] = {"grid": grid_to_job(read_dem(d / "dem.tif")), "sigma_m": DEM_NOISE_M}
+    return job, truth
+
+
+def test_snooping_removes_the_dem_heights_of_points_on_roofs_and_trees(controlled_triplet_with_dem) -> None:
+    """Four tie points whose DEM is 25 m too high (a canopy in a DSM) or too low (a roof against
+    a DTM): default data snooping removes exactly those four DEM heights and no ray of theirs
+    (the robust start once took a ray of such a point in its place: the DEM height pulls the
+    point, the next worst test of its block is a ray), and their adjusted heights stay within
+    three predicted sigmas of the truth (against the truth of the simulation, not the DEM)."""
+    from solver.api import run
+
+    job, truth = controlled_triplet_with_dem
+    ties = [p["id"] for p in job["points"] if p["role"] == "tie"]
+    offsets = {pid: BLUNDER_M * (1 if k % 2 == 0 else -1) for k, pid in enumerate(ties[3::8][:4])}
+    rep = run(_blundered(job, truth, offsets))
+    q = rep["quality"]
+    removed = {r["point"] for r in q["rejected"] if r["kind"] == "dem_height" and r.get("removed", True)}
+    assert removed == set(offsets), q["rejected"]
+    assert not [r for r in q["rejected"] if r["kind"] != "dem_height"], q["rejected"]
+    assert not q["not_identifiable"] and q["blunder_detection"]["stopped_early"] is None
+    true = {p["id"]: p for p in truth["points"]}
+    for p in rep["tie_points"]:
+        if p["id"] in offsets:
+            assert abs(p["height_m"] - true[p["id"]]["height_m"]) < 3.0 * p["sigma_m"][2], p
+    rows = {p["point"] for p in rep["dem"]["points"]}
+    assert rows.isdisjoint(offsets) and len(rows) == len(ties) - len(offsets)  # the others' DEM heights all kept
+
+
+def test_a_removal_that_drops_a_tie_point_drops_it_from_the_dem_exclusions(controlled_triplet_with_dem) -> None:
+    """Snooping removes a tie point's DEM height, then rays of it until it has one left: the
+    core drops the point, and ``dem.excluded`` must not name it (the job would no longer be
+    valid: "dem.excluded names ..., which is not a tie point", and snooping stopped there)."""
+    from solver.observations.dem_heights import FAMILY
+    from solver.quality.removal import remove
+    from solver.schema.job import Job
+
+    job, _truth = controlled_triplet_with_dem
+    j = Job.model_validate(job)
+    tie = next(p.id for p in j.points if p.role == "tie")
+    j, _ = remove(j, [("dem_height", tie)])
+    assert j.dem is not None and j.dem.excluded == [tie]
+    rays = [k for k, o in enumerate(j.observations) if o.point == tie]
+    assert len(rays) == 3
+    after, collateral = remove(j, [("observation", k) for k in rays[:2]])
+    assert tie not in {p.id for p in after.points} and {c["point"] for c in collateral} == {tie}
+    assert after.dem is not None and after.dem.excluded == []
+    problems, _count = FAMILY.check(after)
+    assert not problems
