@@ -62,8 +62,8 @@ def exported(n_obs: int, seed: int, start: str = "service", layout: str = "disjo
 
     job = bench_scale.generate(n_obs, "P2", seed, layout, states)
     doc = json.loads(job.read_text())
-    suffix = ("" if start == "service" else f"-{start}") + ("" if layout == "disjoint" else f"-{layout}") + ("" if states else "-nostates")
-    path = Path(tempfile.gettempdir()) / f"pba-p2-reference-{n_obs}-{seed}{suffix}.txt"
+    suffix = "" if start == "service" else f"-{start}"
+    path = Path(tempfile.gettempdir()) / f"pba-p2-reference-{job.stem}{suffix}.txt"  # named after the job's cache: a new generator, a new export
     if not path.is_file():
         export(doc, path, start)
     return job, path, doc

@@ -115,8 +115,12 @@ def connected_for(n_obs: int, model: str, seed: int, states: bool) -> dict[str, 
     return doc
 
 
+GENERATOR_VERSION = {"connected": "-v2"}  # bumped when a layout's generator changes: a cached job of an older one is not reused
+
+
 def job_path(n_obs: int, model: str, seed: int, layout: str, states: bool) -> Path:
-    return Path(tempfile.gettempdir()) / f"pba-bench-{layout}-{n_obs}-{model}-{seed}{'' if states else '-nostates'}.json"
+    version = GENERATOR_VERSION.get(layout, "")
+    return Path(tempfile.gettempdir()) / f"pba-bench-{layout}{version}-{n_obs}-{model}-{seed}{'' if states else '-nostates'}.json"
 
 
 def generate(n_obs: int, model: str, seed: int, layout: str, states: bool) -> Path:

@@ -505,13 +505,23 @@ def block_job(
     return job, truth
 
 
-def _ground_points(img: SyntheticImage, cam: dict, lines: np.ndarray, cols: np.ndarray) -> np.ndarray:
+def _ground_points(img: SyntheticImage, cam: dict, lines: np.ndarray, cols: np.ndarray,
+                   frames: tuple[LocalFrame, LocalFrame] | None = None) -> np.ndarray:
     """LGS points (n, 3) on the terrain seen by the pixels (lines, cols) of ``img`` with its true
-    orientation: :func:`ground_point_of_pixel` with the height iterations done for all at once."""
+    orientation: :func:`ground_point_of_pixel` with the height iterations done for all at once.
+
+    ``frames`` = (the job's frame, the scene's own local frame): the terrain is laid on the
+    scene's tangent plane instead of the job's (a long strip's far scenes would otherwise lie on
+    a plane up to hundreds of km above the ellipsoid: 1,500 km from the origin, 176 km); the
+    points are returned in the job's frame."""
     kind = get_model(img.model).kind.kernel
     rays = [ray(kind, img.coef, img.kc, _obs_consts(cam, line, col, 1.0, img.tau_per_line)) for line, col in zip(lines, cols)]
     s = np.array([r[0] for r in rays]).reshape(-1, 3)
     d = np.array([r[1] for r in rays]).reshape(-1, 3)
+    if frames is not None:
+        job_frame, scene = frames
+        s = scene.to_lgs(job_frame.to_ecef(s))
+        d = scene.vector_to_lgs(job_frame.vector_to_ecef(d))
     z = np.zeros(len(s))
     for _ in range(30):
         lam = (z - s[:, 2]) / d[:, 2]
@@ -521,7 +531,8 @@ def _ground_points(img: SyntheticImage, cam: dict, lines: np.ndarray, cols: np.n
             break
         z = z_new
     lam = (z - s[:, 2]) / d[:, 2]
-    return s + lam[:, None] * d
+    p = s + lam[:, None] * d
+    return p if frames is None else frames[0].to_lgs(frames[1].to_ecef(p))
 
 
 def connected_strip_job(
@@ -566,7 +577,13 @@ def connected_strip_job(
     pix = [ctrl_pix[[k for k, t in enumerate(ctrl_t) if t == tt]] for tt in range(n_triplets)]
     order = [k for tt in range(n_triplets) for k, t in enumerate(ctrl_t) if t == tt]  # _block_scene's order of the control points
     gcp = np.array([ctrl_role[k] == "gcp" for k in order])
-    frame, imgs, mopts_all, ctrl_lgs = _block_scene(model, frame, states, cams, pix, gcp, lt)
+    frame, imgs, mopts_all, _flat = _block_scene(model, frame, states, cams, pix, gcp, lt)
+    scene_frame = [states[3 * t][4] for t in range(n_triplets)]  # each triplet's own tangent plane
+
+    def ground(t: int, ls: np.ndarray, cs: np.ndarray) -> np.ndarray:
+        return _ground_points(imgs[3 * t + 1], cams["nadir"], ls, cs, (frame, scene_frame[t]))
+
+    ctrl_lgs = np.concatenate([ground(t, pix[t][:, 0], pix[t][:, 1]) for t in range(n_triplets) if len(pix[t])]).reshape(-1, 3)
     kind = get_model(model).kind.kernel
     scene_lines = spacing_m / (6820.0 * lt)  # lines between neighbouring scenes' centres (ground speed ~6.8 km/s)
     reach = int(math.ceil(lines / scene_lines))  # neighbours a point may fall in
@@ -598,7 +615,7 @@ def connected_strip_job(
     for t in range(n_triplets):
         ls = rng.uniform(0.02, 0.98, points_per_triplet) * (lines - 1)
         cs = rng.uniform(0.05, 0.95, points_per_triplet) * (columns - 1)
-        pts = _ground_points(imgs[3 * t + 1], cams["nadir"], ls, cs)
+        pts = ground(t, ls, cs)
         for j in range(points_per_triplet):
             pid = f"T{t:03d}-{j:05d}"
             points.append({"id": pid, "role": "tie"})
