@@ -52,6 +52,8 @@ class Spot14Scene:
     psi_x: tuple[float, float] = (1.0142e-2, 1.0527e-2)  # along track, first and last detector
     node_rad: float = np.radians(200.0)
     anomaly_rad: float = np.radians(140.0)  # descending over the northern hemisphere
+    pitch_amplitude_rad: float = 6e-6  # the pitch's oscillation (the SPOT 3 scene of 1994-08-09: 1e-5 over 4.5 s)
+    pitch_period_s: float = 7.0
 
     def state(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """ECEF position (m) and Earth-fixed velocity (m/s) (n, 3)."""
@@ -74,12 +76,13 @@ class Spot14Scene:
     def angles(self, t: np.ndarray) -> np.ndarray:
         """(n, 3) yaw, pitch, roll (rad): slow oscillations, as gyros see."""
         t = np.atleast_1d(np.asarray(t, float))
-        return np.column_stack([2e-5 + 1e-6 * t, 6e-6 * np.cos(2 * np.pi * t / 7.0), -1e-5 + 4e-6 * np.sin(2 * np.pi * t / 11.0)])
+        a, w1 = self.pitch_amplitude_rad, 2 * np.pi / self.pitch_period_s
+        return np.column_stack([2e-5 + 1e-6 * t, a * np.cos(w1 * t), -1e-5 + 4e-6 * np.sin(2 * np.pi * t / 11.0)])
 
     def rates(self, t: np.ndarray) -> np.ndarray:
         t = np.atleast_1d(np.asarray(t, float))
-        w1, w2 = 2 * np.pi / 7.0, 2 * np.pi / 11.0
-        return np.column_stack([np.full(t.shape, 1e-6), -6e-6 * w1 * np.sin(w1 * t), 4e-6 * w2 * np.cos(w2 * t)])
+        a, w1, w2 = self.pitch_amplitude_rad, 2 * np.pi / self.pitch_period_s, 2 * np.pi / 11.0
+        return np.column_stack([np.full(t.shape, 1e-6), -a * w1 * np.sin(w1 * t), 4e-6 * w2 * np.cos(w2 * t)])
 
     def psi_y(self) -> tuple[float, float]:
         return float(self.mirror_rad - self.half_field_rad), float(self.mirror_rad + self.half_field_rad)
