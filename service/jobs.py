@@ -10,6 +10,7 @@ from typing import Any
 
 from service.cameras import resolve_camera_refs
 from service.errors import JobFailed, JobTooLarge, NoSuchJob, ResultNotReady, TooManyJobs
+from service.lanes import is_small
 from service.processes import JOB_POINTER, Caller, process
 from service.queue import QueueBackend
 from service.queue_view import Placement, placement
@@ -51,12 +52,10 @@ class JobService:
             user.max_job_observations or self.settings.max_job_observations,
         )
 
-    def submit(
-        self, user: UserRecord, process_id: str, inputs: ExecuteInputs, sync: bool = False
-    ) -> JobRecord:
-        """Validate, check the user's limits, store as accepted, and queue. Jobs of at most
-        ``small_job_observations`` observations and ``sync`` requests (a client waiting for
-        the answer) take the small-job lane (service.store.fair)."""
+    def submit(self, user: UserRecord, process_id: str, inputs: ExecuteInputs) -> JobRecord:
+        """Validate, check the user's limits, store as accepted, and queue. The job's lane
+        comes from what it will cost (service.lanes: adjustments of at most
+        ``small_job_observations`` observations take the small-job lane, matchings never)."""
         max_queued, max_obs = self.limits_of(user)
         n_obs = process(process_id).count(inputs.job)
         if n_obs > max_obs:
@@ -68,7 +67,7 @@ class JobService:
                 headers={"Retry-After": "10"},
             )
         job: Job = inputs.job
-        small = sync or n_obs <= self.settings.small_job_observations
+        small = is_small(process(process_id).cost_of(job, document), self.settings.small_job_observations)
         quota_mb = self.settings.user_storage_quota_mb
         try:
             rec = self.store.create_job(

@@ -65,11 +65,30 @@ class Checked:
 
 
 @dataclass(frozen=True)
+class JobCost:
+    """What a job will cost a worker, in the unit its work grows with: ``observations`` for an
+    adjustment (and a pre-analysis's planned observations), ``pixels`` (width x height of every
+    raster, from their headers) for a matching. The queue's lane comes from it
+    (:func:`service.lanes.is_small`)."""
+
+    unit: Literal["observations", "pixels"]
+    amount: int
+
+
+def _cost_by_count(count: Callable[[Job], int]) -> Callable[[Job, dict[str, Any]], JobCost]:
+    def cost(job: Job, _document: dict[str, Any]) -> JobCost:
+        return JobCost("observations", count(job))
+
+    return cost
+
+
+@dataclass(frozen=True)
 class Process:
     """One process of the table.
 
-    ``count(job)``: the observations the job is measured by against the users' limits and the
-    small-job threshold. ``check(job, inputs, caller)``: the job (camera references resolved)
+    ``count(job)``: the observations the job is measured by against the users' limits.
+    ``cost(job, document)``: what the checked job will cost a worker (:class:`JobCost`; the
+    queue's lane; default: ``count`` in observations). ``check(job, inputs, caller)``: the job (camera references resolved)
     and the other inputs checked as this process needs them; raises :class:`InvalidInput` with
     pointers into the request. ``run(document, progress, cancel)``: in a worker, the report of
     a stored document (``progress``/``cancel`` as in ``solver.api``). ``tables``: the CSV
@@ -83,8 +102,13 @@ class Process:
     count: Callable[[Job], int]
     check: Callable[[Job, ExecuteInputs, Caller], Checked]
     run: Callable[[dict[str, Any], Progress, Cancel], dict[str, Any]]
+    cost: Callable[[Job, dict[str, Any]], JobCost] | None = None
     extra_inputs: Callable[[], dict[str, InputDescription]] = field(default=lambda: {})
     tables: tuple[str, ...] = ("observations", "checkpoints", "parameters")
+
+    def cost_of(self, job: Job, document: dict[str, Any]) -> JobCost:
+        """The job's cost (``cost``, else its ``count`` in observations)."""
+        return (self.cost or _cost_by_count(self.count))(job, document)
 
 
 def _problems_error(problems: list[dict[str, Any]], where: tuple[str, ...]) -> InvalidInput:
@@ -283,6 +307,12 @@ def _check_match(job: Job, inputs: ExecuteInputs, caller: Caller) -> Checked:
     return Checked(document, summary)
 
 
+def _match_cost(_job: Job, document: dict[str, Any]) -> JobCost:
+    """The pixels of the job's rasters (their headers' width x height, stored at the check):
+    a matching's work grows with them, not with the job's observations."""
+    return JobCost("pixels", sum(int(r["pixels"]) for r in document["images"]))
+
+
 def _run_match(document: dict[str, Any], progress: Progress, cancel: Cancel) -> dict[str, Any]:
     """Uploads written to a temporary directory, server paths checked again, then the
     matching (solver.matching.run), every raster opened through the raster gate inside the
@@ -395,6 +425,7 @@ PROCESSES: dict[str, Process] = {
             count=_observations,
             check=_check_match,
             run=_run_match,
+            cost=_match_cost,
             extra_inputs=_match_inputs,
             tables=("observations",),
         ),

@@ -98,7 +98,7 @@ async def execute(
         or settings.sync_timeout_s <= 0
         or services.backend.worker_count() == 0
     )
-    rec = await run_in_threadpool(services.jobs.submit, user, processId, body.inputs, sync)
+    rec = await run_in_threadpool(services.jobs.submit, user, processId, body.inputs)
     if not sync:
         return await _accepted(rec, base, wants_async, services)
     deadline = time.monotonic() + settings.sync_timeout_s

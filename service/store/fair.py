@@ -6,9 +6,9 @@ The claim order is a key per waiting (owner, lane) head, smallest first:
    ``max_running`` jobs (their own limit, else ``PBA_MAX_RUNNING_PER_USER``; 0 = no cap) comes
    after every user below their cap. With a single user waiting nobody is capped, so an
    otherwise idle server always runs the work it has;
-2. **small-job lane**: jobs marked small at submission (at most
-   ``PBA_SMALL_JOB_OBSERVATIONS`` observations, or synchronous requests) come before the
-   others, so a small job waits at most for the first running job to end;
+2. **small-job lane**: jobs marked small at submission (by their cost, service.lanes:
+   adjustments of at most ``PBA_SMALL_JOB_OBSERVATIONS`` observations, never a matching) come
+   before the others, so a small job waits at most for the first running job to end;
 3. **weighted share**: the user with the fewest running jobs per unit of weight
    (``users.weight``, default 1) comes first;
 4. **least recent use**: among equals, the user whose last job started longest ago;

@@ -1,0 +1,140 @@
+"""A job's lane comes from what it will cost (service.lanes): observations for adjustments,
+pixels for matchings, so a match job never takes the small-job lane.
+
+The focused tests submit through the API (no worker) and read the lane the store recorded; the
+last test runs a real server (2 general workers and the small-lane worker) with one user's 8
+match jobs queued and another user's small synchronous adjustment.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+from pba_service_harness import Server, execute_body
+
+from service.app import create_app
+from service.auth import create_key
+from service.processes import MATCH
+from service.settings import Settings
+
+sys.path.insert(0, str(Path(__file__).parents[2] / "solver" / "matching"))
+from test_matching_real import DATA, PAIRS, _rpc_job  # noqa: E402
+
+pytestmark = [pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")]
+
+LEFT, RIGHT, HEIGHTS = PAIRS["ventoux"]
+HEIGHTS_M = [float(h) for h in HEIGHTS.split(",")]
+
+
+def _image_root(tmp_path: Path) -> Path:
+    root = tmp_path / "images"
+    (root / "alice").mkdir(parents=True)
+    for name in (LEFT, RIGHT):
+        shutil.copyfile(DATA / f"{name}.tif", root / "alice" / f"{name}.tif")
+    return root
+
+
+def _match_body(observations: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+    images = [{"id": name, "path": f"{name}.tif"} for name in (LEFT, RIGHT)]
+    job = _rpc_job([LEFT, RIGHT], observations or [])
+    return {"inputs": {"job": job, "images": images, "heights_m": HEIGHTS_M, "match": {"grid": 8}}}
+
+
+def _lane_of(tmp_path: Path, process: str, body: dict[str, Any], **settings: Any) -> bool:
+    """Submit ``body`` to a server without workers; the lane the store recorded (True: small)."""
+    app = create_app(Settings(data_dir=tmp_path / "data", workers=0, require_api_keys=True, **settings))
+    with TestClient(app) as c:
+        store = app.state.services.store
+        key = {"X-API-Key": create_key(store, "alice")[0], "Prefer": "respond-async"}
+        r = c.post(f"/processes/{process}/execution", json=body, headers=key)
+        assert r.status_code == 201, r.text[:500]
+        rec = store.get_job(r.json()["jobID"])
+        assert rec is not None
+        return rec.small
+
+
+@pytest.mark.parametrize("above", [0, 1])
+def test_the_lane_threshold_is_inclusive(tmp_path: Path, small_doc: dict[str, Any], above: int) -> None:
+    """A job of exactly ``small_job_observations`` observations is small; one more is not."""
+    n = len(small_doc["observations"])
+    small = _lane_of(tmp_path, "bundle-adjustment", execute_body(small_doc), small_job_observations=n - above)
+    assert small is (above == 0)
+
+
+def test_a_match_job_never_takes_the_small_lane(tmp_path: Path) -> None:
+    """A composed job without measurements (0 observations, far below any threshold) is still
+    not small when it is a matching: its cost is its rasters' pixels."""
+    small = _lane_of(tmp_path, MATCH, _match_body(), image_root=_image_root(tmp_path),
+                     small_job_observations=1_000_000)
+    assert small is False
+
+
+def test_synchronous_execution_does_not_change_the_lane(tmp_path: Path, small_doc: dict[str, Any]) -> None:
+    """A client waiting for the answer does not make a large job small (a server without
+    workers answers a synchronous request asynchronously, after storing the job)."""
+    n = len(small_doc["observations"])
+    app = create_app(Settings(data_dir=tmp_path / "data", workers=0, require_api_keys=True,
+                              small_job_observations=n - 1))
+    with TestClient(app) as c:
+        store = app.state.services.store
+        key = {"X-API-Key": create_key(store, "alice")[0]}
+        r = c.post("/processes/bundle-adjustment/execution", json=execute_body(small_doc), headers=key)
+        assert r.status_code == 201, r.text[:300]
+        rec = store.get_job(r.json()["jobID"])
+        assert rec is not None and rec.small is False
+
+
+@pytest.mark.slow
+def test_a_small_adjustment_is_answered_while_another_users_match_jobs_wait(
+    tmp_path: Path, small_doc: dict[str, Any]
+) -> None:
+    """Alice's 8 match jobs on 2 general workers: at most 2 of them run (none takes the
+    small-lane worker), and Bob's small synchronous adjustment is answered (200) and started
+    within 2 s of its submission: the lane's contract. The bound is on the wait in the queue
+    (the store's created -> started), which the lane decides; it does not measure solving speed.
+    The whole answer time is bounded by the issue's 2 s as well, generously enough: the
+    triplet solves in about 0.1 s alone, and the small-lane worker competes only with the two
+    running matchings for the cores."""
+    srv = Server(tmp_path, workers=2, require_api_keys="true", image_root=_image_root(tmp_path))
+    srv.start()
+    try:
+        alice, bob = srv.create_key("alice"), srv.create_key("bob")
+        with srv.client(alice) as ca, srv.client(bob) as cb:
+            # warm the small-lane worker (its first job loads the solver's caches)
+            r = cb.post("/processes/bundle-adjustment/execution", json=execute_body(small_doc))
+            assert r.status_code == 200, r.text[:300]
+            jobs = []
+            for _ in range(8):
+                r = ca.post(f"/processes/{MATCH}/execution", json=_match_body(), headers={"Prefer": "respond-async"})
+                assert r.status_code == 201, r.text[:300]
+                jobs.append(r.json()["jobID"])
+            deadline = time.monotonic() + 60
+            while sum(ca.get(f"/jobs/{j}").json()["status"] == "running" for j in jobs) < 2:
+                assert time.monotonic() < deadline, "the match jobs did not start"
+                time.sleep(0.1)
+            time.sleep(1.0)  # a free small-lane worker polls the store within this (PBA_POLL_INTERVAL_S)
+            statuses = [ca.get(f"/jobs/{j}").json()["status"] for j in jobs]
+            assert statuses.count("running") == 2, statuses  # the small-lane worker took none
+            assert statuses.count("accepted") >= 4, statuses  # still waiting: the test is loaded
+            t0 = time.monotonic()
+            r = cb.post("/processes/bundle-adjustment/execution", json=execute_body(small_doc))
+            answered_s = time.monotonic() - t0
+            assert r.status_code == 200, r.text[:300]
+            rec = srv.store().get_job(r.headers["Location"].rsplit("/", 1)[1])
+            assert rec is not None and rec.started is not None
+            waited_s = (rec.started - rec.created).total_seconds()
+            assert waited_s < 2.0, waited_s
+            assert answered_s < 2.0, answered_s
+            statuses = [ca.get(f"/jobs/{j}").json()["status"] for j in jobs]
+            assert statuses.count("accepted") >= 1, statuses  # the match jobs were still waiting
+            print(f"small adjustment: waited {waited_s:.3f} s, answered in {answered_s:.3f} s")
+            for j in jobs:
+                ca.delete(f"/jobs/{j}")
+    finally:
+        srv.stop()
