@@ -229,6 +229,17 @@ def test_compose_images_from_uploaded_sensor_metadata(local: TestClient) -> None
         assert "DIM_SPOT6.XML" in json.dumps(doc) and element in json.dumps(doc), doc
 
 
+def test_an_orthorectified_inpe_record_is_refused_with_the_reason(local: TestClient) -> None:
+    """A level 4 (orthorectified) CBERS-4A record describes the raw acquisition, while its raster
+    is a UTM map grid: measurements in that raster are no pushbroom lines and columns, so the
+    server refuses to compose a rigorous job from it (422) and says why, naming the file."""
+    f = ROOT / "tests" / "data" / "vendor" / "cbers-2-stac" / "CBERS_4A_MUX_20220810_222_116_L4_BAND6.xml"
+    spec = {"images": [{"id": "M", "measurements": ["m.csv"], "sensor": f.name}]}
+    doc = assert_problem(upload(local, spec, {f.name: f.read_bytes(), "m.csv": b"point,line,column\nG0,100,100\n"}), 422)
+    assert f.name in doc["detail"] and "level 4 (orthorectified)" in doc["detail"] and "UTM map grid" in doc["detail"], doc
+    assert doc["errors"][0]["code"] == "bad_sensor_metadata", doc
+
+
 def test_a_sensor_metadata_upload_is_bounded_by_its_bytes(local: TestClient) -> None:
     """A metadata file is not counted in rows (a SPOT 5 scene's DIMAP has 25,000 lines) but
     bounded by bytes: above MAX_SENSOR_BYTES it is refused before it is parsed (413)."""
