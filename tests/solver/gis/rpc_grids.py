@@ -11,6 +11,19 @@ import numpy as np
 from solver.geometry.rpc import CHECK_GRID, FIT_GRID, GroundGrid
 
 
+def spy_grids(monkeypatch, module) -> dict[str, GroundGrid]:  # noqa: ANN001
+    """The fit and check grids ``module`` hands to its ``fit_record`` (filled when it is called)."""
+    grids: dict[str, GroundGrid] = {}
+    real = module.fit_record
+
+    def spy(rpc, fit_g, check_g, height_range_m, **fields):  # noqa: ANN001, ANN003, ANN202
+        grids.update(fit=fit_g, check=check_g)
+        return real(rpc, fit_g, check_g, height_range_m, **fields)
+
+    monkeypatch.setattr(module, "fit_record", spy)
+    return grids
+
+
 def assert_independent(fit: GroundGrid, check: GroundGrid) -> None:
     fit_h, check_h = np.unique(np.round(fit.h, 3)), np.unique(np.round(check.h, 3))
     spacing = float(np.min(np.diff(fit_h)))

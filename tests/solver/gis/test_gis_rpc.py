@@ -141,18 +141,11 @@ def test_multi_chip_whole_image_rpc_warns_and_per_chip_rpcs_pass_through_gdal(tm
 def test_the_check_grid_shares_no_point_with_the_fit_grid(monkeypatch):
     """The fit is assessed on an independent grid only if no check point is a fit point
     (tests/solver/gis/rpc_grids.py)."""
-    from rpc_grids import assert_independent
+    from rpc_grids import assert_independent, spy_grids
 
     from solver.gis import rpc_fit
 
-    grids = {}
-    real = rpc_fit.fit_record
-
-    def spy(rpc, fit_g, check_g, height_range_m, **fields):
-        grids.update(fit=fit_g, check=check_g)
-        return real(rpc, fit_g, check_g, height_range_m, **fields)
-
-    monkeypatch.setattr(rpc_fit, "fit_record", spy)
+    grids = spy_grids(monkeypatch, rpc_fit)
     _scene, _job, _report, model = single_chip("P2")
     rpc_fit.fit_image_rpc(model.image("cam"), (200.0, 700.0))
     assert_independent(grids["fit"], grids["check"])

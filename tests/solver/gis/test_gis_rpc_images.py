@@ -115,18 +115,11 @@ def test_refined_rpc_through_gdal_reproduces_the_adjusted_model(simulated, tmp_p
 def test_the_refined_rpcs_check_grid_shares_no_point_with_its_fit_grid(simulated, monkeypatch, model) -> None:
     """The refined RPC's check residuals (its record's ``check_residuals``) assess it on points
     it was not fitted to, folded or refitted (tests/solver/gis/rpc_grids.py)."""
-    from rpc_grids import assert_independent
+    from rpc_grids import assert_independent, spy_grids
 
     from solver.gis import rpc_image as module
 
-    grids = {}
-    real = module.fit_record
-
-    def spy(rpc, fit_g, check_g, height_range_m, **fields):
-        grids.update(fit=fit_g, check=check_g)
-        return real(rpc, fit_g, check_g, height_range_m, **fields)
-
-    monkeypatch.setattr(module, "fit_record", spy)
+    grids = spy_grids(monkeypatch, module)
     job, _ = simulated
     entry = {**job["images"][0], "model": {"name": model}}
     refined_rpc(rpc_image(entry, _report_entry(entry["id"], REPORTS[model])), HEIGHTS)
