@@ -29,6 +29,7 @@ from service.middleware import (
     BodyLimitMiddleware,
     SecurityHeadersMiddleware,
     ServicesContextMiddleware,
+    UrlTextMiddleware,
 )
 from service.queue import make_backend
 from service.retention import RetentionLoop
@@ -143,6 +144,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # middlewares: the last added runs first
     app.add_middleware(ServicesContextMiddleware)
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+    app.add_middleware(UrlTextMiddleware)
     if settings.cors_origins:
         app.add_middleware(
             CORSMiddleware,

@@ -1,12 +1,15 @@
-"""ASGI middlewares: request body size limit (413 problem), services context, access log,
-security headers on every response."""
+"""ASGI middlewares: request body size limit (413 problem), URL text check (400 problem for a
+NUL or control character in the path or query), services context, access log, security headers
+on every response."""
 
 from __future__ import annotations
 
 import json
 import logging
+import re
 import time
 from typing import Any
+from urllib.parse import parse_qsl
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -107,6 +110,88 @@ class BodyLimitMiddleware:
             return message
 
         return bounded
+
+
+def _has_control(text: str) -> bool:
+    """Whether ``text`` holds a NUL or another control character (C0 or DEL)."""
+    return any(ord(c) < 0x20 or ord(c) == 0x7F for c in text)
+
+
+class UrlTextMiddleware:
+    """Refuse a request whose URL path or query holds a NUL or control character (once
+    percent-decoded) with a 400 problem naming the parameter (``/path/jobId``,
+    ``/query/name``), before any route, the store or the file system sees it. (PostgreSQL
+    refuses NUL in text, which would otherwise be a 500; no name the server knows holds
+    one.)"""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    @staticmethod
+    def _templates(app: Any) -> list[tuple[re.Pattern[str], list[str]]]:
+        """The OpenAPI path templates as patterns (those with the fewest parameters first)."""
+        cached = getattr(app.state, "url_templates", None) if hasattr(app, "state") else None
+        if cached is not None:
+            return cached
+        out = []
+        for template in app.openapi().get("paths", {}) if hasattr(app, "openapi") else ():
+            names = re.findall(r"\{([^}/]+)\}", template)
+            parts = re.split(r"\{[^}/]+\}", template)
+            pattern = "".join(re.escape(p) + ("([^/]+)" if i < len(names) else "") for i, p in enumerate(parts))
+            out.append((re.compile(pattern), names))
+        out.sort(key=lambda t: len(t[1]))
+        if hasattr(app, "state"):
+            app.state.url_templates = out
+        return out
+
+    @classmethod
+    def _pointers(cls, scope: Scope) -> list[str]:
+        out: list[str] = []
+        path = scope.get("path", "")
+        if _has_control(path):
+            for pattern, names in cls._templates(scope.get("app")):
+                m = pattern.fullmatch(path)
+                if m is not None:
+                    out += [f"/path/{n}" for n, v in zip(names, m.groups()) if _has_control(v)]
+                    if out:
+                        break
+            if not out:
+                out.append("/path")
+        query = scope.get("query_string", b"").decode("latin-1")
+        for name, value in parse_qsl(query, keep_blank_values=True):
+            if _has_control(name) or _has_control(value):
+                out.append("/query/" + ("" if _has_control(name) else name))
+        return out
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        pointers = self._pointers(scope)
+        if not pointers:
+            await self.app(scope, receive, send)
+            return
+        message = "a NUL or control character (percent-encoded or not) is not allowed here"
+        body = json.dumps(
+            {
+                "type": problem_type("invalid-parameter"),
+                "title": "Invalid parameter",
+                "status": 400,
+                "detail": "the URL holds a NUL or control character",
+                "errors": [{"pointer": p, "code": "control_character", "message": message} for p in pointers],
+            }
+        ).encode()
+        await send(
+            {
+                "type": "http.response.start",
+                "status": 400,
+                "headers": [
+                    (b"content-type", PROBLEM_MEDIA_TYPE.encode()),
+                    (b"content-length", str(len(body)).encode()),
+                ],
+            }
+        )
+        await send({"type": "http.response.body", "body": body})
 
 
 class ServicesContextMiddleware:
