@@ -165,6 +165,9 @@ def match_tile(a: MatchImage, b: MatchImage, mapping: PairMapping, centre: np.nd
     ends = np.vstack([s0, s1])
     pad = s.search_px + 16 * k
     lo, hi = np.floor(ends.min(0) - pad).astype(int), np.ceil(ends.max(0) + pad).astype(int)
+    lo, hi = np.maximum(lo, 0), np.minimum(hi, [b.lines, b.columns])  # segments may run out of b
+    if np.any(hi <= lo):
+        return empty
     if np.any(hi - lo > s.max_window_px):
         counts["tiles_skipped"] = counts.get("tiles_skipped", 0) + 1
         return empty
@@ -182,11 +185,11 @@ def match_tile(a: MatchImage, b: MatchImage, mapping: PairMapping, centre: np.nd
 
 
 def match_pair(a: MatchImage, b: MatchImage, ia: int, ib: int, mapping: PairMapping, s: MatchSettings, progress=None) -> PairMatches:
-    """Every tile of a inside the overlap with b, matched (module docstring)."""
+    """Every tile of a whose centre falls inside b at some height of the range, matched
+    (module docstring)."""
     counts: dict[str, int] = {"tiles": 0}
     centres = tile_centres(a, s.grid)
-    bl, bc = mapping.at_heights(centres[:, 0], centres[:, 1])
-    inside = np.all((bl >= 0) & (bl <= b.lines - 1) & (bc >= 0) & (bc <= b.columns - 1), axis=0)
+    inside = mapping.reaches_b(centres[:, 0], centres[:, 1])  # at some height of the range
     pas, pbs = [], []
     todo = np.flatnonzero(inside)
     for n, k in enumerate(todo):

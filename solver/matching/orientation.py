@@ -29,7 +29,6 @@ import numpy as np
 from solver.matching.raster import Raster, RasterError
 
 GRID_NODES = 17  # nodes of the prediction grid along each image axis
-RPC_HALF_RANGE_M = 1000.0  # widest half height range taken from an RPC (m)
 N_HEIGHTS = 3  # heights of the prediction grid (lowest, middle, highest)
 
 
@@ -78,8 +77,8 @@ def _id_of(path: Path, ids: list[str]) -> str | None:
 
 
 def images_from_rpcs(args: list[str]) -> tuple[list[MatchImage], tuple[float, float]]:
-    """Images oriented by their own RPCs, and the height range their RPCs span (the RPC's
-    height offset +- its scale, at most +- 1000 m)."""
+    """Images oriented by their own RPCs, and the height range their RPCs span (each RPC's
+    height offset +- its scale, :func:`rpc_height_range`)."""
     from solver.geometry.rpc import RPC, RpcBias
     from solver.gis.rpc_image import RpcImage
 
@@ -102,9 +101,9 @@ def images_from_rpcs(args: list[str]) -> tuple[list[MatchImage], tuple[float, fl
 
 def rpc_height_range(rpcs: list[Any]) -> tuple[float, float]:
     """The ellipsoidal height range (m) the RPCs span: each RPC's height offset +- its height
-    scale (at most +- :data:`RPC_HALF_RANGE_M`), joined over the images."""
-    half = [min(r.height_scale, RPC_HALF_RANGE_M) for r in rpcs]
-    return float(min(r.height_off - h for r, h in zip(rpcs, half, strict=True))), float(max(r.height_off + h for r, h in zip(rpcs, half, strict=True)))
+    scale (the range the vendor fitted it over, which holds the scene's terrain), joined over
+    the images. Matching searches the whole range; a DEM narrows it (``--dem``)."""
+    return float(min(r.height_off - abs(r.height_scale) for r in rpcs)), float(max(r.height_off + abs(r.height_scale) for r in rpcs))
 
 
 def images_from_job(job: dict[str, Any], report: dict[str, Any] | None, args: list[str]) -> tuple[list[MatchImage], tuple[float, float]]:
@@ -231,13 +230,41 @@ class PairMapping:
         bc = self._bilinear(self.bc[k], lv, cv)
         return np.array([[bl[1] - bl[0], bl[3] - bl[2]], [bc[1] - bc[0], bc[3] - bc[2]]]) / (2 * step)
 
+    def reaches_b(self, line: np.ndarray, column: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
+        """(n,) whether a's points fall inside b (``margin_px`` from its border) at some height
+        of the range: their epipolar curve (straight between the grid heights) enters b."""
+        bl, bc = self.at_heights(line, column)
+        return self._enters_b(bl, bc, margin_px)
+
+    def _enters_b(self, bl: np.ndarray, bc: np.ndarray, margin_px: float) -> np.ndarray:
+        lo = np.array([margin_px, margin_px])
+        hi = np.array([self.b.lines - 1 - margin_px, self.b.columns - 1 - margin_px])
+        hit = np.zeros(bl.shape[1:], dtype=bool)
+        for k in range(bl.shape[0] - 1):
+            hit |= segment_enters_box(np.stack([bl[k], bc[k]], -1), np.stack([bl[k + 1], bc[k + 1]], -1), lo, hi)
+        return hit
+
     def overlap_fraction(self, margin_px: float = 0.0) -> float:
-        """Fraction of a's grid nodes that fall inside b at every grid height."""
-        inside = np.ones(self.bl.shape[1:], dtype=bool)
-        for k in range(N_HEIGHTS):
-            inside &= (self.bl[k] >= margin_px) & (self.bl[k] <= self.b.lines - 1 - margin_px)
-            inside &= (self.bc[k] >= margin_px) & (self.bc[k] <= self.b.columns - 1 - margin_px)
-        return float(inside.mean())
+        """Fraction of a's grid nodes that fall inside b at some height of the range."""
+        return float(self._enters_b(self.bl, self.bc, margin_px).mean())
+
+
+def segment_enters_box(p0: np.ndarray, p1: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(...,) whether segments p0-p1 (..., 2) meet the box lo <= p <= hi (Liang-Barsky clipping);
+    a segment with a non-finite end never does."""
+    with np.errstate(all="ignore"):
+        d = p1 - p0
+        t0 = np.zeros(p0.shape[:-1])
+        t1 = np.ones(p0.shape[:-1])
+        ok = np.all(np.isfinite(p0), -1) & np.all(np.isfinite(p1), -1)
+        for ax in range(2):
+            still = np.abs(d[..., ax]) < 1e-12
+            ok &= ~still | ((p0[..., ax] >= lo[ax]) & (p0[..., ax] <= hi[ax]))
+            ta = (lo[ax] - p0[..., ax]) / d[..., ax]
+            tb = (hi[ax] - p0[..., ax]) / d[..., ax]
+            t0 = np.where(still, t0, np.maximum(t0, np.minimum(ta, tb)))
+            t1 = np.where(still, t1, np.minimum(t1, np.maximum(ta, tb)))
+    return ok & (t0 <= t1)
 
 
 def distance_to_segment(p: np.ndarray, s0: np.ndarray, s1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

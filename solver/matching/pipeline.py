@@ -1,7 +1,8 @@
 """Tie points of a set of oriented images: the steps of matching and their summary.
 
-1. pairs: images whose footprints at the middle height intersect, then the fraction of the
-   first image's prediction grid that falls in the second at every terrain height;
+1. pairs: images whose footprints (over the lowest and the highest terrain height) intersect,
+   then the fraction of the first image's prediction grid that falls in the second at some
+   height of the range;
 2. SIFT matches in the predicted band of every pair (:mod:`solver.matching.features`);
 3. tracks linked over pairs, thinned to ``per_cell`` per image cell (:mod:`solver.matching.tracks`);
 4. sub-pixel positions by correlation against the track's reference image and the epipolar
@@ -56,10 +57,16 @@ def _footprint_box(image: MatchImage, height: float) -> np.ndarray | None:
     return np.array([llh[ok, 0].min(), llh[ok, 1].min(), llh[ok, 0].max(), llh[ok, 1].max()])
 
 
+def _union(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
+    if a is None or b is None:
+        return b if a is None else a
+    return np.concatenate([np.minimum(a[:2], b[:2]), np.maximum(a[2:], b[2:])])
+
+
 def candidate_pairs(images: list[MatchImage], heights: tuple[float, float]) -> list[tuple[int, int]]:
-    """Pairs (i < j) whose footprint boxes at the middle height intersect."""
-    mid = 0.5 * (heights[0] + heights[1])
-    boxes = [_footprint_box(im, mid) for im in images]
+    """Pairs (i < j) whose footprint boxes, each the union of the boxes at the lowest and the
+    highest height, intersect."""
+    boxes = [_union(_footprint_box(im, heights[0]), _footprint_box(im, heights[1])) for im in images]
     out = []
     for i in range(len(images)):
         for j in range(i + 1, len(images)):
@@ -96,7 +103,7 @@ def match_images(images: list[MatchImage], heights: tuple[float, float], setting
     if not pairs:
         raise MatchError(
             f"no two images overlap at terrain heights {heights[0]:.0f} to {heights[1]:.0f} m "
-            f"(images: {', '.join(im.id for im in images)}); if they do overlap, narrow the height range (--heights)"
+            f"(images: {', '.join(im.id for im in images)}); if they do overlap, give a height range that holds the terrain (--heights)"
         )
     say(0.05, "features")
     matches: list[PairMatches] = []

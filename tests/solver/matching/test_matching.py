@@ -183,6 +183,30 @@ def test_images_with_rpcs_need_no_job(rpc_pair):
     assert float(np.sqrt(np.mean(np.sum(e_bf**2, axis=1)))) < TRUTH_RMS_PX
 
 
+def test_default_heights_reach_terrain_far_from_the_rpc_height_offset(triplet, tmp_path):
+    """RPCs fitted over -1,800 to 1,300 m (height offset -250 m, scale 1,550 m) of a terrain at
+    200-1,200 m, near the top of their range (as a vendor's RPC of a high plateau can be): with
+    no --heights the matching searches the RPCs' whole range and every overlapping tile, and
+    finds ties over the whole overlap, as accurate as with the terrain's own range."""
+    scene, _job, _d, paths = triplet
+    out = []
+    for i in (0, 2):
+        dst = tmp_path / f"{scene.images[i].id}.tif"
+        shutil.copyfile(paths[i], dst)
+        write_sidecar(fit_image_rpc(scene.images[i], RpcBias(), (-1800.0, 1300.0)), tmp_path / f"{scene.images[i].id}_RPC.TXT")
+        out.append(dst)
+    ties, summary = tmp_path / "ties.csv", tmp_path / "summary.json"
+    assert main(["match", *map(str, out), "-o", str(ties), "--summary", str(summary), "-q", *GRID]) == 0
+    s = json.loads(summary.read_text())
+    assert s["height_range_m"][0] <= -1799.0 and s["height_range_m"][1] >= 1299.0
+    assert all(im["cells_covered"] >= 0.6 for im in s["images"]), s["images"]
+    rows = list(csv.DictReader(ties.open()))
+    errors = _truth_errors(scene, [{**r, "line": float(r["line"]), "column": float(r["column"])} for r in rows])
+    e_bf = errors[("back", "fwd")]
+    assert len(e_bf) >= 60
+    assert float(np.sqrt(np.mean(np.sum(e_bf**2, axis=1)))) < TRUTH_RMS_PX
+
+
 def _fails(argv, capsys, *words):
     assert main(argv) == 2
     err = capsys.readouterr().err

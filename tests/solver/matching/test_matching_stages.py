@@ -13,7 +13,7 @@ import pytest
 import rasterio
 
 from solver.matching.features import MatchSettings, _detect, band_matches
-from solver.matching.orientation import MatchImage, PairMapping
+from solver.matching.orientation import MatchImage, PairMapping, rpc_height_range, segment_enters_box
 from solver.matching.pipeline import PairMatches
 from solver.matching.raster import Raster
 from solver.matching.refine import correlate, epipolar_check
@@ -288,3 +288,47 @@ def test_decimated_detection_finds_a_blob_where_it_is(tmp_path, centre):
             assert float(err.min()) < 0.2, (k, pos, centre)
     finally:
         raster.close()
+
+
+# --- overlap and tile selection over the whole height range ---------------------------------
+
+def test_segment_enters_box():
+    lo, hi = np.array([0.0, 0.0]), np.array([99.0, 99.0])
+    p0 = np.array([[-50.0, 50.0], [-50.0, 50.0], [-50.0, -10.0], [120.0, 120.0], [10.0, 10.0], [-5.0, 50.0], [np.nan, 1.0]])
+    p1 = np.array([[150.0, 50.0], [-1.0, 50.0], [-10.0, -50.0], [120.0, -20.0], [20.0, 20.0], [-5.0, 60.0], [5.0, 5.0]])
+    # through, short of it, outside, along a side outside, inside, still outside, not finite
+    assert list(segment_enters_box(p0, p1, lo, hi)) == [True, False, False, False, True, False, False]
+    # a corner cut: from left of the box to above it, passing the corner (0, 0) 1.4 px inside
+    assert segment_enters_box(np.array([[2.0, -2.0]]), np.array([[-2.0, 4.0]]), lo, hi)[0]
+
+
+def test_tiles_are_selected_when_some_height_brings_them_into_b():
+    """Image b sees a's pixels 0.5 px further down per metre of height: over 0-2000 m the
+    epipolar segment of a pixel is 1000 px long, and most of a lies in b only near the top of
+    the range (b is a's lines 900-1300 at 2000 m). Every node that some height brings into b
+    counts for the overlap and for tile selection, not only those inside at every height or
+    at the middle one."""
+    model = AffineModel(np.eye(2), np.array([-1000.0, 0.0]), np.array([0.5, 0.0]))
+    a = _image("a", ArrayRaster(np.zeros((400, 400))), model)
+    b = _image("b", ArrayRaster(np.zeros((400, 400))), model)
+    pm = PairMapping(a, b, (0.0, 2000.0))
+    # b line = a line - 1000 + 0.5 h: a line 0 is in b for h >= 2000, a line 399 for h >= 1202
+    lines = np.array([0.0, 100.0, 200.0, 399.0, 399.0])
+    assert list(pm.reaches_b(lines, np.full(5, 200.0))) == [True, True, True, True, True]
+    assert pm.overlap_fraction() == pytest.approx(1.0)
+    # the same geometry over a range below 1,200 m: a's pixels never reach b
+    low = PairMapping(a, b, (0.0, 1100.0))
+    assert not low.reaches_b(lines, np.full(5, 200.0)).any() and low.overlap_fraction() == 0.0
+    # over 0-1,500 m (b line = a line - 250 at the top): a's lines from 250 onwards reach b
+    mid = PairMapping(a, b, (0.0, 1500.0))
+    got = mid.reaches_b(np.array([245.0, 255.0, 399.0]), np.full(3, 200.0))
+    assert list(got) == [False, True, True]
+
+
+def test_rpc_height_range_is_the_rpcs_whole_range():
+    """Each RPC's height offset +- its height scale, joined: nothing is cut off, so terrain far
+    from the offset (a plateau at 2,300 m of an RPC fitted over 0-2,610 m) is inside."""
+    from types import SimpleNamespace
+
+    rpcs = [SimpleNamespace(height_off=1305.0, height_scale=1305.0), SimpleNamespace(height_off=1200.0, height_scale=1300.0)]
+    assert rpc_height_range(rpcs) == (-100.0, 2610.0)
