@@ -256,6 +256,43 @@ def test_the_documented_list_checks_have_teeth() -> None:
     assert re.findall(SECTION_LINE, "  10. `quality`: `quality` (leave-one-out).\n", re.M) == [("quality", "`quality` (leave-one-out).")]
 
 
+# ---- one place for a repeated concept: CRS transformers ---------------------------------------
+
+# Where a pyproj transformer may be built with its own axis order: the one place
+# (solver.geometry.geodesy.transformer), the simulator (the independent truth: PROJ on its own),
+# and the vertical datums' TransformerGroup (it picks among PROJ's operations by their grids).
+TRANSFORMER_BUILDERS = ("solver/geometry/geodesy.py", "solver/simulate/", "solver/geometry/vertical.py")
+
+
+def transformer_builds(source: str) -> list[int]:
+    """Lines of ``source`` that build a pyproj transformer (``Transformer.from_crs``,
+    ``Transformer.from_pipeline``, ``Transformer.from_proj``, ``TransformerGroup(...)``)."""
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Call):
+            f = node.func
+            if isinstance(f, ast.Attribute) and f.attr.startswith("from_") and getattr(f.value, "id", None) == "Transformer":
+                out.append(node.lineno)
+            elif getattr(f, "id", None) == "TransformerGroup":
+                out.append(node.lineno)
+    return out
+
+
+def test_transformers_are_built_in_one_place() -> None:
+    builds = {}
+    for file in sorted((ROOT / "solver").rglob("*.py")) + sorted((ROOT / "service").rglob("*.py")):
+        rel = str(file.relative_to(ROOT))
+        if not rel.startswith(TRANSFORMER_BUILDERS) and (lines := transformer_builds(file.read_text())):
+            builds[rel] = lines
+    assert builds == {}
+
+
+def test_the_transformer_scan_has_teeth() -> None:
+    source = ("t = Transformer.from_crs(a, b, always_xy=True)\nu = transformer(a, b)\n"
+              "g = TransformerGroup(a, b)\nv = Transformer.from_pipeline(p)\nw = CRS.from_epsg(4326)\n")
+    assert transformer_builds(source) == [1, 3, 4]
+
+
 # ---- platform models: the checklist of docs/architecture.md holds ------------------------------
 
 def _platform_checklist() -> str:

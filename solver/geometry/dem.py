@@ -215,7 +215,7 @@ def ellipsoidal_grid(dem: Dem) -> np.ndarray:
     a, b, c, d, e, f = dem.transform
     cc, rr = np.meshgrid(np.arange(cols) + 0.5, np.arange(rows) + 0.5)
     x, y = c + a * cc + b * rr, f + d * cc + e * rr
-    lon, lat = Transformer.from_crs(dem.crs, CRS.from_epsg(4326), always_xy=True).transform(x.ravel(), y.ravel())
+    lon, lat = transformer(dem.crs, "EPSG:4326").transform(x.ravel(), y.ravel())
     return dem.values + dem.vertical.undulation(np.asarray(lon), np.asarray(lat)).reshape(rows, cols)
 
 
