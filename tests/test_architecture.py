@@ -237,8 +237,8 @@ def test_documented_report_sections_are_the_registry() -> None:
 
 
 def test_documented_readers_are_the_registry() -> None:
-    """The sensor formats in the order they are tried, the module of their product (or of their
-    detection) and the XML roots the job builder learns."""
+    """The sensor formats in the order they are tried, the module that reads them (its product's;
+    a format without a product type: its detection's) and the XML roots the job builder learns."""
     from solver.sensors import readers
 
     documented = [(name, path, tuple(re.findall(r"`(\w+)`", rest)))
