@@ -31,7 +31,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--report", type=Path, help="the job's report (adjusted orientation; default: the job's initial one)")
     p.add_argument("-o", "--output", type=Path, required=True, help="measurement CSV to write (image,point,line,column,sigma_px)")
     p.add_argument("--summary", type=Path, help="JSON summary to write (pairs, matches per pair, spread, precision)")
-    p.add_argument("--heights", help="terrain height range MIN,MAX (ellipsoidal m; default: the job's points +- 100 m, or the RPCs' range)")
+    p.add_argument("--heights", help="terrain height range MIN,MAX (ellipsoidal m; default: the DEM's heights under the images +- 50 m "
+                   "with --dem, else the job's points +- 100 m, or the RPCs' whole range)")
+    p.add_argument("--dem", type=Path, help="DEM of the area (GDAL, georeferenced): narrows the height range to the terrain's, "
+                   "for shorter search bands (not with --heights)")
+    p.add_argument("--dem-vertical", metavar="DATUM", help="the DEM's vertical datum where its file does not state it: ellipsoid, "
+                   "egm96 (SRTM), egm2008 (Copernicus DEM) or a vertical CRS (EPSG:code); see docs/datum.md")
     p.add_argument("--search-px", type=float, default=d.search_px, help=f"half-width of the search band: the orientation's uncertainty in pixels (default {d.search_px:g})")
     p.add_argument("--grid", type=int, default=d.grid, help=f"tiles / thinning cells per image side (default {d.grid})")
     p.add_argument("--per-cell", type=int, default=d.per_cell, help=f"tie points kept per cell of each image (default {d.per_cell})")
@@ -118,6 +123,14 @@ def cmd_match_gcp(args: argparse.Namespace) -> int:
     return 0
 
 
+def _write_summary(path: Path | None, summary: dict | None) -> str:
+    """Write ``summary`` (JSON) to ``path`` when both are given; the words a message adds."""
+    if path is None or summary is None:
+        return " (--summary FILE writes the counts per pair)" if summary is not None else ""
+    path.write_text(json.dumps(summary, indent=1))
+    return f" (counts per pair in {path})"
+
+
 def _fail(message: str, command: str = "match") -> int:
     print(f"pba {command}: {message}", file=sys.stderr)
     return 2
@@ -177,7 +190,7 @@ def cmd_match(args: argparse.Namespace) -> int:
     from solver.errors import JobError
     from solver.gis.model import ModelMismatch
     from solver.matching.orientation import OrientationError
-    from solver.matching.pipeline import MatchError, match_images, measurements_csv
+    from solver.matching.pipeline import MatchError, failure_advice, match_images, measurements_csv
     from solver.matching.raster import RasterError
 
     os.environ.setdefault("GDAL_CACHEMAX", GDAL_CACHE_MB)  # before GDAL's first read allocates its cache
@@ -185,8 +198,16 @@ def cmd_match(args: argparse.Namespace) -> int:
     try:
         settings = settings_from_args(args)
         images, heights = load_images(args)
+        if args.dem is not None:
+            from solver.matching.heights import dem_height_range
+
+            if args.heights:
+                raise ValueError("give --heights or --dem, not both")
+            heights = dem_height_range(images, heights, args.dem, args.dem_vertical)
         result = match_images(images, heights, settings, _bar(not args.quiet))
-    except (RasterError, OrientationError, MatchError, ModelMismatch, ValueError) as exc:
+    except MatchError as exc:
+        return _fail(str(exc) + _write_summary(args.summary, exc.summary))
+    except (RasterError, OrientationError, ModelMismatch, ValueError) as exc:
         return _fail(str(exc))
     except ValidationError as exc:
         return _fail(f"{args.job}: invalid job document: " + "; ".join(f"{'/'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors()[:5]))
@@ -196,13 +217,15 @@ def cmd_match(args: argparse.Namespace) -> int:
         for im in images:
             im.raster.close()
     if not result.measurements:
-        return _fail("no tie point survived the checks (see --summary for the counts per pair)")
+        return _fail("no tie point survived the checks: " + failure_advice(result.summary) + _write_summary(args.summary, result.summary))
     args.output.write_text(measurements_csv(result.measurements))
-    if args.summary:
-        args.summary.write_text(json.dumps(result.summary, indent=1))
+    _write_summary(args.summary, result.summary)
     s = result.summary
     print(f"{args.output}: {s['tie_points']} tie points, {s['measurements']} measurements in {len(s['images'])} images "
-          f"({len(s['pairs'])} overlapping pairs; median sigma {s['median_sigma_px']} px)")
+          f"({len(s['pairs'])} overlapping pairs)")
+    for im in s["images"]:
+        print(f"  {im['id']}: {im['tie_points']} tie points, {round(100 * im['cells_covered'])}% of its cells, "
+              + (f"sigma {im['sigma_px']} px" if im["sigma_px"] is not None else "the reference of its tie points"))
     for row in s["pairs"]:
         print(f"  {row['images'][0]}-{row['images'][1]}: {row.get('matched', 0)} matches, {row['removed_epipolar']} removed by the epipolar check, "
               f"{row['tie_points']} tie points, sigma {row['sigma_px']} px")

@@ -32,7 +32,12 @@ MIN_OVERLAP = 0.004  # fraction of the prediction grid (at least ~1 node of 17 x
 
 
 class MatchError(ValueError):
-    """Matching cannot start or found nothing (the message says why)."""
+    """Matching cannot start or found nothing (the message says why and what to try);
+    ``summary``: what was found up to there (the pairs tried and their overlap)."""
+
+    def __init__(self, message: str, summary: dict[str, Any] | None = None):
+        super().__init__(message)
+        self.summary = summary
 
 
 @dataclass
@@ -95,15 +100,22 @@ def match_images(images: list[MatchImage], heights: tuple[float, float], setting
 
     pairs = []
     overlaps = {}
+    tried = []
     for i, j in candidate_pairs(images, heights):
         f = mapping(i, j).overlap_fraction()
+        tried.append({"images": [images[i].id, images[j].id], "overlap_fraction": round(f, 3)})
         if f >= MIN_OVERLAP:
             pairs.append((i, j))
             overlaps[(i, j)] = f
     if not pairs:
         raise MatchError(
-            f"no two images overlap at terrain heights {heights[0]:.0f} to {heights[1]:.0f} m "
-            f"(images: {', '.join(im.id for im in images)}); if they do overlap, give a height range that holds the terrain (--heights)"
+            f"no two images overlap at any terrain height from {heights[0]:.0f} to {heights[1]:.0f} m "
+            f"(images: {', '.join(im.id for im in images)}; {len(tried)} pairs with intersecting footprints); "
+            "if they show the same area, give a height range that holds the terrain (--heights MIN,MAX, ellipsoidal) "
+            "or an orientation closer to the truth (--job with --report)",
+            {"images": [{"id": im.id, "lines": im.lines, "columns": im.columns} for im in images],
+             "height_range_m": [float(heights[0]), float(heights[1])], "pairs": [], "pairs_tried": tried,
+             "tie_points": 0, "measurements": 0, "settings": asdict(settings)},
         )
     say(0.05, "features")
     matches: list[PairMatches] = []
@@ -184,6 +196,7 @@ def _summary(images, heights, settings, pairs, overlaps, matches, tracks, incons
         row = {"images": [images[i].id, images[j].id], "overlap_fraction": round(overlaps[(i, j)], 3)}
         row.update({k: int(v) for k, v in pm.counts.items()})
         row["removed_epipolar"] = removed.get((i, j), 0)
+        row["rejected"] = _rejections(pm.counts, removed.get((i, j), 0))
         row["tie_points"] = both
         row["scatter_px"] = round(sigmas[(i, j)], 3) if (i, j) in sigmas else None
         row["sigma_px"] = round(other_sigma(sigmas[(i, j)]), 3) if (i, j) in sigmas else None
@@ -191,13 +204,16 @@ def _summary(images, heights, settings, pairs, overlaps, matches, tracks, incons
     image_rows = []
     for k, im in enumerate(images):
         cells = {cell_of(r[k][0], im.lines, im.columns, settings.grid) for r in refined if k in r}
+        own = [other_sigma(sigmas[(min(r), k)]) for r in refined if k in r and k != min(r)]
         image_rows.append({"id": im.id, "lines": im.lines, "columns": im.columns, "tie_points": sum(1 for r in refined if k in r),
-                           "cells_covered": round(len(cells) / settings.grid**2, 3)})
+                           "cells_covered": round(len(cells) / settings.grid**2, 3),
+                           "sigma_px": round(float(np.median(own)), 3) if own else None,
+                           "reference_measurements": sum(1 for r in refined if k in r and k == min(r))})
     lengths: dict[str, int] = {}
     for r in refined:
         lengths[str(len(r))] = lengths.get(str(len(r)), 0) + 1
     ncc = [v[1] for r in refined for m, v in r.items() if m != min(r)]
-    sig = [m["sigma_px"] for m in measurements]
+    sig = [other_sigma(sigmas[(min(r), m)]) for r in refined for m in r if m != min(r)]  # the reference's is a convention
     return {
         "images": image_rows,
         "height_range_m": [float(heights[0]), float(heights[1])],
@@ -212,3 +228,36 @@ def _summary(images, heights, settings, pairs, overlaps, matches, tracks, incons
         "median_sigma_px": round(float(np.median(sig)), 3) if sig else None,
         "settings": asdict(settings),
     }
+
+
+def _rejections(counts: dict[str, int], removed_epipolar: int) -> dict[str, int]:
+    """A pair's features lost at each stage: no candidate in the band, the ratio test, the
+    mutual check, RANSAC (including tiles with too few matches for it), the epipolar check."""
+    get = counts.get
+    return {
+        "no_candidate_in_band": get("features", 0) - get("candidates", 0),
+        "ratio_test": get("candidates", 0) - get("ratio", 0),
+        "mutual_check": get("ratio", 0) - get("mutual", 0),
+        "ransac": get("mutual", 0) - get("matched", 0),
+        "epipolar_check": removed_epipolar,
+    }
+
+
+def failure_advice(summary: dict[str, Any]) -> str:
+    """What to try when matching found no tie point, from the summary's counts."""
+    pairs = summary.get("pairs") or []
+    features = sum(p.get("features", 0) for p in pairs)
+    candidates = sum(p.get("candidates", 0) for p in pairs)
+    matched = sum(p.get("matched", 0) for p in pairs)
+    lo, hi = summary.get("height_range_m", [0.0, 0.0])
+    search = (summary.get("settings") or {}).get("search_px")
+    if not features:
+        return "no feature was found in the overlap: check that the rasters hold texture (not nodata, not saturated)"
+    if candidates < 0.05 * features:
+        return (f"few features had a candidate in their band: the orientation is further off than --search-px ({search:g} px) "
+                f"or the terrain is outside {lo:.0f} to {hi:.0f} m: widen --search-px or give --heights MIN,MAX")
+    if not matched:
+        return (f"candidates were found but none passed the ratio, mutual and RANSAC checks: the images may not show the same "
+                f"scene (dates, clouds), or the orientation is off by more than --search-px ({search:g} px): try a wider --search-px")
+    return ("matches were found but lost in the correlation or the epipolar check: try a lower --min-ncc, or a wider --search-px "
+            "when the orientation is poor")

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 MAX_SIDE_PX = 1_000_000  # an image side beyond this is refused (no sensor delivers it)
+MIN_SIDE_PX = 32  # a side below this holds no correlation template with its search (2 x 12 + 1 + 2 x 3 px)
 STATS_SIZE = 1024  # long side of the decimated read for the 8-bit stretch
 DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
 
@@ -63,6 +64,9 @@ class Raster:
         if dtype not in DTYPES:
             gated.close()
             raise RasterError(f"{path}: pixel type {dtype} is not supported (8 to 32-bit integers or floats)")
+        if min(ds.height, ds.width) < MIN_SIDE_PX:
+            gated.close()
+            raise RasterError(f"{path}: {ds.width} x {ds.height} pixels is too small to match (at least {MIN_SIDE_PX} x {MIN_SIDE_PX})")
         try:
             rpcs = ds.rpcs.to_gdal() if ds.rpcs is not None else None
         except (KeyError, ValueError):

@@ -43,7 +43,7 @@ def run_matching(
     nothing matched; located at the job's image) and :class:`Cancelled`."""
     from solver.gis.model import ModelMismatch
     from solver.matching.orientation import OrientationError, images_from_job
-    from solver.matching.pipeline import MatchError, match_images
+    from solver.matching.pipeline import MatchError, failure_advice, match_images
     from solver.matching.raster import RasterError
 
     def hook(fraction: float, message: str) -> None:
@@ -66,10 +66,11 @@ def run_matching(
     except (RasterError, OrientationError, ModelMismatch) as exc:
         raise located(str(exc)) from None
     except MatchError as exc:
-        raise JobError(Problem("no_tie_points", str(exc))) from None
+        raise JobError(Problem("no_tie_points", str(exc), detail={"summary": exc.summary} if exc.summary else {})) from None
     finally:
         for im in images:
             im.raster.close()
     if not result.measurements:
-        raise JobError(Problem("no_tie_points", "no tie point survived the checks (the summary's counts per pair say where they were lost)"))
+        raise JobError(Problem("no_tie_points", "no tie point survived the checks: " + failure_advice(result.summary),
+                               detail={"summary": result.summary}))
     return {"kind": RESULT_KIND, "observations": result.measurements, "summary": result.summary}

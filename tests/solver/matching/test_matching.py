@@ -254,6 +254,54 @@ def test_bad_rasters_exit_2(triplet, rpc_pair, tmp_path, capsys):
     _fails(["match", str(far / "back.tif"), str(far / "fwd.tif"), "-o", out, "-q", "--heights", "100,1300"], capsys, "no two images overlap")
 
 
+def test_failures_write_the_summary_and_say_what_to_try(triplet, rpc_pair, tmp_path, capsys):
+    """Every outcome writes the summary; a failure names what to try; a raster too small to
+    match is named as such (not as 'no overlap')."""
+    _scene, _job, d, paths = triplet
+    _s, e, rpc_paths = rpc_pair
+    out, summary = str(tmp_path / "t.csv"), tmp_path / "summary.json"
+    # 1 x 1 pixels
+    tiny = tmp_path / "back.tif"
+    with rasterio.open(tiny, "w", driver="GTiff", width=1, height=1, count=1, dtype="uint8") as dst:
+        dst.write(np.zeros((1, 1), np.uint8), 1)
+    _fails(["match", str(tiny), str(paths[1]), "--job", str(d / "sim.json"), "-o", out, "-q"], capsys, "back.tif", "1 x 1 pixels", "too small")
+    # no overlap at any height: fwd's RPC one degree east; the summary lists the pairs tried
+    far = tmp_path / "far"
+    far.mkdir()
+    for p in rpc_paths:
+        shutil.copyfile(p, far / p.name)
+        side = p.with_name(p.stem + "_RPC.TXT").read_text()
+        if p.stem == "fwd":
+            side = "\n".join(ln if not ln.startswith("LONG_OFF") else f"LONG_OFF: {float(ln.split()[1]) + 1.0} degrees" for ln in side.splitlines()) + "\n"
+        (far / (p.stem + "_RPC.TXT")).write_text(side)
+    _fails(["match", str(far / "back.tif"), str(far / "fwd.tif"), "-o", out, "--summary", str(summary), "-q"], capsys,
+           "no two images overlap", "--heights", str(summary))
+    s = json.loads(summary.read_text())
+    assert s["tie_points"] == 0 and s["pairs"] == [] and len(s["pairs_tried"]) <= 1
+    assert s["height_range_m"][0] <= 100.0 and s["height_range_m"][1] >= 1300.0  # the RPCs' whole range (fitted over 100-1300 m)
+    # the same scene's geometry over noise: candidates in the band, no match; the summary says
+    # where the features were lost and the message what to try
+    noise = tmp_path / "noise"
+    noise.mkdir()
+    shutil.copyfile(rpc_paths[0], noise / "back.tif")
+    shutil.copyfile(rpc_paths[0].with_name("back_RPC.TXT"), noise / "back_RPC.TXT")
+    with rasterio.open(rpc_paths[1]) as src:
+        shape, dtype = (src.height, src.width), src.dtypes[0]
+    rng = np.random.default_rng(0)
+    with rasterio.open(noise / "fwd.tif", "w", driver="GTiff", width=shape[1], height=shape[0], count=1, dtype=dtype) as dst:
+        dst.write(rng.integers(1000, 3000, size=shape).astype(dtype), 1)
+    shutil.copyfile(rpc_paths[1].with_name("fwd_RPC.TXT"), noise / "fwd_RPC.TXT")
+    summary.unlink()
+    _fails(["match", str(noise / "back.tif"), str(noise / "fwd.tif"), "-o", out, "--summary", str(summary), "-q", *GRID], capsys,
+           "no tie point survived", "--search-px", str(summary))
+    s = json.loads(summary.read_text())
+    (pair,) = s["pairs"]
+    assert pair["candidates"] > 0 and pair["tie_points"] == 0
+    lost = pair["rejected"]
+    assert sum(lost.values()) == pair["features"] - pair["matched"] + pair["removed_epipolar"]
+    assert lost["ratio_test"] + lost["mutual_check"] + lost["ransac"] > 0
+
+
 def test_job_match_adds_tie_points(triplet):
     """``pba job ... --match`` (its helper on a composed job): the matched tie points join the
     job as tie points with their measurements, ids clear of the job's own, and the job is valid."""

@@ -32,11 +32,15 @@ DATA = Path(__file__).parents[2] / "data" / "matching"
 SIGMA0_BAND = (0.85, 1.15)
 BIAS_PRIOR_PX = 10.0  # a-priori sigma of each image's RPC shift (Pleiades: ~10 m, 0.5 m pixels)
 MIN_TIE_POINTS = 50
-# (first image, second image, terrain height range MIN,MAX or None for the RPCs' own)
+DEM = DATA.parent / "dem" / "srtm_ventoux.tif"  # SRTM (EGM96 heights) of the Ventoux area
+# (first image, second image, the terrain's height range MIN,MAX for --heights)
 PAIRS = {
     "ventoux": ("ventoux_left", "ventoux_right", "400,700"),  # SRTM: 440-550 m + geoid ~50 m
-    "gizeh": ("gizeh_img1", "gizeh_img2", None),  # the RPCs' 10-270 m
+    "gizeh": ("gizeh_img1", "gizeh_img2", None),
 }
+# the matching's options: the Ventoux pair's range from the DEM, Giza's the RPCs' whole range
+# (10-270 m) by default
+OPTIONS = {"ventoux": ["--dem", str(DEM), "--dem-vertical", "egm96"], "gizeh": []}
 
 
 def _rpc_job(ids: list[str], measurements: list[dict], options: dict | None = None) -> dict:
@@ -57,17 +61,22 @@ def _rpc_job(ids: list[str], measurements: list[dict], options: dict | None = No
 
 @pytest.fixture(scope="module", params=sorted(PAIRS))
 def matched_pair(request, tmp_path_factory):
-    a, b, heights = PAIRS[request.param]
+    a, b, _heights = PAIRS[request.param]
     d = tmp_path_factory.mktemp(request.param)
     out, summary = d / "ties.csv", d / "summary.json"
     argv = ["match", str(DATA / f"{a}.tif"), str(DATA / f"{b}.tif"), "-o", str(out), "--summary", str(summary), "-q"]
-    assert main(argv + (["--heights", heights] if heights else [])) == 0
+    assert main(argv + OPTIONS[request.param]) == 0
     return request.param, [a, b], read_measurements(out.read_text(), "ties.csv"), json.loads(summary.read_text())
 
 
 def test_real_pair_is_matched(matched_pair):
-    _name, ids, measurements, summary = matched_pair
+    name, ids, measurements, summary = matched_pair
     assert summary["tie_points"] >= MIN_TIE_POINTS, summary
+    lo, hi = summary["height_range_m"]
+    if name == "ventoux":  # the DEM's heights under the images (SRTM 440-600 m + the geoid's 50 m) +- 50 m
+        assert 380.0 < lo < 500.0 and 600.0 < hi < 720.0, (lo, hi)
+    else:  # the RPCs' whole range: offset 140 m +- scale 130 m
+        assert (lo, hi) == (pytest.approx(10.0), pytest.approx(270.0))
     assert {m["image"] for m in measurements} == set(ids)
     (pair,) = summary["pairs"]
     assert pair["tie_points"] == summary["tie_points"]

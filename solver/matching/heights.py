@@ -1,0 +1,82 @@
+"""The terrain's height range for matching, narrowed by a DEM.
+
+Without a DEM the range is the orientation's (the RPCs' whole range, or the job's points
++- 100 m: :mod:`solver.matching.orientation`), and matching searches all of it. With a DEM
+(``pba match --dem``), the range is the DEM's ellipsoidal heights under the images' footprints
+(over the orientation's range) widened by :data:`DEM_MARGIN_M`: shorter search bands, fewer
+candidates, faster matching.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from solver.matching.orientation import MatchImage, OrientationError
+
+DEM_MARGIN_M = 50.0  # the DEM's error (SRTM, Copernicus: 5-16 m) and what a sampled grid can miss between cells
+MAX_SAMPLES_PER_SIDE = 513  # DEM samples per side of the images' footprint box (at most one per DEM cell)
+FOOTPRINT_NODES = 9  # points per image edge for the footprint
+
+
+def footprint_lon_lat(images: list[MatchImage], heights: tuple[float, float]) -> tuple[float, float, float, float] | None:
+    """(west, south, east, north) degrees of the images' borders on the ground at the lowest and
+    the highest height; None when no border point reaches the ground."""
+    from solver.geometry.geodesy import ecef_to_geodetic
+
+    t = np.linspace(0, 1, FOOTPRINT_NODES)
+    lon, lat = [], []
+    for im in images:
+        L, C = im.lines - 1.0, im.columns - 1.0
+        line = np.concatenate([t * L, t * L, np.zeros_like(t), np.full_like(t, L)])
+        col = np.concatenate([np.zeros_like(t), np.full_like(t, C), t * C, t * C])
+        for h in heights:
+            with np.errstate(all="ignore"):
+                llh = ecef_to_geodetic(im.model.image_to_ground(line, col, height_m=float(h)))
+            ok = np.all(np.isfinite(llh), axis=1)
+            lon.append(llh[ok, 0])
+            lat.append(llh[ok, 1])
+    lon_a, lat_a = np.concatenate(lon), np.concatenate(lat)
+    if not lon_a.size:
+        return None
+    return float(lon_a.min()), float(lat_a.min()), float(lon_a.max()), float(lat_a.max())
+
+
+def dem_height_range(images: list[MatchImage], heights: tuple[float, float], dem_path: Path, vertical: str | None = None) -> tuple[float, float]:
+    """The DEM's ellipsoidal heights (its vertical datum from the file or ``vertical``) under the
+    images' footprints over ``heights``, +- :data:`DEM_MARGIN_M`. Raises
+    :class:`OrientationError` when the DEM cannot be read or does not cover the images."""
+    from solver.geometry.dem import DemError, read_dem
+    from solver.geometry.vertical import VerticalDatumError
+
+    box = footprint_lon_lat(images, heights)
+    if box is None:
+        raise OrientationError("the images' footprints do not reach the ground: no DEM range")
+    try:
+        dem = read_dem(dem_path, vertical, bounds_lon_lat=box)
+    except (DemError, VerticalDatumError) as exc:
+        raise OrientationError(f"--dem: {exc}") from None
+    lo, hi = _sampled_range(dem, box)  # the terrain under the widest footprint ...
+    if lo is not None:
+        box = footprint_lon_lat(images, (lo, hi)) or box  # ... then under the footprint at the DEM's heights
+    h_lo, h_hi = _sampled_range(dem, box, need=0.5)
+    if h_lo is None:
+        west, south, east, north = box
+        raise OrientationError(f"--dem {Path(dem_path).name}: the DEM does not cover the images' footprints "
+                               f"({west:.4f} to {east:.4f} E, {south:.4f} to {north:.4f} N)")
+    return float(np.floor(h_lo - DEM_MARGIN_M)), float(np.ceil(h_hi + DEM_MARGIN_M))
+
+
+def _sampled_range(dem, box: tuple[float, float, float, float], need: float = 0.0) -> tuple[float | None, float | None]:
+    """The lowest and highest ellipsoidal DEM height on a grid over ``box`` (about one sample per
+    DEM cell); (None, None) when fewer than ``need`` of the samples have a height."""
+    west, south, east, north = box
+    size_m = max(east - west, north - south) * 111_000.0
+    n = int(np.clip(np.ceil(size_m / max(dem.cell_m, 1e-3)) + 1, 33, MAX_SAMPLES_PER_SIDE))
+    lon, lat = np.meshgrid(np.linspace(west, east, n), np.linspace(south, north, n))
+    h = dem.height(lon.ravel(), lat.ravel())
+    h = h[np.isfinite(h)]
+    if not h.size or h.size < need * lon.size:
+        return None, None
+    return float(h.min()), float(h.max())
