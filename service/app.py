@@ -75,7 +75,7 @@ def _start_services(settings: Settings) -> Services:
         jobs=JobService(settings, store, backend),
         metrics=Metrics(store, backend),
         local_user=None if settings.auth_required else local_user(store),
-        gis=GisProcess(settings.resolved_database_url),
+        gis=GisProcess(settings.resolved_database_url, settings.gis_processes, settings.gis_small_rows),
     )
     backend.start()
     return services

@@ -5,11 +5,14 @@ Those use cases (:mod:`service.gis_results`) rebuild a job's adjusted model and 
 solver's compiled kernels: numba alone is about 125 MB of a process, an adjusted model and its
 fitted RPCs tens of MB more. The API process must stay small and predictable whatever a user
 asks (a hostile or merely large request may not grow it), so the endpoints hand the job's id and
-the request's arguments to one ``spawn``-started process (started with ``pba serve``, or by
-the first GIS request of an app run otherwise; stopped with the server) that opens the same store, loads the job itself and keeps the caches
-of :mod:`service.gis_results` (adjusted models, one fit per job, image and chip). A problem it
-raises (404, 409, 422) comes back as the same problem document; a crash of that process is a 503
-and the next request starts a new one.
+the request's arguments to ``spawn``-started processes (started with ``pba serve``, or by
+the first GIS request of an app run otherwise; stopped with the server) that open the same store,
+load the job themselves and keep the caches of :mod:`service.gis_results` (adjusted models, one
+fit per job, image and chip). A problem one raises (404, 409, 422) comes back as the same problem
+document; a crash of one is a 503 and the next request starts a new one.
+
+Requests are shared fairly (:class:`GisProcess`): small transforms have a process of their own,
+and within each lane a free process goes to the user with the fewest requests running.
 """
 
 from __future__ import annotations
@@ -22,14 +25,17 @@ import threading
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
 from typing import Any
 
 from service.errors import NoSuchJob, ServiceError
+from service.fair_slots import FairSlots
 
 log = logging.getLogger("pba.gis")
 
 PROCESS_NAME = "pba-gis"
 USE_CASES = ("rpc_document", "geojson", "ground_to_image", "image_to_ground")
+ROW_USE_CASES = ("ground_to_image", "image_to_ground")  # whose cost is their rows
 
 
 class GisUnavailable(ServiceError):
@@ -112,54 +118,89 @@ def _rebuilt(fields: dict[str, Any]) -> ServiceError:
     return exc
 
 
+@dataclass
+class _Lane:
+    """Processes of one kind of request: a pool of ``processes`` and as many fair slots."""
+
+    name: str
+    processes: int
+    slots: FairSlots
+    pool: ProcessPoolExecutor | None = None
+
+
 class GisProcess:
-    """The GIS computation process of one server (started lazily, restarted after a crash)."""
+    """The GIS computation processes of one server (started lazily, restarted after a crash).
 
-    def __init__(self, database_url: str) -> None:
+    Two lanes, each a pool of processes with fair slots (:class:`service.fair_slots.FairSlots`):
+    transforms of at most ``small_rows`` rows go to the small lane (one process), everything else
+    (larger transforms, RPC fits, GeoJSON) to the general lane (``processes`` processes). A
+    1-row transform therefore never waits behind another user's 10,000-row one, and within a
+    lane users take turns (docs/server-limits.md "GIS requests")."""
+
+    def __init__(self, database_url: str, processes: int = 1, small_rows: int = 100) -> None:
         self.database_url = database_url
+        self.small_rows = small_rows
+        self.lanes = {
+            "general": _Lane("general", processes, FairSlots(processes)),
+            "small": _Lane("small", 1, FairSlots(1)),
+        }
         self._lock = threading.Lock()
-        self._pool: ProcessPoolExecutor | None = None
 
-    def _executor(self) -> ProcessPoolExecutor:
+    def lane_of(self, use_case: str, rows: int | None) -> _Lane:
+        """The small lane for transforms of at most ``small_rows`` rows, else the general one."""
+        small = use_case in ROW_USE_CASES and rows is not None and rows <= self.small_rows
+        return self.lanes["small" if small else "general"]
+
+    def _executor(self, lane: _Lane) -> ProcessPoolExecutor:
         with self._lock:
-            if self._pool is None:
-                self._pool = ProcessPoolExecutor(
-                    max_workers=1, mp_context=mp.get_context("spawn"), initializer=_open, initargs=(self.database_url,)
+            if lane.pool is None:
+                lane.pool = ProcessPoolExecutor(
+                    max_workers=lane.processes, mp_context=mp.get_context("spawn"), initializer=_open, initargs=(self.database_url,)
                 )
-            return self._pool
+            return lane.pool
 
-    def _discard(self, pool: ProcessPoolExecutor) -> None:
+    def _discard(self, lane: _Lane, pool: ProcessPoolExecutor) -> None:
         with self._lock:
-            if self._pool is pool:
-                self._pool = None
+            if lane.pool is pool:
+                lane.pool = None
         pool.shutdown(wait=False, cancel_futures=True)
 
     def start(self) -> None:
-        """Start the process now and load its libraries in the background (``pba serve`` does,
-        so that the first GIS request does not wait for them)."""
+        """Start the processes now and load their libraries in the background (``pba serve``
+        does, so that the first GIS request does not wait for them)."""
         def report(future: Future) -> None:
             if not future.cancelled() and future.exception() is not None:
-                log.warning("the GIS process did not warm up: %s", future.exception())
+                log.warning("a GIS process did not warm up: %s", future.exception())
 
-        self._executor().submit(_warm).add_done_callback(report)
+        for lane in self.lanes.values():
+            pool = self._executor(lane)
+            for _ in range(lane.processes):
+                pool.submit(_warm).add_done_callback(report)
 
-    async def call(self, use_case: str, job_id: str, *args: Any) -> Any:
-        """Run ``service.gis_results.<use_case>(job, *args)`` in the GIS process."""
+    async def call(self, use_case: str, job_id: str, *args: Any, owner: str = "", rows: int | None = None) -> Any:
+        """Run ``service.gis_results.<use_case>(job, *args)`` in a GIS process of the request's
+        lane, when the fair order gives ``owner`` (the caller) a slot; ``rows``: a transform's
+        row count."""
         if use_case not in USE_CASES:
             raise ValueError(f"unknown GIS use case {use_case!r}")
-        pool = self._executor()
-        try:
-            status, value = await asyncio.get_running_loop().run_in_executor(pool, _run, use_case, job_id, args)
-        except BrokenProcessPool as exc:
-            log.error("the GIS process stopped during %s of job %s; the next request starts a new one", use_case, job_id)
-            self._discard(pool)
-            raise GisUnavailable("the process computing RPCs and transforms stopped; retry the request") from exc
+        lane = self.lane_of(use_case, rows)
+        async with lane.slots.slot(owner):
+            pool = self._executor(lane)
+            try:
+                status, value = await asyncio.get_running_loop().run_in_executor(pool, _run, use_case, job_id, args)
+            except BrokenProcessPool as exc:
+                log.error("the %s GIS process stopped during %s of job %s; the next request starts a new one", lane.name, use_case, job_id)
+                self._discard(lane, pool)
+                raise GisUnavailable("the process computing RPCs and transforms stopped; retry the request") from exc
         if status == "problem":
             raise _rebuilt(value)
         return value
 
     def stop(self) -> None:
         with self._lock:
-            pool, self._pool = self._pool, None
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
+            pools = [lane.pool for lane in self.lanes.values()]
+            for lane in self.lanes.values():
+                lane.pool = None
+        for pool in pools:
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)

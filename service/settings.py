@@ -129,6 +129,19 @@ class Settings(BaseSettings):
         le=16,
         description="local workers beside PBA_WORKERS that only take small-lane jobs (none when PBA_WORKERS=0)",
     )
+    # -- GIS requests (docs/server-limits.md "GIS requests") -----------------------------------
+    gis_processes: int = Field(
+        1,
+        ge=1,
+        le=16,
+        description="GIS processes for RPC fits, GeoJSON and large transforms (beside the one for small transforms)",
+    )
+    gis_small_rows: int = Field(
+        100,
+        ge=0,
+        le=10_000,
+        description="transforms of at most this many rows go to the GIS process kept for small requests",
+    )
     # -- distributed queue (PBA_QUEUE=celery; docs/how-to/scale-out.md) -----------------
     broker_url: str = Field(
         "redis://127.0.0.1:6379/0", description="Celery broker URL (PBA_QUEUE=celery)"

@@ -16,7 +16,7 @@ from fastapi import APIRouter, Query
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, ConfigDict, Field
 
-from service.deps import ServicesDep, VisibleJob
+from service.deps import CurrentUser, ServicesDep, VisibleJob
 from service.errors import problem_responses
 
 router = APIRouter(prefix="/jobs", tags=["gis"])
@@ -66,12 +66,12 @@ ChipQuery = Annotated[str | None, Query(max_length=64, description="one CCD chip
     response_class=Response,
     responses={200: {"description": "the RPC file", "content": {RPC_MEDIA: {"schema": {"type": "string"}}}}, **problem_responses(401, 404, 409, 503)},
 )
-async def get_rpc(job: VisibleJob, services: ServicesDep, image: str, format: FormatQuery = "txt", chip: ChipQuery = None) -> Response:
+async def get_rpc(job: VisibleJob, user: CurrentUser, services: ServicesDep, image: str, format: FormatQuery = "txt", chip: ChipQuery = None) -> Response:
     """The RPC00B of one adjusted image fitted to the adjusted rigorous model. Its image
     coordinates put the centre of the top-left pixel at (0, 0); GDAL's transformer adds half a
     pixel. Headers: ``X-RPC-Check-RMS-Px``, ``X-RPC-Check-Max-Px`` (fit on an independent check
     grid) and a ``Warning`` for the whole-image RPC of a multi-chip image."""
-    text, fit = await services.gis.call("rpc_document", job.id, image, format, chip or None)
+    text, fit = await services.gis.call("rpc_document", job.id, image, format, chip or None, owner=user.id)
     stem = image if chip is None else f"{image}_{chip}"
     name = f"{stem}_RPC.TXT" if format == "txt" else f"{stem}.RPB"
     headers = {
@@ -89,22 +89,22 @@ async def get_rpc(job: VisibleJob, services: ServicesDep, image: str, format: Fo
     response_class=JSONResponse,
     responses={200: {"description": "GeoJSON FeatureCollection", "content": {"application/geo+json": {"schema": {"type": "object"}}}}, **problem_responses(401, 404, 409, 503)},
 )
-async def get_geojson(job: VisibleJob, services: ServicesDep) -> JSONResponse:
+async def get_geojson(job: VisibleJob, user: CurrentUser, services: ServicesDep) -> JSONResponse:
     """Control, check and tie points (residual and discrepancy vectors, predicted precision)
     and image footprints as a GeoJSON FeatureCollection (CRS84)."""
-    doc = await services.gis.call("geojson", job.id)
+    doc = await services.gis.call("geojson", job.id, owner=user.id)
     return JSONResponse(doc, media_type="application/geo+json")
 
 
 @router.post("/{jobId}/results/ground-to-image", response_model=TransformResult, responses=problem_responses(401, 404, 409, 422, 503))
-async def post_ground_to_image(job: VisibleJob, services: ServicesDep, body: GroundToImageRequest) -> TransformResult:
+async def post_ground_to_image(job: VisibleJob, user: CurrentUser, services: ServicesDep, body: GroundToImageRequest) -> TransformResult:
     """Image positions of ground points with the adjusted rigorous model."""
-    rows = await services.gis.call("ground_to_image", job.id, body.image, body.points, body.crs, body.sigmas)
+    rows = await services.gis.call("ground_to_image", job.id, body.image, body.points, body.crs, body.sigmas, owner=user.id, rows=len(body.points))
     return TransformResult(jobID=job.id, image=body.image, crs=body.crs, rows=rows)
 
 
 @router.post("/{jobId}/results/image-to-ground", response_model=TransformResult, responses=problem_responses(401, 404, 409, 422, 503))
-async def post_image_to_ground(job: VisibleJob, services: ServicesDep, body: ImageToGroundRequest) -> TransformResult:
+async def post_image_to_ground(job: VisibleJob, user: CurrentUser, services: ServicesDep, body: ImageToGroundRequest) -> TransformResult:
     """Ground coordinates of image positions at given ellipsoidal heights."""
-    rows = await services.gis.call("image_to_ground", job.id, body.image, body.pixels, body.crs, body.sigmas)
+    rows = await services.gis.call("image_to_ground", job.id, body.image, body.pixels, body.crs, body.sigmas, owner=user.id, rows=len(body.pixels))
     return TransformResult(jobID=job.id, image=body.image, crs=body.crs, rows=rows)
