@@ -13,8 +13,6 @@ import asyncio
 import itertools
 import threading
 from collections import Counter
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 
 
@@ -89,15 +87,6 @@ class FairSlots:
             self._waiting.remove(nxt)
             self._grant(nxt.owner)
         nxt.loop.call_soon_threadsafe(_wake, nxt.granted)
-
-    @asynccontextmanager
-    async def slot(self, owner: str) -> AsyncIterator[None]:
-        """A slot for ``owner`` for the duration of the block."""
-        await self.acquire(owner)
-        try:
-            yield
-        finally:
-            self.release(owner)
 
 
 def _wake(granted: asyncio.Future[None]) -> None:

@@ -184,17 +184,30 @@ class GisProcess:
         if use_case not in USE_CASES:
             raise ValueError(f"unknown GIS use case {use_case!r}")
         lane = self.lane_of(use_case, rows)
-        async with lane.slots.slot(owner):
-            pool = self._executor(lane)
-            try:
-                status, value = await asyncio.get_running_loop().run_in_executor(pool, _run, use_case, job_id, args)
-            except BrokenProcessPool as exc:
-                log.error("the %s GIS process stopped during %s of job %s; the next request starts a new one", lane.name, use_case, job_id)
-                self._discard(lane, pool)
-                raise GisUnavailable("the process computing RPCs and transforms stopped; retry the request") from exc
+        await lane.slots.acquire(owner)
+        pool = self._executor(lane)
+        try:
+            computed = pool.submit(_run, use_case, job_id, args)
+        except BaseException as exc:
+            lane.slots.release(owner)
+            if isinstance(exc, BrokenProcessPool):
+                raise self._broken(lane, pool, use_case, job_id) from exc
+            raise
+        # The slot is held until the computation ends, not until the client stops waiting: a
+        # request given up (client gone) leaves no extra work queued in the process.
+        computed.add_done_callback(lambda _: lane.slots.release(owner))
+        try:
+            status, value = await asyncio.wrap_future(computed)
+        except BrokenProcessPool as exc:
+            raise self._broken(lane, pool, use_case, job_id) from exc
         if status == "problem":
             raise _rebuilt(value)
         return value
+
+    def _broken(self, lane: _Lane, pool: ProcessPoolExecutor, use_case: str, job_id: str) -> GisUnavailable:
+        log.error("the %s GIS process stopped during %s of job %s; the next request starts a new one", lane.name, use_case, job_id)
+        self._discard(lane, pool)
+        return GisUnavailable("the process computing RPCs and transforms stopped; retry the request")
 
     def stop(self) -> None:
         with self._lock:
