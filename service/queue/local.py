@@ -26,6 +26,7 @@ import threading
 import time
 from dataclasses import replace
 from datetime import datetime, timezone
+from typing import Any
 
 from service.execution import RunLimits
 from service.queue.worker import WorkerConfig, worker_id, worker_main
@@ -60,6 +61,7 @@ class _Slot:
         self.index = index
         self.small_only = small_only
         self.process: mp.process.BaseProcess | None = None
+        self.ready: Any = None  # set by the worker once warmed up (solver loaded, kernels compiled)
         self.started = 0.0
         self.quick_deaths = 0
         self.next_start = 0.0
@@ -82,6 +84,7 @@ class LocalPoolBackend:
             _Slot(settings.workers + i, small_only=True) for i in range(reserved)
         ]
         self.restarts = 0
+        self.target: Any = worker_main  # a worker process's entry point (picklable)
         self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
@@ -146,12 +149,18 @@ class LocalPoolBackend:
         """Nothing to do: the worker polls the store's cancel flag."""
 
     def ready(self) -> tuple[bool, str]:
-        """Ready when at least one worker is alive (or none are configured)."""
+        """Ready when at least one general worker is alive and warmed up (its solver loaded,
+        its kernels compiled: a fresh installation's first start compiles them for minutes),
+        or when none are configured."""
         if not self.slots:
             return True, "no local workers configured (PBA_WORKERS=0)"
-        alive = self.worker_count()
-        general = sum(1 for s in self.slots if not s.small_only)
-        return alive > 0, f"{alive} of {general} workers alive"
+        general = [s for s in self.slots if not s.small_only]
+        alive = [s for s in general if s.process is not None and s.process.is_alive()]
+        warmed = sum(1 for s in alive if s.ready is not None and s.ready.is_set())
+        text = f"{len(alive)} of {len(general)} workers alive"
+        if warmed < len(alive):
+            text += f", {warmed} ready ({len(alive) - warmed} starting: loading the solver, compiling its kernels)"
+        return warmed > 0, text
 
     def worker_count(self) -> int:
         """General workers alive now (the small-lane workers are not counted: they take no
@@ -169,9 +178,10 @@ class LocalPoolBackend:
     # -- supervision -----------------------------------------------------------------------
     def _spawn(self, slot: _Slot) -> None:
         config = replace(self.config, small_only=True) if slot.small_only else self.config
+        slot.ready = self.ctx.Event()
         p = self.ctx.Process(
-            target=worker_main,
-            args=(config, self.stop_event, self.wake),
+            target=self.target,
+            args=(config, self.stop_event, self.wake, slot.ready),
             name=f"pba-{'small-' if slot.small_only else ''}worker-{slot.index}",
             daemon=True,
         )

@@ -71,8 +71,10 @@ def warm_up() -> None:
         log.warning("solver engine not importable yet: %s", exc)
 
 
-def worker_main(cfg: WorkerConfig, stop: Any, wake: Any) -> None:
-    """Process entry point: loop until ``stop`` is set or the server process is gone."""
+def worker_main(cfg: WorkerConfig, stop: Any, wake: Any, ready: Any = None) -> None:
+    """Process entry point: loop until ``stop`` is set or the server process is gone.
+    ``ready`` (an event, optional) is set once the solver is loaded and its kernels compiled:
+    the server's ``/readyz`` counts the workers that set it."""
     from service.logs import configure_logging
     from service.store import open_store
 
@@ -82,6 +84,8 @@ def worker_main(cfg: WorkerConfig, stop: Any, wake: Any) -> None:
     me = worker_id()
     store = open_store(cfg.database_url, create=False)
     warm_up()
+    if ready is not None:
+        ready.set()
     log.info("worker ready", extra={"worker": me})
 
     def stop_reason() -> str | None:

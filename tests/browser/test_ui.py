@@ -386,3 +386,25 @@ def test_preanalysis_of_a_planned_layout(page: Any, local_server: Server, artifa
     kinds = wait_plots(page, 1)
     assert kinds == ["error-ellipses"], kinds
     page.locator("#result").screenshot(path=str(artifacts / "preanalysis-result.png"))
+
+
+def test_the_page_says_when_the_workers_are_not_ready(page: Any, local_server: Server) -> None:
+    """The page reads /readyz: a ready server shows no notice; while /readyz answers 503 (the
+    workers loading the solver and compiling its kernels; here the answer is held by the test,
+    with the body the server writes) the page says so and why, and the notice goes once the
+    server is ready."""
+    ready = httpx.get(f"{local_server.url}/readyz", timeout=10)
+    assert ready.status_code == 200, ready.text
+    open_ui(page, local_server)
+    expect(page.locator("#readiness")).to_be_hidden()
+    starting = {"status": "unavailable", "checks": {
+        "store": "ok", "queue": "1 of 1 workers alive, 0 ready (1 starting: loading the solver, compiling its kernels)",
+        "evaluation": "compiled"}}
+    page.route("**/readyz", lambda route: route.fulfill(status=503, content_type="application/json", body=json.dumps(starting)))
+    open_ui(page, local_server)
+    notice = page.locator("#readiness")
+    expect(notice).to_be_visible()
+    expect(notice).to_contain_text("not ready yet")
+    expect(notice).to_contain_text("0 ready (1 starting: loading the solver, compiling its kernels)")
+    page.unroute("**/readyz")  # the real server, ready: the page notices at its next poll
+    expect(notice).to_be_hidden(timeout=20_000)

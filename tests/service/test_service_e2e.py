@@ -172,7 +172,7 @@ def test_worker_killed_mid_job_fails_the_job_and_server_goes_on(
         r = c.post("/processes/bundle-adjustment/execution", json=execute_body(small_doc))
         assert r.status_code == 200, r.text[:300]
         deadline = time.monotonic() + 30
-        while c.get("/readyz").json()["checks"]["queue"] != "2 of 2 workers alive":
+        while not c.get("/readyz").json()["checks"]["queue"].startswith("2 of 2 workers alive"):
             assert time.monotonic() < deadline, "the killed worker was not replaced"
             time.sleep(0.2)
 

@@ -977,9 +977,36 @@
     draw();
   }
 
+  // -- readiness: /readyz says whether the workers can take jobs (they load the solver and
+  // compile its kernels at start, minutes on a fresh installation) ------------------------------
+  const READY_POLL_MS = 5000;
+  async function checkReadiness() {
+    const box = $("readiness");
+    let body = null;
+    let ok = false;
+    try {
+      const r = await fetch("readyz", { headers: { Accept: "application/json" } });
+      ok = r.ok;
+      try { body = await r.json(); } catch (e) { body = null; }
+    } catch (e) {
+      body = null;
+    }
+    if (ok) {
+      box.hidden = true;
+      box.textContent = "";
+      return;
+    }
+    const checks = (body && body.checks) || {};
+    const why = Object.entries(checks).filter(([k]) => k !== "evaluation").map(([k, v]) => `${k}: ${v}`).join("; ");
+    box.textContent = "The server is not ready yet: jobs you submit wait until its workers are" + (why ? ` (${why}).` : ".");
+    box.hidden = false;
+    setTimeout(checkReadiness, READY_POLL_MS);
+  }
+
   // -- start ---------------------------------------------------------------------------------------
   function init() {
     initKey();
+    checkReadiness();
     initInput();
     $("cancel").addEventListener("click", cancelCurrent);
     $("jobs-refresh").addEventListener("click", refreshJobs);
