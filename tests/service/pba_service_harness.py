@@ -62,8 +62,9 @@ class Server:
         """A store on the server's database (the test's own connection)."""
         return open_store(self.database_url, create=True)
 
-    def start(self, timeout: float = 90.0) -> "Server":
-        """Start and wait until /readyz answers 200 (store up, workers alive)."""
+    def start(self, timeout: float = 180.0) -> "Server":
+        """Start and wait until /readyz answers 200 (store up, a worker warmed up: the solver
+        loaded, its kernels from the cache; slower on a loaded machine)."""
         log = open(self.log_path, "ab")
         self.proc = subprocess.Popen(
             [str(PBA), "serve", "--host", "127.0.0.1", "--port", str(self.port)],
