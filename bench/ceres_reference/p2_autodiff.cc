@@ -12,8 +12,10 @@
 // points are linear priors. Input: bench/ceres_reference/export_block.py.
 //
 // Usage: p2_autodiff INPUT [--threads N] [--covariance 0|1] [--statistical-stop 0|1]
-//                         [--max-iterations N] [--form exact|time] [--settings service|ceres] [--out RESULT]
+//                         [--max-iterations N] [--form exact|time] [--settings service|ceres]
+//                         [--nonmonotonic 0|1] [--out RESULT]
 // --settings ceres: Ceres' default solver options (trust region, tolerances) and no statistical stop.
+// --nonmonotonic 0: with the service's settings, monotonic steps even on large blocks.
 // RESULT: per image, its 14 adjusted parameters then their a posteriori standard deviations.
 // Prints one JSON line with the timings (s), iterations, costs and sigma0.
 
@@ -183,15 +185,20 @@ class StatisticalStop : public ceres::IterationCallback {
  public:
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& s) override {
     if (s.iteration > 0 && s.step_is_successful) {
-      small_ = (2.0 * (last_ - s.cost) < 1e-3) ? small_ + 1 : 0;
+      // a non-monotonic step above the best cost so far is no convergence (as the service's)
+      small_ = (s.cost <= best_ && 2.0 * (last_ - s.cost) < 1e-3) ? small_ + 1 : 0;
       if (small_ >= 2) return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
     }
-    if (s.step_is_successful || s.iteration == 0) last_ = s.cost;
+    if (s.step_is_successful || s.iteration == 0) {
+      last_ = s.cost;
+      best_ = std::min(best_, s.cost);
+    }
     return ceres::SOLVER_CONTINUE;
   }
 
  private:
   double last_ = 0.0;
+  double best_ = std::numeric_limits<double>::infinity();
   int small_ = 0;
 };
 
@@ -274,10 +281,10 @@ SchurCovariance schur_covariance(ceres::Problem& problem, std::vector<Image>& im
 
 int main(int argc, char** argv) {
   if (argc < 2) {
-    std::cerr << "usage: p2_autodiff INPUT [--threads N] [--covariance 0|1] [--statistical-stop 0|1] [--max-iterations N] [--form exact|time] [--settings service|ceres] [--out FILE]\n";
+    std::cerr << "usage: p2_autodiff INPUT [--threads N] [--covariance 0|1] [--statistical-stop 0|1] [--max-iterations N] [--form exact|time] [--settings service|ceres] [--nonmonotonic 0|1] [--out FILE]\n";
     return 2;
   }
-  int threads = 2, covariance = 1, statistical = 1, max_iterations = 50;
+  int threads = 2, covariance = 1, statistical = 1, max_iterations = 50, nonmonotonic = 1;
   std::string form = "exact", settings = "service";
   std::string out_path;
   for (int i = 2; i + 1 < argc; i += 2) {
@@ -289,6 +296,7 @@ int main(int argc, char** argv) {
     else if (k == "--out") out_path = v;
     else if (k == "--form") form = v;
     else if (k == "--settings") settings = v;
+    else if (k == "--nonmonotonic") nonmonotonic = std::stoi(v);
     else { std::cerr << "unknown option " << k << "\n"; return 2; }
   }
   const auto t_start = std::chrono::steady_clock::now();
@@ -378,6 +386,9 @@ int main(int argc, char** argv) {
     so.parameter_tolerance = 1e-10;
     so.gradient_tolerance = 1e-14;
     so.initial_trust_region_radius = 1e12;
+    // non-monotonic steps on large blocks, as the service (solver/engine/backend.py: 2,000 or
+    // more residual blocks there, one per ground point; here one per observation)
+    so.use_nonmonotonic_steps = nonmonotonic && problem.NumResidualBlocks() >= 2000;
   } else {
     statistical = 0;  // Ceres' defaults: trust region 1e4, tolerances 1e-6 / 1e-8 / 1e-10
   }

@@ -51,9 +51,7 @@ def solve_with_refreshes(problem: AdjustmentState, options, control, solve):
         if outcome.cancelled or not outcome.usable or refresh_family_terms(problem) <= REFRESH_TOL:
             break
         # a new objective: the statistical convergence test starts again
-        control.statistically_converged = False
-        if hasattr(control, "_small_steps"):
-            control._small_steps = 0
+        control.restart()
         nxt = solve(problem, options, control)
         timing = {k: outcome.timing_s.get(k, 0.0) + v for k, v in nxt.timing_s.items()}
         outcome = dataclasses.replace(
