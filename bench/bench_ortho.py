@@ -51,7 +51,7 @@ def main() -> None:
     h = scene.terrain.height(lo.ravel(), la.ravel()).reshape(lo.shape).astype("float32")
     with rasterio.open(d / "dem.tif", "w", driver="GTiff", width=n, height=n, count=1, dtype="float32", crs="EPSG:4326", transform=from_origin(lon0, lat1, step, step)) as dst:
         dst.write(h, 1)
-    for label, kw in (("height 450 m", {"height_m": 450.0}), ("DEM", {"dem": d / "dem.tif"})):
+    for label, kw in (("height 450 m", {"height_m": 450.0}), ("DEM", {"dem": d / "dem.tif", "dem_vertical": "ellipsoid"})):
         dem_range = (float(h.min()), float(h.max())) if "dem" in kw else None
         t = time.perf_counter()
         rpc = image_rpcs(model, img, dem_range)[0]

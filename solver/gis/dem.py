@@ -1,8 +1,12 @@
-"""Heights from a DEM raster (GeoTIFF or any raster GDAL reads) for image-to-ground intersections.
+"""Heights from a DEM raster for image-to-ground intersections, orthoimages and RPC fit grids.
 
-The DEM's values are taken as ellipsoidal heights in metres (convert an orthometric DEM with its
-geoid first, e.g. ``gdalwarp -t_srs EPSG:4979``); they are interpolated bilinearly between
-pixel centres in the DEM's own CRS. Points outside the DEM or on no-data get NaN.
+The DEM is read like the adjustment's (:func:`solver.geometry.dem.read_dem`: the raster gate,
+bilinear between cell centres in the DEM's own CRS) and its heights are converted to WGS 84
+ellipsoidal heights by its vertical datum (:mod:`solver.geometry.vertical`): taken from the
+file's CRS (a compound CRS with a vertical part, or a 3D geographic CRS) or from the caller
+(``--dem-vertical ellipsoid | egm96 | egm2008 | EPSG:code``), never assumed. SRTM and the
+Copernicus DEM hold heights above a geoid (EGM96, EGM2008), up to 107 m from the ellipsoidal
+ones. Points outside the DEM or next to no-data get NaN.
 """
 
 from __future__ import annotations
@@ -11,38 +15,50 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.geometry.geodesy import transformer
+from solver.geometry.dem import Dem as _Grid
+from solver.geometry.dem import DemError, read_dem
+from solver.geometry.vertical import VerticalDatumError
+
+__all__ = ["Dem", "DemError", "VerticalDatumError"]
+
+RANGE_NODES = 25  # nodes per axis at which the geoid undulation is taken for the height range
 
 
 class Dem:
-    """A DEM held in memory: ``height(lon_deg, lat_deg)`` (WGS 84) -> ellipsoidal metres."""
+    """A DEM held in memory: ``height(lon_deg, lat_deg)`` (WGS 84) -> ellipsoidal metres.
 
-    def __init__(self, path: Path | str):
-        from solver.raster_gate import open_raster
+    ``vertical``: the DEM's vertical datum where its file does not state it
+    (:func:`solver.geometry.vertical.resolve`). Raises :class:`DemError` (unreadable, no CRS)
+    or :class:`VerticalDatumError` (no datum stated, contradictory, geoid grid missing)."""
 
-        with open_raster(path) as gated:  # the raster gate: allowed formats, local files, no sidecar
-            src = gated.dataset
-            self.values = src.read(1, masked=True).astype(float).filled(np.nan)
-            self.inverse = ~src.transform
-            if src.crs is None:
-                raise ValueError(f"{path}: the DEM has no CRS")
-            self._to_dem = transformer("EPSG:4326", src.crs)
-        finite = self.values[np.isfinite(self.values)]
-        self.range_m = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    def __init__(self, path: Path | str, vertical: str | None = None):
+        self.grid: _Grid = read_dem(path, vertical)
+        self.vertical = self.grid.vertical
 
     def height(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
-        x, y = self._to_dem.transform(np.asarray(lon, float), np.asarray(lat, float))
-        a = self.inverse
-        x, y = np.asarray(x), np.asarray(y)
-        c = a.a * x + a.b * y + a.c - 0.5  # pixel-centre grid
-        r = a.d * x + a.e * y + a.f - 0.5
-        h, w = self.values.shape
-        c0 = np.clip(np.floor(c).astype(int), 0, max(w - 2, 0))
-        r0 = np.clip(np.floor(r).astype(int), 0, max(h - 2, 0))
-        fc, fr = c - c0, r - r0
-        inside = (c >= -0.5) & (c <= w - 0.5) & (r >= -0.5) & (r <= h - 0.5)
-        fc, fr = np.clip(fc, 0.0, 1.0), np.clip(fr, 0.0, 1.0)
-        c1, r1 = np.minimum(c0 + 1, w - 1), np.minimum(r0 + 1, h - 1)
-        v = self.values
-        out = (v[r0, c0] * (1 - fc) * (1 - fr) + v[r0, c1] * fc * (1 - fr) + v[r1, c0] * (1 - fc) * fr + v[r1, c1] * fc * fr)
-        return np.where(inside, out, np.nan)
+        """Ellipsoidal heights (metres) at WGS 84 longitudes and latitudes (degrees)."""
+        return self.grid.height(np.asarray(lon, float), np.asarray(lat, float))
+
+    def undulation_grid(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+        """Ellipsoidal minus the DEM's own heights (metres) at WGS 84 positions: 0 for an
+        ellipsoidal DEM, the geoid undulation N otherwise."""
+        return self.vertical.undulation(np.asarray(lon, float), np.asarray(lat, float))
+
+    @property
+    def range_m(self) -> tuple[float, float]:
+        """The lowest and highest ellipsoidal height the DEM can give (metres): its values'
+        range plus the range of the undulation over its extent (on a RANGE_NODES grid; the
+        geoid varies over hundreds of kilometres, so this envelope is tight within centimetres
+        on a scene)."""
+        low, high = self.grid.range_m
+        if self.vertical.ellipsoidal:
+            return low, high
+        rows, cols = self.grid.values.shape
+        a, b, c, d, e, f = self.grid.transform
+        cc, rr = np.meshgrid(np.linspace(0, cols, RANGE_NODES), np.linspace(0, rows, RANGE_NODES))
+        x, y = c + a * cc + b * rr, f + d * cc + e * rr
+        from solver.geometry.geodesy import transformer
+
+        lon, lat = transformer(self.grid.crs, "EPSG:4326").transform(x.ravel(), y.ravel())
+        n = self.undulation_grid(np.asarray(lon), np.asarray(lat))
+        return low + float(n.min()), high + float(n.max())

@@ -2,7 +2,8 @@
 
 Output: a GeoTIFF in the chosen CRS with square pixels of ``gsd`` (CRS units), north up,
 covering the image's footprint; bilinear resampling; 0 is no-data. Heights: a constant
-ellipsoidal height or a DEM (:class:`solver.gis.dem.Dem`).
+ellipsoidal height or a DEM (:class:`solver.gis.dem.Dem`: its vertical datum from the file or
+the caller, its heights converted to ellipsoidal ones).
 
 Two methods, measured against each other (bench/bench_ortho.py):
 
@@ -24,15 +25,20 @@ a DEM and 1.8x slower at a constant height on a PRISM-size image (bench/bench_or
 
 from __future__ import annotations
 
-from contextlib import nullcontext
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
+from affine import Affine
 
 from solver.geometry.geodesy import ecef_to_geodetic, geodetic_to_ecef, transformer
 from solver.gis.model import AdjustedImage
 from solver.gis.rpc_image import RpcImage
+
+if TYPE_CHECKING:
+    from solver.gis.dem import Dem
 
 GRID_STEP = 32
 Progress = Callable[[float, str], None]
@@ -71,6 +77,30 @@ def _interp(grid: np.ndarray, rs: np.ndarray, cs: np.ndarray, rows: np.ndarray, 
     return (grid[np.ix_(i, j)] * (1 - fr) * (1 - fc) + grid[np.ix_(i, j1)] * (1 - fr) * fc + grid[np.ix_(i1, j)] * fr * (1 - fc) + grid[np.ix_(i1, j1)] * fr * fc)
 
 
+@contextmanager
+def _ellipsoidal_dem(path: Path | None, dem: "Dem | None") -> Iterator[Path | None]:
+    """The DEM file GDAL's RPC transformer is to read: ``path`` itself when its heights are
+    ellipsoidal, else a temporary GeoTIFF of its heights converted to ellipsoidal ones (its
+    horizontal CRS only), removed afterwards."""
+    if path is None or dem is None or dem.vertical.ellipsoidal:
+        yield path
+        return
+    import tempfile
+
+    from solver.geometry.dem import ellipsoidal_grid
+    from solver.raster_gate import create_raster
+
+    grid = dem.grid
+    values = ellipsoidal_grid(grid).astype(np.float32)
+    a, b, c, d, e, f = grid.transform
+    with tempfile.TemporaryDirectory(prefix="pba-dem-") as tmp:
+        out = Path(tmp) / "dem_ellipsoidal.tif"
+        with create_raster(out, driver="GTiff", width=values.shape[1], height=values.shape[0], count=1, dtype="float32",
+                           crs=grid.crs.to_wkt(), transform=Affine(a, b, c, d, e, f), nodata=np.nan) as dst:
+            dst.write(values, 1)
+        yield out
+
+
 def orthorectify(
     image: AdjustedImage,
     raster: Path,
@@ -82,17 +112,20 @@ def orthorectify(
     method: str = "rigorous",
     progress: Progress | None = None,
     rpc=None,
+    dem_vertical: str | None = None,
 ) -> dict:
-    """Write the orthoimage; returns its size, transform origin and the method used."""
+    """Write the orthoimage; returns its size, transform origin and the method used.
+    ``dem_vertical``: the DEM's vertical datum where its file does not state it
+    (:class:`solver.gis.dem.Dem`; its heights are converted to ellipsoidal ones)."""
     import rasterio
     from rasterio.transform import from_origin
 
     from solver.gis.dem import Dem
-    from solver.raster_gate import create_raster, open_raster
+    from solver.raster_gate import LOCAL, create_raster, open_raster
 
     if (height_m is None) == (dem is None):
         raise ValueError("give exactly one of --height and --dem")
-    dem_obj = Dem(dem) if dem is not None else None
+    dem_obj = Dem(dem, dem_vertical) if dem is not None else None
     heights = dem_obj.range_m if dem_obj is not None else (height_m, height_m)
     say = progress or (lambda f, m: None)
     with open_raster(raster) as gated:
@@ -111,10 +144,13 @@ def orthorectify(
 
         from solver.gis.rpc_io import gdal_rpc
 
-        with open_raster(dem) if dem is not None else nullcontext() as gated_dem:
+        with _ellipsoidal_dem(dem, dem_obj) as dem_path, open_raster(dem_path, None if dem_path == dem else LOCAL) if dem_path is not None else nullcontext() as gated_dem:
             # GDAL's transformer opens RPC_DEM itself: it is given the gate's private name of the
-            # DEM the gate opened (the same file, checked), never the caller's path
-            opts = {"RPC_DEM": gated_dem.gdal_name} if gated_dem is not None else {"RPC_HEIGHT": float(height_m)}
+            # DEM the gate opened (the same file, checked), never the caller's path; the heights
+            # are ellipsoidal already (GDAL's own vertical shift would need its own geoid grid;
+            # a converted copy is our own temporary file, opened in the local space)
+            opts = ({"RPC_DEM": gated_dem.gdal_name, "RPC_DEM_APPLY_VDATUM_SHIFT": "FALSE"} if gated_dem is not None
+                    else {"RPC_HEIGHT": float(height_m)})
             reproject(data, out, rpcs=gdal_rpc(rpc), src_crs="EPSG:4326", dst_transform=transform, dst_crs=crs, resampling=Resampling.bilinear, src_nodata=None, dst_nodata=0, **opts)
         say(1.0, "done")
     elif method == "rigorous":
@@ -137,6 +173,9 @@ def orthorectify(
             dem_heights = np.full((ny, nx), np.nan, dtype=np.float64)
             with open_raster(dem) as gated_dem:
                 reproject(rasterio.band(gated_dem.dataset, 1), dem_heights, dst_transform=transform, dst_crs=crs, resampling=Resampling.bilinear, dst_nodata=np.nan)
+            if not dem_obj.vertical.ellipsoidal:  # the DEM's own heights to ellipsoidal ones: + N, smooth over the nodes
+                n_nodes = dem_obj.undulation_grid(np.asarray(lon), np.asarray(lat)).reshape(rr.shape)
+                dem_heights += _interp(n_nodes, rs, cs, np.arange(ny, dtype=float), np.arange(nx, dtype=float))
             say(0.3, "DEM on the output grid")
         empty = np.zeros((1, 1))
         block = max(1, 4_000_000 // max(nx, 1))

@@ -37,7 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     _job_report(p, optional=True)
     p.add_argument("pixels", type=Path, help="CSV with a header: line,column,height (height not needed with --dem)")
     p.add_argument("--crs", default=GEODETIC_CRS, help="CRS of the ground columns written (default EPSG:4979)")
-    p.add_argument("--dem", type=Path, help="DEM raster (ellipsoidal heights, m) instead of the height column")
+    p.add_argument("--dem", type=Path, help="DEM raster (m; its vertical datum from the file or --dem-vertical) instead of the height column")
+    p.add_argument("--dem-vertical", metavar="DATUM", help="the DEM's vertical datum where its file does not state it: ellipsoid, "
+                   "egm96 (SRTM), egm2008 (Copernicus DEM) or a vertical CRS (EPSG:code)")
     p.add_argument("--sigmas", action="store_true", help="add propagated standard deviations sigma_east_m, sigma_north_m")
     p.add_argument("-o", "--output", type=Path, help="CSV to write (default stdout)")
     p.set_defaults(func=announcing(cmd_image_to_ground))
@@ -47,6 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", type=Path, required=True, help="NAME_RPC.TXT (GDAL's RPC text), NAME.RPB, or NAME.tif with --raster")
     p.add_argument("--raster", type=Path, help="the image's raster: write a GeoTIFF copy with the RPC tags (-o NAME.tif)")
     p.add_argument("--dem", type=Path, help="DEM whose height range the fit grid spans (default: the job's points +- 100 m)")
+    p.add_argument("--dem-vertical", metavar="DATUM", help="the DEM's vertical datum where its file does not state it: ellipsoid, "
+                   "egm96 (SRTM), egm2008 (Copernicus DEM) or a vertical CRS (EPSG:code)")
     p.add_argument("--per-chip", action="store_true", help="one RPC per CCD chip (NAME_<chip>_RPC.TXT), columns of the chip's sub-image")
     p.add_argument("--fit-report", type=Path, help="JSON with the fit and check-grid residuals")
     p.set_defaults(func=announcing(cmd_export_rpc))
@@ -57,8 +61,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("report", type=Path, help="its report (pba run -o)")
     p.add_argument("--image", required=True, help="image id")
     hg = p.add_mutually_exclusive_group(required=True)
-    hg.add_argument("--dem", type=Path, help="DEM raster (ellipsoidal heights, m)")
+    hg.add_argument("--dem", type=Path, help="DEM raster (m; its vertical datum from the file or --dem-vertical)")
     hg.add_argument("--height", type=float, help="constant ellipsoidal height (m)")
+    p.add_argument("--dem-vertical", metavar="DATUM", help="the DEM's vertical datum where its file does not state it: ellipsoid, "
+                   "egm96 (SRTM), egm2008 (Copernicus DEM) or a vertical CRS (EPSG:code)")
     p.add_argument("--crs", required=True, help="CRS of the orthoimage, e.g. EPSG:32722")
     p.add_argument("--gsd", type=float, required=True, help="pixel size in CRS units")
     p.add_argument(
@@ -173,7 +179,10 @@ def cmd_image_to_ground(args: argparse.Namespace) -> int:
     if args.dem:
         from solver.gis.dem import Dem
 
-        height_fn = Dem(args.dem).height
+        try:
+            height_fn = Dem(args.dem, args.dem_vertical).height
+        except ValueError as exc:  # DemError, VerticalDatumError
+            return _fail(str(exc))
     try:
         rows = image_to_ground_table(image, read_csv(args.pixels), args.crs, height_fn, args.sigmas)
     except (TableError, UnknownCRSError, OSError) as exc:
@@ -191,7 +200,10 @@ def cmd_export_rpc(args: argparse.Namespace) -> int:
     if args.dem:
         from solver.gis.dem import Dem
 
-        dem_range = Dem(args.dem).range_m
+        try:
+            dem_range = Dem(args.dem, args.dem_vertical).range_m
+        except ValueError as exc:  # DemError, VerticalDatumError
+            return _fail(str(exc))
     try:
         written, fits = export_rpcs(model, image, args.output, raster=args.raster, dem_range_m=dem_range, per_chip=args.per_chip)
     except ValueError as exc:
@@ -258,12 +270,15 @@ def cmd_ortho(args: argparse.Namespace) -> int:
         if args.dem:
             from solver.gis.dem import Dem
 
-            dem_range = Dem(args.dem).range_m
+            try:
+                dem_range = Dem(args.dem, args.dem_vertical).range_m
+            except ValueError as exc:  # DemError, VerticalDatumError
+                return _fail(str(exc))
         rpc = image_rpcs(model, image, dem_range)[0]
         for w in rpc.fit["warnings"]:
             print(f"warning: {w}", file=sys.stderr)
     try:
-        info = orthorectify(image, args.raster, args.output, args.crs, args.gsd, args.height, args.dem, method, _bar(not args.quiet), rpc)
+        info = orthorectify(image, args.raster, args.output, args.crs, args.gsd, args.height, args.dem, method, _bar(not args.quiet), rpc, args.dem_vertical)
     except (ValueError, UnknownCRSError, OSError) as exc:
         return _fail(str(exc))
     print(f"{args.output}: {info['width']} x {info['height']} pixels of {args.gsd:g} ({args.crs}, {method})")

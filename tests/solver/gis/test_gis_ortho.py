@@ -77,7 +77,7 @@ def _find_targets(path, targets):
 def test_targets_in_the_orthoimage(ortho_inputs, method):
     d, targets = ortho_inputs
     out = d / f"ortho-{method}.tif"
-    assert main(["ortho", str(d / "cam.tif"), str(d / "job.json"), str(d / "report.json"), "--image", "cam", "--dem", str(d / "dem.tif"), "--crs", CRS, "--gsd", str(GSD_M), "--method", method, "-o", str(out), "-q"]) == 0
+    assert main(["ortho", str(d / "cam.tif"), str(d / "job.json"), str(d / "report.json"), "--image", "cam", "--dem", str(d / "dem.tif"), "--dem-vertical", "ellipsoid", "--crs", CRS, "--gsd", str(GSD_M), "--method", method, "-o", str(out), "-q"]) == 0
     dist = _find_targets(out, targets)
     assert len(dist) >= 0.8 * len(targets)
     assert dist.max() < 0.5 * GSD_M, dist
@@ -87,7 +87,7 @@ def test_rigorous_and_rpc_orthoimages_agree(ortho_inputs):
     d, _ = ortho_inputs
     for method in ("rigorous", "rpc"):
         if not (d / f"ortho-{method}.tif").exists():  # run alone
-            assert main(["ortho", str(d / "cam.tif"), str(d / "job.json"), str(d / "report.json"), "--image", "cam", "--dem", str(d / "dem.tif"), "--crs", CRS, "--gsd", str(GSD_M), "--method", method, "-o", str(d / f"ortho-{method}.tif"), "-q"]) == 0
+            assert main(["ortho", str(d / "cam.tif"), str(d / "job.json"), str(d / "report.json"), "--image", "cam", "--dem", str(d / "dem.tif"), "--dem-vertical", "ellipsoid", "--crs", CRS, "--gsd", str(GSD_M), "--method", method, "-o", str(d / f"ortho-{method}.tif"), "-q"]) == 0
     with rasterio.open(d / "ortho-rigorous.tif") as a, rasterio.open(d / "ortho-rpc.tif") as b:
         assert a.transform == b.transform and a.shape == b.shape
         x, y = a.read(1).astype(float), b.read(1).astype(float)
@@ -105,8 +105,8 @@ def test_the_readme_gdalwarp_with_the_exported_sidecar(ortho_inputs):
 
     d, _ = ortho_inputs
     if not (d / "ortho-rpc.tif").exists():  # run alone
-        assert main(["ortho", str(d / "cam.tif"), str(d / "job.json"), str(d / "report.json"), "--image", "cam", "--dem", str(d / "dem.tif"), "--crs", CRS, "--gsd", str(GSD_M), "--method", "rpc", "-o", str(d / "ortho-rpc.tif"), "-q"]) == 0
-    assert main(["export-rpc", str(d / "job.json"), str(d / "report.json"), "--image", "cam", "--dem", str(d / "dem.tif"), "-o", str(d / "cam_RPC.TXT")]) == 0
+        assert main(["ortho", str(d / "cam.tif"), str(d / "job.json"), str(d / "report.json"), "--image", "cam", "--dem", str(d / "dem.tif"), "--dem-vertical", "ellipsoid", "--crs", CRS, "--gsd", str(GSD_M), "--method", "rpc", "-o", str(d / "ortho-rpc.tif"), "-q"]) == 0
+    assert main(["export-rpc", str(d / "job.json"), str(d / "report.json"), "--image", "cam", "--dem", str(d / "dem.tif"), "--dem-vertical", "ellipsoid", "-o", str(d / "cam_RPC.TXT")]) == 0
     with rasterio.open(d / "ortho-rpc.tif") as ref:
         expected, transform, shape = ref.read(1), ref.transform, ref.shape
     with rasterio.open(d / "cam.tif") as src:

@@ -184,7 +184,7 @@ def test_cli_image_to_ground_with_a_dem(tmp_path):
         dst.write(dem, 1)
     _write_csv(tmp_path / "px.csv", [{"line": 1200, "column": c} for c in (300, 1200, 2100)])
     args = [str(tmp_path / "job.json"), str(tmp_path / "report.json"), "--image", "cam"]
-    assert main(["image-to-ground", *args, str(tmp_path / "px.csv"), "--dem", str(tmp_path / "dem.tif"), "-o", str(tmp_path / "g.csv"), "--crs", "EPSG:32722"]) == 0
+    assert main(["image-to-ground", *args, str(tmp_path / "px.csv"), "--dem", str(tmp_path / "dem.tif"), "--dem-vertical", "ellipsoid", "-o", str(tmp_path / "g.csv"), "--crs", "EPSG:32722"]) == 0
     rows = _read_csv(tmp_path / "g.csv")
     for r in rows:
         e, h = float(r["e"]), float(r["height"])
