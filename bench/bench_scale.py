@@ -6,6 +6,7 @@ Run by hand (never in CI), on a quiet machine:
     .venv/bin/python bench/bench_scale.py --observations 10000,100000,1000000,5000000 --repeat 1
     .venv/bin/python bench/bench_scale.py --observations 1000000 --no-states      # header states not weighted
     .venv/bin/python bench/bench_scale.py --observations 1000000 --disjoint       # the old block-diagonal layout
+    .venv/bin/python bench/bench_scale.py --observations 300000 --repeat 1 --trace  # Ceres' summary of every iteration
     PBA_EVALUATION=python .venv/bin/python bench/bench_scale.py ...   # the Python fallback path
 
 By default each block is a connected strip (``connected_strip_job`` of tests/utils/scenes.py):
@@ -185,7 +186,37 @@ def _timed(table: dict[str, float], name: str, fn: Callable) -> Callable:
     return wrapper
 
 
-def child(path: Path) -> dict[str, Any]:
+def _traced(backend: Any, rows: list[dict[str, Any]]) -> None:
+    """Record Ceres' summary of every iteration of the solves (``--trace``): cost, its change,
+    the gradient's max norm, the step's norm, the ratio of actual to predicted decrease, the
+    trust region's radius, the linear solver's iterations, whether the step was taken."""
+    import pyceres
+
+    class Trace(pyceres.IterationCallback):
+        def __init__(self) -> None:
+            pyceres.IterationCallback.__init__(self)
+
+        def __call__(self, s: Any) -> Any:
+            rows.append({"iteration": s.iteration, "cost": s.cost, "cost_change": s.cost_change,
+                         "gradient_max_norm": s.gradient_max_norm, "step_norm": s.step_norm,
+                         "relative_decrease": s.relative_decrease, "trust_region_radius": s.trust_region_radius,
+                         "linear_solver_iterations": s.linear_solver_iterations, "successful": bool(s.step_is_successful),
+                         "time_s": s.iteration_time_in_seconds})
+            return pyceres.CallbackReturnType.SOLVER_CONTINUE
+
+    options = backend.ceres_options
+    keep: list[Any] = []
+
+    def with_trace(*args, **kwargs):
+        so = options(*args, **kwargs)
+        keep.append(Trace())
+        so.callbacks = [keep[-1]]  # appends to the solve's own callback
+        return so
+
+    backend.ceres_options = with_trace
+
+
+def child(path: Path, trace: bool = False) -> dict[str, Any]:
     """One job in this process: load its JSON, adjust end to end, return the measurements."""
     try:
         import solver.procedures.single as single
@@ -221,6 +252,9 @@ def child(path: Path) -> dict[str, Any]:
 
     if summarise is not None:
         backend.summarise = summarise_and_keep
+    rows: list[dict[str, Any]] = []
+    if trace:
+        _traced(backend, rows)
     t0 = time.perf_counter()
     report = run(doc)
     total_s = time.perf_counter() - t0
@@ -241,6 +275,7 @@ def child(path: Path) -> dict[str, Any]:
         "sigma0": adj["sigma0_aposteriori"],
         "peak_rss_mb": _peak_mb(),
         "peak_after_stage_mb": dict(PEAK_AFTER),
+        "trace": rows,
     }
 
 
@@ -255,12 +290,13 @@ def main() -> None:
     layout.add_argument("--strip", action="store_true", help="the independent simulator's strip with its ephemeris weighted "
                         "(any model, PASS ones included; disjoint triplets) instead of the model-consistent block")
     ap.add_argument("--no-states", action="store_true", help="connected strip: header states not weighted")
+    ap.add_argument("--trace", action="store_true", help="print Ceres' summary of every iteration (cost, rho, trust region, ...)")
     ap.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--generate", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     kind = "disjoint" if args.disjoint else "strip" if args.strip else "connected"
     if args.child is not None:
-        print(json.dumps(child(args.child)))
+        print(json.dumps(child(args.child, args.trace)))
         return
     if args.generate is not None:
         print(generate(args.generate, args.model, args.seed, kind, not args.no_states))
@@ -277,9 +313,14 @@ def main() -> None:
         print(f"{kind} block of about {n} observations: {path} ({time.perf_counter() - t0:.1f} s to generate or find)", flush=True)
         runs = []
         for _ in range(args.repeat):
-            out = subprocess.run([sys.executable, __file__, "--child", str(path)], check=True, capture_output=True, text=True)
+            out = subprocess.run([sys.executable, __file__, "--child", str(path)] + (["--trace"] if args.trace else []),
+                                 check=True, capture_output=True, text=True)
             r = json.loads(out.stdout.strip().splitlines()[-1])
             runs.append(r)
+            for t in r.get("trace", []):
+                print(f"    it {t['iteration']:3d} cost {t['cost']:.9g} change {t['cost_change']:.3e} |g| {t['gradient_max_norm']:.3e} "
+                      f"|step| {t['step_norm']:.3e} rho {t['relative_decrease']:.3f} radius {t['trust_region_radius']:.3e} "
+                      f"linear its {t['linear_solver_iterations']} {'ok' if t['successful'] else 'rejected'} {t['time_s']:.2f} s", flush=True)
             stages = " ".join(f"{k} {v:.2f}" for k, v in r["stages_s"].items())
             stages += "; in Ceres: " + " ".join(f"{k} {v:.2f}" for k, v in r["ceres_s"].items())
             stages += "; peak RSS after: " + " ".join(f"{k} {v:.0f}" for k, v in r["peak_after_stage_mb"].items())
