@@ -10,7 +10,7 @@ from typing import Any
 
 from service.cameras import resolve_camera_refs
 from service.errors import JobFailed, JobTooLarge, NoSuchJob, ResultNotReady, TooManyJobs
-from service.lanes import is_small
+from service.lanes import is_small, share_of
 from service.processes import JOB_POINTER, Caller, process
 from service.queue import QueueBackend
 from service.queue_view import Placement, placement
@@ -55,7 +55,8 @@ class JobService:
     def submit(self, user: UserRecord, process_id: str, inputs: ExecuteInputs) -> JobRecord:
         """Validate, check the user's limits, store as accepted, and queue. The job's lane
         comes from what it will cost (service.lanes: adjustments of at most
-        ``small_job_observations`` observations take the small-job lane, matchings never)."""
+        ``small_job_observations`` observations take the small-job lane, matchings never), and
+        so does its share (what it counts for in the user's fair share while it runs)."""
         max_queued, max_obs = self.limits_of(user)
         n_obs = process(process_id).count(inputs.job)
         if n_obs > max_obs:
@@ -67,11 +68,13 @@ class JobService:
                 headers={"Retry-After": "10"},
             )
         job: Job = inputs.job
-        small = is_small(process(process_id).cost_of(job, document), self.settings.small_job_observations)
+        cost = process(process_id).cost_of(job, document)
+        small = is_small(cost, self.settings.small_job_observations)
+        share = share_of(cost, self.settings.small_job_observations)
         quota_mb = self.settings.user_storage_quota_mb
         try:
             rec = self.store.create_job(
-                user.id, process_id, document, n_obs, job.name, small, quota_bytes(quota_mb)
+                user.id, process_id, document, n_obs, job.name, small, quota_bytes(quota_mb), share
             )
         except QuotaExceeded as exc:
             raise quota_error(exc, quota_mb) from None

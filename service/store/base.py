@@ -47,6 +47,7 @@ class JobRecord:
     n_observations: int = 0
     error: dict[str, Any] | None = None
     small: bool = False  # the small-job lane (service.store.fair)
+    share: float = 1.0  # what it counts for in its user's share while it runs (service.lanes)
     cpu_s: float | None = None  # CPU seconds of the solving process in the finishing run
     solve_s: float | None = None  # wall seconds of that run's solve
     _load_results: Callable[[str], str | None] | None = field(
@@ -183,8 +184,10 @@ class Store(Protocol):
         name: str,
         small: bool = False,
         quota_bytes: int = 0,
+        share: float = 1.0,
     ) -> JobRecord:
-        """Insert an ``accepted`` job (``small``: the small-job lane). With ``quota_bytes`` > 0
+        """Insert an ``accepted`` job (``small``: the small-job lane; ``share``: what it counts
+        for in its user's share while it runs). With ``quota_bytes`` > 0
         the owner's storage is checked in the inserting transaction, writers of one owner
         serialised (QuotaExceeded when the job would take it over)."""
 

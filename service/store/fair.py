@@ -9,8 +9,10 @@ The claim order is a key per waiting (owner, lane) head, smallest first:
 2. **small-job lane**: jobs marked small at submission (by their cost, service.lanes:
    adjustments of at most ``PBA_SMALL_JOB_OBSERVATIONS`` observations, never a matching) come
    before the others, so a small job waits at most for the first running job to end;
-3. **weighted share**: the user with the fewest running jobs per unit of weight
-   (``users.weight``, default 1) comes first;
+3. **weighted share**: the user whose running jobs count for least per unit of weight
+   (``users.weight``, default 1) comes first; a running job counts for its ``share``, what it
+   costs in small jobs' worth (service.lanes.share_of: observations for adjustments, pixels
+   for matchings; at least 1);
 4. **least recent use**: among equals, the user whose last job started longest ago;
 5. **age**: then the oldest job (creation time, then id).
 
@@ -37,9 +39,11 @@ class Head:
 
 @dataclass(frozen=True)
 class OwnerLoad:
-    """What the policy knows of a user: running jobs now, weight, cap, last job start."""
+    """What the policy knows of a user: running jobs now and their shares summed (None: one
+    per job), weight, cap, last job start."""
 
     running: int = 0
+    running_share: float | None = None
     weight: float = 1.0
     max_running: int = 0
     last_started: datetime | None = None
@@ -50,7 +54,8 @@ def order_key(
 ) -> tuple[bool, bool, float, datetime, datetime]:
     """The sort key of ``head`` (smaller runs first); ``contended``: several users wait."""
     capped = contended and load.max_running > 0 and load.running >= load.max_running
-    share = load.running / load.weight if load.weight > 0 else float("inf")
+    counted = load.running if load.running_share is None else load.running_share
+    share = counted / load.weight if load.weight > 0 else float("inf")
     return (capped, not head.small, share, load.last_started or NEVER, head.created)
 
 
@@ -70,6 +75,7 @@ class Waiting:
     owner: str
     small: bool
     created: datetime
+    share: float = 1.0
 
 
 def queue_order(waiting: list[Waiting], loads: dict[str, OwnerLoad]) -> list[str]:
@@ -86,9 +92,13 @@ def queue_order(waiting: list[Waiting], loads: dict[str, OwnerLoad]) -> list[str
         head = pick(heads, loads)
         assert head is not None
         q = queues[(head.owner, head.small)]
-        order.append(q.pop(0).id)
+        job = q.pop(0)
+        order.append(job.id)
         if not q:
             del queues[(head.owner, head.small)]
         load = loads.get(head.owner, OwnerLoad())
-        loads[head.owner] = replace(load, running=load.running + 1, last_started=now)
+        counted = load.running if load.running_share is None else load.running_share
+        loads[head.owner] = replace(
+            load, running=load.running + 1, running_share=counted + job.share, last_started=now
+        )
     return order

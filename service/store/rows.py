@@ -77,6 +77,8 @@ class JobRow(Base):
     stored_bytes: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     # the small-job lane (service.store.fair), decided at submission
     small: Mapped[bool] = mapped_column(Boolean, default=False, server_default="0")
+    # what the job counts for in its user's share while it runs (service.lanes.share_of)
+    share: Mapped[float] = mapped_column(Float, default=1.0, server_default="1")
     # accounting of the run that finished it: CPU seconds of the solving process, wall seconds
     cpu_s: Mapped[float | None] = mapped_column(Float, nullable=True)
     solve_s: Mapped[float | None] = mapped_column(Float, nullable=True)

@@ -203,6 +203,7 @@ class SqlStore:
             n_observations=row.n_observations,
             error=json.loads(row.error) if row.error else None,
             small=bool(row.small),
+            share=float(row.share if row.share is not None else 1.0),
             cpu_s=row.cpu_s,
             solve_s=row.solve_s,
             _load_results=self.get_results_text,
@@ -244,9 +245,11 @@ class SqlStore:
         name: str,
         small: bool = False,
         quota_bytes: int = 0,
+        share: float = 1.0,
     ) -> JobRecord:
         """Insert an ``accepted`` job with its execute inputs (``small``: the small-job lane;
-        ``quota_bytes``: see :meth:`_reserve`)."""
+        ``quota_bytes``: see :meth:`_reserve`; ``share``: what it counts for in its user's
+        share while it runs, service.store.fair)."""
         now = utcnow()
         job_id = str(uuid.uuid4())
         packed = pack(json.dumps(document))
@@ -267,6 +270,7 @@ class SqlStore:
                     n_observations=n_observations,
                     stored_bytes=len(packed),
                     small=small,
+                    share=share,
                 )
             )
             conn.execute(insert(JobPayloadRow).values(job_id=job_id, document_z=packed))
@@ -384,12 +388,13 @@ class SqlStore:
 
     def _loads(self, conn: Connection, owners: list[str], default_cap: int) -> dict[str, OwnerLoad]:
         """The fair-share inputs of ``owners`` (service.store.fair), read in ``conn``: running
-        counts and last starts in one grouped query, weights and caps in another."""
+        counts, their shares and last starts in one grouped query, weights and caps in another."""
         is_running = case((JobRow.status == JobStatus.running.value, 1), else_=0)
+        running_share = case((JobRow.status == JobStatus.running.value, JobRow.share), else_=0.0)
         per_owner = {
-            o: (int(n or 0), started)
-            for o, n, started in conn.execute(
-                select(JobRow.owner, func.sum(is_running), func.max(JobRow.started))
+            o: (int(n or 0), float(share or 0.0), started)
+            for o, n, share, started in conn.execute(
+                select(JobRow.owner, func.sum(is_running), func.sum(running_share), func.max(JobRow.started))
                 .where(JobRow.owner.in_(owners))
                 .group_by(JobRow.owner)
             ).all()
@@ -405,11 +410,12 @@ class SqlStore:
         loads = {}
         for o in owners:
             u = users.get(o)
-            running, started = per_owner.get(o, (0, None))
+            running, share, started = per_owner.get(o, (0, 0.0, None))
             if started is not None and started.tzinfo is None:
                 started = started.replace(tzinfo=timezone.utc)
             loads[o] = OwnerLoad(
                 running=running,
+                running_share=share,
                 weight=(u.weight if u is not None and u.weight else 1.0),
                 max_running=(
                     u.max_running_jobs
@@ -890,7 +896,7 @@ class SqlStore:
         running jobs (for positions and start estimates; service.queue_view)."""
         with self.engine.connect() as conn:
             rows = conn.execute(
-                select(JobRow.id, JobRow.owner, JobRow.small, JobRow.created).where(
+                select(JobRow.id, JobRow.owner, JobRow.small, JobRow.created, JobRow.share).where(
                     JobRow.status == JobStatus.accepted.value
                 )
             ).all()
@@ -900,6 +906,7 @@ class SqlStore:
                     r.owner,
                     bool(r.small),
                     r.created if r.created.tzinfo else r.created.replace(tzinfo=timezone.utc),
+                    float(r.share if r.share is not None else 1.0),
                 )
                 for r in rows
             ]

@@ -138,3 +138,64 @@ def test_a_small_adjustment_is_answered_while_another_users_match_jobs_wait(
                 ca.delete(f"/jobs/{j}")
     finally:
         srv.stop()
+
+
+# ---- the share: what a running job counts for in its user's fair share ----------------------
+
+
+def test_a_jobs_share_is_its_cost_in_small_jobs_worth() -> None:
+    from service.lanes import PIXELS_PER_OBSERVATION, share_of
+    from service.processes import JobCost
+
+    assert share_of(JobCost("observations", 10), 5000) == 1.0  # at least one job
+    assert share_of(JobCost("observations", 50_000), 5000) == pytest.approx(10.0)
+    pixels = 2 * 10_000 * 10_000
+    assert share_of(JobCost("pixels", pixels), 5000) == pytest.approx(pixels / PIXELS_PER_OBSERVATION / 5000)
+
+
+def test_a_submitted_match_job_records_its_pixels_share(tmp_path: Path) -> None:
+    """The Ventoux pair (500 x 500 and 498 x 495 pixels) with a unit of 100 observations: its
+    share is its pixels over PIXELS_PER_OBSERVATION x 100, not 1 as for any job before."""
+    from service.lanes import PIXELS_PER_OBSERVATION
+
+    app = create_app(Settings(data_dir=tmp_path / "data", workers=0, require_api_keys=True,
+                              image_root=_image_root(tmp_path), small_job_observations=100))
+    with TestClient(app) as c:
+        store = app.state.services.store
+        key = {"X-API-Key": create_key(store, "alice")[0], "Prefer": "respond-async"}
+        r = c.post(f"/processes/{MATCH}/execution", json=_match_body(), headers=key)
+        assert r.status_code == 201, r.text[:500]
+        rec = store.get_job(r.json()["jobID"])
+        assert rec is not None
+        assert rec.share == pytest.approx((500 * 500 + 498 * 495) / PIXELS_PER_OBSERVATION / 100)
+
+
+def test_a_user_running_one_costly_job_comes_after_a_user_running_two_small_ones() -> None:
+    from datetime import datetime, timezone
+
+    from service.store.fair import Head, OwnerLoad, pick
+
+    t = datetime(2026, 1, 1, tzinfo=timezone.utc)
+    heads = [Head("a", False, t), Head("b", False, t)]
+    loads = {"a": OwnerLoad(running=1, running_share=40.0), "b": OwnerLoad(running=2, running_share=2.0)}
+    assert pick(heads, loads).owner == "b"  # counted by jobs, a (1 running) would come first
+
+
+def test_the_store_sums_the_running_jobs_shares(tmp_path: Path) -> None:
+    """On a real store: alice runs one job of share 40, bob two of share 1; each has one more
+    waiting; the next claim is bob's."""
+    from service.store import open_store
+
+    store = open_store(f"sqlite:///{tmp_path / 'jobs.db'}")
+    try:
+        doc = {"job": {}}
+        big = store.create_job("alice", "match", doc, 0, "big", share=40.0)
+        small = [store.create_job("bob", "bundle-adjustment", doc, 10, f"b{i}") for i in range(2)]
+        for rec in (big, *small):
+            assert store.claim(rec.id, "w") is not None
+        store.create_job("alice", "match", doc, 0, "a-next", share=40.0)
+        nxt = store.create_job("bob", "bundle-adjustment", doc, 10, "b-next")
+        got = store.claim_next("w2")
+        assert got is not None and got.id == nxt.id, got
+    finally:
+        store.close()

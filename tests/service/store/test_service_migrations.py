@@ -176,7 +176,7 @@ def test_upgrade_from_0002_keeps_cameras_with_their_authors_and_old_payloads(
                 "VALUES ('j1', '{\"job\": {}}', '{\"report\": 1}')"
             )
         )
-    assert upgrade(engine) == head_revision() == "0004"
+    assert upgrade(engine) == head_revision() == "0005"
     assert schema_differences(engine) == []
     store = open_store(url)
     try:
