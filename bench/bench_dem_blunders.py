@@ -16,7 +16,7 @@ Per seed: which DEM heights data snooping (``options.blunder_detection: {}``, th
 removed, and the blundered points' height errors over their predicted sigmas and horizontal
 shifts from the truth.
 
-    python bench/bench_dem_blunders.py --seeds 6 --size 25 --radius 45
+    python bench/bench_dem_blunders.py --seeds 8 --size 25 --radius 45 --gcps 4
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def scene(seed: int, work: Path, gcps: int = 0) -> tuple[dict, dict]:
     return job, truth
 
 
-def with_blunders(job: dict, truth: dict, offsets: dict[str, float], radius_m: float) -> dict:
+def with_blunders(job: dict, truth: dict, offsets: dict[str, float], radius_m: float, loss: str = "huber") -> dict:
     """``job`` whose DEM is off by ``offsets[point]`` metres at every cell centre within
     ``radius_m`` of the true position of each point named (a geographic grid)."""
     dem = grid_from_job(job["dem"]["grid"])
@@ -74,7 +74,7 @@ def with_blunders(job: dict, truth: dict, offsets: dict[str, float], radius_m: f
         values[near] += off
     dem.values = values
     out = dict(job)
-    out["dem"] = {**job["dem"], "grid": grid_to_job(dem)}
+    out["dem"] = {**job["dem"], "grid": grid_to_job(dem), "loss": loss}
     out["options"] = {**job.get("options", {}), "blunder_detection": {}}
     return out
 
@@ -85,10 +85,10 @@ def blunder_offsets(job: dict, n: int, size_m: float) -> dict[str, float]:
     return {pid: size_m * (1 if k % 2 == 0 else -1) for k, pid in enumerate(ties[3::8][:n])}
 
 
-def one(seed: int, work: Path, n: int, size_m: float, radius_m: float, gcps: int = 0) -> dict:
+def one(seed: int, work: Path, n: int, size_m: float, radius_m: float, gcps: int = 0, loss: str = "huber") -> dict:
     job, truth = scene(seed, work, gcps)
     offsets = blunder_offsets(job, n, size_m)
-    rep = run(with_blunders(job, truth, offsets, radius_m))
+    rep = run(with_blunders(job, truth, offsets, radius_m, loss))
     removed = {r["point"] for r in rep["quality"]["rejected"] if r["kind"] == "dem_height" and r.get("removed", True)}
     removed |= {m["point"] for g in rep["quality"]["not_identifiable"] for m in g["members"]
                 if m["kind"] == "dem_height" and m.get("removed", True)}
@@ -116,13 +116,14 @@ def main() -> None:
     ap.add_argument("--size", type=float, default=25.0, help="metres the DEM is off at a blundered point")
     ap.add_argument("--radius", type=float, default=45.0, help="metres around the point the DEM is off")
     ap.add_argument("--gcps", type=int, default=0, help="control points of the simulated block")
+    ap.add_argument("--dem-loss", default="huber", choices=("huber", "cauchy", "none"), help="the DEM heights' robust loss (dem.loss)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     found = planted = false = 0
     zb, zo = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            r = one(seed, Path(tmp), args.blunders, args.size, args.radius, args.gcps)
+            r = one(seed, Path(tmp), args.blunders, args.size, args.radius, args.gcps, args.dem_loss)
             hit = r["removed"] & set(r["offsets"])
             wrong = r["removed"] - set(r["offsets"])
             found, planted, false = found + len(hit), planted + len(r["offsets"]), false + len(wrong)

@@ -234,3 +234,66 @@ def test_a_removal_that_drops_a_tie_point_drops_it_from_the_dem_exclusions(contr
     assert after.dem is not None and after.dem.excluded == []
     problems, _count = FAMILY.check(after)
     assert not problems
+
+
+# ---- the DEM bias test on an RPC block whose datum comes from the RPCs' bias priors ----
+
+BIAS_PRIOR_PX = 2.0  # 0 +- 2 px on every bias term (pba job --bias-prior 2): the RPCs' own ground reference
+
+
+@pytest.fixture(scope="module")
+def rpc_triplet_with_dem(tmp_path_factory):
+    """A simulated PRISM triplet as RPC images (RPC-DRIFT, the delivered RPCs without bias), no
+    control point, bias priors of 0 +- 2 px on every image, and a degraded DEM (3 m noise)."""
+    import json
+
+    from solver.cli import main
+    from solver.geometry.dem import grid_to_job, read_dem
+    from solver.importers.compose import rpc_bias_priors
+    from solver.simulate.dem import DemDegradation, degraded_dem
+    from solver.simulate.terrain import Terrain
+
+    d = tmp_path_factory.mktemp("dem_rpc")
+    out = d / "tri.json"
+    assert main(["simulate", "prism-triplet", "-o", str(out), "--seed", "3", "--rpc-model", "RPC-DRIFT",
+                 "--gcps", "0", "--checks", "10", "--tie-points", "40"]) == 0
+    job = json.loads(out.read_text())
+    truth = json.loads(out.with_name("tri.truth.json").read_text())
+    for im in job["images"]:
+        im["bias_prior"] = rpc_bias_priors("RPC-DRIFT", im["rpc"], BIAS_PRIOR_PX)
+    t = truth["terrain"]
+    terrain = Terrain(**{k: tuple(v) if isinstance(v, list) else v for k, v in t.items()})
+    lon = [p["lon_deg"] for p in truth["points"]]
+    lat = [p["lat_deg"] for p in truth["points"]]
+    bounds = (min(lon) - 0.02, min(lat) - 0.02, max(lon) + 0.02, max(lat) + 0.02)
+    degraded_dem(terrain.height, bounds, DemDegradation(noise_m=DEM_NOISE_M, seed=3), d / "dem.tif")
+    job["dem"] = {"grid": grid_to_job(read_dem(d / "dem.tif")), "sigma_m": DEM_NOISE_M}
+    return job, truth
+
+
+def test_the_dem_bias_test_on_an_rpc_block_with_bias_priors(rpc_triplet_with_dem) -> None:
+    """The test of a common DEM bias where the bias priors fix the heights too: it passes on the
+    unbiased DEM, finds the DEM raised by three of its own sigmas, and estimates that bias
+    (within half a sigma of the clean estimate plus the injection); the tie heights of the
+    clean adjustment are within their predicted sigmas of the truth."""
+    import copy
+
+    from solver.api import run
+    from solver.geometry.dem import grid_from_job, grid_to_job
+
+    job, truth = rpc_triplet_with_dem
+    rep = run(copy.deepcopy(job))
+    clean = rep["quality"]["dem_bias"]
+    assert clean["testable"] and clean["passed"], clean
+    assert clean["sigma_m"] < 10.0  # the priors fix the heights to metres (not the 97 m of the orbit-only triplet)
+    true = {p["id"]: p for p in truth["points"]}
+    z = [(t["height_m"] - true[t["id"]]["height_m"]) / t["sigma_m"][2] for t in rep["tie_points"]]
+    assert np.sqrt(np.mean(np.square(z))) < 2.0
+    j = copy.deepcopy(job)
+    dem = grid_from_job(j["dem"]["grid"])
+    injected = 3.0 * clean["sigma_m"]
+    dem.values = dem.values + injected
+    j["dem"]["grid"] = grid_to_job(dem)
+    biased = run(j)["quality"]["dem_bias"]
+    assert not biased["passed"] and biased["w"] > biased["critical"], biased
+    assert biased["bias_m"] == pytest.approx(clean["bias_m"] + injected, abs=0.5 * clean["sigma_m"])
