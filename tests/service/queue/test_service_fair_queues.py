@@ -81,7 +81,7 @@ def test_local_pool_shares_between_users(
         store = srv.store()
         try:
             small = store.get_job(b_small)
-            assert small is not None and small.small  # a sync request takes the small lane
+            assert small is not None and small.small  # below the threshold: the small lane (not because it is synchronous)
             assert_fair_order(store, batch, b_big, b_small)
         finally:
             store.close()
