@@ -7,6 +7,8 @@
 3. tracks linked over pairs, thinned to ``per_cell`` per image cell (:mod:`solver.matching.tracks`);
 4. sub-pixel positions by correlation against the track's reference image and the epipolar
    check of every pair, with each pair's precision (:mod:`solver.matching.refine`);
+4b. tracks of three or more images checked in 3-D against the orientation with a per-image
+   bias (:mod:`solver.matching.verify`): blunders along the epipolar lines removed;
 5. the measurements (``image, point, line, column, sigma_px``), sorted by point then image order.
 
 Deterministic: no randomness but OpenCV's RANSAC with a fixed seed; images in the order given,
@@ -137,8 +139,12 @@ def match_images(images: list[MatchImage], heights: tuple[float, float], setting
             say(0.8 + 0.15 * n / max(len(kept), 1), "correlation")
     say(0.95, "epipolar check")
     sigmas, removed = _check(refined, images, mapping, settings)
+    removed_3d, bias = _verify_3d(refined, images, heights, sigmas)
     measurements = _measurements(refined, images, sigmas)
     summary = _summary(images, heights, settings, pairs, overlaps, matches, tracks, inconsistent, kept, refined, sigmas, removed, measurements)
+    for row, n_removed, b in zip(summary["images"], removed_3d, bias, strict=True):
+        row["removed_3d"] = n_removed
+        row["bias_px"] = [round(float(b[0]), 3), round(float(b[1]), 3)]
     say(1.0, "done")
     return MatchResult(measurements, summary)
 
@@ -166,6 +172,25 @@ def _check(refined: list[dict], images, mapping, s: MatchSettings) -> tuple[dict
             refined[k] = {}
     refined[:] = [r for r in refined if r]
     return sigmas, removed
+
+
+def _verify_3d(refined: list[dict], images: list[MatchImage], heights: tuple[float, float], sigmas: dict[tuple[int, int], float]) -> tuple[list[int], np.ndarray]:
+    """Tracks of three or more images checked in 3-D (:mod:`solver.matching.verify`; in place:
+    removed members deleted, tracks left with one member dropped): the measurements removed per
+    image and each image's bias against the tracks (pixels)."""
+    from solver.matching.verify import verify
+
+    tracks = [{m: np.asarray(v[0], float) for m, v in r.items()} for r in refined]
+    stated = [{m: REFERENCE_SIGMA_PX if m == min(r) else other_sigma(sigmas[(min(r), m)]) for m in r} for r in refined]
+    sizes = [(im.lines, im.columns) for im in images]
+    gone, bias, _res = verify(tracks, stated, [im.model for im in images], heights, sizes)
+    counts = [0] * len(images)
+    for r, g in zip(refined, gone, strict=True):
+        for m in g:
+            del r[m]
+            counts[m] += 1
+    refined[:] = [r for r in refined if len(r) >= 2]
+    return counts, np.array([bias[i][0] for i in range(len(images))])  # the shift (line, column) at the image's centre
 
 
 def _measurements(refined: list[dict], images: list[MatchImage], sigmas: dict[tuple[int, int], float]) -> list[dict[str, Any]]:

@@ -332,3 +332,63 @@ def test_rpc_height_range_is_the_rpcs_whole_range():
 
     rpcs = [SimpleNamespace(height_off=1305.0, height_scale=1305.0), SimpleNamespace(height_off=1200.0, height_scale=1300.0)]
     assert rpc_height_range(rpcs) == (-100.0, 2610.0)
+
+
+# --- tracks verified in 3-D ----------------------------------------------------------------
+
+class AlongTrackView:
+    """A linear along-track stereo view of a local Cartesian frame (metres): line = (y + tilt z)
+    / gsd, column = x / gsd, plus the orientation's error ``bias`` (pixels)."""
+
+    def __init__(self, tilt: float, bias=(0.0, 0.0), gsd: float = 2.0):
+        self.tilt, self.bias, self.gsd = tilt, np.asarray(bias, float), gsd
+
+    def ground_to_image(self, xyz):
+        xyz = np.atleast_2d(xyz)
+        return (xyz[:, 1] + self.tilt * xyz[:, 2]) / self.gsd + self.bias[0], xyz[:, 0] / self.gsd + self.bias[1], None
+
+    def image_to_ground(self, line, column, height_m=None):
+        line, column = np.atleast_1d(line) - self.bias[0], np.atleast_1d(column) - self.bias[1]
+        h = np.full(len(line), float(height_m))
+        return np.column_stack([column * self.gsd, line * self.gsd - self.tilt * h, h])
+
+
+def test_three_image_tracks_lose_their_blunders_along_the_epipolar_line():
+    """Three views (tilts -0.3, 0, 0.3), 300 points on 0-500 m terrain, matching noise 0.1 px;
+    the guiding orientation of the third view is off by (4, -3) px; five of its measurements
+    are 2 px wrong along its epipolar line (the line axis: a height error no pairwise check
+    sees). The 3-D check removes those five tracks' non-reference measurements and nothing
+    else."""
+    from solver.matching.verify import verify
+
+    rng = np.random.default_rng(7)
+    truth = [AlongTrackView(-0.3), AlongTrackView(0.0), AlongTrackView(0.3)]
+    guide = [AlongTrackView(-0.3), AlongTrackView(0.0), AlongTrackView(0.3, bias=(-4.0, 3.0))]
+    pts = np.column_stack([rng.uniform(0, 2000, 300), rng.uniform(0, 2000, 300), rng.uniform(0, 500, 300)])
+    tracks = []
+    for p in pts:
+        t = {}
+        for i, v in enumerate(truth):
+            line, col, _ = v.ground_to_image(p[None, :])
+            t[i] = np.array([line[0], col[0]]) + (rng.normal(0, 0.1, 2) if i else 0.0)
+        tracks.append(t)
+    blunders = [3, 50, 111, 200, 299]
+    for k in blunders:
+        tracks[k][2] = tracks[k][2] + np.array([2.0, 0.0])
+    sigmas = [{0: 0.02, 1: 0.14, 2: 0.14} for _ in tracks]
+    removed, bias, res = verify(tracks, sigmas, guide, (0.0, 500.0), [(1000, 1000)] * 3)
+    assert [k for k, r in enumerate(removed) if r] == blunders
+    assert all(removed[k] == {1, 2} for k in blunders)  # which of the two is wrong cannot be told
+    # the third view's column bias is found (its line bias is partly a height: not checked)
+    assert bias[2, 0, 1] == pytest.approx(-3.0, abs=0.05)  # the shift at the image's centre
+    kept = np.array([r[i] for k, r in enumerate(res) for i in r if k not in blunders])
+    assert float(np.sqrt(np.mean(kept**2))) < 0.3  # the noise of three measurements, propagated
+
+
+def test_two_image_tracks_are_not_judged_in_3d():
+    from solver.matching.verify import verify
+
+    views = [AlongTrackView(-0.3), AlongTrackView(0.3)]
+    tracks = [{0: np.array([100.0, 100.0]), 1: np.array([160.0, 100.0])}]  # any height explains it
+    removed, _bias, _res = verify(tracks, [{0: 0.02, 1: 0.1}], views, (0.0, 500.0), [(1000, 1000)] * 2)
+    assert removed == [set()]

@@ -1,0 +1,182 @@
+"""Tie points verified in 3-D before they are written.
+
+A pairwise epipolar check cannot see an error along the epipolar line: it is a height. A track
+of three or more images can: its rays do not meet. Each track is intersected with the guiding
+orientation (the point nearest to its rays in the least-squares sense, ECEF metres; a ray is
+the image position's ground points at the lowest and the highest terrain height) and projected
+back into its images; the residual (measured - projected, pixels) of each measurement is its
+misfit.
+
+The orientation has errors of its own (delivered RPCs: a shift of pixels to tens of pixels; an
+initial attitude: a rotation as well), smooth over an image: per image (the first image fixed,
+as the block's datum is free) an affine function of (line, column), fitted robustly to the
+image's residuals over all tracks, is estimated and removed from the measurements before the
+intersection (iterated: the residual of an image against the point the
+track's other images give, its median over the tracks).
+
+Then every track of three or more images is tested: each measurement against the point its
+other images give, the residual against ``max(OUTLIER_SIGMAS x sqrt(sum of the track's stated
+variances), OUTLIER_FLOOR_PX)``. Of a failing track of three images the non-reference
+measurements are removed (one blunder along an epipolar line cannot be told from the others:
+any of the three rays could be moved to meet the two others; the reference pixel defines the
+tie point); of a longer track the worst measurement, and the test is repeated. A two-image
+track has no redundancy along the epipolar line (the epipolar check judged it across).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+OUTLIER_SIGMAS = 5.0  # a residual beyond this many stated sigmas is a blunder
+OUTLIER_FLOOR_PX = 0.5  # ... and beyond half a pixel (the stated sigmas are 0.05-0.2 px)
+BIAS_ITERATIONS = 6
+
+
+def _rays(model, pos: np.ndarray, heights: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """(origin, unit direction) in ECEF of image positions ``pos`` (n, 2)."""
+    with np.errstate(all="ignore"):
+        lo = np.asarray(model.image_to_ground(pos[:, 0], pos[:, 1], height_m=float(heights[0])), float)
+        hi = np.asarray(model.image_to_ground(pos[:, 0], pos[:, 1], height_m=float(heights[1])), float)
+    d = hi - lo
+    return lo, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def intersect(origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """The point (3,) nearest to the rays (k, 3) in the least-squares sense."""
+    a = np.zeros((3, 3))
+    b = np.zeros(3)
+    for o, d in zip(origins, dirs, strict=True):
+        p = np.eye(3) - np.outer(d, d)
+        a += p
+        b += p @ o
+    return np.linalg.solve(a, b)
+
+
+def _intersections(tracks: list[dict[int, np.ndarray]], models: list, heights: tuple[float, float], bias: np.ndarray, sizes):
+    """Per track ``{image: (origin, direction)}`` of its measurements' rays (bias removed)."""
+    span = (heights[0] - 100.0, heights[1] + 100.0)
+    rays: dict[int, list] = {}
+    for k, t in enumerate(tracks):
+        for i, p in t.items():
+            rays.setdefault(i, []).append((k, p))
+    out: list[dict[int, tuple[np.ndarray, np.ndarray]]] = [{} for _ in tracks]
+    for i, items in rays.items():
+        pos = np.array([p for _k, p in items])
+        o, d = _rays(models[i], pos - apply_bias(bias, i, pos, sizes[i]), span)
+        for (k, _p), oi, di in zip(items, o, d, strict=True):
+            out[k][i] = (oi, di)
+    return out
+
+
+def residuals(tracks: list[dict[int, np.ndarray]], models: list, heights: tuple[float, float], bias: np.ndarray,
+              sizes: list[tuple[int, int]], leave_out: bool = False) -> list[dict[int, np.ndarray]]:
+    """Per track ``{image: measured - bias - projected (line, column)}`` (module docstring),
+    the point intersected from all the track's rays, or (``leave_out``, tracks of three or
+    more images) from the other images' rays only; NaN where a ray or a projection fails."""
+    points: dict[int, list[tuple[int, np.ndarray]]] = {}  # image -> (track, point) to project
+    for k, (t, rays) in enumerate(zip(tracks, _intersections(tracks, models, heights, bias, sizes), strict=True)):
+        ids = sorted(t)
+        for i in ids:
+            use = [j for j in ids if j != i] if leave_out else ids
+            if leave_out and len(use) < 2:
+                continue
+            o = np.array([rays[j][0] for j in use])
+            d = np.array([rays[j][1] for j in use])
+            ok = np.all(np.isfinite(o)) and np.all(np.isfinite(d))
+            points.setdefault(i, []).append((k, intersect(o, d) if ok else np.full(3, np.nan)))
+    out: list[dict[int, np.ndarray]] = [{} for _ in tracks]
+    for i, items in points.items():
+        xyz = np.array([x for _k, x in items])
+        with np.errstate(all="ignore"):
+            line, col, _chip = models[i].ground_to_image(xyz)
+        pred = np.column_stack([np.asarray(line, float).ravel(), np.asarray(col, float).ravel()])
+        measured = np.array([tracks[k][i] for k, _x in items])
+        corrected = measured - apply_bias(bias, i, measured, sizes[i])
+        for (k, _x), c, p in zip(items, corrected, pred, strict=True):
+            out[k][i] = c - p
+    return out
+
+
+def _design(pos: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(n, 3): 1, line and column scaled to -1..1 over the image."""
+    return np.column_stack([np.ones(len(pos)), 2.0 * pos[:, 0] / max(size[0], 1) - 1.0, 2.0 * pos[:, 1] / max(size[1], 1) - 1.0])
+
+
+def _robust_affine(a: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(3, 2) coefficients of the residuals ``r`` (n, 2) on the design ``a`` (n, 3), least squares
+    with points beyond max(3.5 MAD-sigmas, 0.3 px) left out, three times."""
+    keep = np.ones(len(r), dtype=bool)
+    coef = np.zeros((3, 2))
+    for _ in range(3):
+        if keep.sum() < 6:
+            coef = np.vstack([np.median(r[keep] if keep.any() else r, axis=0), np.zeros((2, 2))])
+            break
+        coef = np.linalg.lstsq(a[keep], r[keep], rcond=None)[0]
+        e = np.hypot(*(r - a @ coef).T)
+        keep = e <= max(3.5 * 1.4826 * float(np.median(e[keep])), 0.3)
+    return coef
+
+
+def apply_bias(bias: np.ndarray, i: int, pos: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """The bias (pixels) of image ``i`` at positions ``pos`` (n, 2)."""
+    return _design(pos, size) @ bias[i]
+
+
+def image_bias(tracks: list[dict[int, np.ndarray]], models: list, heights: tuple[float, float], sizes: list[tuple[int, int]]) -> np.ndarray:
+    """(n_images, 3, 2) per-image bias of the orientation against the tracks, an affine function
+    of (line, column) (:func:`apply_bias`), the first image's zero: fitted robustly to each
+    image's residuals against the point the track's other images give (module docstring)."""
+    bias = np.zeros((len(models), 3, 2))
+    multi = [t for t in tracks if len(t) >= 3]
+    for _ in range(BIAS_ITERATIONS):
+        largest = 0.0
+        for i in range(1, len(models)):  # one image at a time (all at once overshoots)
+            mine = [t for t in multi if i in t]
+            if len(mine) < 3:
+                continue
+            res = residuals(mine, models, heights, bias, sizes, leave_out=True)
+            rows = [(t[i], r[i]) for t, r in zip(mine, res, strict=True) if i in r and np.all(np.isfinite(r[i]))]
+            if len(rows) < 3:
+                continue
+            pos = np.array([p for p, _r in rows])
+            step = _robust_affine(_design(pos, sizes[i]), np.array([r for _p, r in rows]))
+            bias[i] += step
+            largest = max(largest, float(np.max(np.abs(_design(pos, sizes[i]) @ step))))
+        if largest < 0.01:
+            break
+    return bias
+
+
+def verify(tracks: list[dict[int, np.ndarray]], sigmas: list[dict[int, float]], models: list, heights: tuple[float, float],
+           sizes: list[tuple[int, int]]) -> tuple[list[set[int]], np.ndarray, list[dict[int, np.ndarray]]]:
+    """The measurements to remove (per track, the images), the per-image bias and the final
+    residuals (against the point the other images give) of tracks ``{image: (line, column)}``
+    with stated ``sigmas`` ``{image: px}``, the reference the lowest image (module docstring)."""
+    bias = image_bias(tracks, models, heights, sizes)
+    removed: list[set[int]] = [set() for _ in tracks]
+    final: list[dict[int, np.ndarray]] = []
+    for k, track in enumerate(tracks):
+        t = dict(track)
+        r: dict[int, np.ndarray] = {}
+        while len(t) >= 3:
+            (r,) = residuals([t], models, heights, bias, sizes, leave_out=True)
+            total = sum(sigmas[k][i] ** 2 for i in t)
+            worst, excess = None, 1.0
+            for i in t:
+                e = float(np.hypot(*r[i])) if np.all(np.isfinite(r[i])) else np.inf
+                ratio = e / max(OUTLIER_SIGMAS * float(np.sqrt(total)), OUTLIER_FLOOR_PX)
+                if ratio > excess:
+                    worst, excess = i, ratio
+            if worst is None:
+                break
+            ref = min(t)
+            # three rays with one blunder along an epipolar line: any of them could be moved to
+            # meet the others, so the non-reference measurements go (the reference pixel is
+            # the tie point's definition); with more rays the worst goes, unless it is the reference
+            drop = [i for i in t if i != ref] if (len(t) == 3 or worst == ref) else [worst]
+            for i in drop:
+                removed[k].add(i)
+                del t[i]
+            r = {}
+        final.append(r)
+    return removed, bias, final
