@@ -286,17 +286,34 @@ class DemHeightsFamily(FamilyDefaults):
             p["rejected"] = p["point"] in gone
 
 
+def _excluded_indices(problem: "AdjustmentState") -> list[int]:
+    dem = problem.job.dem
+    excluded = set(dem.excluded) if dem is not None else set()
+    return [p.index for p in problem.points if p.role == "tie" and p.estimated and p.id in excluded]
+
+
 def dem_report(problem: "AdjustmentState", st: DemState) -> dict[str, Any]:
     """The report's ``dem`` section at the current parameters: per tie point the DEM height,
-    the point's adjusted height, the residual v = h_dem - h and its sigma; their statistics."""
+    the point's adjusted height, the residual v = h_dem - h and its sigma; their statistics
+    (of the DEM heights used). The points in ``dem.excluded`` (data snooping's removals, or
+    the job's own) follow with ``used`` false: their DEM height at their adjusted position,
+    outside the adjustment and the statistics."""
     indices = list(st.terms)
-    xyz = np.array([problem.points[i].xyz for i in indices]) if indices else np.zeros((0, 3))
+    excluded = [i for i in _excluded_indices(problem) if i not in st.terms]
+    if excluded:  # their sigma as if used (the formula at their current position)
+        for i, term in _linearise(problem, st, excluded).items():
+            st.sigma[i] = 1.0 / term.w
+        excluded = [i for i in excluded if i in st.sigma]
+    every = indices + excluded
+    xyz = np.array([problem.points[i].xyz for i in every]) if every else np.zeros((0, 3))
     smp = sample(problem.frame, st.dem, xyz)
-    sig = np.array([st.sigma[i] for i in indices])
-    v = smp.residual
+    sig = np.array([st.sigma[i] for i in every])
     rows = [{"point": problem.points[i].id, "dem_height_m": float(smp.h_dem[k]), "height_m": float(smp.height[k]),
-             "residual_m": float(v[k]), "sigma_m": float(sig[k]), "slope": float(np.hypot(*smp.slope[k]))}
-            for k, i in enumerate(indices)]
+             "residual_m": float(smp.residual[k]), "sigma_m": float(sig[k]), "slope": float(np.hypot(*smp.slope[k])),
+             "used": k < len(indices)}
+            for k, i in enumerate(every)]
+    v = smp.residual[: len(indices)]
+    sig = sig[: len(indices)]
     finite = np.isfinite(v)
     stats: dict[str, Any] = {"n": int(finite.sum())}
     if finite.any():

@@ -210,8 +210,14 @@ def test_snooping_removes_the_dem_heights_of_points_on_roofs_and_trees(controlle
     for p in rep["tie_points"]:
         if p["id"] in offsets:
             assert abs(p["height_m"] - true[p["id"]]["height_m"]) < 3.0 * p["sigma_m"][2], p
-    rows = {p["point"] for p in rep["dem"]["points"]}
-    assert rows.isdisjoint(offsets) and len(rows) == len(ties) - len(offsets)  # the others' DEM heights all kept
+    rows = {p["point"]: p for p in rep["dem"]["points"]}
+    used = {pid for pid, p in rows.items() if p["used"]}
+    assert used.isdisjoint(offsets) and len(used) == len(ties) - len(offsets)  # the others' DEM heights all kept
+    assert rep["dem"]["statistics"]["n"] == len(used)
+    for pid, off in offsets.items():  # listed after the used ones, flagged, and showing the blunder
+        assert rows[pid]["rejected"] and not rows[pid]["used"]
+        assert abs(rows[pid]["residual_m"] - off) < 4.0 * rows[pid]["sigma_m"], rows[pid]
+    assert not any(p.get("rejected") for p in rows.values() if p["used"])
 
 
 def test_a_removal_that_drops_a_tie_point_drops_it_from_the_dem_exclusions(controlled_triplet_with_dem) -> None:
