@@ -32,6 +32,7 @@ from service.middleware import (
     UrlTextMiddleware,
 )
 from service.queue import make_backend
+from service.raster_checks import stop_pool
 from service.retention import RetentionLoop
 from service.routes import admin, cameras, compose, gis, jobs, landing, ops, plots, processes, ui
 from service.settings import Settings
@@ -111,6 +112,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
             retention.stop()
         services.backend.stop()
         services.gis.stop()
+        stop_pool()  # the raster check processes (service.raster_checks)
         services.store.close()
         log.info("server stopped")
 

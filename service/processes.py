@@ -291,9 +291,16 @@ def _check_match(job: Job, inputs: ExecuteInputs, caller: Caller) -> Checked:
     if heights is not None and not (math.isfinite(heights[0]) and math.isfinite(heights[1]) and heights[0] < heights[1]):
         message = "heights_m: MIN must be below MAX (ellipsoidal metres)"
         raise InvalidInput(message, [{"pointer": "/inputs/heights_m", "code": "invalid", "message": message}])
+    from service.raster_checks import Refusal, pool
+
     s = caller.settings
+    checks = pool(s.raster_check_processes, s.raster_check_timeout_s, s.raster_checks_per_user)
+
+    def run(pointer: str, shown: str, name: str, *args: Any) -> Any:  # outside the request thread, timed
+        return checks.run(caller.user_name, Refusal(pointer, shown), name, *args)
+
     rasters = stored_rasters(inputs.images, s.image_root, caller.user_name, s.max_image_upload_bytes,
-                             s.max_upload_pixel_bytes, s.max_raster_pixel_bytes, stated_sizes(job))
+                             s.max_upload_pixel_bytes, s.max_raster_pixel_bytes, stated_sizes(job), run)
     document = {
         **_job_document(job),
         "images": rasters,

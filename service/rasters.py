@@ -29,7 +29,7 @@ import re
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from service.errors import InvalidInput
 from solver.raster_gate import RasterHeader, RasterLimits, RasterRefused, RasterSpace, open_raster
@@ -135,12 +135,23 @@ def _check_size(header: RasterHeader, image_id: str, stated: tuple[int | None, i
             raise _refuse(index, field, "size_mismatch", message)
 
 
+def _inline(_pointer: str, _shown: str, name: str, *args: Any) -> Any:
+    return globals()[name](*args)
+
+
 def stored_rasters(images: list[Any], root: Path | None, user_name: str, limit_bytes: int,
                    max_upload_pixel_bytes: int, max_raster_pixel_bytes: int,
-                   sizes: dict[str, tuple[int | None, int | None]] | None = None) -> list[dict[str, Any]]:
+                   sizes: dict[str, tuple[int | None, int | None]] | None = None,
+                   run: Callable[..., Any] | None = None) -> list[dict[str, Any]]:
     """The rasters as the job document stores them: ``{"id", "path", "pixels"}`` (relative,
     checked) or ``{"id", "upload", "pixels"}`` (base64, checked); ids distinct. ``pixels``: the
-    header's width x height (what the matching will cost)."""
+    header's width x height (what the matching will cost).
+
+    ``run(pointer, shown, name, *args)``: how a header check (``check_path_header`` or
+    ``check_upload_header`` of this module) runs: here by default; the API hands it to its
+    check processes (service.raster_checks), ``pointer`` and ``shown`` naming the raster if
+    the check fails there."""
+    run = run or _inline
     seen: set[str] = set()
     out = []
     for k, im in enumerate(images):
@@ -148,11 +159,13 @@ def stored_rasters(images: list[Any], root: Path | None, user_name: str, limit_b
             raise _refuse(k, "id", "duplicate", f"image {im.id!r} is given twice")
         seen.add(im.id)
         if im.path is not None:
-            header = check_path_header(root, user_name, im.path, k, max_raster_pixel_bytes)
+            header = run(f"/inputs/images/{k}/path", repr(im.path[:200]), "check_path_header",
+                         root, user_name, im.path, k, max_raster_pixel_bytes)
             entry = {"id": im.id, "path": im.path}
             field = "path"
         else:
-            header = check_upload_header(decode_upload(im.value, limit_bytes, k), k, max_upload_pixel_bytes)
+            header = run(f"/inputs/images/{k}/value", "the upload", "check_upload_header",
+                         decode_upload(im.value, limit_bytes, k), k, max_upload_pixel_bytes)
             entry = {"id": im.id, "upload": im.value}
             field = "value"
         if sizes is not None and im.id in sizes:

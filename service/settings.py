@@ -88,6 +88,27 @@ class Settings(BaseSettings):
         description="match process: a raster under the image root, band 1 decoded (width x height x bytes per "
         "pixel, from its header), at most",
     )
+    raster_check_processes: int = Field(
+        3,
+        ge=1,
+        le=64,
+        description="match process: processes of the API that read the rasters' headers at submission "
+        "(outside the request threads)",
+    )
+    raster_check_timeout_s: float = Field(
+        20.0,
+        gt=0,
+        le=3600,
+        description="match process: a raster's header not read within this time at submission is refused "
+        "(422 timeout) and its reading process replaced",
+    )
+    raster_checks_per_user: int = Field(
+        2,
+        ge=1,
+        le=64,
+        description="match process: header checks one user may have running at once; more are answered "
+        "503 at once (Retry-After)",
+    )
     compose_max_rows: int = Field(
         20_000,
         gt=0,

@@ -75,7 +75,7 @@ async def _accepted(
             "content": {"application/json": {}},
         },
         201: {"description": "job accepted (asynchronous execution)", "model": StatusInfo},
-        **problem_responses(401, 404, 413, 415, 422, 429, 500),
+        **problem_responses(401, 404, 413, 415, 422, 429, 500, 503),
     },
 )
 async def execute(
