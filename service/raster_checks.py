@@ -3,7 +3,7 @@
 A ``match`` submission reads each raster's header (service.rasters, through the raster gate):
 little work, but work on a file a client chose, in GDAL. A slow file system, a header GDAL
 takes long over or a crash in GDAL must not stall or take down the API. So the API hands each
-check to a small pool of processes of its own (``pba-raster-check``):
+check to a small pool of processes of its own (``pba-raster`` in ``ps``):
 
 - **a time limit**: a check that has not answered within ``PBA_RASTER_CHECK_TIMEOUT_S``
   seconds is abandoned, its process killed and replaced; the request gets a 422 pointing at the
@@ -35,7 +35,8 @@ from service.errors import InvalidInput, ServiceError
 
 log = logging.getLogger("pba.raster_checks")
 
-PROCESS_NAME = "pba-raster-check"
+PROCESS_NAME = "pba-raster"
+"""The check processes' name in ``ps`` (Linux: at most 15 characters)."""
 
 
 class ChecksBusy(ServiceError):
@@ -51,10 +52,9 @@ def _serve(conn: Any) -> None:
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the server, which stops us
     try:
-        from setproctitle import setproctitle  # type: ignore[import-not-found]
-
-        setproctitle(PROCESS_NAME)
-    except ImportError:
+        with open("/proc/self/comm", "w") as comm:  # Linux; elsewhere the name stays python
+            comm.write(PROCESS_NAME)
+    except OSError:
         pass
     from service import rasters
     from solver.raster_gate import lock_down_process

@@ -13,19 +13,22 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import subprocess
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 from fastapi.testclient import TestClient
+from pba_service_harness import Server
 from test_matching_real import DATA, PAIRS, _rpc_job
 
 from service.app import create_app
 from service.auth import create_key
 from service.processes import MATCH
-from service.raster_checks import stop_pool
+from service.raster_checks import PROCESS_NAME, stop_pool
 from service.settings import Settings
 
 pytestmark = pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")
@@ -143,3 +146,72 @@ def test_a_check_process_that_dies_is_a_422_and_replaced(served):
     assert c.get("/healthz").status_code == 200
     assert _match(c, keys["alice"], doc).status_code == 201
     assert pid not in checks.pids()
+
+
+def _check_processes(parent: int) -> list[int]:
+    """The ``pba-raster`` processes of the server process ``parent``, oldest first."""
+    out = subprocess.run(["pgrep", "-P", str(parent)], capture_output=True, text=True)
+    named = []
+    for pid in (int(x) for x in out.stdout.split()):
+        try:
+            if Path(f"/proc/{pid}/comm").read_text().strip() == PROCESS_NAME:
+                named.append((float(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19]), pid))
+        except (OSError, IndexError, ValueError):  # ended meanwhile
+            continue
+    return [pid for _, pid in sorted(named)]
+
+
+@pytest.mark.slow
+def test_a_real_server_answers_others_while_one_user_holds_45_requests(tmp_path: Path):
+    """The same as above against a real ``pba serve`` (uvicorn, its own process): 45 held
+    connections of alice, /healthz and bob answering. The times are printed, not asserted
+    (they depend on the machine's load)."""
+    root = tmp_path / "images"
+    for user in ("alice", "bob"):
+        (root / user).mkdir(parents=True)
+        for name in (LEFT, RIGHT):
+            shutil.copyfile(DATA / f"{name}.tif", root / user / f"{name}.tif")
+    doc = _rpc_job([LEFT, RIGHT], [])
+    images = [{"id": LEFT, "path": f"{LEFT}.tif"}, {"id": RIGHT, "path": f"{RIGHT}.tif"}]
+    body = {"inputs": {"job": doc, "images": images}}
+    with Server(tmp_path / "data", workers=0, require_api_keys="true", image_root=root, raster_check_processes=2,
+                raster_checks_per_user=1, raster_check_timeout_s=TIMEOUT_S) as server:
+        alice_key, bob_key = server.create_key("alice"), server.create_key("bob")
+        async_ = {"Prefer": "respond-async"}
+        with server.client(bob_key, timeout=60) as bob:
+            for _ in range(2):  # both check processes started; the first takes the next check
+                assert bob.post(f"/processes/{MATCH}/execution", json=body, headers=async_).status_code == 201
+            assert server.proc is not None
+            pids = _check_processes(server.proc.pid)
+            assert len(pids) == 2, pids
+            os.kill(pids[0], signal.SIGSTOP)
+            try:
+                def alice_submits() -> Any:
+                    with server.client(alice_key, timeout=TIMEOUT_S + 60) as alice:
+                        return alice.post(f"/processes/{MATCH}/execution", json=body, headers=async_)
+
+                with ThreadPoolExecutor(HELD) as ex:
+                    futures = [ex.submit(alice_submits) for _ in range(HELD)]
+                    deadline = time.monotonic() + 60
+                    while sum(f.done() for f in futures) < HELD - 1:
+                        assert time.monotonic() < deadline, [f.result().status_code for f in futures if f.done()]
+                        time.sleep(0.05)
+                    assert {f.result().status_code for f in futures if f.done()} == {503}
+                    times = {}
+                    for what, call in (("/healthz", lambda: httpx.get(f"{server.url}/healthz", timeout=10)),
+                                       ("bob GET /jobs", lambda: bob.get("/jobs", timeout=10)),
+                                       ("bob's match", lambda: bob.post(f"/processes/{MATCH}/execution", json=body,
+                                                                        headers=async_, timeout=10))):
+                        t0 = time.monotonic()
+                        r = call()
+                        times[what] = round(time.monotonic() - t0, 3)
+                        assert r.status_code in (200, 201), (what, r.text)
+                    assert sum(not f.done() for f in futures) == 1
+                    print("real server, alice's check held:", times)
+                    held = next(f for f in futures if not f.done()).result()
+                    assert held.status_code == 422 and held.json()["errors"][0]["code"] == "timeout", held.text
+            finally:
+                try:
+                    os.kill(pids[0], signal.SIGCONT)
+                except ProcessLookupError:
+                    pass
