@@ -10,6 +10,7 @@ real Pleiades pair of tests/data/matching.
 
 from __future__ import annotations
 
+import base64
 import os
 import shutil
 import signal
@@ -30,6 +31,7 @@ from service.auth import create_key
 from service.processes import MATCH
 from service.raster_checks import PROCESS_NAME, stop_pool
 from service.settings import Settings
+from solver.raster_gate import create_raster
 
 pytestmark = pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")
 
@@ -148,6 +150,14 @@ def test_a_check_process_that_dies_is_a_422_and_replaced(served):
     assert pid not in checks.pids()
 
 
+def _rss_mb(pid: int) -> float:
+    """Resident memory of process ``pid`` (Linux /proc), MB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError("no VmRSS")
+
+
 def _check_processes(parent: int) -> list[int]:
     """The ``pba-raster`` processes of the server process ``parent``, oldest first."""
     out = subprocess.run(["pgrep", "-P", str(parent)], capture_output=True, text=True)
@@ -182,6 +192,18 @@ def test_a_real_server_answers_others_while_one_user_holds_45_requests(tmp_path:
             for _ in range(2):  # both check processes started; the first takes the next check
                 assert bob.post(f"/processes/{MATCH}/execution", json=body, headers=async_).status_code == 201
             assert server.proc is not None
+            # a 16384 x 16384 uint16 raster (512 MiB decoded) in a file of a few kB: refused by its header
+            bomb = tmp_path / "bomb.tif"
+            with create_raster(bomb, driver="GTiff", width=16384, height=16384, count=1, dtype="uint16",
+                               tiled=True, compress="deflate", sparse_ok=True):
+                pass
+            assert bomb.stat().st_size < 100_000
+            value = base64.b64encode(bomb.read_bytes()).decode()
+            r = bob.post(f"/processes/{MATCH}/execution", headers=async_, json={"inputs": {
+                "job": doc, "images": [{"id": LEFT, "value": value}, {"id": RIGHT, "value": value}]}})
+            assert r.status_code == 422 and r.json()["errors"][0]["code"] == "too_large", r.text
+            rss_mb = _rss_mb(server.proc.pid)
+            assert rss_mb < 400, rss_mb  # the API process (it loads no GDAL: the check processes do)
             pids = _check_processes(server.proc.pid)
             assert len(pids) == 2, pids
             os.kill(pids[0], signal.SIGSTOP)
