@@ -154,12 +154,13 @@ def verify(tracks: list[dict[int, np.ndarray]], sigmas: list[dict[int, float]], 
     with stated ``sigmas`` ``{image: px}``, the reference the lowest image (module docstring)."""
     bias = image_bias(tracks, models, heights, sizes)
     removed: list[set[int]] = [set() for _ in tracks]
-    final: list[dict[int, np.ndarray]] = []
+    final = residuals(tracks, models, heights, bias, sizes, leave_out=True)  # all tracks at once
     for k, track in enumerate(tracks):
         t = dict(track)
-        r: dict[int, np.ndarray] = {}
+        r = final[k]
         while len(t) >= 3:
-            (r,) = residuals([t], models, heights, bias, sizes, leave_out=True)
+            if not r:
+                (r,) = residuals([t], models, heights, bias, sizes, leave_out=True)  # a track that lost a member
             total = sum(sigmas[k][i] ** 2 for i in t)
             worst, excess = None, 1.0
             for i in t:
@@ -178,5 +179,5 @@ def verify(tracks: list[dict[int, np.ndarray]], sigmas: list[dict[int, float]], 
                 removed[k].add(i)
                 del t[i]
             r = {}
-        final.append(r)
+        final[k] = r
     return removed, bias, final
