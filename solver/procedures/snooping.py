@@ -199,14 +199,16 @@ class _Snooping:
             # next worst of the same block waits for the least-squares loop
             if c[0].group.block in blocks:
                 continue
-            if any(m.group.fixed or m.group.family is not None for m in c):
+            if any(m.group.fixed or (m.group.family is not None and m.group.kind != "dem_height") for m in c):
                 # a fixed control point (its rays share one loss block per image in the robust
-                # solve) and the families' terms (lines, ephemeris, attitude; a point's DEM
-                # height) cannot be reinstated: the least-squares loop tests them. Their block
-                # waits too: a DEM height off by tens of metres pulls its point, and the next
-                # worst test of the block, one of its rays, would be removed in its place
+                # solve) and the image-only terms (lines, ephemeris, attitude: the loss does not
+                # act on them) cannot be reinstated: the least-squares loop tests them. Their
+                # block waits too (the next worst test of the block is not removed in its place)
                 blocks.update(m.group.block for m in c)
                 continue
+            # a point's DEM height (a roof, a tree, water) goes here, with its own robust loss:
+            # left to the least-squares loop it pulls its point sideways on a steep DEM flank,
+            # the block bends and control surveys fail in its place (docs/datum.md)
             if self.n_removed + len(c) > limit:
                 break
             take.append(c)

@@ -136,9 +136,9 @@ BLUNDER_M = 25.0  # the DEM off at a blundered point: 8 sigmas of a DEM height (
 BLUNDER_RADIUS_M = 45.0  # cells within this of the point are off: 1.5 cells, the point on a plateau
 
 
-def _blundered(job: dict, truth: dict, offsets: dict[str, float]) -> dict:
-    """``job`` with its DEM off by ``offsets[point]`` at every cell centre within
-    :data:`BLUNDER_RADIUS_M` of the point's true position, and default data snooping."""
+def _blundered(job: dict, truth: dict, offsets: dict[str, float], radius_m: float = BLUNDER_RADIUS_M) -> dict:
+    """``job`` with its DEM off by ``offsets[point]`` at every cell centre within ``radius_m``
+    of the point's true position, and default data snooping."""
     import copy
 
     from solver.geometry.dem import grid_from_job, grid_to_job, metres_per_degree
@@ -154,16 +154,15 @@ def _blundered(job: dict, truth: dict, offsets: dict[str, float]) -> dict:
         m_lon, m_lat = metres_per_degree(np.array([true[pid]["lat_deg"]]))
         dx = (lon_c - true[pid]["lon_deg"]) * m_lon[0]
         dy = (lat_c - true[pid]["lat_deg"]) * m_lat[0]
-        values[np.hypot(dx[None, :], dy[:, None]) <= BLUNDER_RADIUS_M] += off
+        values[np.hypot(dx[None, :], dy[:, None]) <= radius_m] += off
     dem.values = values
     j["dem"]["grid"] = grid_to_job(dem)
     j["options"] = {**j.get("options", {}), "blunder_detection": {}}
     return j
 
 
-@pytest.fixture(scope="module")
-def controlled_triplet_with_dem(tmp_path_factory):
-    """The PASS-J2 triplet of seed 2 with 4 control points (its horizontal datum: without
+def _controlled_triplet(d, seed: int) -> tuple[dict, dict]:
+    """The PASS-J2 triplet of ``seed`` with 4 control points (its horizontal datum: without
     control this block's tie points are 20-120 m off horizontally, so a DEM is sampled away
     from where the blunders are; bench/bench_dem_blunders.py) and a degraded DEM."""
     import json
@@ -173,9 +172,8 @@ def controlled_triplet_with_dem(tmp_path_factory):
     from solver.simulate.dem import DemDegradation, degraded_dem
     from solver.simulate.terrain import Terrain
 
-    d = tmp_path_factory.mktemp("dem_blunders")
     out = d / "tri.json"
-    assert main(["simulate", "prism-triplet", "-o", str(out), "--seed", "2", "--model", "PASS-J2",
+    assert main(["simulate", "prism-triplet", "-o", str(out), "--seed", str(seed), "--model", "PASS-J2",
                  "--weight-ephemeris", "2,0.01", "--gcps", "4", "--checks", "10", "--tie-points", "40"]) == 0
     job = json.loads(out.read_text())
     truth = json.loads(out.with_name("tri.truth.json").read_text())
@@ -184,9 +182,15 @@ def controlled_triplet_with_dem(tmp_path_factory):
     lon = [p["lon_deg"] for p in truth["points"]]
     lat = [p["lat_deg"] for p in truth["points"]]
     bounds = (min(lon) - 0.02, min(lat) - 0.02, max(lon) + 0.02, max(lat) + 0.02)
-    degraded_dem(terrain.height, bounds, DemDegradation(noise_m=DEM_NOISE_M, seed=102), d / "dem.tif")
+    degraded_dem(terrain.height, bounds, DemDegradation(noise_m=DEM_NOISE_M, seed=100 + seed), d / "dem.tif")
     job["dem"] = {"grid": grid_to_job(read_dem(d / "dem.tif")), "sigma_m": DEM_NOISE_M}
     return job, truth
+
+
+@pytest.fixture(scope="module")
+def controlled_triplet_with_dem(tmp_path_factory):
+    """:func:`_controlled_triplet` of seed 2."""
+    return _controlled_triplet(tmp_path_factory.mktemp("dem_blunders"), 2)
 
 
 def test_snooping_removes_the_dem_heights_of_points_on_roofs_and_trees(controlled_triplet_with_dem) -> None:
@@ -218,6 +222,23 @@ def test_snooping_removes_the_dem_heights_of_points_on_roofs_and_trees(controlle
         assert rows[pid]["rejected"] and not rows[pid]["used"]
         assert abs(rows[pid]["residual_m"] - off) < 4.0 * rows[pid]["sigma_m"], rows[pid]
     assert not any(p.get("rejected") for p in rows.values() if p["used"])
+
+
+def test_dem_spikes_are_removed_not_the_control(tmp_path) -> None:
+    """The DEM 25 m off only in the cells next to four tie points (a single building or tree in
+    a 30 m DEM: flanks of slope ~1 within a cell of the point), seed 3: the DEM heights pull
+    their points sideways, and when the robust start left them to the least-squares loop it
+    removed two control surveys instead (P01, P02; every blundered height kept). The robust start
+    now removes a failed DEM height itself: exactly the four, no control lost."""
+    from solver.api import run
+
+    job, truth = _controlled_triplet(tmp_path, 3)
+    ties = [p["id"] for p in job["points"] if p["role"] == "tie"]
+    offsets = {pid: BLUNDER_M * (1 if k % 2 == 0 else -1) for k, pid in enumerate(ties[3::8][:4])}
+    q = run(_blundered(job, truth, offsets, radius_m=20.0))["quality"]
+    removed = {r["point"] for r in q["rejected"] if r["kind"] == "dem_height" and r.get("removed", True)}
+    assert removed == set(offsets), q["rejected"]
+    assert q["lost_control"] is None and not [r for r in q["rejected"] if r["kind"] != "dem_height"], q["rejected"]
 
 
 def test_a_removal_that_drops_a_tie_point_drops_it_from_the_dem_exclusions(controlled_triplet_with_dem) -> None:
