@@ -26,7 +26,7 @@ from scipy.linalg import lapack
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.blocks import registry as blocks
-from solver.engine.native import in_threads
+from solver.engine.native import in_threads, thread_ranges
 from solver.engine.packed_tables import current_tables, records
 from solver.engine.terms import block_owner, family_terms
 from solver.kernels import all_observation_blocks
@@ -246,9 +246,10 @@ def _most_rows(fcol: np.ndarray, bounds: np.ndarray) -> int:
 
 
 @njit(**_JIT)
-def _reduce_into(q_lo, q_hi, s, fcol, jf, jpt, order, bounds, c_inv, rows):
+def _reduce_into(q_lo, q_hi, s, c0, fcol, jf, jpt, order, bounds, c_inv, rows):
     """S -= B_p C_p^-1 B_p^T for the points ``q_lo:q_hi`` (observations grouped by
-    ``order``/``bounds``; ``rows``: :func:`_most_rows`)."""
+    ``order``/``bounds``; ``rows``: :func:`_most_rows`); ``s`` holds S's rows and columns from
+    ``c0`` on (a band of it)."""
     cols = np.empty(rows, dtype=np.int64)
     bp = np.empty((rows, 3))
     wm = np.empty((rows, 3))
@@ -260,33 +261,50 @@ def _reduce_into(q_lo, q_hi, s, fcol, jf, jpt, order, bounds, c_inv, rows):
         _times_3x3(bp, m, c_inv, q, wm)
         for x in range(m):
             for y in range(m):
-                s[cols[x], cols[y]] -= wm[x, 0] * bp[y, 0] + wm[x, 1] * bp[y, 1] + wm[x, 2] * bp[y, 2]
+                s[cols[x] - c0, cols[y] - c0] -= wm[x, 0] * bp[y, 0] + wm[x, 1] * bp[y, 1] + wm[x, 2] * bp[y, 2]
 
 
 PARALLEL_MAX_REDUCED = 2_000
-"""Largest reduced normal matrix (parameters of images, cameras and passes) whose points are
-eliminated on several threads, each into its own copy (2,000 parameters: 32 MB a copy)."""
+"""Largest band of the reduced normal matrix (parameters of images, cameras and passes) a
+thread eliminates its points into as a copy of its own (2,000 parameters: 32 MB a copy)."""
+
+
+def _column_band(order: np.ndarray, bounds: np.ndarray, fcol: np.ndarray, lo: int, hi: int) -> tuple[int, int]:
+    """The columns ``[first, last + 1)`` of S that the points ``lo:hi`` touch (their images'
+    parameters): a strip's points, in order along it, touch a band of its banded S."""
+    cols = fcol[order[bounds[lo] : bounds[hi]]]
+    cols = cols[cols >= 0]
+    return (int(cols.min()), int(cols.max()) + 1) if cols.size else (0, 0)
 
 
 def _reduce(a, fcol, jf, jpt, order, bounds, c_inv) -> np.ndarray:
-    """S = A - sum_p B_p C_p^-1 B_p^T (``a`` is overwritten): on the solve's threads, each
-    eliminating a range of points into its own matrix and the matrices added in range order
-    (the same sum on every run with the same threads), when S is small enough to copy."""
+    """S = A - sum_p B_p C_p^-1 B_p^T (``a`` is overwritten): on the solve's threads, the first
+    range of points eliminated into ``a`` itself and each other range into a copy of the band of
+    S its points touch, the copies added in range order (the same sum on every run with the same
+    threads); on one thread when some band is wider than :data:`PARALLEL_MAX_REDUCED` (a 300-image
+    connected strip: two threads, the second range's band about half of S)."""
     n_points = bounds.shape[0] - 1
     rows = _most_rows(fcol, bounds)
-    if a.shape[0] > PARALLEL_MAX_REDUCED:
-        _reduce_into(0, n_points, a, fcol, jf, jpt, order, bounds, c_inv, rows)
+    ranges = thread_ranges(n_points)
+    bands = {lo: _column_band(order, bounds, fcol, lo, hi) for lo, hi in zip(ranges[1:-1], ranges[2:])}
+    if any(c1 - c0 > PARALLEL_MAX_REDUCED for c0, c1 in bands.values()):
+        _reduce_into(0, n_points, a, 0, fcol, jf, jpt, order, bounds, c_inv, rows)
         return a
     shares: dict[int, np.ndarray] = {}
 
     def fill(lo: int, hi: int) -> None:
-        share = a if lo == 0 else np.zeros_like(a)
-        _reduce_into(lo, hi, share, fcol, jf, jpt, order, bounds, c_inv, rows)
+        if lo == 0:
+            _reduce_into(lo, hi, a, 0, fcol, jf, jpt, order, bounds, c_inv, rows)
+            return
+        c0, c1 = bands[lo]
+        share = np.zeros((c1 - c0, c1 - c0))
+        _reduce_into(lo, hi, share, c0, fcol, jf, jpt, order, bounds, c_inv, rows)
         shares[lo] = share
 
     in_threads(fill, n_points)
-    for lo in sorted(shares)[1:]:
-        a += shares[lo]
+    for lo in sorted(shares):
+        c0, c1 = bands[lo]
+        a[c0:c1, c0:c1] += shares[lo]
     return a
 
 

@@ -142,6 +142,12 @@ PARALLEL_MIN_ROWS = 5_000
 thread costs more than it saves there."""
 
 
+def thread_ranges(n: int) -> list[int]:
+    """The bounds of the contiguous ranges :func:`in_threads` hands its threads over ``[0, n)``."""
+    threads = max(1, min(solver_threads(), n // PARALLEL_MIN_ROWS))
+    return np.linspace(0, n, threads + 1).astype(np.int64).tolist()
+
+
 def in_threads(fill: Callable[[int, int], None], n: int) -> None:
     """Run ``fill(lo, hi)`` over contiguous ranges covering ``[0, n)``, one per thread of the
     solve (``PBA_SOLVER_THREADS``, at most one per :data:`PARALLEL_MIN_ROWS` rows), in threads of
@@ -149,11 +155,11 @@ def in_threads(fill: Callable[[int, int], None], n: int) -> None:
     numba kernel that releases the GIL and writes only what its range owns (rows of an output, or
     its own copy that the caller adds in range order), so a result does not depend on which
     thread finishes first."""
-    threads = max(1, min(solver_threads(), n // PARALLEL_MIN_ROWS))
+    bounds = thread_ranges(n)
+    threads = len(bounds) - 1
     if threads == 1:
         fill(0, n)
         return
-    bounds = np.linspace(0, n, threads + 1).astype(np.int64).tolist()
     with ThreadPoolExecutor(threads, thread_name_prefix="pba-fill") as pool:
         for done in [pool.submit(fill, bounds[k], bounds[k + 1]) for k in range(threads)]:
             done.result()  # re-raises a thread's exception here

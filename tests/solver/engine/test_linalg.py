@@ -141,3 +141,39 @@ def test_threaded_passes_equal_one_thread(monkeypatch):
     for pidx, c in one[2].points.items():
         s = np.sqrt(np.outer(np.diag(c), np.diag(c)))
         assert np.max(np.abs(two[2].points[pidx] - c) / s) < CORRELATION_ABS
+
+
+def test_threaded_elimination_into_bands_equals_one_thread(monkeypatch):
+    """Above PARALLEL_MAX_REDUCED parameters a thread eliminates its points into a copy of the
+    band of S they touch (a connected strip's S is banded): the same S as one thread, to the
+    rounding of the running sum. The limit is lowered so that the whole S is wider than it and
+    the second range's band is not: the banded path is the one taken."""
+    from utils.scenes import connected_strip_job
+
+    import solver.engine.linalg as linalg
+    import solver.engine.native as native
+
+    job, _ = connected_strip_job("P2", n_triplets=4, points_per_triplet=60, n_gcp=4, n_check=1, seed=3)
+    problem = prepare(load_job(job))
+    lin = linearise(problem)
+    monkeypatch.setattr(native, "PARALLEL_MIN_ROWS", 7)
+    monkeypatch.setenv(native.THREADS_ENV, "1")
+    one = schur(lin, problem).s.copy()
+    monkeypatch.setenv(native.THREADS_ENV, "2")
+    parts = schur(lin, problem)  # with the full-width limit: full copies (as before bands existed)
+    ranges = native.thread_ranges(len(parts.est_points))
+    assert len(ranges) == 3
+    c0, c1 = linalg._column_band(parts.order, parts.bounds, lin.fcol, ranges[1], ranges[2])
+    assert 0 < c1 - c0 < one.shape[0]  # the second half of the strip's points: a band, not all of S
+    monkeypatch.setattr(linalg, "PARALLEL_MAX_REDUCED", c1 - c0)
+    eliminated = []
+    real = linalg._reduce_into
+
+    def counting(q_lo, q_hi, s, *args):
+        eliminated.append((q_lo, q_hi, s.shape[0]))
+        return real(q_lo, q_hi, s, *args)
+
+    monkeypatch.setattr(linalg, "_reduce_into", counting)
+    banded = schur(lin, problem).s
+    assert sorted(eliminated) == [(0, ranges[1], one.shape[0]), (ranges[1], ranges[2], c1 - c0)]
+    np.testing.assert_allclose(banded, one, rtol=0, atol=REDUCED_REL * np.abs(one).max())
