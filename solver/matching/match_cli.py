@@ -228,5 +228,5 @@ def cmd_match(args: argparse.Namespace) -> int:
               + (f"sigma {im['sigma_px']} px" if im["sigma_px"] is not None else "the reference of its tie points"))
     for row in s["pairs"]:
         print(f"  {row['images'][0]}-{row['images'][1]}: {row.get('matched', 0)} matches, {row['removed_epipolar']} removed by the epipolar check, "
-              f"{row['tie_points']} tie points, sigma {row['sigma_px']} px")
+              f"{row['tie_points']} tie points, " + (f"sigma {row['sigma_px']} px" if row["sigma_px"] is not None else "sigma not estimated"))
     return 0
