@@ -343,7 +343,7 @@ def test_the_kind_answers_what_the_checklist_says() -> None:
 # ---- the platform kind's capabilities are asked where the platforms live -----------------------
 
 CAPABILITY_READERS = ("solver/platforms", "solver/kernels", "solver/blocks")
-MOST_CAPABILITY_READS_ELSEWHERE = 5  # the model comparison, the pre-analysis's levelling, the state's kernel code
+MOST_CAPABILITY_READS_ELSEWHERE = 3  # ratcheted to what is left (the issue allowed 5): the model comparison, the pre-analysis's levelling, the state's kernel code
 
 
 def capability_reads(source: str, capabilities: set[str]) -> list[int]:
