@@ -96,6 +96,7 @@ def strip_for(n_obs: int, model: str, seed: int) -> dict[str, Any]:
 
 OVERLAP_SHARE = 0.36  # a connected strip at 30 km spacing: 36 % of a scene's points also in a neighbour's 3 images
 GCP_PER_TRIPLET = 1.0  # the strip: 100 control and 100 check points on 300 images
+MIN_GCP_CONNECTED = 4  # a strip of one to three triplets with one control point each leaves a tilt and a scale to the datum analysis, which refuses it
 CHECKS_PER_TRIPLET_CONNECTED = 1.0
 
 
@@ -108,7 +109,7 @@ def connected_for(n_obs: int, model: str, seed: int, states: bool) -> dict[str, 
         model,
         n_triplets=triplets,
         points_per_triplet=max(10, round(n_obs / (triplets * 3.0 * (1.0 + OVERLAP_SHARE * (triplets - 1) / triplets)))),
-        n_gcp=max(1, round(GCP_PER_TRIPLET * triplets)),
+        n_gcp=max(MIN_GCP_CONNECTED, round(GCP_PER_TRIPLET * triplets)),
         n_check=max(1, round(CHECKS_PER_TRIPLET_CONNECTED * triplets)),
         seed=seed,
         state_sigma=(20.0, 0.05) if states else None,
@@ -116,7 +117,7 @@ def connected_for(n_obs: int, model: str, seed: int, states: bool) -> dict[str, 
     return doc
 
 
-GENERATOR_VERSION = {"connected": "-v2"}  # bumped when a layout's generator changes: a cached job of an older one is not reused
+GENERATOR_VERSION = {"connected": "-v3"}  # bumped when a layout's generator changes: a cached job of an older one is not reused
 
 
 def job_path(n_obs: int, model: str, seed: int, layout: str, states: bool) -> Path:
