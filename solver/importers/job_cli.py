@@ -94,6 +94,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--match-summary", type=Path, metavar="FILE", help="with --match: the matching's summary (JSON)")
     p.add_argument("--match-heights", metavar="MIN,MAX", help="with --match: the terrain's ellipsoidal height range in metres "
                    "(default: the job's points +- 100 m, or the RPCs' range)")
+    p.add_argument("--control-from", type=Path, metavar="ORTHO",
+                   help="a georeferenced orthophoto: control points matched in the --control-image rasters (pba match-gcp, "
+                   "guided by the composed job's initial orientation; heights from --dem with its --dem-vertical, survey "
+                   "sigmas from --dem-sigma and the orthophoto's pixel) are added to the job; see docs/matching.md")
+    p.add_argument("--control-image", action="append", default=[], metavar="ID=RASTER",
+                   help="with --control-from: the raster of image ID matched against the orthophoto; repeat for more images")
+    p.add_argument("--control-height", type=float, metavar="METRES",
+                   help="with --control-from and no --dem: the terrain's ellipsoidal height (the points then get no survey sigma)")
     p.add_argument("-o", "--output", type=Path, help="job document (JSON); default stdout")
     p.set_defaults(func=cmd_job)
 
@@ -226,6 +234,16 @@ def cmd_job(args: argparse.Namespace) -> int:
         for row in summary["pairs"]:
             print(f"matched {row['images'][0]}-{row['images'][1]}: {row.get('matched', 0)} matches, "
                   f"{row['removed_epipolar']} removed by the epipolar check, {row['tie_points']} tie points", file=sys.stderr)
+    if args.control_from or args.control_image:
+        try:
+            summaries = add_reference_control(composed.job, args.control_from, args.control_image, args.dem, args.dem_vertical,
+                                              args.dem_sigma, args.control_height)
+        except ValueError as exc:
+            print(f"--control-from: {exc}", file=sys.stderr)
+            return 2
+        for row in summaries:
+            print(f"control from the orthophoto in {row['image']}: {row['control_points']} control points of {row['candidates']} candidates, "
+                  f"{row['removed_inconsistent']} removed as inconsistent", file=sys.stderr)
     text = json.dumps(composed.job, indent=1) + "\n"
     if args.output:
         args.output.write_text(text)
@@ -280,6 +298,55 @@ def add_matched_ties(job: dict[str, Any], rasters: list[str], settings=None, hei
     job.setdefault("points", []).extend({"id": pid, "role": "tie"} for pid in dict.fromkeys(m["point"] for m in result.measurements))
     job.setdefault("observations", []).extend(result.measurements)
     return result.summary
+
+
+def add_reference_control(job: dict[str, Any], ortho: Path | None, rasters: list[str], dem: str | None, dem_vertical: str | None,
+                          dem_sigma_m: float | None, height_m: float | None) -> list[dict[str, Any]]:
+    """Control points matched in each of ``rasters`` (``ID=PATH``) against the orthophoto
+    ``ortho`` (:func:`solver.matching.gcp.match_gcps`), oriented by the composed ``job``'s
+    initial orientation, added to ``job`` in place: role gcp, longitude, latitude and
+    ellipsoidal height (EPSG:4979, each point's ``crs``), heights from ``dem`` (with survey
+    sigmas from ``dem_sigma_m`` and the orthophoto's pixel) or ``height_m`` (no sigma: held),
+    ids ``<image>.G<n>``. Returns each image's matching summary; raises ValueError with the
+    reason when the control cannot be matched."""
+    from solver.errors import JobError
+    from solver.geometry.dem import DemError
+    from solver.matching.features import MatchSettings
+    from solver.matching.gcp import GCP_CRS, GcpError, match_gcps
+    from solver.matching.orientation import OrientationError, images_from_job
+    from solver.matching.raster import RasterError
+
+    if ortho is None or not rasters:
+        raise ValueError("give the orthophoto (--control-from ORTHO) and at least one --control-image ID=RASTER")
+    if dem is None and height_m is None:
+        raise ValueError("give the terrain: --dem DEM or --control-height METRES (ellipsoidal)")
+    taken = {p["id"] for p in job.get("points", [])}
+    summaries = []
+    for raster in rasters:
+        images = []
+        try:
+            images, _heights = images_from_job(job, None, [raster])
+            result = match_gcps(images[0], ortho, Path(dem) if dem else None, height_m, MatchSettings(),
+                                dem_vertical=dem_vertical, dem_sigma_m=dem_sigma_m if dem else None)
+        except JobError as exc:
+            raise ValueError("the composed job cannot orient the images: " + "; ".join(p.message for p in exc.problems[:3])) from None
+        except (GcpError, OrientationError, RasterError, DemError) as exc:
+            raise ValueError(f"{raster}: {exc}") from None
+        finally:
+            for im in images:
+                im.raster.close()
+        image_id = images[0].id
+        ids = {p["id"]: f"{image_id}.{p['id']}" for p in result.points}
+        clash = sorted(set(ids.values()) & taken)
+        if clash:
+            raise ValueError(f"the job already has points named {', '.join(clash[:3])}")
+        taken |= set(ids.values())
+        for p in result.points:
+            job.setdefault("points", []).append({**p, "id": ids[p["id"]], "crs": GCP_CRS})
+        for m in result.measurements:
+            job.setdefault("observations", []).append({**m, "point": ids[m["point"]]})
+        summaries.append(result.summary)
+    return summaries
 
 
 def cmd_job_sources(args: argparse.Namespace) -> int:

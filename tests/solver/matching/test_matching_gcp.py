@@ -123,3 +123,52 @@ def test_bad_inputs_exit_2(scene_files, tmp_path, capsys):
     cut = tmp_path / "cut.tif"
     cut.write_bytes(ortho.read_bytes()[:2000])
     _fails([*base, str(cut), "--dem", str(dem), "--dem-vertical", "ellipsoid"], capsys, "cut.tif")
+
+
+def test_pba_job_adds_control_from_the_orthophoto_in_one_step(scene_files, tmp_path, capsys, monkeypatch):
+    """``pba job ... --control-from ORTHO --control-image ID=RASTER --dem DEM``: the job composed
+    from its sources gains the control ``pba match-gcp`` finds (one step instead of two), each
+    point in EPSG:4979 with the DEM's survey sigmas, named after its image; the measurements
+    land where the simulation's true geometry puts those ground points."""
+    import shlex
+
+    from solver.matching.gcp import GCP_CRS
+
+    scene, d = scene_files
+    ortho, dem = _ortho(scene, d, 15.0)
+    assert main(["job-sources", str(d / "sim.json"), "-o", str(tmp_path)]) == 0
+    call = shlex.split(capsys.readouterr().err.strip().splitlines()[-1])[2:-2]  # pba job <call> -o job.json
+    monkeypatch.chdir(tmp_path)
+    before = json.loads((d / "sim.json").read_text())
+    assert main(["job", *call, "--control-from", str(ortho), "--control-image", f"back={d / 'sim.back.tif'}",
+                 "--control-image", f"nadir={d / 'sim.nadir.tif'}", "--dem", str(dem), "--dem-vertical", "ellipsoid",
+                 "--dem-sigma", "2", "-o", "job.json"]) == 0
+    err = capsys.readouterr().err
+    assert "control from the orthophoto in back:" in err and "control from the orthophoto in nadir:" in err, err
+    job = json.loads((tmp_path / "job.json").read_text())
+    added = [p for p in job["points"] if p["id"].startswith(("back.G", "nadir.G"))]
+    assert len(job["points"]) == len(before["points"]) + len(added)
+    for image in ("back", "nadir"):
+        points = {p["id"]: p for p in added if p["id"].startswith(f"{image}.")}
+        assert len(points) >= MIN_CONTROL_POINTS
+        assert all(p["role"] == "gcp" and p["crs"] == GCP_CRS and p["sigma_m"][0] == pytest.approx(15.0, rel=0.01) for p in points.values())
+        rows = [m for m in job["observations"] if m["point"] in points]
+        assert {m["image"] for m in rows} == {image} and len(rows) == len(points)
+        geom = scene.images[[g.id for g in scene.images].index(image)]
+        e = np.array([(m["line"], m["column"]) for m in rows]) - np.array(
+            [(t.line[0], t.column[0]) for t in (geom.ground_to_image(geodetic_to_ecef(np.array([points[m["point"]]["coordinates"]]))) for m in rows)])
+        assert float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) < TRUTH_RMS_PX, e
+
+
+def test_pba_job_control_from_needs_the_terrain_and_an_image(scene_files, tmp_path, capsys, monkeypatch):
+    scene, d = scene_files
+    ortho, _dem = _ortho(scene, d, 15.0)
+    assert main(["job-sources", str(d / "sim.json"), "-o", str(tmp_path)]) == 0
+    import shlex
+
+    call = shlex.split(capsys.readouterr().err.strip().splitlines()[-1])[2:-2]
+    monkeypatch.chdir(tmp_path)
+    assert main(["job", *call, "--control-from", str(ortho), "-o", "job.json"]) == 2
+    assert "--control-image" in capsys.readouterr().err
+    assert main(["job", *call, "--control-from", str(ortho), "--control-image", f"back={d / 'sim.back.tif'}", "-o", "job.json"]) == 2
+    assert "--dem DEM or --control-height" in capsys.readouterr().err
