@@ -5,10 +5,19 @@ a cancelled wait gives its place (or a slot granted meanwhile) on."""
 from __future__ import annotations
 
 import asyncio
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Coroutine
 
 import pytest
 
 from service.fair_slots import FairSlots
+
+
+def _run(scenario: Coroutine[Any, Any, Any]) -> Any:
+    """``asyncio.run`` in a thread of its own: the browser tests' Playwright (its sync API) keeps an
+    event loop running in the test process's main thread for the whole session."""
+    with ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, scenario).result()
 
 
 async def _settle() -> None:
@@ -38,7 +47,7 @@ def test_a_waiting_user_goes_before_a_users_burst() -> None:
         await asyncio.gather(*tasks)
         return order
 
-    assert asyncio.run(scenario()) == ["b0", "a0", "a1", "a2"]
+    assert _run(scenario()) == ["b0", "a0", "a1", "a2"]
 
 
 def test_users_take_turns_when_both_wait() -> None:
@@ -55,7 +64,7 @@ def test_users_take_turns_when_both_wait() -> None:
         await asyncio.gather(*tasks)
         return order
 
-    assert asyncio.run(scenario()) == ["a0", "b0", "a1", "b1"]
+    assert _run(scenario()) == ["a0", "b0", "a1", "b1"]
 
 
 def test_no_more_than_the_slots_run() -> None:
@@ -69,7 +78,7 @@ def test_no_more_than_the_slots_run() -> None:
         await asyncio.gather(*tasks)
         return seen
 
-    assert asyncio.run(scenario()) == (2, 1)
+    assert _run(scenario()) == (2, 1)
 
 
 def test_a_cancelled_wait_gives_its_place_on() -> None:
@@ -88,7 +97,7 @@ def test_a_cancelled_wait_gives_its_place_on() -> None:
             await gone
         return order
 
-    assert asyncio.run(scenario()) == ["c0"]
+    assert _run(scenario()) == ["c0"]
 
 
 def test_a_slot_granted_to_a_cancelled_wait_is_handed_on() -> None:
@@ -106,4 +115,4 @@ def test_a_slot_granted_to_a_cancelled_wait_is_handed_on() -> None:
             await gone
         return order, slots.running()
 
-    assert asyncio.run(scenario()) == (["c0"], 1)
+    assert _run(scenario()) == (["c0"], 1)
