@@ -66,14 +66,14 @@ def test_schemathesis_finds_no_server_error(
         "--seed",
         "20261122",
         "--workers",
-        "2",
+        "1",  # two threads hit CPython 3.11's shared AST recursion counter in hypothesis (SystemError: AST constructor recursion depth mismatch, gh-106905)
         "--no-shrink",
         "--request-timeout",
         "60",
         "--report-dir",
         str(tmp_path / "report"),
     ]
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=400, cwd=tmp_path)
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=900, cwd=tmp_path)
     tail = "\n".join((out.stdout + out.stderr).splitlines()[-80:])
     assert out.returncode == 0, tail
     summary = out.stdout.split("SUMMARY")[-1]
