@@ -22,9 +22,7 @@ import numpy as np
 
 from solver.api import run
 from solver.cli import main as pba
-from solver.geometry.dem import grid_to_job, read_dem
-from solver.simulate.dem import DemDegradation, degraded_dem
-from solver.simulate.terrain import Terrain
+from solver.simulate.dem import job_dem_of_truth
 
 NOISE_M = 3.0
 
@@ -35,13 +33,7 @@ def one(seed: int, work: Path) -> tuple[np.ndarray, float]:
                 "--weight-ephemeris", "2,0.01", "--gcps", "0", "--checks", "10", "--tie-points", "40"]) == 0
     job = json.loads(out.read_text())
     truth = json.loads(out.with_name(f"tri{seed}.truth.json").read_text())
-    t = truth["terrain"]
-    terrain = Terrain(**{k: tuple(v) if isinstance(v, list) else v for k, v in t.items()})
-    lon = [p["lon_deg"] for p in truth["points"]]
-    lat = [p["lat_deg"] for p in truth["points"]]
-    bounds = (min(lon) - 0.02, min(lat) - 0.02, max(lon) + 0.02, max(lat) + 0.02)
-    degraded_dem(terrain.height, bounds, DemDegradation(noise_m=NOISE_M, seed=100 + seed), work / "dem.tif")
-    job["dem"] = {"grid": grid_to_job(read_dem(work / "dem.tif")), "sigma_m": NOISE_M}
+    job["dem"] = job_dem_of_truth(truth, work / "dem.tif", NOISE_M, 100 + seed)
     rep = run(job)
     true = {p["id"]: p for p in truth["points"]}
     z = np.array([(p["height_m"] - true[p["id"]]["height_m"]) / p["sigma_m"][2] for p in rep["tie_points"]])

@@ -31,9 +31,8 @@ import numpy as np
 
 from solver.api import run
 from solver.cli import main as pba
-from solver.geometry.dem import grid_from_job, grid_to_job, metres_per_degree, read_dem
-from solver.simulate.dem import DemDegradation, degraded_dem
-from solver.simulate.terrain import Terrain
+from solver.geometry.dem import grid_from_job, grid_to_job, metres_per_degree
+from solver.simulate.dem import job_dem_of_truth
 
 NOISE_M = 3.0
 
@@ -45,13 +44,7 @@ def scene(seed: int, work: Path, gcps: int = 0) -> tuple[dict, dict]:
                 "--weight-ephemeris", "2,0.01", "--gcps", str(gcps), "--checks", "10", "--tie-points", "40"]) == 0
     job = json.loads(out.read_text())
     truth = json.loads(out.with_name(f"tri{seed}.truth.json").read_text())
-    t = truth["terrain"]
-    terrain = Terrain(**{k: tuple(v) if isinstance(v, list) else v for k, v in t.items()})
-    lon = [p["lon_deg"] for p in truth["points"]]
-    lat = [p["lat_deg"] for p in truth["points"]]
-    bounds = (min(lon) - 0.02, min(lat) - 0.02, max(lon) + 0.02, max(lat) + 0.02)
-    degraded_dem(terrain.height, bounds, DemDegradation(noise_m=NOISE_M, seed=100 + seed), work / "dem.tif")
-    job["dem"] = {"grid": grid_to_job(read_dem(work / "dem.tif")), "sigma_m": NOISE_M}
+    job["dem"] = job_dem_of_truth(truth, work / "dem.tif", NOISE_M, 100 + seed)
     return job, truth
 
 

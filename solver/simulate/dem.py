@@ -99,3 +99,19 @@ def degraded_dem(height: Callable[[np.ndarray, np.ndarray], np.ndarray], bounds_
         dst.write(values.astype(np.float32), 1)
     return {"cells": [rows, cols], "cell_arcsec": degradation.cell_arcsec, "bias_m": degradation.bias_m,
             "noise_std_m": float(noise.std()), "noise_mean_m": float(noise.mean()), "crs": crs}
+
+
+def job_dem_of_truth(truth: dict, path: Path, noise_m: float, seed: int, margin_deg: float = 0.02) -> dict:
+    """The job document's ``dem`` for a simulated scene: its true terrain (``truth["terrain"]``,
+    as ``pba simulate`` writes it) degraded by ``noise_m`` of correlated noise (seed ``seed``)
+    over the truth's points plus ``margin_deg``, written to ``path`` (GeoTIFF) and read back as
+    the job's ellipsoidal grid, with ``noise_m`` as its sigma."""
+    from solver.geometry.dem import grid_to_job, read_dem
+    from solver.simulate.terrain import Terrain
+
+    terrain = Terrain(**{k: tuple(v) if isinstance(v, list) else v for k, v in truth["terrain"].items()})
+    lon = [p["lon_deg"] for p in truth["points"]]
+    lat = [p["lat_deg"] for p in truth["points"]]
+    bounds = (min(lon) - margin_deg, min(lat) - margin_deg, max(lon) + margin_deg, max(lat) + margin_deg)
+    degraded_dem(terrain.height, bounds, DemDegradation(noise_m=noise_m, seed=seed), path)
+    return {"grid": grid_to_job(read_dem(path)), "sigma_m": noise_m}

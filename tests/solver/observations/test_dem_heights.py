@@ -66,9 +66,7 @@ def pass_triplet_with_dem(tmp_path_factory):
     import json
 
     from solver.cli import main
-    from solver.geometry.dem import grid_to_job, read_dem
-    from solver.simulate.dem import DemDegradation, degraded_dem
-    from solver.simulate.terrain import Terrain
+    from solver.simulate.dem import job_dem_of_truth
 
     d = tmp_path_factory.mktemp("dem")
     out = d / "tri.json"
@@ -76,13 +74,7 @@ def pass_triplet_with_dem(tmp_path_factory):
                  "--weight-ephemeris", "2,0.01", "--gcps", "0", "--checks", "10", "--tie-points", "40"]) == 0
     job = json.loads(out.read_text())
     truth = json.loads(out.with_name("tri.truth.json").read_text())
-    t = truth["terrain"]
-    terrain = Terrain(**{k: tuple(v) if isinstance(v, list) else v for k, v in t.items()})
-    lon = [p["lon_deg"] for p in truth["points"]]
-    lat = [p["lat_deg"] for p in truth["points"]]
-    bounds = (min(lon) - 0.02, min(lat) - 0.02, max(lon) + 0.02, max(lat) + 0.02)
-    degraded_dem(terrain.height, bounds, DemDegradation(noise_m=DEM_NOISE_M, seed=2), d / "dem.tif")
-    job["dem"] = {"grid": grid_to_job(read_dem(d / "dem.tif")), "sigma_m": DEM_NOISE_M}
+    job["dem"] = job_dem_of_truth(truth, d / "dem.tif", DEM_NOISE_M, 2)
     return job, truth
 
 
@@ -168,22 +160,14 @@ def _controlled_triplet(d, seed: int) -> tuple[dict, dict]:
     import json
 
     from solver.cli import main
-    from solver.geometry.dem import grid_to_job, read_dem
-    from solver.simulate.dem import DemDegradation, degraded_dem
-    from solver.simulate.terrain import Terrain
+    from solver.simulate.dem import job_dem_of_truth
 
     out = d / "tri.json"
     assert main(["simulate", "prism-triplet", "-o", str(out), "--seed", str(seed), "--model", "PASS-J2",
                  "--weight-ephemeris", "2,0.01", "--gcps", "4", "--checks", "10", "--tie-points", "40"]) == 0
     job = json.loads(out.read_text())
     truth = json.loads(out.with_name("tri.truth.json").read_text())
-    t = truth["terrain"]
-    terrain = Terrain(**{k: tuple(v) if isinstance(v, list) else v for k, v in t.items()})
-    lon = [p["lon_deg"] for p in truth["points"]]
-    lat = [p["lat_deg"] for p in truth["points"]]
-    bounds = (min(lon) - 0.02, min(lat) - 0.02, max(lon) + 0.02, max(lat) + 0.02)
-    degraded_dem(terrain.height, bounds, DemDegradation(noise_m=DEM_NOISE_M, seed=100 + seed), d / "dem.tif")
-    job["dem"] = {"grid": grid_to_job(read_dem(d / "dem.tif")), "sigma_m": DEM_NOISE_M}
+    job["dem"] = job_dem_of_truth(truth, d / "dem.tif", DEM_NOISE_M, 100 + seed)
     return job, truth
 
 
@@ -278,10 +262,8 @@ def rpc_triplet_with_dem(tmp_path_factory):
     import json
 
     from solver.cli import main
-    from solver.geometry.dem import grid_to_job, read_dem
     from solver.importers.compose import rpc_bias_priors
-    from solver.simulate.dem import DemDegradation, degraded_dem
-    from solver.simulate.terrain import Terrain
+    from solver.simulate.dem import job_dem_of_truth
 
     d = tmp_path_factory.mktemp("dem_rpc")
     out = d / "tri.json"
@@ -291,13 +273,7 @@ def rpc_triplet_with_dem(tmp_path_factory):
     truth = json.loads(out.with_name("tri.truth.json").read_text())
     for im in job["images"]:
         im["bias_prior"] = rpc_bias_priors("RPC-DRIFT", im["rpc"], BIAS_PRIOR_PX)
-    t = truth["terrain"]
-    terrain = Terrain(**{k: tuple(v) if isinstance(v, list) else v for k, v in t.items()})
-    lon = [p["lon_deg"] for p in truth["points"]]
-    lat = [p["lat_deg"] for p in truth["points"]]
-    bounds = (min(lon) - 0.02, min(lat) - 0.02, max(lon) + 0.02, max(lat) + 0.02)
-    degraded_dem(terrain.height, bounds, DemDegradation(noise_m=DEM_NOISE_M, seed=3), d / "dem.tif")
-    job["dem"] = {"grid": grid_to_job(read_dem(d / "dem.tif")), "sigma_m": DEM_NOISE_M}
+    job["dem"] = job_dem_of_truth(truth, d / "dem.tif", DEM_NOISE_M, 3)
     return job, truth
 
 
