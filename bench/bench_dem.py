@@ -22,7 +22,8 @@ import numpy as np
 
 from solver.api import run
 from solver.cli import main as pba
-from solver.simulate.dem import job_dem_of_truth
+from solver.importers.compose import SourceFile, dem_section
+from solver.simulate.dem import write_dem_of_truth
 
 NOISE_M = 3.0
 
@@ -33,7 +34,8 @@ def one(seed: int, work: Path) -> tuple[np.ndarray, float]:
                 "--weight-ephemeris", "2,0.01", "--gcps", "0", "--checks", "10", "--tie-points", "40"]) == 0
     job = json.loads(out.read_text())
     truth = json.loads(out.with_name(f"tri{seed}.truth.json").read_text())
-    job["dem"] = job_dem_of_truth(truth, work / "dem.tif", NOISE_M, 100 + seed)
+    dem = write_dem_of_truth(truth, work / "dem.tif", NOISE_M, 100 + seed)
+    job["dem"] = dem_section(SourceFile(dem.name, b"", path=str(dem)), NOISE_M, None, None)
     rep = run(job)
     true = {p["id"]: p for p in truth["points"]}
     z = np.array([(p["height_m"] - true[p["id"]]["height_m"]) / p["sigma_m"][2] for p in rep["tie_points"]])

@@ -32,7 +32,8 @@ import numpy as np
 from solver.api import run
 from solver.cli import main as pba
 from solver.geometry.dem import grid_from_job, grid_to_job, metres_per_degree
-from solver.simulate.dem import job_dem_of_truth
+from solver.importers.compose import SourceFile, dem_section
+from solver.simulate.dem import write_dem_of_truth
 
 NOISE_M = 3.0
 
@@ -44,7 +45,8 @@ def scene(seed: int, work: Path, gcps: int = 0) -> tuple[dict, dict]:
                 "--weight-ephemeris", "2,0.01", "--gcps", str(gcps), "--checks", "10", "--tie-points", "40"]) == 0
     job = json.loads(out.read_text())
     truth = json.loads(out.with_name(f"tri{seed}.truth.json").read_text())
-    job["dem"] = job_dem_of_truth(truth, work / "dem.tif", NOISE_M, 100 + seed)
+    dem = write_dem_of_truth(truth, work / "dem.tif", NOISE_M, 100 + seed)
+    job["dem"] = dem_section(SourceFile(dem.name, b"", path=str(dem)), NOISE_M, None, None)
     return job, truth
 
 

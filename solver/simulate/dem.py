@@ -101,12 +101,12 @@ def degraded_dem(height: Callable[[np.ndarray, np.ndarray], np.ndarray], bounds_
             "noise_std_m": float(noise.std()), "noise_mean_m": float(noise.mean()), "crs": crs}
 
 
-def job_dem_of_truth(truth: dict, path: Path, noise_m: float, seed: int, margin_deg: float = 0.02) -> dict:
-    """The job document's ``dem`` for a simulated scene: its true terrain (``truth["terrain"]``,
-    as ``pba simulate`` writes it) degraded by ``noise_m`` of correlated noise (seed ``seed``)
-    over the truth's points plus ``margin_deg``, written to ``path`` (GeoTIFF) and read back as
-    the job's ellipsoidal grid, with ``noise_m`` as its sigma."""
-    from solver.geometry.dem import grid_to_job, read_dem
+def write_dem_of_truth(truth: dict, path: Path, noise_m: float, seed: int, margin_deg: float = 0.02) -> Path:
+    """A DEM for a simulated scene: its true terrain (``truth["terrain"]``, as ``pba simulate``
+    writes it) degraded by ``noise_m`` of correlated noise (seed ``seed``) over the truth's
+    points plus ``margin_deg``, written to ``path`` (GeoTIFF, ellipsoidal heights). The job reads
+    it as a user's would (``pba job --dem``), through the solver's own reader: the simulator
+    only writes files, so a reader error cannot cancel against it."""
     from solver.simulate.terrain import Terrain
 
     terrain = Terrain(**{k: tuple(v) if isinstance(v, list) else v for k, v in truth["terrain"].items()})
@@ -114,4 +114,4 @@ def job_dem_of_truth(truth: dict, path: Path, noise_m: float, seed: int, margin_
     lat = [p["lat_deg"] for p in truth["points"]]
     bounds = (min(lon) - margin_deg, min(lat) - margin_deg, max(lon) + margin_deg, max(lat) + margin_deg)
     degraded_dem(terrain.height, bounds, DemDegradation(noise_m=noise_m, seed=seed), path)
-    return {"grid": grid_to_job(read_dem(path)), "sigma_m": noise_m}
+    return path

@@ -59,6 +59,16 @@ def test_term_is_its_linearisation() -> None:
 DEM_NOISE_M = 3.0
 
 
+def job_dem(truth: dict, path, seed: int) -> dict:
+    """The job's ``dem`` for a simulated scene: its true terrain degraded by DEM_NOISE_M of
+    correlated noise (seed ``seed``), written to ``path`` and read as ``pba job --dem`` reads it."""
+    from solver.importers.compose import SourceFile, dem_section
+    from solver.simulate.dem import write_dem_of_truth
+
+    write_dem_of_truth(truth, path, DEM_NOISE_M, seed)
+    return dem_section(SourceFile(path.name, b"", path=str(path)), DEM_NOISE_M, None, None)
+
+
 @pytest.fixture(scope="module")
 def pass_triplet_with_dem(tmp_path_factory):
     """A simulated PRISM triplet (PASS-J2, ephemeris and attitude weighted, no control point)
@@ -66,7 +76,6 @@ def pass_triplet_with_dem(tmp_path_factory):
     import json
 
     from solver.cli import main
-    from solver.simulate.dem import job_dem_of_truth
 
     d = tmp_path_factory.mktemp("dem")
     out = d / "tri.json"
@@ -74,7 +83,7 @@ def pass_triplet_with_dem(tmp_path_factory):
                  "--weight-ephemeris", "2,0.01", "--gcps", "0", "--checks", "10", "--tie-points", "40"]) == 0
     job = json.loads(out.read_text())
     truth = json.loads(out.with_name("tri.truth.json").read_text())
-    job["dem"] = job_dem_of_truth(truth, d / "dem.tif", DEM_NOISE_M, 2)
+    job["dem"] = job_dem(truth, d / "dem.tif", 2)
     return job, truth
 
 
@@ -160,14 +169,13 @@ def _controlled_triplet(d, seed: int) -> tuple[dict, dict]:
     import json
 
     from solver.cli import main
-    from solver.simulate.dem import job_dem_of_truth
 
     out = d / "tri.json"
     assert main(["simulate", "prism-triplet", "-o", str(out), "--seed", str(seed), "--model", "PASS-J2",
                  "--weight-ephemeris", "2,0.01", "--gcps", "4", "--checks", "10", "--tie-points", "40"]) == 0
     job = json.loads(out.read_text())
     truth = json.loads(out.with_name("tri.truth.json").read_text())
-    job["dem"] = job_dem_of_truth(truth, d / "dem.tif", DEM_NOISE_M, 100 + seed)
+    job["dem"] = job_dem(truth, d / "dem.tif", 100 + seed)
     return job, truth
 
 
@@ -263,7 +271,6 @@ def rpc_triplet_with_dem(tmp_path_factory):
 
     from solver.cli import main
     from solver.importers.compose import rpc_bias_priors
-    from solver.simulate.dem import job_dem_of_truth
 
     d = tmp_path_factory.mktemp("dem_rpc")
     out = d / "tri.json"
@@ -273,7 +280,7 @@ def rpc_triplet_with_dem(tmp_path_factory):
     truth = json.loads(out.with_name("tri.truth.json").read_text())
     for im in job["images"]:
         im["bias_prior"] = rpc_bias_priors("RPC-DRIFT", im["rpc"], BIAS_PRIOR_PX)
-    job["dem"] = job_dem_of_truth(truth, d / "dem.tif", DEM_NOISE_M, 3)
+    job["dem"] = job_dem(truth, d / "dem.tif", 3)
     return job, truth
 
 
