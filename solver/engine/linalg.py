@@ -409,6 +409,48 @@ class SchurParts:
     point_singular: np.ndarray  # (npt_est,) bool
     order: np.ndarray  # observation rows grouped by estimated point
     bounds: np.ndarray
+    _factor: "ReducedFactor | None" = field(default=None, repr=False, compare=False)
+
+    def factor(self) -> "ReducedFactor":
+        """The Cholesky factor of the Jacobi-scaled S, computed once and shared by the rank
+        check and the datum analysis (both need it before the solve)."""
+        if self._factor is None:
+            self._factor = ReducedFactor.of(self.s)
+        return self._factor
+
+
+@dataclass
+class ReducedFactor:
+    """The Jacobi-scaled reduced matrix Sn = S / outer(d, d) (d = sqrt(diag S)) and its lower
+    Cholesky factor, or None when Sn is not positive definite to working precision."""
+
+    d: np.ndarray
+    lower: np.ndarray | None
+    norm1: float  # the 1-norm of Sn, for LAPACK's condition estimate
+
+    @classmethod
+    def of(cls, s: np.ndarray) -> "ReducedFactor":
+        d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
+        if s.size == 0 or (np.diag(s) <= 1e-300).any():
+            return cls(d, None, 0.0)
+        sn = _jacobi_scaled(s, d)
+        norm1 = max(float(np.abs(sn[:, k : k + STRIP]).sum(axis=0).max()) for k in range(0, sn.shape[1], STRIP))
+        factor, info = lapack.dpotrf(sn.T, lower=1, clean=1, overwrite_a=1)  # in place (sn is symmetric)
+        return cls(d, factor if info == 0 else None, norm1)
+
+    def condition(self) -> float | None:
+        """LAPACK's estimate of the 1-norm condition of Sn from the factor (dpocon, O(n^2));
+        None when Sn is not positive definite."""
+        if self.lower is None:
+            return None
+        rcond, info = lapack.dpocon(self.lower, self.norm1, uplo="L")
+        return float("inf") if info != 0 or rcond <= 0.0 else 1.0 / float(rcond)
+
+    def solve(self, u: np.ndarray) -> np.ndarray:
+        """S^-1 u (``u``: (n, k)); only when the factor exists."""
+        assert self.lower is not None
+        x, _ = lapack.dpotrs(self.lower, u / self.d[:, None], lower=1)
+        return x / self.d[:, None]
 
 
 def schur(lin: Linearisation, problem: AdjustmentState) -> SchurParts:
@@ -452,18 +494,6 @@ class RankReport:
 FAST_RANK_MARGIN = 1e-2  # the fast test accepts a condition estimate below this fraction of 1/tol
 
 
-def _fast_condition(sn: np.ndarray) -> float | None:
-    """LAPACK's estimate of the 1-norm condition of a symmetric matrix from its Cholesky factor
-    (dpotrf + dpocon: O(n^3/3) and O(n^2), against O(9 n^3) for eigenvectors); None when the
-    factorisation fails (not positive definite). ``sn`` is overwritten by the factor."""
-    norm1 = max(float(np.abs(sn[:, k : k + STRIP]).sum(axis=0).max()) for k in range(0, sn.shape[1], STRIP))
-    factor, info = lapack.dpotrf(sn.T, lower=1, clean=0, overwrite_a=1)  # in place (sn is symmetric)
-    if info != 0:
-        return None
-    rcond, info = lapack.dpocon(factor, norm1, uplo="L")
-    return float("inf") if info != 0 or rcond <= 0.0 else 1.0 / float(rcond)
-
-
 def check_rank(parts: SchurParts, names: list[str], tol: float = 1e-15, fast: bool = False) -> RankReport:
     """Eigen-analysis of the Jacobi-scaled reduced normal matrix S.
 
@@ -478,8 +508,8 @@ def check_rank(parts: SchurParts, names: list[str], tol: float = 1e-15, fast: bo
     if s.size == 0:
         return RankReport(False, 1.0, [])
     d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
-    if fast and not (np.diag(s) <= 1e-300).any():
-        estimate = _fast_condition(_jacobi_scaled(s, d))
+    if fast:
+        estimate = parts.factor().condition()
         if estimate is not None and estimate < FAST_RANK_MARGIN / tol:
             return RankReport(False, estimate, [])
     sn = _jacobi_scaled(s, d)

@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.linalg import lapack
 
 from solver.engine.linalg import Linearisation, SchurParts
 from solver.errors import Problem
@@ -173,19 +172,19 @@ def _b_c_inv(lin: Linearisation, parts: SchurParts, v: np.ndarray, n_f: int) -> 
     return u
 
 
-def _solve_reduced(s: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _solve_reduced(parts: SchurParts, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(S^+ u; the relative size of each column of u's part in the null space of S; that part,
-    in the Jacobi-scaled parameters), on the Jacobi-scaled S."""
+    in the Jacobi-scaled parameters). S's Cholesky factor is the rank check's own
+    (:meth:`SchurParts.factor`); where S is singular, the eigen-decomposition."""
+    s = parts.s
     if s.size == 0:
         return np.zeros_like(u), np.zeros(u.shape[1]), np.zeros_like(u)
-    diag = np.clip(np.diag(s), 1e-300, None)
-    d = np.sqrt(diag)
+    factor = parts.factor()
+    if factor.lower is not None:  # positive definite to working precision: a weak direction shows in its sigma
+        return factor.solve(u), np.zeros(u.shape[1]), np.zeros_like(u)
+    d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
     sn = s / np.outer(d, d)
     un = u / d[:, None]
-    factor, info = lapack.dpotrf(sn, lower=1, clean=1)
-    if info == 0:  # positive definite to working precision: a weak direction shows in its sigma
-        x, _ = lapack.dpotrs(factor, un, lower=1)
-        return x / d[:, None], np.zeros(u.shape[1]), np.zeros_like(u)
     w, vec = np.linalg.eigh(sn)
     wmax = max(float(w[-1]), 1e-300)
     null = w <= NULL_TOL * wmax
@@ -237,15 +236,13 @@ def _has_state_prior(problem: AdjustmentState, img: Any) -> bool:
 def _image_ties(problem: AdjustmentState) -> list[dict[str, str]]:
     """What ties each image to the datum, in words."""
     job = problem.job
-    gcps = {p.id for p in job.points if p.role == "gcp"}
-    ties = {p.id for p in job.points if p.role == "tie"}
-    n_gcp: dict[str, int] = {}
-    n_tie: dict[str, int] = {}
-    for o in job.observations:
-        if o.point in gcps:
-            n_gcp[o.image] = n_gcp.get(o.image, 0) + 1
-        elif o.point in ties:
-            n_tie[o.image] = n_tie.get(o.image, 0) + 1
+    role = np.array([p.role for p in problem.points] or [""])
+    img = problem.obs.img
+    n_img = len(problem.images)
+    count_gcp = np.bincount(img[role[problem.obs.pt] == "gcp"], minlength=n_img)
+    count_tie = np.bincount(img[role[problem.obs.pt] == "tie"], minlength=n_img)
+    n_gcp = {im.id: int(count_gcp[k]) for k, im in enumerate(problem.images)}
+    n_tie = {im.id: int(count_tie[k]) for k, im in enumerate(problem.images)}
     states = {im.id for im in problem.images if _has_state_prior(problem, im)}
     out = []
     for im in job.images:
@@ -277,7 +274,7 @@ def analyse_datum(problem: AdjustmentState, lin: Linearisation, parts: SchurPart
     if ties.sum() >= MIN_TIE_POINTS:
         v = np.einsum("qab,qbk->qak", parts.c_inv, g)
         u = _b_c_inv(lin, parts, v, n_f)
-        x, in_null, null_part = _solve_reduced(parts.s, u)
+        x, in_null, null_part = _solve_reduced(parts, u)
         var = np.einsum("qak,qak->k", g, v) + np.einsum("jk,jk->k", u, x)  # as functional_variances, keeping x
         s_inv_diag: np.ndarray | None = None
         for k, (key, words, _unit) in enumerate(DIRECTIONS):
@@ -326,7 +323,7 @@ def functional_variances(lin: Linearisation, parts: SchurParts, g: np.ndarray) -
     estimated points' LGS coordinates (module docstring; infinite where S is singular along it)."""
     v = np.einsum("qab,qbk->qak", parts.c_inv, g)
     u = _b_c_inv(lin, parts, v, parts.s.shape[0])
-    x, in_null, _ = _solve_reduced(parts.s, u)
+    x, in_null, _ = _solve_reduced(parts, u)
     var = np.einsum("qak,qak->k", g, v) + np.einsum("jk,jk->k", u, x)
     return np.where(in_null > NULL_SHARE, np.inf, var)
 
