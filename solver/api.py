@@ -29,6 +29,7 @@ from typing import Any, Callable, Iterator, Protocol
 import numpy as np
 from pyproj.exceptions import ProjError
 
+from solver.engine import dense_threads
 from solver.errors import JobError, Problem
 from solver.schema.job import Job, load_job
 from solver.schema.settings import JobSettings
@@ -138,7 +139,7 @@ def run(
             return compare(j, models, progress=progress, cancel=cancel, validated=validated)
         from solver.adjust import adjust_job
 
-        with _input_faults_as_job_errors(), _kernel_notices(progress) as progress:
+        with _input_faults_as_job_errors(), dense_threads.bounded(), _kernel_notices(progress) as progress:
             return adjust_job(handed(j, validated), progress=progress, cancel=cancel)
 
 
@@ -161,7 +162,7 @@ def compare(
     ``validated`` as in :func:`run`: the job is not checked again for each model."""
     from solver.compare import compare_models
 
-    with _input_faults_as_job_errors(), _kernel_notices(progress) as progress:
+    with _input_faults_as_job_errors(), dense_threads.bounded(), _kernel_notices(progress) as progress:
         return compare_models(_as_job(job), models, progress=progress, cancel=cancel, validated=validated)
 
 
@@ -171,7 +172,7 @@ def preanalyse(job: Job | dict[str, Any] | str | bytes) -> dict[str, Any]:
     (:mod:`solver.quality.preanalysis`; ``kind: "preanalysis"`` in docs/report-contract.md)."""
     from solver.quality.preanalysis import preanalyse as _preanalyse
 
-    with _input_faults_as_job_errors():
+    with _input_faults_as_job_errors(), dense_threads.bounded():
         return _preanalyse(_as_job(job))
 
 

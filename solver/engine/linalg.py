@@ -26,6 +26,7 @@ from scipy.linalg import lapack
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.blocks import registry as blocks
+from solver.engine import dense_threads
 from solver.engine.native import in_threads, thread_ranges
 from solver.engine.packed_tables import current_tables, records
 from solver.engine.terms import block_owner, family_terms
@@ -435,7 +436,8 @@ class ReducedFactor:
             return cls(d, None, 0.0)
         sn = _jacobi_scaled(s, d)
         norm1 = max(float(np.abs(sn[:, k : k + STRIP]).sum(axis=0).max()) for k in range(0, sn.shape[1], STRIP))
-        factor, info = lapack.dpotrf(sn.T, lower=1, clean=1, overwrite_a=1)  # in place (sn is symmetric)
+        with dense_threads.for_matrix(len(d)):
+            factor, info = lapack.dpotrf(sn.T, lower=1, clean=1, overwrite_a=1)  # in place (sn is symmetric)
         return cls(d, factor if info == 0 else None, norm1)
 
     def condition(self) -> float | None:
@@ -513,7 +515,8 @@ def check_rank(parts: SchurParts, names: list[str], tol: float = 1e-15, fast: bo
         if estimate is not None and estimate < FAST_RANK_MARGIN / tol:
             return RankReport(False, estimate, [])
     sn = _jacobi_scaled(s, d)
-    w, v = np.linalg.eigh(sn)
+    with dense_threads.for_matrix(len(d)):
+        w, v = np.linalg.eigh(sn)
     wmax = max(w[-1], 1e-300)
     cond = float(wmax / max(w[0], 1e-300)) if w[0] > 0 else float("inf")
     bad = w <= tol * wmax
@@ -587,13 +590,14 @@ def positive_definite_inverse(s: np.ndarray) -> np.ndarray:
     # the transpose of the symmetric, C-ordered scaled matrix is the same matrix in Fortran
     # order: LAPACK then works in place instead of on a copy
     work = _jacobi_scaled(s, d).T
-    factor, info = lapack.dpotrf(work, lower=1, clean=0, overwrite_a=1)
-    if info != 0:
-        raise np.linalg.LinAlgError("the normal matrix is not positive definite")
-    # LAPACK's dpotri: L^-T L^-1 from the factor (the triangular inverse, then its product with
-    # its transpose exploiting the triangles): n^3 flops instead of 3.3 n^3 for a triangular
-    # solve against the identity and a full product
-    inv, info = lapack.dpotri(factor, lower=1, overwrite_c=1)
+    with dense_threads.for_matrix(len(d)):
+        factor, info = lapack.dpotrf(work, lower=1, clean=0, overwrite_a=1)
+        if info != 0:
+            raise np.linalg.LinAlgError("the normal matrix is not positive definite")
+        # LAPACK's dpotri: L^-T L^-1 from the factor (the triangular inverse, then its product with
+        # its transpose exploiting the triangles): n^3 flops instead of 3.3 n^3 for a triangular
+        # solve against the identity and a full product
+        inv, info = lapack.dpotri(factor, lower=1, overwrite_c=1)
     if info != 0:
         raise np.linalg.LinAlgError("the normal matrix is not positive definite")
     _mirror_lower(inv)

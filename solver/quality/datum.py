@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from solver.engine import dense_threads
 from solver.engine.linalg import Linearisation, SchurParts
 from solver.errors import Problem
 from solver.schema.settings import JobSettings
@@ -185,7 +186,8 @@ def _solve_reduced(parts: SchurParts, u: np.ndarray) -> tuple[np.ndarray, np.nda
     d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
     sn = s / np.outer(d, d)
     un = u / d[:, None]
-    w, vec = np.linalg.eigh(sn)
+    with dense_threads.for_matrix(len(d)):
+        w, vec = np.linalg.eigh(sn)
     wmax = max(float(w[-1]), 1e-300)
     null = w <= NULL_TOL * wmax
     proj = vec.T @ un
@@ -296,7 +298,8 @@ def analyse_datum(problem: AdjustmentState, lin: Linearisation, parts: SchurPart
 def _reduced_inverse_diagonal(s: np.ndarray) -> np.ndarray:
     """diag(S^+) (pseudo-inverse where S is singular): the image parameters' own variances."""
     d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
-    w, vec = np.linalg.eigh(s / np.outer(d, d))
+    with dense_threads.for_matrix(len(d)):
+        w, vec = np.linalg.eigh(s / np.outer(d, d))
     keep = w > NULL_TOL * max(float(w[-1]), 1e-300)
     return ((vec[:, keep] ** 2) / w[keep]).sum(axis=1) / d**2
 

@@ -1,0 +1,85 @@
+"""Threads of the dense linear algebra (OpenBLAS under numpy and scipy).
+
+OpenBLAS runs a factorisation on as many threads as there are cores, and its threads wait for
+one another by spinning. On a machine whose cores are already busy (a shared server's other
+workers, a second job, a test run) that turns a small factorisation into seconds: on 2 cores
+with other processes running, the Cholesky factor and inverse of a 420-square matrix took
+3.9 s on two threads and 0.015 s on one; a 5,400-square one 26.7 s against 5.2 s
+(bench/bench_dense_threads.py). On an idle machine two threads gain only on large matrices.
+
+So an adjustment runs its dense algebra on one thread (:func:`bounded`, entered by
+:mod:`solver.api` around every job), and the few large factorisations of the reduced system
+(the rank check's factor, the covariance, the eigen-analyses) take more threads only when
+their matrix has at least :data:`DENSE_PARALLEL_MIN` rows and cores are idle at that moment
+(:func:`for_matrix`): the threads the solve may use (``PBA_SOLVER_THREADS``) minus the other
+runnable threads the kernel reports (``/proc/loadavg``), at least one.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Callable, Iterator
+
+DENSE_PARALLEL_MIN = 1500
+"""Rows of a dense matrix from which its factorisation may use more than one thread (below,
+one thread is as fast on an idle machine: 0.10 s against 0.16 s at 1,200 rows)."""
+
+_controller = None
+
+
+def _blas():
+    """threadpoolctl's controller of the BLAS libraries loaded (numpy's and scipy's OpenBLAS),
+    made once, after scipy.linalg is loaded."""
+    global _controller
+    if _controller is None:
+        import scipy.linalg  # noqa: F401  (its OpenBLAS loaded, so the controller sees it)
+        from threadpoolctl import ThreadpoolController
+
+        _controller = ThreadpoolController()
+    return _controller
+
+
+def runnable_others() -> int | None:
+    """Threads runnable on the machine now other than the caller (the fourth field of
+    ``/proc/loadavg``, "running/total", counts the reading thread itself); None off Linux."""
+    try:
+        with open("/proc/loadavg") as f:
+            running = int(f.read().split()[3].split("/")[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    return max(running - 1, 0)
+
+
+def threads_for(rows: int, others: Callable[[], int | None] = runnable_others) -> int:
+    """BLAS threads for a dense factorisation of a ``rows``-square matrix: one below
+    :data:`DENSE_PARALLEL_MIN`; else the solve's threads less the other runnable threads
+    (all of the solve's threads when that cannot be read), at least one."""
+    from solver.engine.native import solver_threads
+
+    if rows < DENSE_PARALLEL_MIN:
+        return 1
+    allowed = solver_threads()
+    busy = others()
+    return allowed if busy is None else max(1, min(allowed, allowed - busy))
+
+
+@contextmanager
+def limited(threads: int) -> Iterator[None]:
+    """BLAS on ``threads`` threads inside the block; the previous limits restored after."""
+    with _blas().limit(limits=threads, user_api="blas"):
+        yield
+
+
+@contextmanager
+def bounded() -> Iterator[None]:
+    """One BLAS thread for everything inside (an adjustment; see the module docstring)."""
+    with limited(1):
+        yield
+
+
+@contextmanager
+def for_matrix(rows: int) -> Iterator[None]:
+    """The BLAS threads :func:`threads_for` gives a ``rows``-square factorisation, inside the block."""
+    with limited(threads_for(rows)):
+        yield
+
