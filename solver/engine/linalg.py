@@ -214,6 +214,38 @@ def _accumulate(n_f, fcol, jf, obs_pt, jpt, pt_q, npt_est):
 
 
 @njit(**_JIT)
+def _b_times_into(fcol, jf, jpt, q_of, v, u):
+    """u += B V: for each observation row i of an estimated point q (``q_of[i]`` >= 0) the
+    image columns' J_f^T (J_p V_q), V_q = ``v[q]`` (3 x k)."""
+    w = fcol.shape[1]
+    k_n = v.shape[2]
+    for i in range(fcol.shape[0]):
+        q = q_of[i]
+        if q < 0:
+            continue
+        for r in range(2):
+            for k in range(k_n):
+                t = jpt[i, r, 0] * v[q, 0, k] + jpt[i, r, 1] * v[q, 1, k] + jpt[i, r, 2] * v[q, 2, k]
+                if t == 0.0:
+                    continue
+                for j in range(w):
+                    c = fcol[i, j]
+                    if c >= 0:
+                        u[c, k] += jf[i, r, j] * t
+
+
+def b_times(lin: Linearisation, parts: SchurParts, v: np.ndarray) -> np.ndarray:
+    """B V (reduced columns x k) for point-space vectors ``v`` (n_est, 3, k) in the estimated
+    points' order (B: the normal matrix's block between the reduced parameters and the points)."""
+    u = np.zeros((parts.s.shape[0], v.shape[2]))
+    if len(lin.obs_pt) and len(parts.est_points):
+        pt_q = -np.ones(int(max(lin.obs_pt.max(), parts.est_points.max())) + 1, dtype=np.int64)
+        pt_q[parts.est_points] = np.arange(len(parts.est_points))
+        _b_times_into(lin.fcol, lin.jf, lin.jpt, pt_q[lin.obs_pt], np.ascontiguousarray(v, dtype=np.float64), u)
+    return u
+
+
+@njit(**_JIT)
 def _point_b(lo, hi, order, fcol, jf, jpt, cols, bp):
     """The point's image columns (concatenated over its observations, duplicates allowed) into
     ``cols`` and its B_p rows into ``bp`` (work buffers of at least (hi - lo) x width rows);

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from solver.engine import dense_threads
-from solver.engine.linalg import Linearisation, SchurParts
+from solver.engine.linalg import Linearisation, SchurParts, b_times
 from solver.errors import Problem
 from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState
@@ -49,7 +49,6 @@ DIRECTIONS = (
     ("rotation", "a rotation of the tie points about the vertical (displacement at the block's edge)", "m"),
     ("scale", "a scale of the tie points' horizontal positions (displacement at the block's edge)", "m"),
 )
-CHUNK = 65_536  # observations per pass of B C^-1 G (memory: CHUNK x width x 7 doubles)
 MIN_TIE_POINTS = 3  # fewer ties: no directions of their own to speak of (tilts and rotation need spread)
 NAMED_PARAMETERS = 6  # image parameters named per undetermined direction, at most
 NULL_TOL = 1e-15  # eigenvalues of the Jacobi-scaled S below this times the largest: null space (the rank check's)
@@ -150,29 +149,6 @@ def _tie_functionals(problem: AdjustmentState, parts: SchurParts) -> tuple[np.nd
     return g, ties, [extent_x, extent_y, radius]
 
 
-def _b_c_inv(lin: Linearisation, parts: SchurParts, v: np.ndarray, n_f: int) -> np.ndarray:
-    """u = B V for point-space vectors already multiplied by C^-1 (``v``: (n_est, 3, k))."""
-    k = v.shape[2]
-    u = np.zeros((n_f, k))
-    pt_q = -np.ones(int(lin.obs_pt.max()) + 1 if len(lin.obs_pt) else 0, dtype=np.int64)
-    pt_q[parts.est_points] = np.arange(len(parts.est_points))
-    q_of = pt_q[lin.obs_pt] if len(lin.obs_pt) else np.zeros(0, dtype=np.int64)
-    for lo in range(0, len(q_of), CHUNK):
-        q = q_of[lo : lo + CHUNK]
-        has = q >= 0
-        if not has.any():
-            continue
-        jpt = lin.jpt[lo : lo + CHUNK][has]
-        jf = lin.jf[lo : lo + CHUNK][has]
-        cols = lin.fcol[lo : lo + CHUNK][has]
-        t = np.einsum("iab,ibk->iak", jpt, v[q[has]])  # (m, 2, k): the image residuals' change per unit
-        contrib = np.einsum("iaj,iak->ijk", jf, t)  # (m, width, k)
-        ok = cols >= 0
-        for c in range(k):  # bincount: np.add.at is ten times slower
-            u[:, c] += np.bincount(cols[ok], weights=contrib[..., c][ok], minlength=n_f)
-    return u
-
-
 def _solve_reduced(parts: SchurParts, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(S^+ u; the relative size of each column of u's part in the null space of S; that part,
     in the Jacobi-scaled parameters). S's Cholesky factor is the rank check's own
@@ -269,13 +245,12 @@ def _image_ties(problem: AdjustmentState) -> list[dict[str, str]]:
 def analyse_datum(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, names: list[str],
                   max_sigma_m: float) -> DatumAnalysis:
     """The analysis of the module docstring at the current (initial) parameters."""
-    n_f = parts.s.shape[0]
     g, ties, _scales = _tie_functionals(problem, parts)
     directions: list[dict[str, Any]] = []
     undetermined: list[dict[str, Any]] = []
     if ties.sum() >= MIN_TIE_POINTS:
         v = np.einsum("qab,qbk->qak", parts.c_inv, g)
-        u = _b_c_inv(lin, parts, v, n_f)
+        u = b_times(lin, parts, v)
         x, in_null, null_part = _solve_reduced(parts, u)
         var = np.einsum("qak,qak->k", g, v) + np.einsum("jk,jk->k", u, x)  # as functional_variances, keeping x
         s_inv_diag: np.ndarray | None = None
@@ -325,7 +300,7 @@ def functional_variances(lin: Linearisation, parts: SchurParts, g: np.ndarray) -
     """g^T N^-1 g (a-priori scale) of point-space functionals ``g`` (n_est, 3, k) on the
     estimated points' LGS coordinates (module docstring; infinite where S is singular along it)."""
     v = np.einsum("qab,qbk->qak", parts.c_inv, g)
-    u = _b_c_inv(lin, parts, v, parts.s.shape[0])
+    u = b_times(lin, parts, v)
     x, in_null, _ = _solve_reduced(parts, u)
     var = np.einsum("qak,qak->k", g, v) + np.einsum("jk,jk->k", u, x)
     return np.where(in_null > NULL_SHARE, np.inf, var)

@@ -177,3 +177,26 @@ def test_threaded_elimination_into_bands_equals_one_thread(monkeypatch):
     banded = schur(lin, problem).s
     assert sorted(eliminated) == [(0, ranges[1], one.shape[0]), (ranges[1], ranges[2], c1 - c0)]
     np.testing.assert_allclose(banded, one, rtol=0, atol=REDUCED_REL * np.abs(one).max())
+
+
+def test_b_times_is_the_normal_matrix_block_of_the_sparse_jacobian():
+    """B V from the observation blocks (linalg.b_times, used by the datum analysis) equals
+    J_f^T J_p V with J the full sparse Jacobian (independent assembly, image rows only: the
+    priors do not couple images and points); 1e-9 relative protects against a dropped or
+    transposed Jacobian block, far above rounding."""
+    from solver.engine.linalg import b_times
+
+    job, _ = block_job("P2", n_triplets=1, n_tie=12, n_gcp=8, n_check=3, seed=4, gcp_sigma_m=0.5)
+    problem = prepare(load_job(job))
+    lin = linearise(problem)
+    parts = schur(lin, problem)
+    jac = lin.sparse_jacobian().toarray()[: lin.n_obs_rows]
+    n = lin.layout.n_img_params
+    v = np.random.default_rng(3).standard_normal((len(parts.est_points), 3, 7))
+    v_cols = np.zeros((jac.shape[1], 7))
+    for q, p in enumerate(parts.est_points):
+        c0 = lin.layout.pt_col[p]
+        v_cols[c0 : c0 + 3] = v[q]
+    expected = jac[:, :n].T @ (jac @ v_cols)
+    got = b_times(lin, parts, v)
+    assert np.max(np.abs(got - expected)) <= 1e-9 * np.max(np.abs(expected))
