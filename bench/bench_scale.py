@@ -168,10 +168,20 @@ def block_for(n_obs: int, model: str, seed: int) -> dict[str, Any]:
 
 
 PEAK_AFTER: dict[str, float] = {}  # stage -> peak RSS (MB) when it ended
+RSS_AFTER: dict[str, float] = {}  # stage -> RSS (MB) when it ended: what the stage leaves held
 
 
 def _peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _rss_mb() -> float:
+    """The resident set now (MB; Linux' /proc, else the peak)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except OSError:
+        return _peak_mb()
 
 
 def _timed(table: dict[str, float], name: str, fn: Callable) -> Callable:
@@ -183,6 +193,7 @@ def _timed(table: dict[str, float], name: str, fn: Callable) -> Callable:
         finally:
             table[name] = table.get(name, 0.0) + time.perf_counter() - t0
             PEAK_AFTER[name] = _peak_mb()
+            RSS_AFTER[name] = _rss_mb()
 
     return wrapper
 
@@ -217,7 +228,25 @@ def _traced(backend: Any, rows: list[dict[str, Any]]) -> None:
     backend.ceres_options = with_trace
 
 
-def child(path: Path, trace: bool = False) -> dict[str, Any]:
+def _linear_solver(backend: Any, spec: str) -> None:
+    """Override the solve's linear solver (``--linear-solver``): ``TYPE`` or ``TYPE:PRECONDITIONER``
+    (Ceres' names, e.g. ``ITERATIVE_SCHUR:SCHUR_JACOBI``), for measuring the choices side by side."""
+    import pyceres
+
+    kind, _, preconditioner = spec.partition(":")
+    options = backend.ceres_options
+
+    def with_solver(*args, **kwargs):
+        so = options(*args, **kwargs)
+        so.linear_solver_type = getattr(pyceres.LinearSolverType, kind)
+        if preconditioner:
+            so.preconditioner_type = getattr(pyceres.PreconditionerType, preconditioner)
+        return so
+
+    backend.ceres_options = with_solver
+
+
+def child(path: Path, trace: bool = False, linear_solver: str | None = None) -> dict[str, Any]:
     """One job in this process: load its JSON, adjust end to end, return the measurements."""
     try:
         import solver.procedures.single as single
@@ -254,6 +283,8 @@ def child(path: Path, trace: bool = False) -> dict[str, Any]:
     if summarise is not None:
         backend.summarise = summarise_and_keep
     rows: list[dict[str, Any]] = []
+    if linear_solver:
+        _linear_solver(backend, linear_solver)
     if trace:
         _traced(backend, rows)
     t0 = time.perf_counter()
@@ -274,8 +305,11 @@ def child(path: Path, trace: bool = False) -> dict[str, Any]:
         "solve_time_s": adj["solve_time_s"],
         "per_iteration_s": adj["solve_time_s"] / max(adj["iterations"], 1),
         "sigma0": adj["sigma0_aposteriori"],
+        "final_cost": adj.get("final_cost"),
+        "linear_solver": adj.get("linear_solver"),
         "peak_rss_mb": _peak_mb(),
         "peak_after_stage_mb": dict(PEAK_AFTER),
+        "rss_after_stage_mb": dict(RSS_AFTER),
         "trace": rows,
     }
 
@@ -292,12 +326,14 @@ def main() -> None:
                         "(any model, PASS ones included; disjoint triplets) instead of the model-consistent block")
     ap.add_argument("--no-states", action="store_true", help="connected strip: header states not weighted")
     ap.add_argument("--trace", action="store_true", help="print Ceres' summary of every iteration (cost, rho, trust region, ...)")
+    ap.add_argument("--linear-solver", default=None, help="override the linear solver: Ceres' TYPE or TYPE:PRECONDITIONER "
+                    "(e.g. DENSE_SCHUR, ITERATIVE_SCHUR:SCHUR_JACOBI)")
     ap.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--generate", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     kind = "disjoint" if args.disjoint else "strip" if args.strip else "connected"
     if args.child is not None:
-        print(json.dumps(child(args.child, args.trace)))
+        print(json.dumps(child(args.child, args.trace, args.linear_solver)))
         return
     if args.generate is not None:
         print(generate(args.generate, args.model, args.seed, kind, not args.no_states))
@@ -314,7 +350,8 @@ def main() -> None:
         print(f"{kind} block of about {n} observations: {path} ({time.perf_counter() - t0:.1f} s to generate or find)", flush=True)
         runs = []
         for _ in range(args.repeat):
-            out = subprocess.run([sys.executable, __file__, "--child", str(path)] + (["--trace"] if args.trace else []),
+            out = subprocess.run([sys.executable, __file__, "--child", str(path)] + (["--trace"] if args.trace else [])
+                                 + (["--linear-solver", args.linear_solver] if args.linear_solver else []),
                                  check=True, capture_output=True, text=True)
             r = json.loads(out.stdout.strip().splitlines()[-1])
             runs.append(r)
@@ -325,10 +362,11 @@ def main() -> None:
             stages = " ".join(f"{k} {v:.2f}" for k, v in r["stages_s"].items())
             stages += "; in Ceres: " + " ".join(f"{k} {v:.2f}" for k, v in r["ceres_s"].items())
             stages += "; peak RSS after: " + " ".join(f"{k} {v:.0f}" for k, v in r["peak_after_stage_mb"].items())
+            stages += "; RSS after: " + " ".join(f"{k} {v:.0f}" for k, v in r.get("rss_after_stage_mb", {}).items())
             print(
                 f"  {r['observations']:>8} obs {r['images']:>4} images [{r['evaluation']}, load {r['load_average']:.1f}]: "
                 f"run {r['run_s']:.2f} s ({stages}), {r['iterations']} iterations, {r['per_iteration_s']:.3f} s/iteration, "
-                f"sigma0 {r['sigma0']:.3f}, peak RSS {r['peak_rss_mb']:.0f} MB, JSON loaded in {r['generation_s']:.1f} s",
+                f"sigma0 {r['sigma0']:.3f}, final cost {r['final_cost']!r} [{r['linear_solver']}], peak RSS {r['peak_rss_mb']:.0f} MB, JSON loaded in {r['generation_s']:.1f} s",
                 flush=True,
             )
 

@@ -466,6 +466,10 @@ def ceres_options(options: SolveSettings, built: CeresProblem, control: SolveCon
     so.logging_type = pyceres.LoggingType.SILENT
     so.minimizer_progress_to_stdout = False
     if built.has_points:
+        # measured on connected strips (docs/benchmarks.md, bench/bench_linear_solver.py):
+        # DENSE_SCHUR takes the same steps and is no faster at 100k-300k observations, its dense
+        # factor grows with the cube of the image parameters; ITERATIVE_SCHUR (Schur-Jacobi or
+        # cluster preconditioners) needs 3-5x the iterations on these ill-conditioned blocks
         so.linear_solver_type = pyceres.LinearSolverType.SPARSE_SCHUR
     else:
         so.linear_solver_type = pyceres.LinearSolverType.DENSE_QR
