@@ -28,7 +28,7 @@ class ImageState:
     camera: Camera | None  # None: a kind without camera (an RPC image, model.kind.has_camera)
     model: PlatformModel
     options: dict
-    kc: np.ndarray  # (N_KEPLER_CONST,) = (17,) Kepler constants (also set, unused, for polynomial models)
+    kc: np.ndarray  # (N_KEPLER_CONST,) = (18,) Kepler constants (also set, unused, for polynomial models), then a pass segment and the attitude base
     base: np.ndarray  # (24,) full coefficients (held values and current free values)
     free_idx: np.ndarray  # (nfree,) int64
     tau_per_line: float

@@ -23,6 +23,7 @@ from solver.blocks.kind import BlockDefaults
 from solver.blocks.platform import ATTITUDE_MODES, attitude_mode, orders_ok, pass_id
 from solver.errors import Problem
 from solver.kernels.layout import (
+    KC_ATT_BASE,
     N_KEPLER_CONST,
     NODE_STEP_S,
     PASS_ATT_OFF,
@@ -98,6 +99,7 @@ def build_passes(job: "Job", images: list["ImageState"]) -> list[PassState]:
             n = int(math.ceil((b - t_ref + MARGIN_S - first) / NODE_STEP_S)) + 1
             kc = np.zeros(N_KEPLER_CONST + segment_length(max(n, 2)))
             kc[:N_KEPLER_CONST] = img.kc[:N_KEPLER_CONST]
+            kc[KC_ATT_BASE] = 0.0  # solver.blocks.platform.attach_attitude_base appends it after this segment
             kc[PASS_T_OFF] = t0 - t_ref
             kc[PASS_INDEX] = q
             kc[PASS_NODES] = max(n, 2)

@@ -23,7 +23,7 @@ from solver.blocks.kind import BlockDefaults
 from solver.blocks.platform_values import initial_platform_values
 from solver.errors import Problem
 from solver.geometry.geodesy import A_WGS84_M, E2_WGS84, LocalFrame
-from solver.kernels.layout import N_KEPLER_CONST
+from solver.kernels.layout import KC_ATT_BASE, N_KEPLER_CONST
 from solver.platforms import HELD, PlatformModel, get_model
 from solver.platforms.kepler import AE_M, GM_M3_S2, J2, OMEGA_RAD_S
 from solver.schema.job import Camera
@@ -141,6 +141,63 @@ def attitude_time_offset(img: "ImageState") -> float:
     """Time (tau units) added to the image's tau to give the time of its angle polynomials (pass
     images sharing a camera's attitude: the time since the pass reference epoch)."""
     return img.model.kind.attitude_time_offset(img.kc)
+
+
+def attitude_base_problems(im: "Image", i: int, model: PlatformModel) -> list[Problem]:
+    """Validation of an image's ``attitude_base``: a model whose angles are relative to the
+    orbital frame, the image's first line time, two samples at least at increasing epochs."""
+    base = im.attitude_base
+    if not base:
+        return []
+    loc = ("images", i, "attitude_base")
+    if not model.kind.attitude_in_orbital_frame:
+        return [Problem("attitude_needs_orbital_frame",
+                        f"image {im.id!r}: attitude_base is roll, pitch and yaw relative to the orbital frame, but model "
+                        f"{model.name} has Earth-fixed angles; use an orbit-attitude (OA-*) or pass (PASS-*) model", loc)]
+    if im.first_line_time_s is None:
+        return [Problem("attitude_needs_epoch", f"image {im.id!r}: attitude_base needs the image's first_line_time_s",
+                        ("images", i, "first_line_time_s"))]
+    if len(base) < 2:
+        return [Problem("attitude_base_too_short", f"image {im.id!r}: attitude_base needs two samples at least (it is "
+                        "interpolated between them)", loc)]
+    for k in range(1, len(base)):
+        if not base[k].time_s > base[k - 1].time_s:
+            return [Problem("attitude_base_not_increasing", f"image {im.id!r}: attitude_base sample {k} "
+                            f"(time_s {base[k].time_s}) is not after the one before it; epochs must increase", (*loc, k, "time_s"))]
+    return []
+
+
+def attach_attitude_base(problem: "AdjustmentState") -> None:
+    """Append each image's ``attitude_base`` to its constants ``kc`` (after the pass segment:
+    assembly calls this once the blocks are built) and point ``kc[KC_ATT_BASE]`` at it: its
+    sample count, their times in the angle polynomials' time (s since the image's first line,
+    plus :func:`attitude_time_offset`), then roll, pitch and yaw (rad). Images without one, or
+    whose adjusted model's angles are not relative to the orbital frame (a model comparison's
+    override), keep no base."""
+    for img in problem.images:
+        base = problem.job.images[img.index].attitude_base
+        if not base or img.model is None or not img.model.kind.attitude_in_orbital_frame:
+            continue
+        t0 = problem.job.images[img.index].first_line_time_s
+        times = np.array([s.time_s for s in base], float) - t0 + attitude_time_offset(img)
+        ang = np.radians(np.array([[s.roll_deg, s.pitch_deg, s.yaw_deg] for s in base], float))
+        table = np.concatenate([[float(len(base))], times, ang[:, 0], ang[:, 1], ang[:, 2]])
+        kc = np.concatenate([img.kc, table])
+        kc[KC_ATT_BASE] = float(img.kc.shape[0])
+        img.kc = kc
+
+
+def attitude_base_at(img: "ImageState", times_s: np.ndarray) -> np.ndarray:
+    """(n, 3) roll, pitch, yaw (rad) of an image's attitude base at the angle polynomials'
+    times ``times_s`` (zeros without a base), by the kernels' own interpolation."""
+    from solver.kernels.platform import _attitude_base_into  # numba: validation never comes here
+
+    out = np.zeros((len(times_s), 3))
+    rate = np.zeros(3)
+    kc = np.ascontiguousarray(img.kc, dtype=float)
+    for k, t in enumerate(np.asarray(times_s, float)):
+        _attitude_base_into(kc, float(t), out[k], rate)
+    return out
 
 
 def attitude_groups(problem: "AdjustmentState") -> dict[int, list[str]]:
@@ -335,6 +392,7 @@ def image_problems(job: "Job", i: int, cameras: dict[str, Any], state_of: Callab
                 ("images", i, "initial"),
             )
         )
+    problems += attitude_base_problems(im, i, model)
     if model.kind.position_from_image_state and state_of() is None and not {"X0", "Y0", "Z0"} <= set(im.initial):
         problems.append(
             Problem(

@@ -190,9 +190,11 @@ def _attitude_by_resection(problem: AdjustmentState, img: ImageState, v_ecef, se
         # of tie points without control start (nearly) parallel. With control, zero as before: a
         # start that close to the solution can end Ceres' iterations early on its relative step
         # (measured: 0.49 px instead of 0.017 px on a WorldView-2 image with 4 control points).
+        # (with an attitude base the angles are a correction to the delivered attitude: zero)
         samples = problem.job.images[img.index].attitude
         controlled = len(seen.gcp(img.index)) > 0
-        if samples and JobSettings.of(problem.job).blocks.attitude is not None and not controlled:
+        based = bool(problem.job.images[img.index].attitude_base)
+        if samples and JobSettings.of(problem.job).blocks.attitude is not None and not controlled and not based:
             return tuple(float(np.radians(np.mean([getattr(a, f) for a in samples]))) for f in ("roll_deg", "pitch_deg", "yaw_deg"))
         return 0.0, 0.0, 0.0
     obs = problem.obs

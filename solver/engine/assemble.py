@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from solver.blocks import registry as blocks
-from solver.blocks.platform import kepler_constants, platform_constants  # noqa: F401 (kepler_constants: the tests' scenes use it)
+from solver.blocks.platform import attach_attitude_base, kepler_constants, platform_constants  # noqa: F401 (kepler_constants: the tests' scenes use it)
 from solver.geometry.geodesy import A_WGS84_M, LocalFrame, to_ecef
 from solver.geometry.sensor import chip_indices, chip_of_index
 from solver.kernels import N_COEF, N_OBS_CONST
@@ -206,6 +206,7 @@ def build_problem(job: Job, models: dict[str, str] | None = None, config: BlockC
     lines = build_lines(job, frame, images, line_ecef) if job.lines else None
     problem = AdjustmentState(job, frame, images, points, obs, lines)
     blocks.build(problem, config)
+    attach_attitude_base(problem)  # after the blocks: the pass kind builds its images' kc anew
     return problem
 
 

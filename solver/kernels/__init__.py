@@ -39,8 +39,10 @@ Conventions (see docs/models.md):
   u, and the position is ``S0 + u tau + 1/2 a tau^2`` with the rotating-frame acceleration
   ``a = g(S0) + Omega^2 (X0, Y0, 0) + 2 Omega (u_y, -u_x, 0)`` (g: point mass, optionally J2);
   the result is rotated into the LGS. Angles are polynomials for every model.
-* Kepler constants ``kc`` (17): R_ecef->lgs (9, row-major), LGS origin in ECEF (3), GM, Omega,
-  J2 (0 disables), a_e, camera mounting pitch (rad, orbit-attitude models).
+* Kepler constants ``kc`` (18): R_ecef->lgs (9, row-major), LGS origin in ECEF (3), GM, Omega,
+  J2 (0 disables), a_e, camera mounting pitch (rad, orbit-attitude models), the address in kc
+  of the image's attitude base (0: none; the delivered attitude the angle polynomials correct,
+  :func:`solver.kernels.platform._attitude_base_into`).
 * Observation constants ``oc`` (9): line, column, sigma_px, f_mm, pixel_mm, xo_mm, yo_mm,
   c_centre, tau_per_line, where the projection condition is ``-f d_x/d_z = xo`` (xo = chip dx -
   principal point x0) and ``column = c_centre + (-f d_y/d_z - yo) / pixel`` (yo = chip dy - y0).
@@ -58,6 +60,7 @@ from solver.kernels.layout import (
     IT_FREE,
     IT_KIND,
     IT_NFREE,
+    KC_ATT_BASE,
     KC_START,
     KIND_KEPLER,
     KIND_ORBIT_ATTITUDE,
@@ -90,7 +93,7 @@ from solver.schema.iop_names import IOP_CHIP, IOP_OPTICAL, MAX_CHIPS
 _KERNEL_MODULES = {
     "blocks": ("_eval_record", "_fill", "_put_rows", "all_observation_blocks", "fixed_obs_block", "observation_blocks_into", "point_obs_block"),
     "platform": (
-        "_attitude_angles", "_attitude_time", "_camera_state", "_coef_gradients", "_kepler_terms", "_derivative_factors",
+        "_attitude_angles", "_attitude_base_into", "_attitude_time", "_camera_state", "_coef_gradients", "_kepler_terms", "_derivative_factors",
         "_oa_factors_into", "_oa_frames_into", "_oa_pose", "_oa_state_gradients", "_projection_terms", "_projection_work", "_pose", "_state_column", "assemble", "object_to_camera", "platform_state",
     ),
     "projection": (
@@ -120,11 +123,11 @@ def __dir__() -> list[str]:
 
 __all__ = [
     "CAM_TAB", "IMG_TAB", "IOP_CHIP", "IOP_OPTICAL", "IT_BASE", "IT_FREE", "IT_KIND", "IT_NFREE",
-    "KC_START", "KIND_KEPLER", "KIND_ORBIT_ATTITUDE", "KIND_PASS", "KIND_POLYNOMIAL", "KIND_RPC",
+    "KC_ATT_BASE", "KC_START", "KIND_KEPLER", "KIND_ORBIT_ATTITUDE", "KIND_PASS", "KIND_POLYNOMIAL", "KIND_RPC",
     "MAX_CHIPS", "N_COEF", "N_IOP", "N_KEPLER_CONST", "N_OBS_CONST", "OBS_REC", "PASS_ATT_OFF",
     "PASS_COEF_INDEX", "PASS_INDEX", "PASS_T_OFF", "REC_CAMERA", "REC_CAM_SLOT", "REC_CHIP",
     "REC_CHIP_LEN", "REC_COLUMN", "REC_IMAGE", "REC_IMG_SLOT", "REC_LINE", "REC_OC",
-    "REC_PASS_SLOT", "REC_SIGMA", "_attitude_angles", "_attitude_time", "_camera_state",
+    "REC_PASS_SLOT", "REC_SIGMA", "_attitude_angles", "_attitude_base_into", "_attitude_time", "_camera_state",
     "_coef_gradients", "_eval_record", "_fill", "_kepler_terms", "_derivative_factors", "_oa_factors_into",
     "_oa_frames_into", "_projection_terms", "_projection_work",
     "_line_newton_step", "_mount", "_oa_pose", "_oa_state_gradients", "_orbital_frame",

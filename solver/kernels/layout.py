@@ -17,14 +17,18 @@ KIND_PASS = 3  # one propagated orbit per pass (solver.kernels.propagation), att
 KIND_RPC = 4  # RPC00B plus an image-space bias (solver.kernels.rpc): no camera, no platform
 N_COEF = 24
 N_OBS_CONST = 9
-N_KEPLER_CONST = 17
+N_KEPLER_CONST = 18
+# kc slot of the attitude base's address in kc (0: none; solver.blocks.platform.attach_attitude_base
+# appends the table after everything else, solver.kernels.platform._attitude_base_into reads it):
+# n, then n times (the angle polynomials' time, s), then n roll, n pitch, n yaw (rad)
+KC_ATT_BASE = 17
 # full IOP vector of a camera: x0, y0, df, k1, k2, sy, then per chip (a0, b0, a1, b1, delta)
 N_IOP = len(IOP_OPTICAL) + len(IOP_CHIP) * MAX_CHIPS
 
 JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)  # options of every @njit here
 
 # ---- residual blocks over image and camera tables ----------------------------------------
-# img_tab row (67): kind, nfree, free_idx[24], base[24], kc[17]
+# img_tab row (68): kind, nfree, free_idx[24], base[24], kc[18]
 # cam_tab row (2 + 2 N_IOP): nfree, has_iop, free_idx[N_IOP], base[N_IOP]
 # (the pass kind appends its propagated segment to kc: the row is then longer, see
 #  solver.kernels.propagation; kc is always it[KC_START:])
@@ -78,14 +82,14 @@ LT_SCAL = 14  # address of (tau, focal length mm, form) of the planes model and 
 LT_WORDS = 15
 
 # ---- pass segment inside an image's kc (solver.kernels.propagation writes and reads it) ----
-PASS_T_OFF = 17  # line-0 epoch minus the pass reference epoch (s)
-PASS_INDEX = 18
-PASS_NODES = 19
-PASS_T0 = 20
-PASS_STEP = 21
-PASS_X0 = 22  # 6 values
-PASS_ATT_OFF = 28  # added to t (s since the image's first line) for the attitude polynomials
-PASS_NODE0 = 29
+PASS_T_OFF = N_KEPLER_CONST  # line-0 epoch minus the pass reference epoch (s)
+PASS_INDEX = PASS_T_OFF + 1
+PASS_NODES = PASS_T_OFF + 2
+PASS_T0 = PASS_T_OFF + 3
+PASS_STEP = PASS_T_OFF + 4
+PASS_X0 = PASS_T_OFF + 5  # 6 values
+PASS_ATT_OFF = PASS_T_OFF + 11  # added to t (s since the image's first line) for the attitude polynomials
+PASS_NODE0 = PASS_T_OFF + 12
 NODE_SIZE = 63
 NODE_STEP_S = 1.0
 

@@ -11,7 +11,7 @@ from numba import njit
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.kernels.layout import JIT as _JIT
-from solver.kernels.layout import KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL, N_COEF
+from solver.kernels.layout import KC_ATT_BASE, KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL, N_COEF
 from solver.kernels.propagation import (
     PASS_ATT_OFF,
     PASS_COEF_INDEX,
@@ -58,6 +58,7 @@ def platform_state(kind: int, coef, kc, tau: float):
             da_dc[e, (3 + e) * 4 + k] = tp[k]
             if k >= 1:
                 da_dt[e] += k * c * tp[k - 1]
+    _attitude_base_into(kc, ta, ang, da_dt)
     for k in range(1, 4):
         tp[k] = tp[k - 1] * tau
     if kind == KIND_POLYNOMIAL:
@@ -125,6 +126,42 @@ def _attitude_time(kind, kc, tau: float) -> float:
     if kind == KIND_PASS:
         return tau + kc[PASS_ATT_OFF]
     return tau
+
+
+@njit(**_JIT)
+def _attitude_base_into(kc, ta: float, ang, angdot) -> None:
+    """Add the image's attitude base at the angle polynomials' time ``ta`` (s) to ``ang`` and
+    its rate to ``angdot`` (rad, rad/s): the delivered attitude (roll, pitch, yaw relative to
+    the orbital frame) interpolated linearly in the angles between its samples, as the
+    handbooks of the vendors' line-scan models do, and extended linearly beyond its first and
+    last intervals. The polynomials are then a smooth correction to it; its address in ``kc``
+    is ``kc[KC_ATT_BASE]`` (0 or a constant vector without the slot: no base, nothing added).
+    The derivatives along the coefficients do not change (the base is constant data)."""
+    if kc.shape[0] <= KC_ATT_BASE:
+        return
+    b = int(kc[KC_ATT_BASE])
+    if b <= 0:
+        return
+    n = int(kc[b])
+    t0 = b + 1
+    if n == 1:
+        for e in range(3):
+            ang[e] += kc[t0 + n * (1 + e)]
+        return
+    lo, hi = 0, n - 1  # the interval [lo, lo + 1] that holds ta (the end ones beyond the samples)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if kc[t0 + mid] <= ta:
+            lo = mid
+        else:
+            hi = mid
+    dt = kc[t0 + lo + 1] - kc[t0 + lo]
+    u = (ta - kc[t0 + lo]) / dt
+    for e in range(3):
+        a0 = kc[t0 + n * (1 + e) + lo]
+        a1 = kc[t0 + n * (1 + e) + lo + 1]
+        ang[e] += a0 + u * (a1 - a0)
+        angdot[e] += (a1 - a0) / dt
 
 
 @njit(**_JIT)
@@ -221,7 +258,9 @@ def _oa_frames_into(kind, coef, kc, acc, tau, rot, s, sdot, ro, dro, b, vecs) ->
     0-3 and ``b`` (3 x 6) are scratch)."""
     vdot, ang, angdot = vecs[3], vecs[4], vecs[5]
     _orbit_pos_into(kind, coef, kc, acc, tau, s, sdot, vdot, b, vecs)
-    _attitude_angles(coef, _attitude_time(kind, kc, tau), ang, angdot)
+    ta = _attitude_time(kind, kc, tau)
+    _attitude_angles(coef, ta, ang, angdot)
+    _attitude_base_into(kc, ta, ang, angdot)
     _rotation_into(ang[0], ang[1], ang[2], rot)
     c0, c1, c2 = ro_offset_scalars(kc)
     _orbital_frame_rate_into(s, sdot, c0, c1, c2, sdot, vdot, ro, dro)

@@ -23,7 +23,7 @@ positions, velocities and accelerations of the two neighbouring nodes; its deriv
 are the same polynomial through the node derivatives (dS, dV, dA = G dS + W dV), so the
 interpolated position, its time derivatives and its x0-derivatives are mutually consistent.
 
-Segment layout inside an image's constant vector ``kc`` (after the 17 Kepler constants; see
+Segment layout inside an image's constant vector ``kc`` (after the 18 Kepler constants; see
 :mod:`solver.kernels`): ``PASS_T_OFF`` line-0 epoch minus pass reference epoch (s), pass index,
 node count, time of node 0 (s, relative to the reference epoch), node step (s), the x0 the
 segment was computed for (6), the attitude time offset (0: attitude polynomials in time since

@@ -5,6 +5,10 @@ with each angle a polynomial in the attitude time t_a (docs/models.md sections 1
 
     angle(t_a) = c0 + c1 t_a + c2 t_a^2 + c3 t_a^3      (rad; t_a in s)
 
+With an attitude base (``images[].attitude_base``, the delivered attitude interpolated
+linearly, :func:`solver.kernels.platform._attitude_base_into`) each angle is the base plus the
+polynomial, and a sample observes the polynomial as ``measured - base(t_a)``.
+
 An attitude sample (roll, pitch, yaw relative to the orbital frame at epoch t, images[].attitude)
 therefore observes a linear function of the attitude coefficients, ``r = W (A p - b)``, the same
 form as the state priors (:class:`solver.observations.state_priors.StatePrior`, reused here). t_a is the time
@@ -40,7 +44,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from solver.blocks.platform import attitude_blocks, attitude_time_offset, image_attitude_blocks
+from solver.blocks.platform import attitude_base_at, attitude_blocks, attitude_time_offset, image_attitude_blocks
 from solver.errors import Problem
 from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled, ReportContext, per_row_groups
 from solver.observations.passes import pass_line_span
@@ -92,14 +96,20 @@ class AttitudeTerm(StatePrior):
 def block_samples(job: "Job", images: list[int]) -> list["AttitudeSample"]:
     """The distinct attitude samples (by epoch) of a block's images that lie within the time
     span of its images' lines, by epoch."""
+    return [sample for _i, sample in _carried_samples(job, images)]
+
+
+def _carried_samples(job: "Job", images: list[int]) -> list[tuple[int, "AttitudeSample"]]:
+    """:func:`block_samples` with the image that carries each (the first of the block's images
+    that has it)."""
     if any(job.images[i].first_line_time_s is None for i in images):
         return []
     lo, hi = pass_line_span(job, images)
-    seen: dict[float, "AttitudeSample"] = {}
+    seen: dict[float, tuple[int, "AttitudeSample"]] = {}
     for i in images:
         for sample in job.images[i].attitude:
             if lo <= sample.time_s <= hi:
-                seen.setdefault(float(sample.time_s), sample)
+                seen.setdefault(float(sample.time_s), (i, sample))
     return [seen[t] for t in sorted(seen)]
 
 
@@ -156,20 +166,25 @@ def _block_terms(problem: "AdjustmentState") -> list[tuple[list[int], AttitudeTe
     bias = opts.bias_sigma_deg
     out = []
     for block in image_attitude_blocks(problem.images):
-        samples = block_samples(job, block)
-        if not samples:
+        carried = _carried_samples(job, block)
+        if not carried:
             continue
+        samples = [sample for _i, sample in carried]
         img = problem.images[block[0]]
         t_first = job.images[block[0]].first_line_time_s
         offset = attitude_time_offset(img)
         where = {int(j): q for q, j in enumerate(img.free_idx)}
         rows_a, rows_b, rows_w = [], [], []
-        for sample in samples:
+        for i, sample in carried:
             t_a = sample.time_s - t_first + offset
             observed = (sample.roll_deg, sample.pitch_deg, sample.yaw_deg)
+            # the attitude base of the image carrying the sample (its angle time is the block's
+            # for the images that share one): the polynomials observe what it leaves
+            base = attitude_base_at(problem.images[i], np.array([sample.time_s - job.images[i].first_line_time_s
+                                                                  + attitude_time_offset(problem.images[i])]))[0]
             for e, element in enumerate(ANGLES):
                 row = np.zeros(img.nfree)
-                b = math.radians(observed[e])
+                b = math.radians(observed[e]) - base[e]
                 for power in range(4):
                     k = coef_index(element, power)
                     if k in where:

@@ -14,7 +14,7 @@ import numpy as np
 
 from solver.blocks.passes import pass_images, pass_problems
 from solver.errors import Problem
-from solver.kernels.layout import N_KEPLER_CONST, NODE_STEP_S, PASS_NODES, PASS_STEP, PASS_T0, PASS_T_OFF, PASS_X0, segment_length
+from solver.kernels.layout import KC_ATT_BASE, N_KEPLER_CONST, NODE_STEP_S, PASS_NODES, PASS_STEP, PASS_T0, PASS_T_OFF, PASS_X0, segment_length
 from solver.observations.ephemeris import image_state, usable
 from solver.observations.family import Count, FamilyDefaults, GroupSpec, Labelled
 from solver.schema.settings import JobSettings
@@ -66,6 +66,7 @@ def _epoch_segment(template_kc: np.ndarray, t_rel: float) -> np.ndarray:
     """A private trajectory segment (4 nodes) around ``t_rel`` (s after the pass reference epoch)."""
     kc = np.zeros(N_KEPLER_CONST + segment_length(4))
     kc[:N_KEPLER_CONST] = template_kc[:N_KEPLER_CONST]
+    kc[KC_ATT_BASE] = 0.0  # the image's attitude base is not copied (a state term has no attitude)
     kc[PASS_T_OFF] = t_rel
     kc[PASS_NODES] = 4
     kc[PASS_T0] = math.floor(t_rel) - 1.0

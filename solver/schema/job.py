@@ -404,6 +404,14 @@ class Image(_Strict):
         description="measured attitude samples (roll, pitch, yaw relative to the orbital frame); "
         "weighted observations of the orbit-attitude and pass models with options.attitude",
     )
+    attitude_base: list[AttitudeSample] = Field(
+        default_factory=list,
+        max_length=100_000,
+        description="the delivered attitude (roll, pitch, yaw relative to the orbital frame, increasing epochs, 2 samples "
+        "at least), interpolated linearly in the angles between its samples (beyond them: the end intervals extended): "
+        "the orbit-attitude and pass models' angle polynomials are then a correction added to it (constant data, "
+        "not estimated; pba job --sensor writes the vendor's attitude here)",
+    )
     sensor: SensorOrigin | None = Field(
         default=None, description="the vendor metadata the image was read from, and what its reading converted or dropped"
     )

@@ -18,7 +18,7 @@ from utils.differences import central_difference, central_difference_in_place
 from solver.adjust import adjust_job, prepare
 from solver.engine.linalg import linearise
 from solver.errors import JobError
-from solver.kernels import N_KEPLER_CONST, project
+from solver.kernels import N_KEPLER_CONST, PASS_T_OFF, project
 from solver.kernels.propagation import (
     NODE_STEP_S,
     PASS_NODES,
@@ -507,7 +507,7 @@ def test_ephemeris_samples_are_observed_once_per_pass():
 
     problem = prepare(load_job(_pass_job(ephemeris=True)))
     terms = pass_terms(problem)
-    epochs = sorted(round(problem.passes[0].t_ref_s + t.kc[17], 6) for t in terms)
+    epochs = sorted(round(problem.passes[0].t_ref_s + t.kc[PASS_T_OFF], 6) for t in terms)
     job = problem.job
     first = min(im.first_line_time_s for im in job.images)
     last = max(im.first_line_time_s for im in job.images) + 16000 * 0.00037
