@@ -24,6 +24,14 @@ Mapping (docs/models.md sections 1, 9, 10):
   straight chips about the swath's middle direction (:func:`look_angle_source`).
 - Model: OA-J2 for Maxar's, SPOT 6/7's and Pleiades' short images, PASS-J2 for SPOT 1-5's long
   segments (it uses every ephemeris sample), with cubic attitude polynomials.
+- The attitude samples are also the image's ``attitude_base``: the job's attitude is the
+  delivered one (interpolated linearly in the angles, as the slerp of the exact model to far
+  below a pixel) plus the cubic polynomials as a smooth correction, which the adjustment
+  estimates (zero as delivered). Cubics alone cannot follow the pitch oscillation of some
+  SPOT 1-4 scenes (10 microradians over 4.5 s: 1 px). Not for Maxar's samples yet: their
+  weights' white part is their scatter about a cubic (below), which a base would absorb, so
+  they would fit far better than their weights say (measured on the WorldView-2 pair: chi-square
+  42 for 330 degrees of freedom, its lower bound 282); their job form keeps the cubic alone.
 - Attitude weights. Maxar's file states the *absolute* accuracy of its attitude (the
   quaternion covariance, 0.0009-0.001 deg on the WorldView-2 products); that error is mostly
   one bias per image and angle (star-tracker alignment and the fused estimate's slow drift),
@@ -349,6 +357,8 @@ def fragment(
             "attitude": [{"time_s": float(t + shift), "roll_deg": float(r[0]), "pitch_deg": float(r[1]), "yaw_deg": float(r[2])}
                          for t, r in zip(at, ang)],
         }
+        if not src.attitude_white:  # the polynomials correct the delivered attitude (module doc; Maxar's: not yet)
+            image["attitude_base"] = [dict(s) for s in image["attitude"]]
         within = (at >= lo) & (at <= hi)
         if within.sum() > 8:
             tc = at[within] - at[within].mean()
