@@ -3,6 +3,7 @@
 Scenes (generated on the fly into a temporary directory, never held whole in memory):
 
 - ``pair``: two 10,000 x 10,000 16-bit images;
+- ``crops``: three 1,024 x 1,024 crops (the size of the real triplet the speed target names);
 - ``prism``: a PRISM-size triplet, three 16,000 lines x 14,500 columns.
 
 Each image sees one flat textured ground (a random lattice every 3 pixels, bicubic, plus
@@ -14,7 +15,7 @@ as a separate ``pba match`` process (its own peak RSS from ``getrusage``), with 
 settings; the load (``os.getloadavg``) is printed beside every time: on a shared machine the
 time is only indicative.
 
-Usage: ``python bench/bench_match.py [--scene pair|prism|both] [--keep DIR]``
+Usage: ``python bench/bench_match.py [--scene crops|pair|prism|all] [--keep DIR]``
 """
 
 from __future__ import annotations
@@ -115,11 +116,11 @@ def run_match(paths: list[Path], out: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scene", choices=("pair", "prism", "both"), default="both")
+    ap.add_argument("--scene", choices=("crops", "pair", "prism", "all"), default="all")
     ap.add_argument("--keep", type=Path, help="write the rasters here and keep them")
     args = ap.parse_args()
-    scenes = {"pair": (2, 10_000, 10_000), "prism": (3, 16_000, 14_500)}
-    names = list(scenes) if args.scene == "both" else [args.scene]
+    scenes = {"crops": (3, 1024, 1024), "pair": (2, 10_000, 10_000), "prism": (3, 16_000, 14_500)}
+    names = list(scenes) if args.scene == "all" else [args.scene]
     with tempfile.TemporaryDirectory(prefix="pba-bench-match-") as tmp:
         base = args.keep or Path(tmp)
         for name in names:

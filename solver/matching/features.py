@@ -1,21 +1,31 @@
 """Pairwise matching of SIFT features inside the band the orientation predicts.
 
-For a pair (a, b), a is cut into the cells of a ``grid`` x ``grid`` layout; in every cell whose
-centre lies in the overlap, a window of ``tile_px`` pixels around the centre is read at full
-resolution and SIFT features (OpenCV) are detected in it (the strongest ``max_features``), so
-the features spread over the whole overlap. Windows are read decimated by ``decimation`` (2 by
-default: OpenCV's SIFT doubles its input first, so the finest scale is still the full
-resolution's, at a quarter of the cost; positions are refined by correlation later). Each feature's epipolar segment in b (its position
-at the lowest and the highest terrain height, :class:`PairMapping`) gives the window of b to
-read, and a b feature is a candidate only within ``search_px`` of that segment (the band's
-half-width: the orientation's uncertainty, pixels of b). Among candidates:
+Features come from each image's cache (:mod:`solver.matching.keypoints`): detected once per
+image window, whichever pairs the image is in. For a pair (a, b), a is cut into tiles over the
+cells of a ``grid`` x ``grid`` layout (:func:`tiles`): a cell at least :data:`MIN_TILE_PX`
+across is a tile, sampled by a window of ``tile_px`` at its centre; smaller cells are grouped
+into tiles of about :data:`MIN_TILE_PX`, read whole. Each cell keeps its own strongest features
+(:func:`strongest_per_cell`), so the matches spread over the whole overlap, and the tiles do
+not overlap, so a feature is matched once per pair. Each feature's epipolar segment in b (its
+position at the lowest and the highest terrain height, :class:`PairMapping`) gives the window of
+b whose features are the candidates, and a b feature is a candidate only within ``search_px``
+of that segment (the band's half-width: the orientation's uncertainty, pixels of b). Among
+candidates:
 
-- ratio test (Lowe): the best descriptor distance below ``ratio`` times the second best;
+- ratio test (Lowe): the best descriptor distance below ``ratio`` times the second best; the
+  nearest descriptors come from OpenCV's FLANN (randomised KD-trees, :func:`_nearest`) when a
+  tile holds many features (recall against the exact search on the real Pleiades crops: 99.4 %
+  and 100 %, bench/bench_match_recall.py), exact otherwise;
 - mutual consistency: the b feature's best a feature (among those whose band holds it) is the
-  same;
+  same (exact);
 - RANSAC (OpenCV ``estimateAffine2D``, fixed seed) of a local affine model a -> b over the
-  cell's matches, threshold ``ransac_px``: the terrain is smooth over a tile, a false match
+  tile's matches, threshold ``ransac_px``: the terrain is smooth over a tile, a false match
   is not.
+
+Features are detected on reads decimated by ``decimation`` (2 by default: OpenCV's SIFT doubles
+its input first, so the finest scale is still the full resolution's, at a quarter of the cost;
+positions are refined by correlation later), or at full resolution for small images
+(:func:`detection_scale`).
 
 Positions are (line, column) in our convention (pixel centres, top-left at (0, 0)).
 """
@@ -26,10 +36,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from solver.matching.keypoints import FeatureCache, Features
 from solver.matching.orientation import MatchImage, PairMapping
 
+EXACT_PAIRS = 20_000  # descriptor distances computed exactly up to this many (na x nb) per tile
+KNN = 16  # nearest b descriptors asked of FLANN per a feature
+FLANN_TREES = 4  # randomised KD-trees
+FLANN_CHECKS = 128  # leaves visited per query
+FLANN_SEED = 4242
 MIN_TILE_MATCHES = 5  # fewer matches in a tile cannot be checked by a local affine RANSAC
 MIN_TILE_PX = 128
+SMALL_CELL_PX = 64  # images whose cells are all smaller are detected at full resolution
 RANSAC_SEED = 12345
 
 
@@ -38,8 +55,8 @@ class MatchSettings:
     """How to match (defaults suit 8-16 bit optical images of 1-30 m GSD)."""
 
     grid: int = 16  # cells per image side: detection tiles and thinning cells
-    tile_px: int = 256  # side of the detection window in each cell (pixels of a; at most the cell, at least 128)
-    max_features: int = 300  # strongest SIFT features kept per tile of a
+    tile_px: int = 256  # side of the window sampled in each cell of a (pixels; at most the cell); smaller cells are grouped (tiles)
+    max_features: int = 300  # strongest SIFT features of a kept per tile_px window (a small cell: its share of the window's area)
     ratio: float = 0.8  # Lowe's ratio test
     search_px: float = 30.0  # half-width of the search band around the epipolar segment (px of b)
     ransac_px: float = 2.0  # RANSAC threshold of the tile's affine model (px of b)
@@ -47,7 +64,7 @@ class MatchSettings:
     min_ncc: float = 0.7  # lowest accepted normalised cross-correlation peak
     per_cell: int = 4  # tie points kept per thinning cell of each image
     max_window_px: int = 2048  # a predicted b window larger than this is skipped (orientation far off)
-    decimation: int = 2  # features are detected on windows read decimated by this factor (SIFT doubles them first)
+    decimation: int = 2  # features are detected on windows read decimated by this factor (SIFT doubles them first; 1 for small images: detection_scale)
 
 
 @dataclass
@@ -61,23 +78,40 @@ class PairMatches:
     counts: dict[str, int] = field(default_factory=dict)
 
 
-def _sift(image8: np.ndarray, n: int):
-    import cv2
+def detection_scale(images: list[MatchImage], s: MatchSettings) -> MatchSettings:
+    """``s`` with the decimation the images are detected at: full resolution (1) when every
+    image's cells are under :data:`SMALL_CELL_PX` across, where a decimated read leaves too few
+    features to fill the cells (the real 400 px Pleiades crops of the tests: 186 SIFT features
+    at decimation 2 against 1,797 at full resolution, for 256 cells) and detecting them whole
+    costs little."""
+    from dataclasses import replace
 
-    # precise upscale: OpenCV's default doubling puts every keypoint 0.25 px (of its input) down
-    # and right of the feature; k times that after a read decimated by k
-    sift = cv2.SIFT_create(nfeatures=n, enable_precise_upscale=True)
-    kps, desc = sift.detectAndCompute(image8, None)
-    if desc is None or not kps:
-        return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
-    xy = np.array([k.pt for k in kps], float)  # OpenCV: x = column, y = line, pixel centres at integers
-    order = np.lexsort((xy[:, 0], xy[:, 1]))  # deterministic order
-    return xy[order][:, ::-1].copy(), desc[order].astype(np.float32)
+    if s.decimation > 1 and all(min(im.lines, im.columns) / s.grid < SMALL_CELL_PX for im in images):
+        return replace(s, decimation=1)
+    return s
 
 
 def _distances(da: np.ndarray, db: np.ndarray) -> np.ndarray:
+    """(na, nb) Euclidean distances between descriptors."""
+    da, db = da.astype(np.float32), db.astype(np.float32)
     d2 = (da * da).sum(1)[:, None] + (db * db).sum(1)[None, :] - 2.0 * da @ db.T
     return np.sqrt(np.maximum(d2, 0.0))
+
+
+def _nearest(da: np.ndarray, db: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """(na, k) indices into db and distances of each a descriptor's k nearest b descriptors,
+    nearest first: exact for small sets (at most :data:`EXACT_PAIRS` distances), otherwise
+    approximate (OpenCV's FLANN, randomised KD-trees with a fixed seed)."""
+    import cv2
+
+    if len(da) * len(db) <= EXACT_PAIRS or k >= len(db):
+        dist = _distances(da, db)
+        idx = np.argsort(dist, axis=1, kind="stable")[:, :k]
+        return idx, np.take_along_axis(dist, idx, axis=1)
+    cv2.setRNGSeed(FLANN_SEED)  # the trees' random splits: the same result every run
+    index = cv2.flann_Index(db.astype(np.float32), {"algorithm": 1, "trees": FLANN_TREES})  # 1: KD-tree forest
+    idx, d2 = index.knnSearch(da.astype(np.float32), k, params={"checks": FLANN_CHECKS})
+    return idx.astype(np.int64), np.sqrt(np.maximum(d2.astype(np.float64), 0.0))
 
 
 def _ransac(pa: np.ndarray, pb: np.ndarray, threshold: float) -> np.ndarray:
@@ -93,112 +127,191 @@ def _ransac(pa: np.ndarray, pb: np.ndarray, threshold: float) -> np.ndarray:
     return inliers.ravel().astype(bool)
 
 
-def tile_centres(image: MatchImage, grid: int) -> np.ndarray:
-    """(grid^2, 2) centres (line, column) of the image's cells, row by row."""
-    lc = (np.arange(grid) + 0.5) * image.lines / grid
-    cc = (np.arange(grid) + 0.5) * image.columns / grid
-    ll, cc2 = np.meshgrid(lc, cc, indexing="ij")
-    return np.column_stack([ll.ravel(), cc2.ravel()])
+class _Band:
+    """The band test of one tile (module docstring): a b position within ``search_px`` of an a
+    feature's epipolar segment. The segments of one tile share their direction to well under a
+    degree: the tile's mean direction is used for all, which reduces the test to differences of
+    coordinates along and across it."""
 
+    def __init__(self, s0: np.ndarray, s1: np.ndarray, search_px: float):
+        d = (s1 - s0).mean(axis=0) if len(s0) else np.zeros(2)
+        length = float(np.hypot(*d))
+        self.u = d / length if length > 1e-9 else np.array([1.0, 0.0])
+        self.perp0 = self._cross(s0)
+        self.t0 = s0 @ self.u
+        self.along = np.sum((s1 - s0) * self.u, axis=1)
+        self.r2 = search_px * search_px
 
-def _detect(image: MatchImage, row0: int, col0: int, rows: int, cols: int, k: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """SIFT features (full-resolution line, column; descriptors) of a window read decimated by k."""
-    values, r0, c0 = image.raster.decimated(row0, col0, rows, cols, k)
-    if values.size == 0:
-        return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
-    pos, desc = _sift(image.raster.to_8bit(values), n)
-    return pos * k + (r0 + (k - 1) / 2.0, c0 + (k - 1) / 2.0), desc
+    def _cross(self, p: np.ndarray) -> np.ndarray:
+        return p[..., 0] * self.u[1] - p[..., 1] * self.u[0]
 
+    def holds(self, rows: np.ndarray, kb: np.ndarray) -> np.ndarray:
+        """Whether b positions ``kb`` (..., 2) lie in the bands of a features ``rows`` (...)."""
+        perp = self._cross(kb) - self.perp0[rows]
+        t = kb @ self.u - self.t0[rows]
+        beyond = np.maximum(np.maximum(-t, t - self.along[rows]), 0.0)
+        return perp * perp + beyond * beyond <= self.r2
 
-def _band(kb: np.ndarray, s0: np.ndarray, s1: np.ndarray, search_px: float) -> np.ndarray:
-    """(na, nb) mask: b feature j within ``search_px`` of a feature i's epipolar segment. The
-    segments of one tile share their direction to well under a degree: the tile's mean
-    direction is used for all, which turns the test into outer differences of 1-D arrays."""
-    d = (s1 - s0).mean(axis=0)
-    length = float(np.hypot(*d))
-    u = d / length if length > 1e-9 else np.array([1.0, 0.0])
-    cross = lambda p: p[:, 0] * u[1] - p[:, 1] * u[0]  # noqa: E731
-    along = np.sum((s1 - s0) * u, axis=1)
-    perp = cross(kb)[None, :] - cross(s0)[:, None]
-    t = (kb @ u)[None, :] - (s0 @ u)[:, None]
-    beyond = np.maximum(np.maximum(-t, t - along[:, None]), 0.0)
-    return perp * perp + beyond * beyond <= search_px * search_px
+    def outer(self, rows: np.ndarray, kb: np.ndarray) -> np.ndarray:
+        """(len(rows), nb) band mask of a features ``rows`` against every b position."""
+        return self.holds(rows[:, None], kb[None, :, :])
 
 
 def band_matches(da: np.ndarray, db: np.ndarray, kb: np.ndarray, s0: np.ndarray, s1: np.ndarray, s: MatchSettings, counts: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
     """Indices (into a's and b's features) of the matches that pass the band, the ratio test and
     the mutual check (module docstring): descriptors ``da`` (na, 128), ``db`` (nb, 128); b's
     positions ``kb`` (nb, 2); a's epipolar segments ``s0``, ``s1`` (na, 2) in b. Counts the
-    candidates (a features with a b feature in their band) and the survivors of each test."""
-    dist = np.where(_band(kb, s0, s1, s.search_px), _distances(da, db), np.inf)
-    rows = np.arange(len(da))
-    best = np.argmin(dist, axis=1)
-    d1 = dist[rows, best]
-    if dist.shape[1] > 1:
-        d2 = np.partition(dist, 1, axis=1)[:, 1]
-    else:
-        d2 = np.full(len(da), np.inf)
+    candidates (a features with a b feature in their band) and the survivors of each test.
+
+    The two nearest candidates of an a feature are the first two in its band among its
+    :data:`KNN` nearest b descriptors (:func:`_nearest`). When fewer than two are there and
+    the test cannot be decided from the last of them (a bound on the second's distance), the
+    feature's whole band is searched exactly."""
+    na, nb = len(da), len(db)
+    if not na or not nb:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    band = _Band(s0, s1, s.search_px)
+    rows = np.arange(na)
+    k = min(KNN, nb)
+    idx, dist = _nearest(da, db, k)
+    inside = band.holds(rows[:, None], kb[idx])
+    rank = np.cumsum(inside, axis=1)
+    has1, has2 = rank[:, -1] >= 1, rank[:, -1] >= 2
+    j1, j2 = np.argmax(rank >= 1, axis=1), np.argmax(rank >= 2, axis=1)
+    best = np.where(has1, idx[rows, j1], -1)
+    d1 = np.where(has1, dist[rows, j1], np.inf)
+    d2 = np.where(has2, dist[rows, j2], np.inf)
+    if k < nb:  # b features beyond the k nearest are further than the k-th
+        d2 = np.where(has1 & ~has2, dist[:, -1], d2)
+        open_ = ~has1 | (has1 & ~has2 & ~(d1 < s.ratio * d2))
+        todo = np.flatnonzero(open_)
+        if len(todo):
+            exact = np.where(band.outer(todo, kb), _distances(da[todo], db), np.inf)
+            b1 = np.argmin(exact, axis=1)
+            best[todo] = np.where(np.isfinite(exact[np.arange(len(todo)), b1]), b1, -1)
+            d1[todo] = exact[np.arange(len(todo)), b1]
+            d2[todo] = np.partition(exact, 1, axis=1)[:, 1] if nb > 1 else np.inf
+        counts["exact_rows"] = counts.get("exact_rows", 0) + len(todo)
     ok = np.isfinite(d1) & (d1 < s.ratio * d2)
     counts["candidates"] = counts.get("candidates", 0) + int(np.isfinite(d1).sum())
     counts["ratio"] = counts.get("ratio", 0) + int(ok.sum())
-    back = np.argmin(dist, axis=0)
-    ok &= back[best] == rows
+    # mutual: each wanted b feature's best a feature among those whose band holds it (exact)
+    wanted = np.unique(best[best >= 0])
+    if len(wanted):
+        back_d = np.where(band.outer(rows, kb[wanted]), _distances(da, db[wanted]), np.inf)
+        back = np.full(nb, -1)
+        back[wanted] = np.argmin(back_d, axis=0)
+        ok &= back[np.maximum(best, 0)] == rows
     counts["mutual"] = counts.get("mutual", 0) + int(ok.sum())
     return rows[ok], best[ok]
 
 
-def match_tile(a: MatchImage, b: MatchImage, mapping: PairMapping, centre: np.ndarray, s: MatchSettings, counts: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
-    """SIFT matches (pa, pb) of one tile of a centred at ``centre`` (module docstring)."""
-    cell = min(a.lines, a.columns) / s.grid
-    tile = int(min(s.tile_px, max(cell, MIN_TILE_PX)))  # tiles of small images do not overlap much
-    half = tile // 2
-    k = s.decimation
+def match_tile(a: MatchImage, b: MatchImage, fa: Features, fb_cache: FeatureCache, mapping: PairMapping, s: MatchSettings, counts: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
+    """SIFT matches (pa, pb) of one tile's a features ``fa`` against b's features in the
+    window their epipolar segments span (module docstring)."""
     empty = (np.zeros((0, 2)), np.zeros((0, 2)))
-    ka, da = _detect(a, int(round(centre[0])) - half, int(round(centre[1])) - half, tile, tile, k, s.max_features)
-    if not len(ka):
-        return empty
-    s0, s1 = mapping.segment(ka[:, 0], ka[:, 1])
+    s0, s1 = mapping.segment(fa.pos[:, 0], fa.pos[:, 1])
     good = np.all(np.isfinite(s0), 1) & np.all(np.isfinite(s1), 1)
-    ka, da, s0, s1 = ka[good], da[good], s0[good], s1[good]
-    if not len(ka):
+    fa, s0, s1 = fa.take(np.flatnonzero(good)), s0[good], s1[good]
+    if not len(fa):
         return empty
     ends = np.vstack([s0, s1])
-    pad = s.search_px + 16 * k
-    lo, hi = np.floor(ends.min(0) - pad).astype(int), np.ceil(ends.max(0) + pad).astype(int)
-    lo, hi = np.maximum(lo, 0), np.minimum(hi, [b.lines, b.columns])  # segments may run out of b
+    lo = np.maximum(np.floor(ends.min(0) - s.search_px), 0).astype(int)
+    hi = np.minimum(np.ceil(ends.max(0) + s.search_px + 1), [b.lines, b.columns]).astype(int)  # segments may run out of b
     if np.any(hi <= lo):
         return empty
     if np.any(hi - lo > s.max_window_px):
         counts["tiles_skipped"] = counts.get("tiles_skipped", 0) + 1
         return empty
-    kb, db = _detect(b, lo[0], lo[1], hi[0] - lo[0], hi[1] - lo[1], k, 0)
-    if not len(kb):
+    fb = fb_cache.window(lo, hi)
+    if not len(fb):
         return empty
-    counts["features"] = counts.get("features", 0) + len(ka)
-    ia, ib = band_matches(da, db, kb, s0, s1, s, counts)
-    pa, pb = ka[ia], kb[ib]
+    counts["features"] = counts.get("features", 0) + len(fa)
+    ia, ib = band_matches(fa.desc, fb.desc, fb.pos, s0, s1, s, counts)
+    pa, pb = fa.pos[ia], fb.pos[ib]
     if len(pa) < MIN_TILE_MATCHES:
         return empty
-    keep = _ransac(pa, pb, s.ransac_px * k)
+    keep = _ransac(pa, pb, s.ransac_px * s.decimation)
     counts["ransac"] = counts.get("ransac", 0) + int(keep.sum())
     return pa[keep], pb[keep]
 
 
-def match_pair(a: MatchImage, b: MatchImage, ia: int, ib: int, mapping: PairMapping, s: MatchSettings, progress=None) -> PairMatches:
-    """Every tile of a whose centre falls inside b at some height of the range, matched
-    (module docstring)."""
+@dataclass(frozen=True)
+class Tile:
+    """A tile of a: the window its features come from (full-resolution [lo, hi)), and the
+    thinning cells (row, column of the grid) it holds."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    cells: tuple[tuple[int, int], ...]
+
+
+def tiles(image: MatchImage, s: MatchSettings) -> tuple[list[Tile], int]:
+    """The match tiles of an image and the number of features kept per cell (the strongest).
+
+    Cells at least :data:`MIN_TILE_PX` across are a tile each, detected in a window of
+    ``tile_px`` at the cell's centre (a sample of large images) and keeping ``max_features``.
+    Smaller cells are grouped, m x m, into tiles at least :data:`MIN_TILE_PX` across (enough
+    matches for the tile's RANSAC), detected whole, each cell keeping its share of
+    ``max_features`` per ``tile_px`` window (the same density): the tiles do not overlap and
+    every cell has its own strongest features, so the matches spread over the whole overlap."""
+    g = s.grid
+    le = np.linspace(0.0, image.lines, g + 1)
+    ce = np.linspace(0.0, image.columns, g + 1)
+    cell = min(image.lines, image.columns) / g
+    out = []
+    if cell >= MIN_TILE_PX:
+        side = min(float(s.tile_px), cell)
+        for i in range(g):
+            for j in range(g):
+                centre = np.array([(le[i] + le[i + 1]) / 2.0, (ce[j] + ce[j + 1]) / 2.0])
+                lo = np.round(centre - side / 2.0)
+                out.append(Tile(lo, lo + round(side), ((i, j),)))
+        return out, s.max_features
+    m = int(np.ceil(MIN_TILE_PX / cell))
+    for i in range(0, g, m):
+        for j in range(0, g, m):
+            i1, j1 = min(i + m, g), min(j + m, g)
+            cells = tuple((r, c) for r in range(i, i1) for c in range(j, j1))
+            out.append(Tile(np.floor([le[i], ce[j]]), np.floor([le[i1], ce[j1]]), cells))
+    tile = min(float(s.tile_px), MIN_TILE_PX)
+    per_cell = int(np.ceil(s.max_features * (image.lines / g) * (image.columns / g) / tile**2))
+    return out, per_cell
+
+
+def strongest_per_cell(f: Features, lines: int, columns: int, grid: int, n: int) -> Features:
+    """The ``n`` strongest features (SIFT response) of each thinning cell, in their order."""
+    if not len(f):
+        return f
+    cell = (np.clip((f.pos[:, 0] * grid / lines).astype(int), 0, grid - 1) * grid
+            + np.clip((f.pos[:, 1] * grid / columns).astype(int), 0, grid - 1))
+    order = np.lexsort((-f.response, cell))
+    first = np.searchsorted(cell[order], cell[order], side="left")
+    keep = order[np.arange(len(order)) - first < n]
+    return f.take(np.sort(keep))
+
+
+def match_pair(a: MatchImage, b: MatchImage, ia: int, ib: int, mapping: PairMapping, s: MatchSettings,
+               fa_cache: FeatureCache, fb_cache: FeatureCache, progress=None) -> PairMatches:
+    """Every tile of a that falls inside b at some height of the range, matched (module
+    docstring); the features come from the images' caches (detected once per image)."""
     counts: dict[str, int] = {"tiles": 0}
-    centres = tile_centres(a, s.grid)
-    inside = mapping.reaches_b(centres[:, 0], centres[:, 1])  # at some height of the range
+    layout, per_cell = tiles(a, s)
+    corners = np.array([[0.0, 0.0], [0.0, 1.0], [1.0, 0.0], [1.0, 1.0], [0.5, 0.5]])
     pas, pbs = [], []
-    todo = np.flatnonzero(inside)
-    for n, k in enumerate(todo):
-        counts["tiles"] += 1
-        pa, pb = match_tile(a, b, mapping, centres[k], s, counts)
-        pas.append(pa)
-        pbs.append(pb)
+    for n, t in enumerate(layout):
+        probe = t.lo + corners * (t.hi - 1 - t.lo)
+        if mapping.reaches_b(probe[:, 0], probe[:, 1]).any():  # at some height of the range
+            counts["tiles"] += 1
+            fa = fa_cache.window(t.lo, t.hi)
+            fa = fa.take(np.flatnonzero(mapping.reaches_b(fa.pos[:, 0], fa.pos[:, 1])))
+            fa = strongest_per_cell(fa, a.lines, a.columns, s.grid, per_cell)
+            if len(fa):
+                pa, pb = match_tile(a, b, fa, fb_cache, mapping, s, counts)
+                pas.append(pa)
+                pbs.append(pb)
         if progress is not None:
-            progress((n + 1) / len(todo))
+            progress((n + 1) / len(layout))
     pa = np.vstack(pas) if pas else np.zeros((0, 2))
     pb = np.vstack(pbs) if pbs else np.zeros((0, 2))
     counts["matched"] = len(pa)

@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from solver.matching.features import MatchSettings, PairMatches, match_pair
+from solver.matching.features import MatchSettings, PairMatches, detection_scale, match_pair
+from solver.matching.keypoints import FeatureCache
 from solver.matching.orientation import MatchImage, PairMapping
 from solver.matching.refine import REFERENCE_SIGMA_PX, epipolar_check, other_sigma, refine_track
 from solver.matching.tracks import cell_of, link, thin
@@ -85,10 +86,19 @@ def candidate_pairs(images: list[MatchImage], heights: tuple[float, float]) -> l
 
 def match_images(images: list[MatchImage], heights: tuple[float, float], settings: MatchSettings = MatchSettings(), progress: Progress | None = None) -> MatchResult:
     """Tie-point measurements and the summary of ``images`` (module docstring); raises
-    :class:`MatchError` when no pair overlaps."""
+    :class:`MatchError` when no pair overlaps. One thread for OpenCV and for BLAS: the same
+    result whatever the machine (the server runs several jobs), and the many small products of
+    descriptors are slower when BLAS threads have to meet for each (10 times on a loaded
+    machine)."""
     import cv2
+    from threadpoolctl import threadpool_limits
 
-    cv2.setNumThreads(1)  # the same result whatever the machine; the server runs several jobs
+    cv2.setNumThreads(1)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _match_images(images, heights, settings, progress)
+
+
+def _match_images(images: list[MatchImage], heights: tuple[float, float], settings: MatchSettings, progress: Progress | None) -> MatchResult:
     say = progress or (lambda f, m: None)
     if len(images) < 2:
         raise MatchError("matching needs at least two images")
@@ -120,12 +130,20 @@ def match_images(images: list[MatchImage], heights: tuple[float, float], setting
              "tie_points": 0, "measurements": 0, "settings": asdict(settings)},
         )
     say(0.05, "features")
+    settings = detection_scale(images, settings)
     matches: list[PairMatches] = []
+    caches: dict[int, FeatureCache] = {}
+    last_pair = {k: max(n for n, p in enumerate(pairs) if k in p) for k in {k for p in pairs for k in p}}
     for n, (i, j) in enumerate(pairs):
         def tile_progress(f: float, n=n, i=i, j=j) -> None:
             say(0.05 + 0.75 * (n + f) / len(pairs), f"{images[i].id}-{images[j].id}")
 
-        matches.append(match_pair(images[i], images[j], i, j, mapping(i, j), settings, tile_progress))
+        for k in (i, j):
+            caches.setdefault(k, FeatureCache(images[k], settings.decimation))
+        matches.append(match_pair(images[i], images[j], i, j, mapping(i, j), settings, caches[i], caches[j], tile_progress))
+        for k in (i, j):
+            if last_pair[k] == n:  # the image's features are not needed any more
+                del caches[k]
     tracks, inconsistent = link(matches, len(images), settings.decimation)
     sizes = [(im.lines, im.columns) for im in images]
     kept = thin(tracks, sizes, settings.grid, settings.per_cell)
