@@ -279,14 +279,15 @@ def _most_rows(fcol: np.ndarray, bounds: np.ndarray) -> int:
 
 
 @njit(**_JIT)
-def _reduce_into(q_lo, q_hi, s, c0, fcol, jf, jpt, order, bounds, c_inv, rows):
-    """S -= B_p C_p^-1 B_p^T for the points ``q_lo:q_hi`` (observations grouped by
+def _reduce_into(t_lo, t_hi, s, c0, fcol, jf, jpt, order, bounds, c_inv, rows, seq):
+    """S -= B_p C_p^-1 B_p^T for the points ``seq[t_lo:t_hi]`` (observations grouped by
     ``order``/``bounds``; ``rows``: :func:`_most_rows`); ``s`` holds S's rows and columns from
     ``c0`` on (a band of it)."""
     cols = np.empty(rows, dtype=np.int64)
     bp = np.empty((rows, 3))
     wm = np.empty((rows, 3))
-    for q in range(q_lo, q_hi):
+    for t in range(t_lo, t_hi):
+        q = seq[t]
         lo, hi = bounds[q], bounds[q + 1]
         if hi == lo:
             continue
@@ -303,36 +304,60 @@ thread eliminates its points into as a copy of its own (3,000 parameters: 72 MB 
 second half of a 303-image connected strip touches about 2,150 of its 4,242)."""
 
 
-def _column_band(order: np.ndarray, bounds: np.ndarray, fcol: np.ndarray, lo: int, hi: int) -> tuple[int, int]:
-    """The columns ``[first, last + 1)`` of S that the points ``lo:hi`` touch (their images'
-    parameters): a strip's points, in order along it, touch a band of its banded S."""
-    cols = fcol[order[bounds[lo] : bounds[hi]]]
-    cols = cols[cols >= 0]
-    return (int(cols.min()), int(cols.max()) + 1) if cols.size else (0, 0)
+def _point_column_span(order: np.ndarray, bounds: np.ndarray, fcol: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per point (in ``bounds``' order) the first and last column of S its observations touch
+    (first > last for a point that touches none)."""
+    big = np.iinfo(np.int64).max
+    rows = fcol[order]
+    first_row = np.where(rows >= 0, rows, big).min(axis=1) if rows.size else np.zeros(0, dtype=np.int64)
+    last_row = rows.max(axis=1) if rows.size else np.zeros(0, dtype=np.int64)
+    n = bounds.shape[0] - 1
+    first = np.full(n, big, dtype=np.int64)
+    last = np.full(n, -1, dtype=np.int64)
+    has = np.flatnonzero(np.diff(bounds) > 0)
+    if len(has):
+        first[has] = np.minimum.reduceat(first_row, bounds[has])
+        last[has] = np.maximum.reduceat(last_row, bounds[has])
+    return first, last
+
+
+def _column_band(first: np.ndarray, last: np.ndarray, seq: np.ndarray, lo: int, hi: int) -> tuple[int, int]:
+    """The columns ``[first, last + 1)`` of S that the points ``seq[lo:hi]`` touch (their
+    images' parameters): a strip's points, in order along it, touch a band of its banded S."""
+    f, la = first[seq[lo:hi]], last[seq[lo:hi]]
+    touching = la >= 0
+    return (int(f[touching].min()), int(la[touching].max()) + 1) if touching.any() else (0, 0)
 
 
 def _reduce(a, fcol, jf, jpt, order, bounds, c_inv) -> np.ndarray:
-    """S = A - sum_p B_p C_p^-1 B_p^T (``a`` is overwritten): on the solve's threads, the first
-    range of points eliminated into ``a`` itself and each other range into a copy of the band of
-    S its points touch, the copies added in range order (the same sum on every run with the same
-    threads); on one thread when some band is wider than :data:`PARALLEL_MAX_REDUCED` (a 300-image
-    connected strip: two threads, the second range's band about half of S)."""
+    """S = A - sum_p B_p C_p^-1 B_p^T (``a`` is overwritten): on the solve's threads, the points
+    taken in the order of the first column of S they touch (along a strip, whatever the job's
+    order of its points), the first range eliminated into ``a`` itself and each other range into
+    a copy of the band of S its points touch, the copies added in range order (the same sum on
+    every run with the same threads); on one thread, in the job's order, when there is one range
+    or some band is wider than :data:`PARALLEL_MAX_REDUCED`."""
     n_points = bounds.shape[0] - 1
     rows = _most_rows(fcol, bounds)
     ranges = thread_ranges(n_points)
-    bands = {lo: _column_band(order, bounds, fcol, lo, hi) for lo, hi in zip(ranges[1:-1], ranges[2:])}
+    in_job_order = np.arange(n_points, dtype=np.int64)
+    if len(ranges) <= 2:
+        _reduce_into(0, n_points, a, 0, fcol, jf, jpt, order, bounds, c_inv, rows, in_job_order)
+        return a
+    first, last = _point_column_span(order, bounds, fcol)
+    seq = np.argsort(first, kind="stable").astype(np.int64)
+    bands = {lo: _column_band(first, last, seq, lo, hi) for lo, hi in zip(ranges[1:-1], ranges[2:])}
     if any(c1 - c0 > PARALLEL_MAX_REDUCED for c0, c1 in bands.values()):
-        _reduce_into(0, n_points, a, 0, fcol, jf, jpt, order, bounds, c_inv, rows)
+        _reduce_into(0, n_points, a, 0, fcol, jf, jpt, order, bounds, c_inv, rows, in_job_order)
         return a
     shares: dict[int, np.ndarray] = {}
 
     def fill(lo: int, hi: int) -> None:
         if lo == 0:
-            _reduce_into(lo, hi, a, 0, fcol, jf, jpt, order, bounds, c_inv, rows)
+            _reduce_into(lo, hi, a, 0, fcol, jf, jpt, order, bounds, c_inv, rows, seq)
             return
         c0, c1 = bands[lo]
         share = np.zeros((c1 - c0, c1 - c0))
-        _reduce_into(lo, hi, share, c0, fcol, jf, jpt, order, bounds, c_inv, rows)
+        _reduce_into(lo, hi, share, c0, fcol, jf, jpt, order, bounds, c_inv, rows, seq)
         shares[lo] = share
 
     in_threads(fill, n_points)

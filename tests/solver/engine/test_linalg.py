@@ -143,17 +143,24 @@ def test_threaded_passes_equal_one_thread(monkeypatch):
         assert np.max(np.abs(two[2].points[pidx] - c) / s) < CORRELATION_ABS
 
 
-def test_threaded_elimination_into_bands_equals_one_thread(monkeypatch):
+@pytest.mark.parametrize("shuffled", [False, True])
+def test_threaded_elimination_into_bands_equals_one_thread(monkeypatch, shuffled):
     """Above PARALLEL_MAX_REDUCED parameters a thread eliminates its points into a copy of the
     band of S they touch (a connected strip's S is banded): the same S as one thread, to the
     rounding of the running sum. The limit is lowered so that the whole S is wider than it and
-    the second range's band is not: the banded path is the one taken."""
+    the second range's band is not: the banded path is the one taken. ``shuffled``: the job
+    lists its points (and observations) in random order, as matched tie points come; the points
+    are still eliminated along the strip, so the band stays narrow."""
     from utils.scenes import connected_strip_job
 
     import solver.engine.linalg as linalg
     import solver.engine.native as native
 
     job, _ = connected_strip_job("P2", n_triplets=4, points_per_triplet=60, n_gcp=4, n_check=1, seed=3)
+    if shuffled:
+        rng = np.random.default_rng(5)
+        job["points"] = [job["points"][k] for k in rng.permutation(len(job["points"]))]
+        job["observations"] = [job["observations"][k] for k in rng.permutation(len(job["observations"]))]
     problem = prepare(load_job(job))
     lin = linearise(problem)
     monkeypatch.setattr(native, "PARALLEL_MIN_ROWS", 7)
@@ -163,7 +170,9 @@ def test_threaded_elimination_into_bands_equals_one_thread(monkeypatch):
     parts = schur(lin, problem)  # with the full-width limit: full copies (as before bands existed)
     ranges = native.thread_ranges(len(parts.est_points))
     assert len(ranges) == 3
-    c0, c1 = linalg._column_band(parts.order, parts.bounds, lin.fcol, ranges[1], ranges[2])
+    first, last = linalg._point_column_span(parts.order, parts.bounds, lin.fcol)
+    seq = np.argsort(first, kind="stable")
+    c0, c1 = linalg._column_band(first, last, seq, ranges[1], ranges[2])
     assert 0 < c1 - c0 < one.shape[0]  # the second half of the strip's points: a band, not all of S
     monkeypatch.setattr(linalg, "PARALLEL_MAX_REDUCED", c1 - c0)
     eliminated = []
