@@ -1,12 +1,13 @@
 """Recall of the approximate descriptor search (FLANN) against the exact one, on real crops.
 
 ``pba match`` finds each a feature's nearest b descriptors with OpenCV's FLANN (randomised
-KD-trees) when a tile holds many features (:func:`solver.matching.features._nearest`). This
-runs the matching of the real Pleiades pairs in tests/data/matching with every tile's
-:func:`band_matches` computed twice, approximately (as ``pba match`` does) and exactly (every
-distance), and prints, per pair: the tiles searched with FLANN, the matches the exact search
-accepts (ratio test and mutual check) and the share of them the approximate search accepts
-too (its recall), and the matches only the approximate search accepts.
+KD-trees) when a tile holds more than ``EXACT_PAIRS`` descriptor pairs
+(:func:`solver.matching.features._nearest`), exactly below. This runs the matching of the real
+Pleiades pairs in tests/data/matching with every tile's :func:`band_matches` computed twice,
+with FLANN (whatever the tile's size) and exactly (every distance), and prints, per pair: the
+tiles ``pba match`` itself searches with FLANN, the matches the exact search accepts (ratio
+test and mutual check), the share of them the FLANN search accepts too (its recall), and the
+matches only the FLANN search accepts.
 
 Usage: ``python bench/bench_match_recall.py``
 """
@@ -34,11 +35,13 @@ def main() -> None:
     tally: dict[str, int] = {}
 
     def both(da, db, kb, s0, s1, s, counts):
-        got = approximate(da, db, kb, s0, s1, s, counts)
-        if len(da) * len(db) > F.EXACT_PAIRS:
+        limit = F.EXACT_PAIRS
+        if len(da) * len(db) > limit:
             tally["flann_tiles"] = tally.get("flann_tiles", 0) + 1
-        limit, F.EXACT_PAIRS = F.EXACT_PAIRS, 10**12
         try:
+            F.EXACT_PAIRS = 0
+            got = approximate(da, db, kb, s0, s1, s, counts)
+            F.EXACT_PAIRS = 10**12
             ref = approximate(da, db, kb, s0, s1, s, {})
         finally:
             F.EXACT_PAIRS = limit

@@ -432,7 +432,7 @@ def test_tutorial_no_control_runs(tmp_path: Path) -> None:
     datum = report["quality"]["datum"]
     assert any(d.startswith("heights from the DEM") for d in datum["defined_by"]) and not datum["undetermined"]
     height = next(d["sigma_m"] for d in datum["directions"] if d["direction"] == "shift_height")
-    assert height < 3.0  # the DEM's 248 heights (0.87 m), against 20 m from the bias priors alone
+    assert height < 3.0  # the DEM's 235 heights (0.87 m), against 20 m from the bias priors alone
     stats = report["dem"]["statistics"]
     assert stats["n"] >= 50 and abs(stats["weighted_mean_m"]) < 3.0 and stats["rms_normalised"] < 1.5
     assert "refused" in proc.stdout + proc.stderr or "datum is not determined" in proc.stdout + proc.stderr

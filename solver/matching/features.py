@@ -13,9 +13,10 @@ of that segment (the band's half-width: the orientation's uncertainty, pixels of
 candidates:
 
 - ratio test (Lowe): the best descriptor distance below ``ratio`` times the second best; the
-  nearest descriptors come from OpenCV's FLANN (randomised KD-trees, :func:`_nearest`) when a
-  tile holds many features (recall against the exact search on the real Pleiades crops: 99.4 %
-  and 100 %, bench/bench_match_recall.py), exact otherwise;
+  nearest descriptors come from OpenCV's FLANN (randomised KD-trees, :func:`_nearest`) in a tile
+  of more than :data:`EXACT_PAIRS` descriptor pairs (its recall against the exact search on the
+  real Pleiades crops: 99.4 % and 99.7 %, bench/bench_match_recall.py), from every distance
+  below (one BLAS product: as fast as FLANN up to about there);
 - mutual consistency: the b feature's best a feature (among those whose band holds it) is the
   same (exact);
 - RANSAC (OpenCV ``estimateAffine2D``, fixed seed) of a local affine model a -> b over the
@@ -36,10 +37,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.matching.keypoints import FeatureCache, Features
+from solver.matching.keypoints import BLOCK_PX, FeatureCache, Features
 from solver.matching.orientation import MatchImage, PairMapping
 
-EXACT_PAIRS = 20_000  # descriptor distances computed exactly up to this many (na x nb) per tile
+EXACT_PAIRS = 4_000_000  # descriptor distances computed exactly up to this many (na x nb) per tile (16 MB)
 KNN = 16  # nearest b descriptors asked of FLANN per a feature
 FLANN_TREES = 4  # randomised KD-trees
 FLANN_CHECKS = 128  # leaves visited per query
@@ -100,18 +101,23 @@ def _distances(da: np.ndarray, db: np.ndarray) -> np.ndarray:
 
 def _nearest(da: np.ndarray, db: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """(na, k) indices into db and distances of each a descriptor's k nearest b descriptors,
-    nearest first: exact for small sets (at most :data:`EXACT_PAIRS` distances), otherwise
-    approximate (OpenCV's FLANN, randomised KD-trees with a fixed seed)."""
+    nearest first, approximately: OpenCV's FLANN, randomised KD-trees built with a fixed seed."""
     import cv2
 
-    if len(da) * len(db) <= EXACT_PAIRS or k >= len(db):
-        dist = _distances(da, db)
-        idx = np.argsort(dist, axis=1, kind="stable")[:, :k]
-        return idx, np.take_along_axis(dist, idx, axis=1)
     cv2.setRNGSeed(FLANN_SEED)  # the trees' random splits: the same result every run
     index = cv2.flann_Index(db.astype(np.float32), {"algorithm": 1, "trees": FLANN_TREES})  # 1: KD-tree forest
     idx, d2 = index.knnSearch(da.astype(np.float32), k, params={"checks": FLANN_CHECKS})
     return idx.astype(np.int64), np.sqrt(np.maximum(d2.astype(np.float64), 0.0))
+
+
+def _two_nearest_in_band(da: np.ndarray, db: np.ndarray, kb: np.ndarray, band: "_Band", rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exactly, for a features ``rows``: the nearest b feature in the band (-1: none), its
+    descriptor distance and the second nearest's (inf: none)."""
+    dist = np.where(band.outer(rows, kb), _distances(da[rows], db), np.inf)
+    best = np.argmin(dist, axis=1)
+    d1 = dist[np.arange(len(rows)), best]
+    d2 = np.partition(dist, 1, axis=1)[:, 1] if dist.shape[1] > 1 else np.full(len(rows), np.inf)
+    return np.where(np.isfinite(d1), best, -1), d1, d2
 
 
 def _ransac(pa: np.ndarray, pb: np.ndarray, threshold: float) -> np.ndarray:
@@ -163,35 +169,32 @@ def band_matches(da: np.ndarray, db: np.ndarray, kb: np.ndarray, s0: np.ndarray,
     positions ``kb`` (nb, 2); a's epipolar segments ``s0``, ``s1`` (na, 2) in b. Counts the
     candidates (a features with a b feature in their band) and the survivors of each test.
 
-    The two nearest candidates of an a feature are the first two in its band among its
-    :data:`KNN` nearest b descriptors (:func:`_nearest`). When fewer than two are there and
-    the test cannot be decided from the last of them (a bound on the second's distance), the
-    feature's whole band is searched exactly."""
+    The two nearest candidates of an a feature are found exactly (every distance) in a tile of
+    at most :data:`EXACT_PAIRS` distances. In a larger tile they are the first two in the band
+    among the feature's :data:`KNN` nearest b descriptors (FLANN, :func:`_nearest`); when fewer
+    than two are there and the test cannot be decided from the last of them (a bound on the
+    second's distance), the feature's band is searched exactly."""
     na, nb = len(da), len(db)
     if not na or not nb:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     band = _Band(s0, s1, s.search_px)
     rows = np.arange(na)
-    k = min(KNN, nb)
-    idx, dist = _nearest(da, db, k)
-    inside = band.holds(rows[:, None], kb[idx])
-    rank = np.cumsum(inside, axis=1)
-    has1, has2 = rank[:, -1] >= 1, rank[:, -1] >= 2
-    j1, j2 = np.argmax(rank >= 1, axis=1), np.argmax(rank >= 2, axis=1)
-    best = np.where(has1, idx[rows, j1], -1)
-    d1 = np.where(has1, dist[rows, j1], np.inf)
-    d2 = np.where(has2, dist[rows, j2], np.inf)
-    if k < nb:  # b features beyond the k nearest are further than the k-th
-        d2 = np.where(has1 & ~has2, dist[:, -1], d2)
-        open_ = ~has1 | (has1 & ~has2 & ~(d1 < s.ratio * d2))
-        todo = np.flatnonzero(open_)
-        if len(todo):
-            exact = np.where(band.outer(todo, kb), _distances(da[todo], db), np.inf)
-            b1 = np.argmin(exact, axis=1)
-            best[todo] = np.where(np.isfinite(exact[np.arange(len(todo)), b1]), b1, -1)
-            d1[todo] = exact[np.arange(len(todo)), b1]
-            d2[todo] = np.partition(exact, 1, axis=1)[:, 1] if nb > 1 else np.inf
-        counts["exact_rows"] = counts.get("exact_rows", 0) + len(todo)
+    if na * nb <= EXACT_PAIRS:
+        best, d1, d2 = _two_nearest_in_band(da, db, kb, band, rows)
+    else:
+        k = min(KNN, nb)
+        idx, dist = _nearest(da, db, k)
+        rank = np.cumsum(band.holds(rows[:, None], kb[idx]), axis=1)
+        has1, has2 = rank[:, -1] >= 1, rank[:, -1] >= 2
+        j1, j2 = np.argmax(rank >= 1, axis=1), np.argmax(rank >= 2, axis=1)
+        best = np.where(has1, idx[rows, j1], -1)
+        d1 = np.where(has1, dist[rows, j1], np.inf)
+        d2 = np.where(has2, dist[rows, j2], np.inf)
+        if k < nb:  # b features beyond the k nearest are further than the k-th
+            d2 = np.where(has1 & ~has2, dist[:, -1], d2)
+            todo = np.flatnonzero(~has1 | (has1 & ~has2 & ~(d1 < s.ratio * d2)))
+            if len(todo):
+                best[todo], d1[todo], d2[todo] = _two_nearest_in_band(da, db, kb, band, todo)
     ok = np.isfinite(d1) & (d1 < s.ratio * d2)
     counts["candidates"] = counts.get("candidates", 0) + int(np.isfinite(d1).sum())
     counts["ratio"] = counts.get("ratio", 0) + int(ok.sum())
@@ -265,7 +268,8 @@ def tiles(image: MatchImage, s: MatchSettings) -> tuple[list[Tile], int]:
         for i in range(g):
             for j in range(g):
                 centre = np.array([(le[i] + le[i + 1]) / 2.0, (ce[j] + ce[j + 1]) / 2.0])
-                lo = np.round(centre - side / 2.0)
+                lo = np.round((centre - side / 2.0) / BLOCK_PX) * BLOCK_PX  # on the detection blocks: no block detected for a sliver
+                lo = np.clip(lo, [le[i], ce[j]], [le[i + 1] - side, ce[j + 1] - side]).round()
                 out.append(Tile(lo, lo + round(side), ((i, j),)))
         return out, s.max_features
     m = int(np.ceil(MIN_TILE_PX / cell))

@@ -21,7 +21,7 @@ import numpy as np
 
 from solver.matching.orientation import MatchImage
 
-BLOCK_PX = 256  # side of a detection block (full-resolution pixels, a multiple of the decimation)
+BLOCK_PX = 64  # side of a detection block (full-resolution pixels, a multiple of the decimation)
 MARGIN_PX = 32  # context read around the blocks being detected (full-resolution pixels)
 
 
@@ -116,6 +116,10 @@ class FeatureCache:
         f = Features.concat([self.blocks[(i, j)] for i in rows for j in cols])
         inside = np.all((f.pos >= lo) & (f.pos < hi), axis=1)
         return f.take(np.flatnonzero(inside))
+
+    def detected_fraction(self) -> float:
+        """The share of the image's blocks detected so far."""
+        return len(self.blocks) / (self.shape[0] * self.shape[1])
 
     def nbytes(self) -> int:
         return sum(f.pos.nbytes + f.desc.nbytes + f.response.nbytes for f in self.blocks.values())

@@ -133,6 +133,7 @@ def _match_images(images: list[MatchImage], heights: tuple[float, float], settin
     settings = detection_scale(images, settings)
     matches: list[PairMatches] = []
     caches: dict[int, FeatureCache] = {}
+    detected = [0.0] * len(images)  # the share of each image's pixels SIFT ran on
     last_pair = {k: max(n for n, p in enumerate(pairs) if k in p) for k in {k for p in pairs for k in p}}
     for n, (i, j) in enumerate(pairs):
         def tile_progress(f: float, n=n, i=i, j=j) -> None:
@@ -143,7 +144,7 @@ def _match_images(images: list[MatchImage], heights: tuple[float, float], settin
         matches.append(match_pair(images[i], images[j], i, j, mapping(i, j), settings, caches[i], caches[j], tile_progress))
         for k in (i, j):
             if last_pair[k] == n:  # the image's features are not needed any more
-                del caches[k]
+                detected[k] = caches.pop(k).detected_fraction()
     tracks, inconsistent = link(matches, len(images), settings.decimation)
     sizes = [(im.lines, im.columns) for im in images]
     kept = thin(tracks, sizes, settings.grid, settings.per_cell)
@@ -160,7 +161,8 @@ def _match_images(images: list[MatchImage], heights: tuple[float, float], settin
     removed_3d, bias = _verify_3d(refined, images, heights, sigmas)
     measurements = _measurements(refined, images, sigmas)
     summary = _summary(images, heights, settings, pairs, overlaps, matches, tracks, inconsistent, kept, refined, sigmas, removed, measurements)
-    for row, n_removed, b in zip(summary["images"], removed_3d, bias, strict=True):
+    for row, n_removed, b, f in zip(summary["images"], removed_3d, bias, detected, strict=True):
+        row["detected_fraction"] = round(f, 3)
         row["removed_3d"] = n_removed
         row["bias_px"] = [round(float(b[0]), 3), round(float(b[1]), 3)]
     say(1.0, "done")

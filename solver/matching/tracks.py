@@ -2,7 +2,8 @@
 
 Linking: every end of a pairwise match is a node (image, line, column); nodes are joined by
 their match and by proximity (two nodes of one image within ``LINK_RADIUS_PX`` times the
-detection's decimation are the same feature seen from two pairs). A connected component is a track. A track whose nodes in one
+detection's decimation are the same feature seen from two pairs). A connected component (union-find
+over arrays, :func:`components`) is a track. A track whose nodes in one
 image lie further than ``MAX_SPREAD_PX`` apart links two different features (a chain of matches
 that went astray somewhere): it is dropped whole, never split by guessing.
 
@@ -35,12 +36,34 @@ class Track:
         return (ref, round(float(p[0]), 3), round(float(p[1]), 3))
 
 
+def components(n: int, edges: np.ndarray) -> np.ndarray:
+    """(n,) the connected component of each of ``n`` nodes joined by ``edges`` (m, 2): its
+    smallest node. Union-find over arrays: every edge pulls both ends' labels down to the smaller,
+    then each label jumps to its label's label, until nothing changes."""
+    label = np.arange(n)
+    if not len(edges):
+        return label
+    u, v = edges[:, 0], edges[:, 1]
+    while True:
+        low = np.minimum(label[u], label[v])
+        new = label.copy()
+        np.minimum.at(new, u, low)
+        np.minimum.at(new, v, low)
+        new = new[new]
+        while True:
+            jumped = new[new]
+            if np.array_equal(jumped, new):
+                break
+            new = jumped
+        if np.array_equal(new, label):
+            return label
+        label = new
+
+
 def link(pairs, n_images: int, scale: float = 1.0) -> tuple[list[Track], int]:
     """Tracks from the pairwise matches (``PairMatches`` a, b, pa, pb), sorted by
     :meth:`Track.key`, and the number of inconsistent components dropped; ``scale`` multiplies
     the link radius and the largest spread (the decimation features were detected at)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
     images, positions, edges = [], [], []
@@ -49,15 +72,16 @@ def link(pairs, n_images: int, scale: float = 1.0) -> tuple[list[Track], int]:
         k = len(pm.pa)
         if not k:
             continue
-        images += [pm.a] * k + [pm.b] * k
+        images.append(np.full(2 * k, pm.a))
+        images[-1][k:] = pm.b
         positions += [pm.pa, pm.pb]
         idx = np.arange(n, n + k)
         edges.append(np.column_stack([idx, idx + k]))
         n += 2 * k
     if not n:
         return [], 0
-    img = np.array(images)
-    pos = np.vstack(positions)
+    img = np.concatenate(images)
+    pos = np.vstack(positions).astype(float)
     match_edges = np.vstack(edges)
     near = [match_edges]
     for i in range(n_images):
@@ -66,30 +90,29 @@ def link(pairs, n_images: int, scale: float = 1.0) -> tuple[list[Track], int]:
             pairs_i = cKDTree(pos[sel]).query_pairs(LINK_RADIUS_PX * scale, output_type="ndarray")
             if len(pairs_i):
                 near.append(sel[pairs_i])
-    e = np.vstack(near)
-    graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-    n_comp, label = connected_components(graph, directed=False)
-    support = np.bincount(label[match_edges[:, 0]], minlength=n_comp)
-    order = np.argsort(label, kind="stable")
-    bounds = np.flatnonzero(np.diff(label[order])) + 1
-    tracks, dropped = [], 0
-    for group in np.split(order, bounds):
-        members: dict[int, np.ndarray] = {}
-        consistent = True
-        for i in np.unique(img[group]):
-            p = pos[group[img[group] == i]]
-            centre = np.median(p, axis=0)
-            if np.max(np.linalg.norm(p - centre, axis=1)) > MAX_SPREAD_PX * scale:
-                consistent = False
-                break
-            members[int(i)] = p.mean(axis=0)
-        if not consistent:
-            dropped += 1
-            continue
-        if len(members) >= 2:
-            tracks.append(Track(members, int(support[label[group[0]]])))
+    label = components(n, np.vstack(near))
+    support = np.bincount(label[match_edges[:, 0]], minlength=n)
+    # groups: the nodes of one component in one image
+    order = np.lexsort((img, label))
+    key = label[order] * n_images + img[order]
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    sizes = np.diff(np.r_[starts, n])
+    mean = np.add.reduceat(pos[order], starts, axis=0) / sizes[:, None]
+    spread = np.zeros(len(starts))
+    for g in np.flatnonzero(sizes > 1):  # few: one feature reached by several pairs
+        p = pos[order[starts[g]:starts[g] + sizes[g]]]
+        spread[g] = np.max(np.linalg.norm(p - np.median(p, axis=0), axis=1))
+    g_label = label[order[starts]]
+    g_img = img[order[starts]]
+    bad = np.unique(g_label[spread > MAX_SPREAD_PX * scale])
+    ok = ~np.isin(g_label, bad)
+    comp_starts = np.flatnonzero(np.r_[True, g_label[1:] != g_label[:-1]])
+    tracks = []
+    for c0, c1 in zip(comp_starts, np.r_[comp_starts[1:], len(starts)], strict=True):
+        if c1 - c0 >= 2 and ok[c0]:
+            tracks.append(Track({int(g_img[g]): mean[g] for g in range(c0, c1)}, int(support[g_label[c0]])))
     tracks.sort(key=Track.key)
-    return tracks, dropped
+    return tracks, len(bad)
 
 
 def cell_of(position: np.ndarray, lines: int, columns: int, grid: int) -> tuple[int, int]:

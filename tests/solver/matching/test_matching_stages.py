@@ -13,6 +13,7 @@ import pytest
 import rasterio
 
 from solver.matching.features import MatchSettings, band_matches
+from solver.matching.features import _nearest as _flann
 from solver.matching.keypoints import detect
 from solver.matching.orientation import MatchImage, PairMapping, rpc_height_range, segment_enters_box
 from solver.matching.pipeline import PairMatches
@@ -84,7 +85,7 @@ def test_ratio_test_at_the_threshold(d1, accepted):
 
 
 def _ratio_case_among_many(d1: float, d2: float, distractor: float, n_distractors: int = 1500):
-    """The ratio case of a tile large enough for the approximate search (FLANN): one a feature
+    """The ratio case of a tile searched approximately (FLANN): one a feature
     whose band holds two b features at descriptor distances d1 and d2, among ``n_distractors`` b
     features outside its band at descriptor distance ``distractor``, and 19 other a features
     with nothing in their band."""
@@ -102,8 +103,8 @@ def _ratio_case_among_many(d1: float, d2: float, distractor: float, n_distractor
 
 @pytest.mark.parametrize(("d2", "distractor"), [(100.0, 300.0), (100.0, 50.0), (400.0, 350.0)])
 @pytest.mark.parametrize("below", [True, False])
-def test_ratio_test_at_the_threshold_with_the_approximate_search(d2, distractor, below):
-    """The same decision among 1,500 other b features (FLANN searches the tile): the two in the
+def test_ratio_test_at_the_threshold_with_the_approximate_search(d2, distractor, below, monkeypatch):
+    """The same decision among 1,500 other b features, FLANN searching the tile: the two in the
     band are the nearest of all (300: decided from FLANN's neighbours), behind every other
     (50: none of the nearest is in the band, the band is searched exactly), or the first is
     among the nearest and the second is not (350, with the second at 400: the last neighbour
@@ -113,12 +114,15 @@ def test_ratio_test_at_the_threshold_with_the_approximate_search(d2, distractor,
 
     d1 = 0.8 * d2 + (-0.1 if below else 0.1)
     da, db, kb, s0, s1 = _ratio_case_among_many(d1, d2, distractor)
-    assert len(da) * len(db) > features.EXACT_PAIRS  # the approximate search is used
+    monkeypatch.setattr(features, "EXACT_PAIRS", 0)  # a tile this small is searched exactly by default
+    searched = []
+    monkeypatch.setattr(features, "_nearest", lambda *a: searched.append(1) or _flann(*a))
     counts: dict[str, int] = {}
     ia, ib = band_matches(da, db, kb, s0, s1, SETTINGS, counts)
     assert counts["candidates"] == 1
     assert counts["ratio"] == int(below), (d1, d2, distractor, counts)
     assert list(ia) == ([0] if below else []) and list(ib) == ([0] if below else [])
+    assert searched  # by FLANN
 
 
 # --- the epipolar band ----------------------------------------------------------------------
@@ -465,7 +469,7 @@ def test_features_are_detected_once_and_agree_with_a_whole_image_detection(tmp_p
         for i in range(0, 640, BLOCK_PX):
             for j in range(0, 640, BLOCK_PX):
                 cache.window(np.array([i, j]), np.array([i + BLOCK_PX, j + BLOCK_PX]))
-        assert cache.detections == 9
+        assert cache.detections == (-(-640 // BLOCK_PX)) ** 2
         blocks = cache.window(np.array([0, 0]), np.array([640, 640]))
         whole = detect(image, 0, 0, 640, 640, 2)
         assert len(blocks) > 500
@@ -497,3 +501,23 @@ def test_each_cell_keeps_its_strongest_features():
         expected += list(members[np.argsort(-response[members])[:3]])
     assert sorted(map(tuple, kept.pos)) == sorted(map(tuple, pos[expected]))
     assert np.sum(np.all(kept.pos < 100, axis=1)) == 3
+
+
+def test_union_find_over_arrays_finds_the_connected_components():
+    """The components of random graphs (chains, stars, isolated nodes) are those scipy finds."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from solver.matching.tracks import components
+
+    rng = np.random.default_rng(9)
+    for n, m in ((1, 0), (50, 10), (2000, 1500), (2000, 3000)):
+        edges = rng.integers(0, n, (m, 2))
+        chain = np.column_stack([np.arange(min(n, 300) - 1), np.arange(1, min(n, 300))])[::-1]  # a long chain, given backwards
+        edges = np.vstack([edges, chain]).astype(int)
+        label = components(n, edges)
+        _k, expected = connected_components(coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)), directed=False)
+        # the same partition: a one-to-one map between the labels
+        pairs = set(zip(label.tolist(), expected.tolist(), strict=True))
+        assert len(pairs) == len(set(label.tolist())) == len(set(expected.tolist()))
+        assert all(label[i] <= i for i in range(n))  # each label is a node of its component (the smallest)
