@@ -7,7 +7,9 @@ with each angle a polynomial in the attitude time t_a (docs/models.md sections 1
 
 With an attitude base (``images[].attitude_base``, the delivered attitude interpolated
 linearly, :func:`solver.kernels.platform._attitude_base_into`) each angle is the base plus the
-polynomial, and a sample observes the polynomial as ``measured - base(t_a)``.
+polynomial, and a sample observes the polynomial as ``measured - base(t_a)``; the block's
+samples then enter as what they say of that correction (:func:`reduced_term`: per angle as
+many rows as it has free terms, one test for the block, no sample removable).
 
 An attitude sample (roll, pitch, yaw relative to the orbital frame at epoch t, images[].attitude)
 therefore observes a linear function of the attitude coefficients, ``r = W (A p - b)``, the same
@@ -72,6 +74,7 @@ class AttitudeTerm(StatePrior):
     None: independent samples, ``r = W (A p - b)`` exactly)."""
 
     shrink: np.ndarray | None = None  # (3,)
+    reduced: bool = False  # the rows are :func:`reduced_term`'s (an attitude base): one group, not per sample
 
     def whiten(self, x: np.ndarray) -> np.ndarray:
         """``Sigma^(-1/2) x`` for ``x`` (m,) or (m, k) in the term's row order."""
@@ -113,11 +116,56 @@ def _carried_samples(job: "Job", images: list[int]) -> list[tuple[int, "Attitude
     return [seen[t] for t in sorted(seen)]
 
 
+def _based(job: "Job", block: list[int]) -> bool:
+    """Whether the block's images carry an attitude base (their samples then observe its correction)."""
+    return any(job.images[i].attitude_base for i in block)
+
+
+def _reduced_rows(job: "Job", block: list[int], n: int) -> int:
+    """Rows of :func:`reduced_term` for ``n`` samples: per angle, its free polynomial terms (at most n)."""
+    im = job.images[block[0]]
+    try:
+        free = {int(k) for k in get_model(im.model.name).free_indices(dict(im.model.options))}
+    except (KeyError, ValueError):
+        return 3 * n  # reported by the model check
+    return sum(min(n, sum(coef_index(e, p) in free for p in range(4))) for e in ANGLES)
+
+
 def n_attitude_observations(job: "Job") -> int:
     """How many weighted attitude observations :func:`attitude_terms` will make (validation)."""
     if JobSettings.of(job).blocks.attitude is None:
         return 0
-    return sum(3 * len(block_samples(job, block)) for block in attitude_blocks(job))
+    total = 0
+    for block in attitude_blocks(job):
+        n = len(block_samples(job, block))
+        total += _reduced_rows(job, block, n) if n and _based(job, block) else 3 * n
+    return total
+
+
+def reduced_term(term: AttitudeTerm) -> AttitudeTerm:
+    """The attitude observations of a block whose images carry an attitude base, as what they say
+    of the correction: per angle, the whitened rows ``Sigma^(-1/2) (A p - b)`` replaced by
+    ``R p - Q^T Sigma^(-1/2) b`` (``Sigma^(-1/2) A = Q R`` on the angle's free columns). The
+    estimate, its covariance and every other row's redundancy are the same; what no correction
+    can change (the samples' departure from the base beyond a polynomial: zero when the base is
+    the samples, as :mod:`solver.sensors.job_fragment` writes it) is left out, with its degrees
+    of freedom, instead of counting as residuals that fit far better than their weights."""
+    wa, wb = term.whiten(term.a), term.whiten(term.b)
+    n = term.a.shape[0] // 3
+    rows_a, rows_b = [], []
+    for e in range(3):
+        sel = np.arange(e, 3 * n, 3)
+        cols = np.flatnonzero(np.any(term.a[sel] != 0.0, axis=0))
+        if cols.size == 0:
+            continue
+        q, r = np.linalg.qr(wa[np.ix_(sel, cols)])
+        a = np.zeros((r.shape[0], term.a.shape[1]))
+        a[:, cols] = r
+        rows_a.append(a)
+        rows_b.append(q.T @ wb[sel])
+    a = np.vstack(rows_a) if rows_a else np.zeros((0, term.a.shape[1]))
+    b = np.concatenate(rows_b) if rows_b else np.zeros(0)
+    return AttitudeTerm(term.image_index, a, b, np.ones(b.shape[0]), None, reduced=True)
 
 
 def attitude_problems(job: "Job") -> list[tuple[str, str, tuple]]:
@@ -261,7 +309,9 @@ class MeasuredAttitude(FamilyDefaults):
         return issues, Count(n_observations=n, datum=frozenset({"attitude"}) if n else frozenset())
 
     def terms(self, problem: "AdjustmentState") -> list[Labelled]:
-        return [Labelled(self, term, "image", term.image_index, block) for block, term in _block_terms(problem)]
+        """One term per attitude block; a block with an attitude base as :func:`reduced_term`."""
+        return [Labelled(self, reduced_term(term) if _based(problem.job, block) else term, "image", term.image_index, block)
+                for block, term in _block_terms(problem)]
 
     def initialise(self, problem: "AdjustmentState") -> None:
         """Each block's attitude polynomials fitted to its weighted samples (weighted least
@@ -281,6 +331,10 @@ class MeasuredAttitude(FamilyDefaults):
 
     def groups(self, problem: "AdjustmentState", labelled: Labelled) -> list[GroupSpec]:
         block, term = labelled.tag, labelled.term
+        if term.reduced:  # the correction's rows: one test of the block, not removable (a sample is also the base)
+            k = term.n_residuals
+            return [GroupSpec("attitude_correction", np.arange(k), {"image": problem.images[block[0]].id}, np.ones(k), "",
+                              [f"row {j}" for j in range(k)], -1.0, None)]
         samples = block_samples(problem.job, block)
         return per_row_groups(
             "attitude_sample", term.n_residuals, 3, {"image": problem.images[block[0]].id},

@@ -28,17 +28,17 @@ Mapping (docs/models.md sections 1, 9, 10):
   delivered one (interpolated linearly in the angles, as the slerp of the exact model to far
   below a pixel) plus the cubic polynomials as a smooth correction, which the adjustment
   estimates (zero as delivered). Cubics alone cannot follow the pitch oscillation of some
-  SPOT 1-4 scenes (10 microradians over 4.5 s: 1 px). Not for Maxar's samples yet: their
-  weights' white part is their scatter about a cubic (below), which a base would absorb, so
-  they would fit far better than their weights say (measured on the WorldView-2 pair: chi-square
-  42 for 330 degrees of freedom, its lower bound 282); their job form keeps the cubic alone.
+  SPOT 1-4 scenes (10 microradians over 4.5 s: 1 px; the public WorldView-2 files' faster
+  attitude motion 0.56-0.96 px). The samples then observe the correction through its
+  polynomial terms only (:func:`solver.observations.attitude.reduced_term`): their departure
+  from the base is zero, and counted sample by sample it would fit far inside its weights.
 - Attitude weights. Maxar's file states the *absolute* accuracy of its attitude (the
   quaternion covariance, 0.0009-0.001 deg on the WorldView-2 products); that error is mostly
   one bias per image and angle (star-tracker alignment and the fused estimate's slow drift),
   not independent noise at 50 Hz. The fragment weights Maxar samples with that accuracy as a
   common error per image and angle (``bias_sigma_deg``) and, as the white part
-  (``sigma_deg``), the samples' own scatter about the model's cubic polynomials within each
-  image's lines (per angle, pooled over the products, degrees-of-freedom corrected; at least
+  (``sigma_deg``: with the base, how far the correction's shape may go), the samples' own
+  scatter about the model's cubic polynomials within each image's lines (per angle, pooled over the products, degrees-of-freedom corrected; at least
   :data:`MAXAR_ATTITUDE_WHITE_DEG`): jitter, quaternion rounding and what a cubic cannot
   follow, which is noise to the model. On the four WorldView-2 products of tests/data/vendor
   it is 2e-6 to 1.2e-5 deg per angle (6.7e-6 overall); a fixed value cannot serve both pairs
@@ -357,8 +357,7 @@ def fragment(
             "attitude": [{"time_s": float(t + shift), "roll_deg": float(r[0]), "pitch_deg": float(r[1]), "yaw_deg": float(r[2])}
                          for t, r in zip(at, ang)],
         }
-        if not src.attitude_white:  # the polynomials correct the delivered attitude (module doc; Maxar's: not yet)
-            image["attitude_base"] = [dict(s) for s in image["attitude"]]
+        image["attitude_base"] = [dict(s) for s in image["attitude"]]  # the polynomials correct the delivered attitude (module doc)
         within = (at >= lo) & (at <= hi)
         if within.sum() > 8:
             tc = at[within] - at[within].mean()

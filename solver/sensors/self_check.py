@@ -24,7 +24,7 @@ References, each where the format has it:
 - the job form over the whole image: the job composed from the file (the fragment of
   :mod:`solver.sensors.job_fragment`), its orientation as delivered, i.e. the platform model,
   its orbit fitted to the ephemeris as the job weights it and its attitude (the delivered
-  samples as its base and the polynomials' correction fitted to them, or the polynomials alone) (:class:`solver.gis.model.AdjustedModel` without a report: what ``pba ground-to-image
+  samples as its base and the polynomials' correction fitted to them) (:class:`solver.gis.model.AdjustedModel` without a report: what ``pba ground-to-image
   job.json -`` uses and what the adjustment starts from), against the exact model over 9 x 9
   image positions x 3 heights. The job needs observations to be valid: five control points are
   added, weighted 10 km so that they do not move it (moved by 1 km, they change nothing).
@@ -44,11 +44,7 @@ from solver.geometry.geodesy import geodetic_to_ecef
 from solver.geometry.rpc import RPC
 from solver.sensors.linescan import LinescanModel
 
-# vendor corners and centres; an RPC; the job form vs the exact model: 0.5 px when the job's
-# attitude is the delivered one with a cubic correction (images[].attitude_base), 1 px when it
-# is the cubic alone (Maxar's fragment: its 50-Hz attitude's faster motion is left, up to
-# 0.96 px on the public WorldView-2 files; with a base they would be met to 0.06-0.43 px)
-LIMITS_PX = {"point": 2.0, "rpc": 1.0, "job": 0.5, "job_cubic": 1.0}
+LIMITS_PX = {"point": 2.0, "rpc": 1.0, "job": 0.5}  # vendor corners and centres; an RPC; the job form vs the exact model
 JOB_GRID = 9  # job form: JOB_GRID x JOB_GRID image positions ...
 JOB_HEIGHTS_M = (-500.0, 0.0, 500.0)  # ... at the product's mean height plus these
 RPC_GRID, RPC_HEIGHTS = 11, 5
@@ -328,8 +324,7 @@ def self_check(product: Any, rpc: RPC | None = None, rpc_name: str = "", job_for
             product = replace(product, raw_geometry=True)
     if job_form:
         try:
-            image, doc = job_form_model(product)
-            job_limit = LIMITS_PX["job" if doc["images"][0].get("attitude_base") else "job_cubic"]
+            image, _ = job_form_model(product)
         except MetadataError as exc:  # a product the job cannot express (solver.sensors.job_fragment refuses it)
             out.notes.append(f"no job form: {exc.reason}")
     for vp in points:
@@ -344,7 +339,7 @@ def self_check(product: Any, rpc: RPC | None = None, rpc_name: str = "", job_for
     elif not isinstance(product, CbersProduct):
         out.notes.append("no vendor RPC" + (f" ({rpc_name} is not beside the file)" if rpc_name else "") + ": give one with --rpc")
     if image is not None:
-        out.rows.append(_job_grid_row(image, m, source(product).mean_height_m, job_limit))
+        out.rows.append(_job_grid_row(image, m, source(product).mean_height_m, LIMITS_PX["job"]))
     return out
 
 

@@ -115,6 +115,37 @@ def test_the_jacobian_with_an_oscillating_base_matches_central_differences() -> 
             assert np.max(np.abs(fd - an)) < COLUMN_FD_REL * np.max(np.abs(an)) + COLUMN_FD_ABS, (col0, k)
 
 
+NORMAL_REL = 1e-9  # the reduced rows' normal equations vs the samples' own (QR rounding)
+
+
+def test_samples_of_a_base_observe_the_correction_through_its_free_terms() -> None:
+    """With a base the samples enter as :func:`solver.observations.attitude.reduced_term`: as
+    many rows as the correction has free terms (validation counts the same), and the same normal
+    equations as the samples' own whitened rows (numpy on the full rows, common bias included)."""
+    from solver.observations.attitude import FAMILY, attitude_terms, n_attitude_observations
+
+    job = _job("PASS-J2")
+    job["options"] = {**job.get("options", {}), "attitude": {"sigma_deg": [2e-3] * 3, "bias_sigma_deg": [1e-3] * 3}}
+    cams = {c["id"]: c for c in job["cameras"]}
+    for im in job["images"]:
+        im["attitude_base"] = _base(im, cams[im["camera"]]["line_time_s"], cams[im["camera"]]["lines"],
+                                    lambda t: np.array([1e-3, 2e-3 * math.sin(t), -1e-3]))
+    problem = prepare(load_job(job))
+    full = attitude_terms(problem)
+    reduced = [lab.term for lab in FAMILY.terms(problem)]
+    assert len(full) == len(reduced) == 3
+    for f, r in zip(full, reduced):
+        img = problem.images[f.image_index]
+        angle_terms = sum(int(k) in {coef_index(e, q) for e in ANGLES for q in range(4)} for k in img.free_idx)
+        assert f.n_residuals > r.n_residuals == angle_terms
+        wa, wb = f.whiten(f.a), f.whiten(f.b)
+        ra, rb = r.linear_form()
+        scale = np.abs(wa.T @ wa).max()
+        assert np.abs(ra.T @ ra - wa.T @ wa).max() < NORMAL_REL * scale
+        assert np.abs(ra.T @ rb - wa.T @ wb).max() <= NORMAL_REL * max(np.abs(wa.T @ wb).max(), 1.0)
+    assert n_attitude_observations(load_job(job)) == sum(r.n_residuals for r in reduced)
+
+
 def _refused(job: dict) -> list[tuple[str, str]]:
     with pytest.raises(JobError) as exc:
         prepare(load_job(job))
