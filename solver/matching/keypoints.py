@@ -6,7 +6,8 @@ read decimated by ``decimation`` (:meth:`solver.matching.raster.Raster.decimated
 SIFT doubles its input first, so the finest scale is still the full resolution's, at a quarter
 of the cost) that takes the missing blocks' bounding box plus :data:`MARGIN_PX` of context, and
 kept with the block. So a window of the image is detected once, whichever pair asks for it and
-in whatever role; large images are detected only where a pair needs them.
+in whatever role; large images are detected only where a pair needs them. In the image's last
+pair only the blocks of the last few rows of tiles are kept (:meth:`FeatureCache.keep_recent`).
 
 Positions are (line, column) in our convention (pixel centres, top-left at (0, 0)), full
 resolution; descriptors are OpenCV's (128 values from 0 to 255, stored as uint8); the response
@@ -89,7 +90,11 @@ class FeatureCache:
         self.block = BLOCK_PX // decimation * decimation
         self.shape = (-(-image.lines // self.block), -(-image.columns // self.block))
         self.blocks: dict[tuple[int, int], Features] = {}
-        self.detections = 0  # SIFT calls made (for the summary)
+        self.detections = 0  # SIFT calls made
+        self.detected: set[tuple[int, int]] = set()  # every block ever detected
+        self.requests = 0
+        self.last_use: dict[tuple[int, int], int] = {}  # block -> the request that last needed it
+        self.horizon: int | None = None  # keep only the blocks needed within this many requests
 
     def _blocks_of(self, lo: np.ndarray, hi: np.ndarray) -> tuple[range, range]:
         b = self.block
@@ -107,6 +112,7 @@ class FeatureCache:
             for i in range(i0, i1):
                 for j in range(j0, j1):
                     self.blocks[(i, j)] = f.take(np.flatnonzero((bi == i) & (bj == j)))
+                    self.detected.add((i, j))
 
     def window(self, lo: np.ndarray, hi: np.ndarray) -> Features:
         """The features with ``lo <= position < hi`` (full-resolution line, column), detected
@@ -115,11 +121,23 @@ class FeatureCache:
         self._fill(rows, cols)
         f = Features.concat([self.blocks[(i, j)] for i in rows for j in cols])
         inside = np.all((f.pos >= lo) & (f.pos < hi), axis=1)
+        self.requests += 1
+        for key in ((i, j) for i in rows for j in cols):
+            self.last_use[key] = self.requests
+        if self.horizon is not None:
+            for key in [k for k, t in self.last_use.items() if self.requests - t >= self.horizon]:
+                del self.blocks[key], self.last_use[key]
         return f.take(np.flatnonzero(inside))
+
+    def keep_recent(self, requests: int) -> None:
+        """From now on keep only the blocks needed by the last ``requests`` windows (the image's
+        last pair: its tiles go over the image once, so an older block is seldom needed again;
+        if it is, it is detected again). Bounds the memory by a few rows of tiles."""
+        self.horizon = requests
 
     def detected_fraction(self) -> float:
         """The share of the image's blocks detected so far."""
-        return len(self.blocks) / (self.shape[0] * self.shape[1])
+        return len(self.detected) / (self.shape[0] * self.shape[1])
 
     def nbytes(self) -> int:
         return sum(f.pos.nbytes + f.desc.nbytes + f.response.nbytes for f in self.blocks.values())

@@ -141,6 +141,8 @@ def _match_images(images: list[MatchImage], heights: tuple[float, float], settin
 
         for k in (i, j):
             caches.setdefault(k, FeatureCache(images[k], settings.decimation))
+            if last_pair[k] == n:  # its last pair: keep the blocks of the last four rows of tiles (one window each)
+                caches[k].keep_recent(4 * settings.grid)
         matches.append(match_pair(images[i], images[j], i, j, mapping(i, j), settings, caches[i], caches[j], tile_progress))
         for k in (i, j):
             if last_pair[k] == n:  # the image's features are not needed any more

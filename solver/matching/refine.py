@@ -27,6 +27,7 @@ import numpy as np
 from solver.matching.orientation import MatchImage, PairMapping, distance_to_segment
 
 SEARCH_PX = 3
+READ_MARGIN_PX = 4  # read around the first iteration's window: the later ones move by a pixel or less
 MAX_ITERATIONS = 6
 CONVERGED_PX = 0.01
 MIN_TEMPLATE_STD = 1e-3  # relative to the image's stretch: a flat template has no position
@@ -63,6 +64,8 @@ def correlate(tpl: np.ndarray, other: MatchImage, start: np.ndarray, jac: np.nda
     radius = half + SEARCH_PX
     u = np.arange(-radius, radius + 1, dtype=float)
     uu, vv = np.meshgrid(u, u, indexing="ij")
+    read = (0, 0, 0, 0)  # the window read (r0, c0, r1, c1), with READ_MARGIN_PX for the next iterations
+    win = np.zeros((0, 0), np.float32)
     for it in range(MAX_ITERATIONS):
         lines = p[0] + jac[0, 0] * uu + jac[0, 1] * vv
         cols = p[1] + jac[1, 0] * uu + jac[1, 1] * vv
@@ -70,8 +73,12 @@ def correlate(tpl: np.ndarray, other: MatchImage, start: np.ndarray, jac: np.nda
         r1, c1 = int(np.ceil(lines.max())) + 4, int(np.ceil(cols.max())) + 4
         if r0 < 0 or c0 < 0 or r1 > other.lines or c1 > other.columns:
             return None
-        win = other.raster.window(r0, c0, r1 - r0, c1 - c0)
-        warped = cv2.remap(win, (cols - c0).astype(np.float32), (lines - r0).astype(np.float32), cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+        if r0 < read[0] or c0 < read[1] or r1 > read[2] or c1 > read[3]:
+            m = READ_MARGIN_PX
+            read = (max(r0 - m, 0), max(c0 - m, 0), min(r1 + m, other.lines), min(c1 + m, other.columns))
+            win = other.raster.window(read[0], read[1], read[2] - read[0], read[3] - read[1])
+        # every sample and its bicubic neighbours are inside the read: the border mode never acts
+        warped = cv2.remap(win, (cols - read[1]).astype(np.float32), (lines - read[0]).astype(np.float32), cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
         res = cv2.matchTemplate(warped, tpl, cv2.TM_CCOEFF_NORMED)
         i, j = np.unravel_index(int(np.argmax(res)), res.shape)
         peak = float(res[i, j])

@@ -41,17 +41,6 @@ def _rays(model, pos: np.ndarray, heights: tuple[float, float]) -> tuple[np.ndar
     return lo, d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def intersect(origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """The point (3,) nearest to the rays (k, 3) in the least-squares sense."""
-    a = np.zeros((3, 3))
-    b = np.zeros(3)
-    for o, d in zip(origins, dirs, strict=True):
-        p = np.eye(3) - np.outer(d, d)
-        a += p
-        b += p @ o
-    return np.linalg.solve(a, b)
-
-
 def _intersections(tracks: list[dict[int, np.ndarray]], models: list, heights: tuple[float, float], bias: np.ndarray, sizes):
     """Per track ``{image: (origin, direction)}`` of its measurements' rays (bias removed)."""
     span = (heights[0] - 100.0, heights[1] + 100.0)
@@ -72,28 +61,51 @@ def residuals(tracks: list[dict[int, np.ndarray]], models: list, heights: tuple[
               sizes: list[tuple[int, int]], leave_out: bool = False) -> list[dict[int, np.ndarray]]:
     """Per track ``{image: measured - bias - projected (line, column)}`` (module docstring),
     the point intersected from all the track's rays, or (``leave_out``, tracks of three or
-    more images) from the other images' rays only; NaN where a ray or a projection fails."""
-    points: dict[int, list[tuple[int, np.ndarray]]] = {}  # image -> (track, point) to project
-    for k, (t, rays) in enumerate(zip(tracks, _intersections(tracks, models, heights, bias, sizes), strict=True)):
-        ids = sorted(t)
-        for i in ids:
-            use = [j for j in ids if j != i] if leave_out else ids
-            if leave_out and len(use) < 2:
-                continue
-            o = np.array([rays[j][0] for j in use])
-            d = np.array([rays[j][1] for j in use])
-            ok = np.all(np.isfinite(o)) and np.all(np.isfinite(d))
-            points.setdefault(i, []).append((k, intersect(o, d) if ok else np.full(3, np.nan)))
+    more images) from the other images' rays only; NaN where a ray or a projection fails.
+
+    A track's point is the one nearest to its rays (origins o, unit directions d) in the least-
+    squares sense: sum (I - d d^T) x = sum (I - d d^T) o. The sums of every track at once (a
+    left-out ray's share taken off again), solved as one stack of 3 x 3 systems."""
+    rays = _intersections(tracks, models, heights, bias, sizes)
+    entries = [(k, i) for k, t in enumerate(tracks) for i in sorted(t)]
     out: list[dict[int, np.ndarray]] = [{} for _ in tracks]
-    for i, items in points.items():
-        xyz = np.array([x for _k, x in items])
+    if not entries:
+        return out
+    track = np.array([k for k, _i in entries])
+    image = np.array([i for _k, i in entries])
+    o = np.array([rays[k][i][0] for k, i in entries], float)
+    d = np.array([rays[k][i][1] for k, i in entries], float)
+    bad = ~(np.all(np.isfinite(o), axis=1) & np.all(np.isfinite(d), axis=1))
+    o[bad], d[bad] = 0.0, 0.0
+    proj = np.eye(3) - d[:, :, None] * d[:, None, :]  # I - d d^T
+    proj[bad] = 0.0
+    rhs = np.einsum("nij,nj->ni", proj, o)
+    a = np.zeros((len(tracks), 3, 3))
+    b = np.zeros((len(tracks), 3))
+    np.add.at(a, track, proj)
+    np.add.at(b, track, rhs)
+    n_bad = np.bincount(track, weights=bad, minlength=len(tracks))
+    size = np.bincount(track, minlength=len(tracks))
+    if leave_out:
+        use = size[track] >= 3
+        a_e, b_e = a[track] - proj, b[track] - rhs
+        ok = use & (n_bad[track] - bad == 0)
+    else:
+        use = np.ones(len(entries), dtype=bool)
+        a_e, b_e = a[track], b[track]
+        ok = n_bad[track] == 0
+    xyz = np.full((len(entries), 3), np.nan)
+    if ok.any():
+        xyz[ok] = np.linalg.solve(a_e[ok], b_e[ok][:, :, None])[:, :, 0]
+    for i in np.unique(image[use]):
+        sel = np.flatnonzero(use & (image == i))
         with np.errstate(all="ignore"):
-            line, col, _chip = models[i].ground_to_image(xyz)
+            line, col, _chip = models[i].ground_to_image(xyz[sel])
         pred = np.column_stack([np.asarray(line, float).ravel(), np.asarray(col, float).ravel()])
-        measured = np.array([tracks[k][i] for k, _x in items])
-        corrected = measured - apply_bias(bias, i, measured, sizes[i])
-        for (k, _x), c, p in zip(items, corrected, pred, strict=True):
-            out[k][i] = c - p
+        measured = np.array([tracks[track[e]][i] for e in sel])
+        corrected = measured - apply_bias(bias, int(i), measured, sizes[i])
+        for e, c, p in zip(sel, corrected, pred, strict=True):
+            out[track[e]][int(i)] = c - p
     return out
 
 

@@ -481,6 +481,28 @@ def test_features_are_detected_once_and_agree_with_a_whole_image_detection(tmp_p
         raster.close()
 
 
+def test_an_image_in_its_last_pair_keeps_only_recent_blocks(tmp_path):
+    """After keep_recent(1), a window far away lets the first window's blocks go (memory); asked
+    for again, they are detected again, with the same features."""
+    from solver.matching.keypoints import FeatureCache
+
+    raster = _textured_raster(tmp_path)
+    try:
+        cache = FeatureCache(_image("t", raster), 2)
+        cache.keep_recent(1)
+        lo, hi = np.array([0, 0]), np.array([128, 128])
+        first = cache.window(lo, hi)
+        cache.window(np.array([512, 512]), np.array([640, 640]))
+        assert not any(i < 2 and j < 2 for i, j in cache.blocks)  # the first window's blocks are gone
+        calls = cache.detections
+        again = cache.window(lo, hi)
+        assert cache.detections == calls + 1
+        assert np.array_equal(again.pos, first.pos) and np.array_equal(again.desc, first.desc)
+        assert cache.detected_fraction() == pytest.approx(8 / 100)  # 4 + 4 of the 10 x 10 blocks, counted once
+    finally:
+        raster.close()
+
+
 def test_each_cell_keeps_its_strongest_features():
     """n strongest per cell, whatever the other cells hold: a cell of weak features keeps its own
     (a strongest-of-the-tile choice would leave it empty)."""
