@@ -123,14 +123,33 @@ def layout(problem: AdjustmentState, rows: np.ndarray, block: np.ndarray, owner:
     return ResidualBlocks(rows, start, np.asarray(owner, dtype=np.int64), rec, params, sizes, n_params)
 
 
-def point_blocks(problem: AdjustmentState) -> ResidualBlocks:
-    """One block per estimated point that has adjusted observations (points in index order)."""
+def point_blocks(problem: AdjustmentState, max_rays: int | None = None) -> ResidualBlocks:
+    """One block per estimated point that has adjusted observations (points in index order);
+    ``max_rays``: a point seen in more images is split into consecutive blocks of at most that
+    many observations, as even as they go (7 -> 3 + 2 + 2), so ``owner`` may repeat a point.
+
+    The split is the same sum of squares in blocks whose Jacobian cells are smaller: Ceres
+    stores each image's cell of a block over all of the block's rows, so a point seen in k
+    images costs 2k x (3 + n k) Jacobian entries as one block (n: the image's parameters) and
+    about 2k x (3 + 3 n) split in threes. A robust loss would act on each block's own sum, so
+    only plain least squares may be split (:func:`solver.engine.backend.split_rays`)."""
     obs = problem.obs
     estimated = np.array([p.estimated for p in problem.points], dtype=bool)
     rows = np.flatnonzero(problem.adjusted_mask & estimated[obs.pt] if len(obs.pt) else np.zeros(0, dtype=bool))
     rows = rows[np.argsort(obs.pt[rows], kind="stable")]
     owner, block = np.unique(obs.pt[rows], return_inverse=True)
-    return layout(problem, rows, block.ravel(), owner)
+    block = block.ravel()
+    if max_rays is not None and len(rows):
+        count = np.bincount(block)
+        first = np.concatenate([[0], np.cumsum(count)[:-1]])
+        rank = np.arange(len(rows)) - first[block]  # the observation's place among its point's
+        chunks = -(-count // max_rays)  # per point: ceil(count / max_rays)
+        chunk = rank * chunks[block] // count[block]  # even lengths, in the observations' order
+        new = np.ones(len(rows), dtype=bool)
+        new[1:] = (block[1:] != block[:-1]) | (chunk[1:] != chunk[:-1])
+        owner = obs.pt[rows][new]
+        block = np.cumsum(new) - 1
+    return layout(problem, rows, block, owner)
 
 
 def fixed_blocks(problem: AdjustmentState) -> ResidualBlocks:
