@@ -139,8 +139,11 @@ def adjust_once(
     cancel: Callable[[], bool] | None = None,
     models: dict[str, str] | None = None,
     fraction_range: tuple[float, float] = (0.0, 1.0),
+    keep_linearised: bool = False,
 ) -> Solution:
-    """One adjustment of ``job``: the problem at its solution (the report is built from it when asked)."""
+    """One adjustment of ``job``: the problem at its solution (the report is built from it when
+    asked); ``keep_linearised``: the solution keeps the report's linearisation for data snooping
+    (:meth:`Solution.take_linearised`)."""
     from solver.engine.backend import SolveControl  # imports pyceres: workers only
 
     f0, f1 = fraction_range
@@ -165,7 +168,7 @@ def adjust_once(
         raise UnusableSolution.from_outcome(reasons, _outcome_detail(outcome))
     _progress(progress, frac(0.92), "assessing the solution")
     datum = confirm_datum(problem, datum)
-    solution = Solution(problem, outcome, time.perf_counter() - t_start, datum)
+    solution = Solution(problem, outcome, time.perf_counter() - t_start, datum, keep_linearised)
     for k, sentence in enumerate(foreign):  # the control that does not fit, first among the warnings
         solution.prepend_warning(sentence, k)
     quality: dict[str, Any] = {"datum": datum.to_report()}

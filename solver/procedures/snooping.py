@@ -127,7 +127,7 @@ class _Snooping:
         k = self.step
         self.step += 1
         window = (self.f0 + (self.f1 - self.f0) * (1.0 - 0.5**k), self.f0 + (self.f1 - self.f0) * (1.0 - 0.5 ** (k + 1)))
-        return adjust_once(self.handed if job is self.job else job, self.progress, self.cancel, self.models, window)
+        return adjust_once(self.handed if job is self.job else job, self.progress, self.cancel, self.models, window, keep_linearised=True)
 
     def record(self, cluster, solution: Solution, collateral, current: Job) -> None:
         """Enter the removed ``cluster`` (one test, or a non-identifiable group) and the
@@ -160,7 +160,7 @@ class _Snooping:
         ``max_rejections``, or the adjustment without it fails); ``action: report`` tests only."""
         bd = self.bd
         while True:
-            sn = snoop(solution.problem, bd)
+            sn = snoop(solution.problem, bd, linearised=solution.take_linearised())
             if bd.action == "report":
                 return solution, sn
             clusters = [c for c in failing_clusters(sn, bd.separability) if c[0].group.removal]
@@ -188,7 +188,7 @@ class _Snooping:
         bd, job = self.bd, self.job
         robust = job.model_copy(update={"options": job.options.model_copy(update={"loss": bd.robust_start})})
         solution = self.adjust(robust)
-        sn = snoop(solution.problem, bd, robust=True)
+        sn = snoop(solution.problem, bd, robust=True, linearised=solution.take_linearised())
         limit = self.cap(sn)
         clusters = [c for c in failing_clusters(sn, bd.separability) if c[0].group.removal]
         take = []
@@ -242,7 +242,8 @@ class _Snooping:
         if not cands:
             return None
         try:
-            sn_aug = snoop(self.adjust(with_candidates(current, self.job, cands)).problem, bd)
+            augmented = self.adjust(with_candidates(current, self.job, cands))
+            sn_aug = snoop(augmented.problem, bd, linearised=augmented.take_linearised())
         except (JobError, np.linalg.LinAlgError) as exc:
             self.warnings.append(f"the reinstatement test of the removed observations failed ({exc}); none reinstated")
             return None

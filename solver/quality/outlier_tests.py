@@ -147,14 +147,20 @@ def _critical(variance: str, alpha0: float, dim: int, dof: int) -> float | None:
     return math.sqrt(dof * beta_quantile(1.0 - alpha0, dim / 2.0, (dof - dim) / 2.0))
 
 
-def snoop(problem: AdjustmentState, options, robust: bool = False) -> Snoop:
+def snoop(problem: AdjustmentState, options, robust: bool = False, linearised: Any = None) -> Snoop:
     """Every group's test at the current parameters of ``problem`` (``options``: the job's
     ``options.blunder_detection``). ``robust``: the parameters come from a robust adjustment;
     sigma0 is then the a-priori one, or with ``variance: estimated`` the robust estimate
-    1.4826 median |v_i / sqrt(r_i)| over the rows with redundancy (Baarda's test either way)."""
-    lin = linearise(problem)
-    parts = schur(lin, problem)
-    s_inv = positive_definite_inverse(parts.s)  # LinAlgError: no tests without a covariance
+    1.4826 median |v_i / sqrt(r_i)| over the rows with redundancy (Baarda's test either way).
+    ``linearised``: the report's linearisation at these parameters
+    (:class:`solver.report.document.Linearised`: the Jacobians, the eliminated points, the
+    inverse of the reduced matrix), used instead of linearising and inverting again."""
+    if linearised is not None:
+        lin, parts, s_inv = linearised.lin, linearised.parts, linearised.s_inv
+    else:
+        lin = linearise(problem)
+        parts = schur(lin, problem)
+        s_inv = positive_definite_inverse(parts.s)  # LinAlgError: no tests without a covariance
     st = structure(problem, lin, parts, s_inv)
     _fixed_control_groups(problem, lin, st)
     res = lin.residuals

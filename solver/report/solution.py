@@ -22,7 +22,7 @@ from typing import Any, Callable
 from solver.quality.distributions import chi2_upper_quantile
 from solver.quality.flags import flag_sections
 from solver.quality.tie_pairs import tie_pairs
-from solver.report.document import report_inputs
+from solver.report.document import Linearised, report_inputs
 from solver.report.sections import ReportInputs, build_through, ordered
 from solver.schema.job import ImageObservation, Job
 from solver.state import AdjustmentState
@@ -91,11 +91,12 @@ def _estimates(entry: dict[str, Any]) -> tuple[Estimate, ...]:
 class Solution:
     """The problem at its solution, the solve's outcome and what the report is built from."""
 
-    def __init__(self, problem: AdjustmentState, outcome: Any, elapsed_s: float, datum: Any = None) -> None:
+    def __init__(self, problem: AdjustmentState, outcome: Any, elapsed_s: float, datum: Any = None, keep_linearised: bool = False) -> None:
         self.problem = problem
         self.outcome = outcome
         self.datum = datum  # solver.quality.datum.DatumAnalysis of the solve (None: not analysed)
-        self._inputs: ReportInputs = report_inputs(problem, outcome)
+        self._inputs: ReportInputs
+        self._inputs, self._linearised = report_inputs(problem, outcome, keep_linearised)
         self._elapsed_s = elapsed_s  # validation to the solve's end, then the report's sections as they are built
         self._notes: list[Note] = []
         self._report: dict[str, Any] | None = None
@@ -118,6 +119,13 @@ class Solution:
     def vtpv(self) -> float:
         """v^T P v of the whitened residuals (a-priori sigma0 = 1)."""
         return self._inputs.vtpv
+
+    def take_linearised(self) -> Linearised | None:
+        """The linearisation the covariance came from, with its Jacobians (kept when the
+        adjustment was asked to, for data snooping's tests; None otherwise or without a
+        covariance), handed over once: the solution then holds it no longer."""
+        linearised, self._linearised = self._linearised, None
+        return linearised
 
     # ---- what the sections say, typed --------------------------------------------------------
     def _section(self, name: str) -> Any:

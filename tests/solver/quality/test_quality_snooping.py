@@ -81,6 +81,48 @@ def test_redundancy_blocks_equal_the_dense_hat_matrix(weighted_block) -> None:
     assert kinds == {"image_point", "control_point"}
 
 
+def test_the_report_linearisation_gives_the_tests_and_the_dense_hat_matrix(weighted_block) -> None:
+    """Snooping on the linearisation the report's covariance came from (no second linearisation
+    and inverse): Q_vv is still the dense hat matrix's, and every test as computed afresh."""
+    job, _truth = weighted_block
+    blundered = copy.deepcopy(job)
+    blundered["observations"][5]["line"] += 6.0  # one test fails, the rest pass
+    solution = adjust_once(load_job(blundered), keep_linearised=True)
+    linearised = solution.take_linearised()
+    assert linearised is not None and solution.take_linearised() is None  # handed over once
+    assert linearised.lin.jf.size and linearised.parts.s.size == 0  # the Jacobians kept, the reduced matrix dropped
+    reused = snoop(solution.problem, DEFAULTS, linearised=linearised)
+    fresh = snoop(solution.problem, DEFAULTS)
+    jac = linearise(solution.problem).sparse_jacobian().toarray()
+    orth, _r = np.linalg.qr(jac)
+    q_dense = np.eye(len(orth)) - orth @ orth.T
+    for blk in reused.structure.blocks:
+        np.testing.assert_allclose(blk.q, q_dense[np.ix_(blk.rows, blk.rows)], atol=COFACTOR_ABS)
+    assert len(reused.tests) == len(fresh.tests) and any(t.failed for t in reused.tests)
+    for a, b in zip(reused.tests, fresh.tests):
+        assert a.group.label == b.group.label and a.dof == b.dof and a.failed == b.failed
+        assert a.statistic == pytest.approx(b.statistic, rel=RECOMPUTED_REL, abs=1e-12)
+    # the report of the solution is unchanged by the handing over (its covariance is the inverse snooping read)
+    report = solution.report()
+    assert report["adjustment"]["dof"] == fresh.dof
+
+
+def test_snooping_through_run_does_not_linearise_again(weighted_block, monkeypatch) -> None:
+    """Every adjustment of the snooping loop hands its report's linearisation to its tests."""
+    import solver.quality.outlier_tests as outlier_tests
+
+    job, _truth = weighted_block
+    blundered = copy.deepcopy(job)
+    blundered["observations"][5]["line"] += 6.0
+    blundered.setdefault("options", {})["blunder_detection"] = {"reinstate": True}
+    calls = []
+    monkeypatch.setattr(outlier_tests, "linearise", lambda problem: calls.append(1) or linearise(problem))
+    report = run(blundered)
+    quality = report["quality"]
+    assert quality["blunder_detection"]["adjustments"] >= 2 and quality["blunder_detection"]["n_removed"] >= 1
+    assert calls == []
+
+
 def test_w_statistics_on_clean_data_follow_chi_square() -> None:
     """Monte Carlo over the noise (model exact): each group's T = w^2 sigma0^2 follows chi2(d)
     (Kolmogorov-Smirnov on the pooled probability integral transforms); with sigma0 estimated
