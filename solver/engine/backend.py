@@ -6,8 +6,9 @@ costs a trampoline call, so
 * observations of *fixed* ground points of one image form one vectorised block per image
   (resection block: one call for all of them);
 * each *estimated* point (tie point, weighted control point) has one block holding all its
-  observations, with the point and the images that see it as parameter blocks (Schur
-  elimination keeps working: one e-block per residual block);
+  observations (at most three per block in large least-squares blocks: :func:`split_rays`),
+  with the point and the images that see it as parameter blocks (Schur elimination keeps
+  working: one e-block per residual block);
 * survey priors of weighted control points are Ceres' built-in ``NormalPrior`` (no trampoline).
 
 The arithmetic is in :mod:`solver.kernels` (numba). Cancellation: the cost functions return
@@ -355,8 +356,9 @@ def split_rays(problem: AdjustmentState, loss: Any) -> int | None:
 
 
 def _add_point_blocks(out: CeresProblem, problem: AdjustmentState, loss: Any, control: SolveControl, tables, compiled: _Compiled | None) -> None:
-    """Each estimated point: one block with all its observations, and the survey prior of a
-    weighted control point (Ceres' NormalPrior)."""
+    """Each estimated point: one block with all its observations (or several of at most
+    :func:`split_rays` each), and the survey prior of a weighted control point once (Ceres'
+    NormalPrior)."""
     blocks = point_blocks(problem, split_rays(problem, loss))
     if len(blocks) == 0:
         return

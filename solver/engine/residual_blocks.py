@@ -2,7 +2,8 @@
 (:mod:`solver.engine.backend`: compiled callbacks or Python cost functions).
 
 * a **point block** holds every observation of one estimated ground point (tie point, weighted
-  control point); its parameter blocks are the point, then the images it is seen in (first
+  control point), or at most three of them in large least-squares blocks (:func:`point_blocks`'s
+  ``max_rays``); its parameter blocks are the point, then the images it is seen in (first
   appearance), the cameras with free interior orientation, the passes of pass-propagated images;
 * a **fixed block** holds the observations of fixed ground points in one image (a resection
   block), with the same parameter order minus the point.
