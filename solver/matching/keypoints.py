@@ -95,6 +95,7 @@ class FeatureCache:
         self.requests = 0
         self.last_use: dict[tuple[int, int], int] = {}  # block -> the request that last needed it
         self.horizon: int | None = None  # keep only the blocks needed within this many requests
+        self.since = 0  # ... among those needed after this request
 
     def _blocks_of(self, lo: np.ndarray, hi: np.ndarray) -> tuple[range, range]:
         b = self.block
@@ -125,15 +126,25 @@ class FeatureCache:
         for key in ((i, j) for i in rows for j in cols):
             self.last_use[key] = self.requests
         if self.horizon is not None:
-            for key in [k for k, t in self.last_use.items() if self.requests - t >= self.horizon]:
+            old = [k for k, t in self.last_use.items() if self.since < t <= self.requests - self.horizon]
+            for key in old:
                 del self.blocks[key], self.last_use[key]
         return f.take(np.flatnonzero(inside))
 
     def keep_recent(self, requests: int) -> None:
-        """From now on keep only the blocks needed by the last ``requests`` windows (the image's
-        last pair: its tiles go over the image once, so an older block is seldom needed again;
-        if it is, it is detected again). Bounds the memory by a few rows of tiles."""
-        self.horizon = requests
+        """From now on let go of the blocks the last ``requests`` windows did not need, among
+        those needed since (the image's last pair: its tiles go over the image once, so such a
+        block is seldom needed again; if it is, it is detected again). The blocks detected for
+        earlier pairs stay until a window needs them. Bounds the memory by a few rows of tiles."""
+        self.horizon, self.since = requests, self.requests
+
+    def retain(self, windows: list[tuple[np.ndarray, np.ndarray]]) -> None:
+        """Keep only the blocks that ``windows`` (lo, hi) touch (an image whose later pairs all
+        read it as their a: the same tile windows every time)."""
+        keep = {(i, j) for lo, hi in windows for rows, cols in [self._blocks_of(lo, hi)] for i in rows for j in cols}
+        for key in [k for k in self.blocks if k not in keep]:
+            del self.blocks[key]
+            self.last_use.pop(key, None)
 
     def detected_fraction(self) -> float:
         """The share of the image's blocks detected so far."""

@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-GDAL_CACHE_MB = "256"  # GDAL's block cache (default 5% of RAM): windows are read once or twice each
+GDAL_CACHE_MB = "128"  # GDAL's block cache (default 5% of RAM): windows are read once or twice each
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from solver.matching.features import MatchSettings, PairMatches, detection_scale, match_pair
+from solver.matching.features import MatchSettings, PairMatches, detection_scale, match_pair, tiles
 from solver.matching.keypoints import FeatureCache
 from solver.matching.orientation import MatchImage, PairMapping
 from solver.matching.refine import REFERENCE_SIGMA_PX, epipolar_check, other_sigma, refine_track
@@ -147,6 +147,8 @@ def _match_images(images: list[MatchImage], heights: tuple[float, float], settin
         for k in (i, j):
             if last_pair[k] == n:  # the image's features are not needed any more
                 detected[k] = caches.pop(k).detected_fraction()
+            elif all(p[0] == k for p in pairs[n + 1:] if k in p):  # from now on only its tiles as a are read
+                caches[k].retain([(t.lo, t.hi) for t in tiles(images[k], settings)[0]])
     tracks, inconsistent = link(matches, len(images), settings.decimation)
     sizes = [(im.lines, im.columns) for im in images]
     kept = thin(tracks, sizes, settings.grid, settings.per_cell)

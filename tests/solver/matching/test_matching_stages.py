@@ -499,6 +499,10 @@ def test_an_image_in_its_last_pair_keeps_only_recent_blocks(tmp_path):
         assert cache.detections == calls + 1
         assert np.array_equal(again.pos, first.pos) and np.array_equal(again.desc, first.desc)
         assert cache.detected_fraction() == pytest.approx(8 / 100)  # 4 + 4 of the 10 x 10 blocks, counted once
+        # an image read only through its a tiles from now on keeps only those tiles' blocks
+        cache.retain([(np.array([0, 0]), np.array([64, 64]))])
+        assert sorted(cache.blocks) == [(0, 0)]
+        assert np.array_equal(cache.window(np.array([0, 0]), np.array([64, 64])).pos, first.pos[np.all(first.pos < 64, axis=1)])
     finally:
         raster.close()
 
