@@ -75,6 +75,7 @@ class ImageSources:
     camera: str | None = None
     ephemeris: SourceFile | None = None
     attitude: SourceFile | None = None
+    attitude_base: SourceFile | None = None  # the delivered attitude the models correct (images[].attitude_base)
     state: SourceFile | None = None
     first_line_time_s: float | None = None
     rpc: SourceFile | None = None
@@ -428,6 +429,10 @@ def _image(im: ImageSources, req: ComposeRequest) -> dict[str, Any]:
     if im.attitude is not None:
         image["attitude"], scales[im.attitude.name] = read_attitude(
             im.attitude.data, im.attitude.name, req.time_scale, im.attitude.columns
+        )
+    if im.attitude_base is not None:
+        image["attitude_base"], scales[im.attitude_base.name] = read_attitude(
+            im.attitude_base.data, im.attitude_base.name, req.time_scale, im.attitude_base.columns
         )
     if len(set(scales.values())) > 1:
         said = ", ".join(f"{k}: {v}" for k, v in scales.items())

@@ -4,8 +4,8 @@
 same content: the survey (``survey.csv``, control and check points with a role column), the
 cameras (``cameras.json``), and per image its measurements in the chosen format (``csv``,
 ``qgis`` ``.points`` with the tie points, which a ``.points`` file has no room for, in a
-``-ties.csv`` beside it, or ``asp`` ``.gcp`` likewise), its header state, ephemeris and
-attitude tables, and an RPC image's RPC as ``ID_RPC.TXT``. It returns the ``pba job`` arguments that rebuild the job.
+``-ties.csv`` beside it, or ``asp`` ``.gcp`` likewise), its header state, ephemeris,
+attitude and attitude-base tables, and an RPC image's RPC as ``ID_RPC.TXT``. It returns the ``pba job`` arguments that rebuild the job.
 """
 
 from __future__ import annotations
@@ -76,10 +76,15 @@ def write_sources(
             state = {k: im["approx_state"][k] for k in ("position_ecef_m", "velocity_ecef_m_s")}
             (out_dir / f"{iid}.state.csv").write_text(write_state(im["first_line_time_s"], state, time_scale))
             args += ["--state", f"{iid}={iid}.state.csv"]
+        elif im.get("first_line_time_s") is not None:  # no header state to carry it (vendor metadata: an ephemeris)
+            args += ["--first-line-time", f"{iid}={im['first_line_time_s']!r}"]
         if im.get("ephemeris"):
             (out_dir / f"{iid}.ephemeris.csv").write_text(write_ephemeris(im["ephemeris"], time_scale))
             args += ["--ephemeris", f"{iid}={iid}.ephemeris.csv"]
         if im.get("attitude"):
             (out_dir / f"{iid}.attitude.csv").write_text(write_attitude(im["attitude"], time_scale))
             args += ["--attitude", f"{iid}={iid}.attitude.csv"]
+        if im.get("attitude_base"):
+            (out_dir / f"{iid}.attitude-base.csv").write_text(write_attitude(im["attitude_base"], time_scale))
+            args += ["--attitude-base", f"{iid}={iid}.attitude-base.csv"]
     return args

@@ -58,6 +58,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="ASP GCP file naming its images (image ids: the file names without extension)")
     p.add_argument("--ephemeris", action="append", default=[], metavar="ID=FILE", help="state vectors of image ID")
     p.add_argument("--attitude", action="append", default=[], metavar="ID=FILE", help="attitude samples of image ID")
+    p.add_argument("--first-line-time", action="append", default=[], metavar="ID=SECONDS",
+                   help="time of image ID's first line (s, in the time scale of its ephemeris) where no header state gives it")
+    p.add_argument("--attitude-base", action="append", default=[], metavar="ID=FILE",
+                   help="the delivered attitude of image ID (an attitude table): the base the orbit-attitude and pass models correct")
     p.add_argument("--state", action="append", default=[], metavar="ID=FILE",
                    help="header state of image ID: one row, the state at the first line and its time")
     p.add_argument("--sensor", action="append", default=[], metavar="ID=FILE",
@@ -169,9 +173,14 @@ def request_from_args(args: argparse.Namespace) -> ComposeRequest:
         return default
 
     default_camera = per_image(args.camera, "camera", None)
-    for flag, attr in (("--ephemeris", "ephemeris"), ("--attitude", "attitude"), ("--state", "state")):
+    for flag, attr in (("--ephemeris", "ephemeris"), ("--attitude", "attitude"), ("--attitude-base", "attitude_base"), ("--state", "state")):
         for iid, path in _pairs(getattr(args, attr), flag):
             setattr(image(iid), attr, _file(path, columns))
+    for iid, value in _pairs(args.first_line_time, "--first-line-time"):
+        try:
+            image(iid).first_line_time_s = float(value)
+        except ValueError:
+            raise fail("--first-line-time", 0, "", f"{iid}={value!r}: the first line's time in seconds is expected", "bad_argument") from None
     for iid, path in _pairs(args.rpc, "--rpc"):  # read by GDAL from its place (sidecars beside a raster)
         image(iid).rpc = SourceFile(path, b"", path=path)
     for iid, path in _pairs(args.sensor, "--sensor"):  # vendor metadata, read where it is

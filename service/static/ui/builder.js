@@ -22,6 +22,7 @@
     state: "header state",
     ephemeris: "ephemeris",
     attitude: "attitude",
+    attitude_base: "attitude base (the delivered attitude)",
     rpc: "RPC of an image (RPC00B)",
     sensor: "vendor sensor metadata (the formats the server reads)",
     cameras: "camera file (JSON)",
@@ -30,7 +31,7 @@
     asp_gcp: "ASP GCP (several images)",
     ignore: "ignore",
   };
-  const PER_IMAGE = new Set(["measurements", "state", "ephemeris", "attitude", "rpc", "sensor", "raster"]);
+  const PER_IMAGE = new Set(["measurements", "state", "ephemeris", "attitude", "attitude_base", "rpc", "sensor", "raster"]);
   const NOT_COMPOSED = new Set(["ignore", "raster"]);  // rasters go to the match process, not to compose
   const RASTER = /\.(tiff?|jp2|ntf|img)$/i;
   const RPC_MODELS = ["RPC-SHIFT", "RPC-DRIFT", "RPC-AFFINE"];
@@ -42,8 +43,9 @@
     state: ["time_s", "x", "y", "z", "vx", "vy", "vz"],
     ephemeris: ["time_s", "x", "y", "z", "vx", "vy", "vz"],
     attitude: ["time_s", "roll_deg", "pitch_deg", "yaw_deg"],
+    attitude_base: ["time_s", "roll_deg", "pitch_deg", "yaw_deg"],
   };
-  const st = { files: [], library: [], cameras: {}, timer: null, seq: 0, job: null, valid: false, columns: {}, sensorFormats: [] };
+  const st = { files: [], library: [], cameras: {}, timer: null, seq: 0, job: null, valid: false, columns: {}, sensorFormats: [], formatsLoaded: Promise.resolve() };
 
   function el(tag, attrs, ...children) {
     const e = document.createElement(tag);
@@ -109,6 +111,7 @@
       return { kind: "sensor", image: stem };
     }
     if (lower.endsWith(".points") || lower.endsWith(".gcp")) return { kind: "measurements", image: stem };
+    if (lower.endsWith(".attitude-base.csv")) return { kind: "attitude_base", image: name.slice(0, -18) };  // pba job-sources' name
     for (const k of ["state", "ephemeris", "attitude"]) {
       if (lower.endsWith(`.${k}.csv`)) return { kind: k, image: name.slice(0, -(k.length + 5)) };
     }
@@ -123,7 +126,9 @@
   }
 
   async function addFiles(list) {
-    for (const f of Array.from(list)) {
+    const files = Array.from(list);  // before waiting: the input's FileList is emptied after the call
+    await st.formatsLoaded;  // a vendor file is recognised by the formats the server reads: wait for them
+    for (const f of files) {
       const text = RASTER.test(f.name) ? "" : await f.text();
       const old = st.files.findIndex((x) => x.name === f.name);
       const entry = { name: f.name, file: f, text, ...guess(f.name, text), problems: [] };
@@ -480,7 +485,7 @@
     $("b-raster-paths").addEventListener("input", updateMatch);
     $("key-form").addEventListener("submit", () => setTimeout(loadLibrary, 100));
     render();
-    loadFormats();
+    st.formatsLoaded = loadFormats();  // never rejects: without formats, vendor files are chosen by hand
     loadLibrary();
   }
 

@@ -265,7 +265,7 @@ def test_the_spec_carries_every_field_of_the_solvers_request() -> None:
     assert {f.name for f in fields(ImageSources)} - NOT_UPLOADED == set(ImageSpec.model_fields)
     image = {
         "id": "A", "measurements": ["m.csv"], "camera": "cam", "ephemeris": "e.csv", "attitude": "a.csv",
-        "state": "s.csv", "first_line_time_s": 12.5, "rpc": "r_RPC.TXT", "rpc_model": "RPC-SHIFT", "sensor": "DIM_A.XML",
+        "attitude_base": "ab.csv", "state": "s.csv", "first_line_time_s": 12.5, "rpc": "r_RPC.TXT", "rpc_model": "RPC-SHIFT", "sensor": "DIM_A.XML",
     }
     spec = {
         "images": [image], "gcps": ["g.csv"], "checks": ["c.csv"], "points": ["p.csv"], "asp_gcp": ["x.gcp"],
@@ -275,7 +275,7 @@ def test_the_spec_carries_every_field_of_the_solvers_request() -> None:
         "dem": "dem.tif", "dem_sigma_m": 3.0, "dem_vertical": "egm96", "map_crs": "EPSG:4326", "columns": {"g.csv": {"E": "x"}},
         "measurements": ["ties.csv"],
     }
-    names = [*image["measurements"], *(image[k] for k in ("ephemeris", "attitude", "state", "rpc", "sensor"))]
+    names = [*image["measurements"], *(image[k] for k in ("ephemeris", "attitude", "attitude_base", "state", "rpc", "sensor"))]
     names += [n for k in ("gcps", "checks", "points", "asp_gcp", "camera_files", "measurements") for n in spec[k]]
     names.append(spec["dem"])
     uploads = {n: n.encode() for n in names}

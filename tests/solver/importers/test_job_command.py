@@ -279,3 +279,40 @@ def test_bias_prior_puts_a_prior_on_every_rpc_bias_term(
         assert prior["b_line"]["sigma"] * lines == pytest.approx(4.0, rel=1e-12)
     assert main(base + ["--bias-prior", "0"]) == 2
     assert "positive number of pixels" in capsys.readouterr().err
+
+
+def test_a_vendor_job_survives_job_sources(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A job composed from a real WorldView-2 support file (its ephemeris, first line time and
+    the delivered attitude as its base) with five control points measured by the file's RPC:
+    written as source files and composed again by ``pba job``, it is a valid job again with the
+    same first line time and the base sample for sample (1e-9 degrees: the table's text form)."""
+    import numpy as np
+
+    from solver.importers.export import write_sources
+    from solver.sensors.maxar import read_maxar
+
+    sensor = Path(__file__).resolve().parents[2] / "data" / "vendor" / "stereopipeline" / "wv_mvp_1.xml"
+    r = read_maxar(sensor).rpc
+    ground = np.column_stack([r.long_off + 0.2 * r.long_scale * np.array([-1, 0, 1, 0.5, -0.5]),
+                              r.lat_off + 0.2 * r.lat_scale * np.array([0, 1, -1, 0.5, -0.5]), np.full(5, r.height_off)])
+    lc = np.column_stack(r.project(ground[:, 0], ground[:, 1], ground[:, 2]))
+    (tmp_path / "W.csv").write_text("point,line,column\n" + "".join(f"G{k},{x[0]:.3f},{x[1]:.3f}\n" for k, x in enumerate(lc)))
+    (tmp_path / "gcps.csv").write_text("id,lon,lat,z\n" + "".join(f"G{k},{g[0]:.9f},{g[1]:.9f},{g[2]:.3f}\n" for k, g in enumerate(ground)))
+    first = tmp_path / "first.json"
+    assert main(["job", "--sensor", f"W={sensor}", "--image", f"W={tmp_path / 'W.csv'}", "--gcps", str(tmp_path / "gcps.csv"),
+                 "--crs", "EPSG:4979", "-o", str(first)]) == 0
+    job = json.loads(first.read_text())
+    im = job["images"][0]
+    assert len(im["attitude_base"]) > 10 and "approx_state" not in im
+    out = tmp_path / "src"
+    args = write_sources(job, out)
+    assert "--attitude-base" in args and "--first-line-time" in args
+    monkeypatch.chdir(out)
+    assert main(["job", *args, "-o", str(tmp_path / "again.json")]) == 0  # valid again
+    again = json.loads((tmp_path / "again.json").read_text())["images"][0]
+    assert again["first_line_time_s"] == pytest.approx(im["first_line_time_s"], abs=1e-9)
+    assert len(again["attitude_base"]) == len(im["attitude_base"])
+    for a, b in zip(again["attitude_base"], im["attitude_base"]):
+        for k in ("time_s", "roll_deg", "pitch_deg", "yaw_deg"):
+            assert a[k] == pytest.approx(b[k], abs=1e-9), (k, a, b)
+    assert len(again["attitude"]) == len(im["attitude"])
