@@ -11,12 +11,13 @@ So an adjustment runs its dense algebra on one thread (:func:`bounded`, entered 
 :mod:`solver.api` around every job), and the few large factorisations of the reduced system
 (the rank check's factor, the covariance, the eigen-analyses) take more threads only when
 their matrix has at least :data:`DENSE_PARALLEL_MIN` rows and cores are idle at that moment
-(:func:`for_matrix`): the threads the solve may use (``PBA_SOLVER_THREADS``) minus the other
-runnable threads the kernel reports (``/proc/loadavg``), at least one.
+(:func:`for_matrix`): the threads the solve may use (``PBA_SOLVER_THREADS``) minus the runnable
+threads of other processes (``/proc/loadavg`` less this process's own), at least one.
 """
 
 from __future__ import annotations
 
+import os
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
@@ -39,15 +40,35 @@ def _blas():
     return _controller
 
 
+def _own_running() -> int:
+    """Threads of this process the kernel has running or runnable now (state R in
+    ``/proc/self/task/*/stat``; the caller's own thread among them): OpenBLAS's own threads
+    still spin for a moment after a factorisation, and they are not another process's work."""
+    running = 0
+    try:
+        tasks = os.listdir("/proc/self/task")
+    except OSError:
+        return 1
+    for tid in tasks:
+        try:
+            with open(f"/proc/self/task/{tid}/stat") as f:
+                state = f.read().rsplit(")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            continue
+        running += state == "R"
+    return max(running, 1)
+
+
 def runnable_others() -> int | None:
-    """Threads runnable on the machine now other than the caller (the fourth field of
-    ``/proc/loadavg``, "running/total", counts the reading thread itself); None off Linux."""
+    """Threads of other processes runnable on the machine now: the kernel's count of runnable
+    threads (the fourth field of ``/proc/loadavg``, "running/total") less this process's own
+    (:func:`_own_running`); None off Linux."""
     try:
         with open("/proc/loadavg") as f:
             running = int(f.read().split()[3].split("/")[0])
     except (OSError, ValueError, IndexError):
         return None
-    return max(running - 1, 0)
+    return max(running - _own_running(), 0)
 
 
 def threads_for(rows: int, others: Callable[[], int | None] = runnable_others) -> int:
