@@ -18,6 +18,7 @@ threads of other processes (``/proc/loadavg`` less this process's own), at least
 from __future__ import annotations
 
 import os
+import sys
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
@@ -26,17 +27,20 @@ DENSE_PARALLEL_MIN = 1500
 one thread is as fast on an idle machine: 0.10 s against 0.16 s at 1,200 rows)."""
 
 _controller = None
+_modules_seen = -1
 
 
 def _blas():
-    """threadpoolctl's controller of the BLAS libraries loaded (numpy's and scipy's OpenBLAS),
-    made once, after scipy.linalg is loaded."""
-    global _controller
-    if _controller is None:
+    """threadpoolctl's controller of the BLAS libraries loaded (numpy's and scipy's OpenBLAS,
+    and any another extension brought: OpenCV has its own), made again when modules were
+    imported since (a library loaded later would otherwise keep its own threads)."""
+    global _controller, _modules_seen
+    if _controller is None or len(sys.modules) != _modules_seen:
         import scipy.linalg  # noqa: F401  (its OpenBLAS loaded, so the controller sees it)
         from threadpoolctl import ThreadpoolController
 
         _controller = ThreadpoolController()
+        _modules_seen = len(sys.modules)
     return _controller
 
 

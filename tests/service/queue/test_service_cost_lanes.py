@@ -100,7 +100,7 @@ def test_synchronous_execution_does_not_change_the_lane(tmp_path: Path, small_do
 def test_a_small_adjustment_is_answered_while_another_users_match_jobs_wait(
     tmp_path: Path, small_doc: dict[str, Any]
 ) -> None:
-    """Alice's 8 match jobs on 2 general workers: 2 of them run (none takes the small-lane
+    """Alice's 16 match jobs on 2 general workers: 2 of them run (none takes the small-lane
     worker), and Bob's small synchronous adjustment is answered (200), having waited less than
     LANE_WAIT_S for anything but its own solve: in the queue (the store's created -> started) and
     around it (the answer time minus the run's started -> finished). That is the lane's
@@ -116,7 +116,7 @@ def test_a_small_adjustment_is_answered_while_another_users_match_jobs_wait(
             r = cb.post("/processes/bundle-adjustment/execution", json=execute_body(small_doc))
             assert r.status_code == 200, r.text[:300]
             jobs = []
-            for _ in range(8):
+            for _ in range(16):  # enough to keep both workers busy for seconds (a match job of this pair takes about 1 s)
                 r = ca.post(f"/processes/{MATCH}/execution", json=_match_body(), headers={"Prefer": "respond-async"})
                 assert r.status_code == 201, r.text[:300]
                 jobs.append(r.json()["jobID"])

@@ -39,7 +39,13 @@ def test_runnable_others_reads_the_kernel_count() -> None:
 
 
 def test_limits_apply_inside_and_are_restored(four_cores) -> None:
+    """Every BLAS library of the process is limited, one loaded after the first limit too
+    (OpenCV brings its own OpenBLAS: in the whole suite it is loaded by the matching tests)."""
     import scipy.linalg  # noqa: F401  (its BLAS loaded before the controller is made)
+
+    with dense_threads.bounded():
+        pass
+    import cv2  # noqa: F401  (another OpenBLAS, loaded after the controller was made)
 
     before = _blas_threads()
     with dense_threads.bounded():
