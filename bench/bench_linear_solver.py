@@ -34,7 +34,7 @@ DEFAULT_SOLVERS = "SPARSE_SCHUR,DENSE_SCHUR"
 
 def solve_with(doc: dict[str, Any], spec: str) -> dict[str, Any]:
     """One solve of ``doc`` from its initial values with the linear solver ``spec`` (TYPE[:PRECONDITIONER])."""
-    import pyceres
+    from bench_scale import _linear_solver  # the override bench_scale's --linear-solver applies
 
     from solver.engine import backend
     from solver.procedures.single import prepare, solve_problem
@@ -42,17 +42,8 @@ def solve_with(doc: dict[str, Any], spec: str) -> dict[str, Any]:
     from solver.schema.settings import JobSettings
 
     problem = prepare(load_job(doc))
-    kind, _, preconditioner = spec.partition(":")
     options = backend.ceres_options
-
-    def with_solver(*args, **kwargs):
-        so = options(*args, **kwargs)
-        so.linear_solver_type = getattr(pyceres.LinearSolverType, kind)
-        if preconditioner:
-            so.preconditioner_type = getattr(pyceres.PreconditionerType, preconditioner)
-        return so
-
-    backend.ceres_options = with_solver
+    _linear_solver(backend, spec)
     try:
         control = backend.SolveControl(None, None, JobSettings.from_options(problem.job.options).solve.max_iterations)
         w0, c0 = time.perf_counter(), time.process_time()

@@ -126,18 +126,10 @@ def test_build_an_image_from_its_sensor_metadata(page: Any, local_server: Server
     """A vendor metadata file (a real WorldView-2 support-data XML) is recognised as the sensor
     of its image: no camera to choose, and the composed job carries the metadata's camera,
     ephemeris, attitude and model."""
-    import numpy as np
+    from utils.vendor_control import WORLDVIEW, write_rpc_control
 
-    from solver.sensors.maxar import read_maxar
-
-    wv = ROOT / "tests" / "data" / "vendor" / "stereopipeline" / "wv_mvp_1.xml"
-    r = read_maxar(wv).rpc
-    ground = np.column_stack([r.long_off + 0.2 * r.long_scale * np.array([-1, 0, 1, 0.5, -0.5]),
-                              r.lat_off + 0.2 * r.lat_scale * np.array([0, 1, -1, 0.5, -0.5]), np.full(5, r.height_off)])
-    lc = np.column_stack(r.project(ground[:, 0], ground[:, 1], ground[:, 2]))
-    (tmp_path / "wv_mvp_1.xml").write_bytes(wv.read_bytes())
-    (tmp_path / "wv_mvp_1.csv").write_text("point,line,column\n" + "".join(f"G{k},{x[0]:.3f},{x[1]:.3f}\n" for k, x in enumerate(lc)))
-    (tmp_path / "gcps.csv").write_text("id,lon,lat,z\n" + "".join(f"G{k},{g[0]:.9f},{g[1]:.9f},{g[2]:.3f}\n" for k, g in enumerate(ground)))
+    (tmp_path / "wv_mvp_1.xml").write_bytes(WORLDVIEW.read_bytes())
+    write_rpc_control(WORLDVIEW, tmp_path, "wv_mvp_1")
     page.goto(f"{local_server.url}/ui")
     page.fill("#b-crs", "EPSG:4979")
     page.set_input_files("#builder-input", [str(p) for p in sorted(tmp_path.iterdir())])
@@ -157,21 +149,15 @@ def test_the_way_back_keeps_the_attitude_base(page: Any, local_server: Server, t
     the composed job carries the delivered attitude as its base again, sample for sample. (The
     first line's time is an argument of ``pba job``, not a file: the page's job needs it set,
     so only the composition is checked here.)"""
-    import numpy as np
+    from utils.vendor_control import WORLDVIEW as wv
+    from utils.vendor_control import write_rpc_control
 
     from solver.cli import main
     from solver.importers.export import write_sources
-    from solver.sensors.maxar import read_maxar
 
-    wv = ROOT / "tests" / "data" / "vendor" / "stereopipeline" / "wv_mvp_1.xml"
-    r = read_maxar(wv).rpc
-    ground = np.column_stack([r.long_off + 0.2 * r.long_scale * np.array([-1, 0, 1, 0.5, -0.5]),
-                              r.lat_off + 0.2 * r.lat_scale * np.array([0, 1, -1, 0.5, -0.5]), np.full(5, r.height_off)])
-    lc = np.column_stack(r.project(ground[:, 0], ground[:, 1], ground[:, 2]))
     src = tmp_path / "src"
     src.mkdir()
-    (src / "W.csv").write_text("point,line,column\n" + "".join(f"G{k},{x[0]:.3f},{x[1]:.3f}\n" for k, x in enumerate(lc)))
-    (src / "gcps.csv").write_text("id,lon,lat,z\n" + "".join(f"G{k},{g[0]:.9f},{g[1]:.9f},{g[2]:.3f}\n" for k, g in enumerate(ground)))
+    write_rpc_control(wv, src, "W")
     job_path = tmp_path / "job.json"
     assert main(["job", "--sensor", f"W={wv}", "--image", f"W={src / 'W.csv'}", "--gcps", str(src / "gcps.csv"),
                  "--crs", "EPSG:4979", "-o", str(job_path)]) == 0

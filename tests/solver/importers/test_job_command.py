@@ -286,18 +286,12 @@ def test_a_vendor_job_survives_job_sources(tmp_path: Path, monkeypatch: pytest.M
     the delivered attitude as its base) with five control points measured by the file's RPC:
     written as source files and composed again by ``pba job``, it is a valid job again with the
     same first line time and the base sample for sample (1e-9 degrees: the table's text form)."""
-    import numpy as np
+    from utils.vendor_control import WORLDVIEW as sensor
+    from utils.vendor_control import write_rpc_control
 
     from solver.importers.export import write_sources
-    from solver.sensors.maxar import read_maxar
 
-    sensor = Path(__file__).resolve().parents[2] / "data" / "vendor" / "stereopipeline" / "wv_mvp_1.xml"
-    r = read_maxar(sensor).rpc
-    ground = np.column_stack([r.long_off + 0.2 * r.long_scale * np.array([-1, 0, 1, 0.5, -0.5]),
-                              r.lat_off + 0.2 * r.lat_scale * np.array([0, 1, -1, 0.5, -0.5]), np.full(5, r.height_off)])
-    lc = np.column_stack(r.project(ground[:, 0], ground[:, 1], ground[:, 2]))
-    (tmp_path / "W.csv").write_text("point,line,column\n" + "".join(f"G{k},{x[0]:.3f},{x[1]:.3f}\n" for k, x in enumerate(lc)))
-    (tmp_path / "gcps.csv").write_text("id,lon,lat,z\n" + "".join(f"G{k},{g[0]:.9f},{g[1]:.9f},{g[2]:.3f}\n" for k, g in enumerate(ground)))
+    write_rpc_control(sensor, tmp_path, "W")
     first = tmp_path / "first.json"
     assert main(["job", "--sensor", f"W={sensor}", "--image", f"W={tmp_path / 'W.csv'}", "--gcps", str(tmp_path / "gcps.csv"),
                  "--crs", "EPSG:4979", "-o", str(first)]) == 0
