@@ -83,25 +83,50 @@ def implausible_sigmas(problem: AdjustmentState, images_report: list[dict[str, A
     return out
 
 
+CORRELATION_STRIP = 256
+"""Rows of the images' covariance turned into correlation coefficients at a time by
+:func:`correlated_pairs`: a 1,500-image block's 21,000-square covariance is 3.5 GB, and its whole
+correlation matrix with the indices of its upper triangle was four times that."""
+
+
+def correlated_pairs(cov_images: np.ndarray, limit: float, inclusive: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The parameter pairs (i < j) whose correlation coefficient rho = Q_ij / sqrt(Q_ii Q_jj),
+    clipped to [-1, 1], has |rho| > ``limit`` (``>=`` with ``inclusive``): (i, j, rho), in
+    row-major order of the upper triangle. Computed in row strips of
+    :data:`CORRELATION_STRIP`, so the memory beyond ``cov_images`` is a strip, not a matrix."""
+    n = cov_images.shape[0]
+    d = np.sqrt(np.clip(np.diag(cov_images), 1e-300, None))
+    found_i, found_j, found_rho = [], [], []
+    for k in range(0, n, CORRELATION_STRIP):
+        e = min(k + CORRELATION_STRIP, n)
+        rho = np.clip(cov_images[k:e, k + 1 :] / np.outer(d[k:e], d[k + 1 :]), -1.0, 1.0)
+        above = np.abs(rho) >= limit if inclusive else np.abs(rho) > limit
+        # only the upper triangle: column k + 1 + c belongs to row k + r when c >= r
+        above &= np.arange(rho.shape[1])[None, :] >= np.arange(e - k)[:, None]
+        r, c = np.nonzero(above)
+        found_i.append(k + r)
+        found_j.append(k + 1 + c)
+        found_rho.append(rho[r, c])
+    if not found_i:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
+    return np.concatenate(found_i), np.concatenate(found_j), np.concatenate(found_rho)
+
+
 def high_correlations(cov_images: np.ndarray | None, names: list[str], limit: float, max_pairs: int = 50) -> list[dict[str, Any]]:
     """Pairs of orientation parameters with |rho| > ``limit`` (strongest first, at most ``max_pairs``)."""
     if cov_images is None or cov_images.size == 0:
         return []
-    d = np.sqrt(np.clip(np.diag(cov_images), 1e-300, None))
-    rho = np.clip(cov_images / np.outer(d, d), -1.0, 1.0)
-    iu = np.triu_indices_from(rho, k=1)
-    vals = rho[iu]
-    big = np.flatnonzero(np.abs(vals) > limit)
-    big = big[np.argsort(-np.abs(vals[big]))][:max_pairs]
+    ii, jj, vals = correlated_pairs(cov_images, limit)
+    big = np.argsort(-np.abs(vals))[:max_pairs]
     return [
         {
             "kind": "high_correlation",
-            "a": names[iu[0][k]],
-            "b": names[iu[1][k]],
+            "a": names[ii[k]],
+            "b": names[jj[k]],
             "rho": float(vals[k]),
             "limit": limit,
             "message": (
-                f"{names[iu[0][k]]} and {names[iu[1][k]]} are correlated {vals[k]:+.4f} (beyond {limit:g}): "
+                f"{names[ii[k]]} and {names[jj[k]]} are correlated {vals[k]:+.4f} (beyond {limit:g}): "
                 "the data hardly separate them; hold, drop or weight one of them"
             ),
         }

@@ -16,6 +16,7 @@ from solver.geometry.geodesy import ecef_to_geodetic
 from solver.kernels import platform_state
 from solver.kernels.rpc import RPC_START, rpc_image_to_ground
 from solver.observations.ephemeris import line0_state_ecef
+from solver.quality.parameter_checks import correlated_pairs
 from solver.quality.precision import error_ellipses
 from solver.schema.settings import JobSettings
 from solver.state import AdjustmentState, rows_by_image
@@ -123,15 +124,6 @@ def _sensor_origin(problem: AdjustmentState, index: int) -> dict[str, Any] | Non
     return None if origin is None else origin.model_dump(mode="json")
 
 
-def _correlation_pairs(cov: Covariance) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
-    """Upper-triangle indices and correlation coefficients of the platform/IOP/pass parameters."""
-    d = np.sqrt(np.clip(np.diag(cov.images), 1e-300, None))
-    # the covariance is a Gram matrix (linalg.positive_definite_inverse): |rho| <= 1 up to rounding
-    rho = np.clip(cov.images / np.outer(d, d), -1.0, 1.0)
-    iu = np.triu_indices_from(rho, k=1)
-    return iu, rho[iu]
-
-
 NEAR_SINGULAR_RHO = 0.9999
 
 
@@ -142,15 +134,14 @@ def creeping_warning(problem: AdjustmentState, cov: Covariance | None) -> str | 
     height of per-image models)."""
     if cov is None or cov.images.size == 0:
         return None
-    iu, vals = _correlation_pairs(cov)
-    near = np.flatnonzero(np.abs(vals) >= NEAR_SINGULAR_RHO)
-    if not len(near):
+    ii, jj, vals = correlated_pairs(cov.images, NEAR_SINGULAR_RHO, inclusive=True)
+    if not len(vals):
         return None
     names = parameter_names(problem)
-    top = near[np.argsort(-np.abs(vals[near]))][:3]
-    pairs = ", ".join(f"{names[iu[0][k]]} ~ {names[iu[1][k]]} (rho {vals[k]:+.5f})" for k in top)
+    top = np.argsort(-np.abs(vals))[:3]
+    pairs = ", ".join(f"{names[ii[k]]} ~ {names[jj[k]]} (rho {vals[k]:+.5f})" for k in top)
     return (
-        f"{len(near)} parameter pair(s) are correlated beyond {NEAR_SINGULAR_RHO} ({pairs}): they are "
+        f"{len(vals)} parameter pair(s) are correlated beyond {NEAR_SINGULAR_RHO} ({pairs}): they are "
         "nearly undetermined together and the solve creeps along that direction; hold or drop one "
         "of them (for example a self-calibration parameter) or add control that separates them"
     )
@@ -161,17 +152,16 @@ def correlations(problem: AdjustmentState, cov: Covariance | None, threshold: fl
     if cov is None or cov.images.size == 0:
         return out
     names = parameter_names(problem)
-    iu, vals = _correlation_pairs(cov)
-    big = np.flatnonzero(np.abs(vals) > threshold)
-    big = big[np.argsort(-np.abs(vals[big]))][:limit]
+    ii, jj, vals = correlated_pairs(cov.images, threshold)
+    big = np.argsort(-np.abs(vals))[:limit]
     def kind(name: str) -> str:
         return "IOP" if name.startswith("camera:") else "EOP"
 
     out["pairs"] = [
-        {"a": names[iu[0][k]], "b": names[iu[1][k]], "rho": float(vals[k]), "kinds": f"{kind(names[iu[0][k]])}-{kind(names[iu[1][k]])}"}
+        {"a": names[ii[k]], "b": names[jj[k]], "rho": float(vals[k]), "kinds": f"{kind(names[ii[k]])}-{kind(names[jj[k]])}"}
         for k in big
     ]
-    out["truncated"] = bool(len(np.flatnonzero(np.abs(vals) > threshold)) > limit)
+    out["truncated"] = bool(len(vals) > limit)
     return out
 
 

@@ -8,7 +8,7 @@ ephemeris, attitude, lines, ...).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -69,7 +69,7 @@ def report_inputs(problem: AdjustmentState, outcome, keep_linearised: bool = Fal
         warnings.append("zero degrees of freedom: no a-posteriori variance; sigmas use sigma0 a priori")
     var_factor = (sigma0**2) if sigma0 is not None else stats.sigma0_apriori**2
     cov, parts = _covariance(lin, problem, warnings) if stats.covariance and outcome.usable else (None, None)
-    linearised = Linearised(lin, replace(parts, s=np.zeros((0, 0))), cov.images) if keep_linearised and cov is not None and parts is not None else None
+    linearised = Linearised(lin, parts, cov.images) if keep_linearised and cov is not None and parts is not None else None
     lin = lin.without_jacobians()  # the report reads residuals only: a million observations' Jacobians are ~0.5 GB
     if not lin.ok.all():
         warnings.append(f"{int((~lin.ok).sum())} projections did not converge at the solution")

@@ -171,3 +171,45 @@ def test_positive_definite_inverse_of_a_matrix_wider_than_its_strips() -> None:
     # guards against a strip copied from the wrong place (errors of the size of the entries)
     scale = np.sqrt(np.outer(np.diag(ref), np.diag(ref)))
     assert np.max(np.abs(inv - ref) / scale) < 1e-9
+
+
+def test_positive_definite_inverse_in_the_matrix_own_memory() -> None:
+    """``overwrite``: the same inverse as into new memory, held in the caller's matrix (a large
+    block's reduced matrix is inverted without a second matrix of its size)."""
+    rng = np.random.default_rng(11)
+    a = rng.normal(size=(900, 700)) * np.geomspace(1e-2, 1e2, 700)
+    s = a.T @ a
+    kept = linalg.positive_definite_inverse(s)
+    inv = linalg.positive_definite_inverse(s, overwrite=True)
+    assert np.shares_memory(inv, s)
+    # the same operations in the same order: equal to rounding of the scaling's division (1e-12
+    # of each entry's scale guards against a strip scaled twice or not at all)
+    scale = np.sqrt(np.outer(np.diag(kept), np.diag(kept)))
+    assert np.max(np.abs(inv - kept) / scale) < 1e-12
+    assert np.array_equal(inv, inv.T)
+
+
+def test_correlated_pairs_in_strips_equal_the_whole_correlation_matrix() -> None:
+    """The pairs above a limit found strip by strip (rows of CORRELATION_STRIP) are those of the
+    whole matrix's upper triangle, in the same order, at strip boundaries too; ``inclusive``
+    keeps a coefficient equal to the limit."""
+    from solver.quality.parameter_checks import CORRELATION_STRIP, correlated_pairs
+
+    rng = np.random.default_rng(5)
+    n = 2 * CORRELATION_STRIP + 37
+    base = rng.normal(size=(n + 40, 30))
+    a = base[:n] @ rng.normal(size=(30, n)) + 0.3 * rng.normal(size=(n, n))  # strongly correlated columns
+    q = np.linalg.inv(a.T @ a + np.eye(n))
+    d = np.sqrt(np.diag(q))
+    rho = np.clip(q / np.outer(d, d), -1.0, 1.0)
+    iu = np.triu_indices(n, k=1)
+    limit = float(np.quantile(np.abs(rho[iu]), 0.98))
+    want = np.flatnonzero(np.abs(rho[iu]) > limit)
+    ii, jj, vals = correlated_pairs(q, limit)
+    assert len(want) > 100 and np.array_equal(ii, iu[0][want]) and np.array_equal(jj, iu[1][want])
+    assert np.all(ii < jj) and (ii >= CORRELATION_STRIP).any() and (ii < CORRELATION_STRIP).any()
+    # the same division as the whole matrix's: equal to rounding (1e-15)
+    assert np.max(np.abs(vals - rho[iu][want])) < 1e-15
+    q2 = np.array([[4.0, 2.0, 0.0], [2.0, 4.0, 0.0], [0.0, 0.0, 1.0]])  # rho(0, 1) = 0.5 exactly
+    assert len(correlated_pairs(q2, 0.5)[0]) == 0
+    assert correlated_pairs(q2, 0.5, inclusive=True)[0].tolist() == [0]
