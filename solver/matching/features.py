@@ -49,6 +49,9 @@ MIN_TILE_MATCHES = 5  # fewer matches in a tile cannot be checked by a local aff
 MIN_TILE_PX = 128
 SMALL_CELL_PX = 64  # images whose cells are all smaller are detected at full resolution
 RANSAC_SEED = 12345
+NARROW_MARGIN_PX = 32.0  # a tile's band reaches this far (px of b) beyond the heights its neighbours' matches have
+NARROW_MIN_BAND_PX = 128.0  # narrowing pays when the whole range's band is longer than this (px of b)
+NARROW_RETRY_MATCHES = 10  # a tile narrowed by its neighbours that finds fewer matches is searched over the whole range
 
 
 @dataclass(frozen=True)
@@ -209,11 +212,16 @@ def band_matches(da: np.ndarray, db: np.ndarray, kb: np.ndarray, s0: np.ndarray,
     return rows[ok], best[ok]
 
 
-def match_tile(a: MatchImage, b: MatchImage, fa: Features, fb_cache: FeatureCache, mapping: PairMapping, s: MatchSettings, counts: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
+def match_tile(a: MatchImage, b: MatchImage, fa: Features, fb_cache: FeatureCache, mapping: PairMapping, s: MatchSettings, counts: dict[str, int],
+               heights: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """SIFT matches (pa, pb) of one tile's a features ``fa`` against b's features in the
-    window their epipolar segments span (module docstring)."""
+    window their epipolar segments span (module docstring); the segments over ``heights``
+    (ellipsoidal m: the tile's own range, :class:`TileHeights`), by default the mapping's."""
     empty = (np.zeros((0, 2)), np.zeros((0, 2)))
-    s0, s1 = mapping.segment(fa.pos[:, 0], fa.pos[:, 1])
+    if heights is None:
+        s0, s1 = mapping.segment(fa.pos[:, 0], fa.pos[:, 1])
+    else:
+        s0, s1 = (mapping.at_height(fa.pos[:, 0], fa.pos[:, 1], h) for h in heights)
     good = np.all(np.isfinite(s0), 1) & np.all(np.isfinite(s1), 1)
     fa, s0, s1 = fa.take(np.flatnonzero(good)), s0[good], s1[good]
     if not len(fa):
@@ -295,12 +303,66 @@ def strongest_per_cell(f: Features, lines: int, columns: int, grid: int, n: int)
     return f.take(np.sort(keep))
 
 
+class TileHeights:
+    """The height range (ellipsoidal m) each tile of a pair's image a is searched over: a
+    shorter range is a shorter band in b, so fewer b features to detect and to compare.
+
+    - With a DEM (``terrain``, :class:`solver.matching.heights.DemHeights`): the DEM's heights
+      under the tile (+- its margin).
+    - Without, coarse to fine over the tiles in raster order: the heights of the matches found
+      in the tile's matched neighbours (left, above left, above, above right), widened each side
+      by :data:`NARROW_MARGIN_PX` of b's band and a quarter of their spread. A tile with no
+      matched neighbour is searched over the whole range, and so is one whose narrowed band
+      found fewer than :data:`NARROW_RETRY_MATCHES` matches (searched again: :meth:`retry`).
+
+    The neighbours narrow only a layout of sampled tiles (cells of at least :data:`MIN_TILE_PX`)
+    whose band over the whole range is longer than :data:`NARROW_MIN_BAND_PX` (smaller images
+    are detected whole anyway); elsewhere :meth:`of` gives None (the whole range)."""
+
+    def __init__(self, a: MatchImage, mapping: PairMapping, s: MatchSettings, terrain=None):
+        self.a, self.terrain, self.grid = a, terrain, s.grid
+        self.full = (float(mapping.heights[0]), float(mapping.heights[-1]))
+        length = np.hypot(mapping.bl[-1] - mapping.bl[0], mapping.bc[-1] - mapping.bc[0])
+        band = float(np.nanmedian(length)) if np.isfinite(length).any() else 0.0
+        sampled = min(a.lines, a.columns) / s.grid >= MIN_TILE_PX
+        self.on = sampled and band > NARROW_MIN_BAND_PX
+        self.margin_m = NARROW_MARGIN_PX * (self.full[1] - self.full[0]) / max(band, 1e-9)
+        self.found: dict[tuple[int, int], tuple[float, float]] = {}
+
+    def of(self, n: int, tile: "Tile") -> tuple[float, float] | None:
+        """The range of tile ``n`` of the layout (None: the whole range)."""
+        if self.terrain is not None:
+            got = self.terrain(self.a, tile.lo, tile.hi)
+            return None if got is None else (max(got[0], self.full[0]), min(got[1], self.full[1]))
+        if not self.on:
+            return None
+        i, j = divmod(n, self.grid)
+        near = [self.found[k] for k in ((i, j - 1), (i - 1, j - 1), (i - 1, j), (i - 1, j + 1)) if k in self.found]
+        if not near:
+            return None
+        lo, hi = min(r[0] for r in near), max(r[1] for r in near)
+        m = max(self.margin_m, 0.25 * (hi - lo))
+        return max(lo - m, self.full[0]), min(hi + m, self.full[1])
+
+    def retry(self, matched: int) -> bool:
+        """Whether a tile narrowed by its neighbours is searched again over the whole range."""
+        return self.terrain is None and matched < NARROW_RETRY_MATCHES
+
+    def found_at(self, n: int, heights: np.ndarray) -> None:
+        """Record the heights of tile ``n``'s matches (m)."""
+        h = heights[np.isfinite(heights)]
+        if self.on and len(h) >= NARROW_RETRY_MATCHES:
+            self.found[divmod(n, self.grid)] = (float(h.min()), float(h.max()))
+
+
 def match_pair(a: MatchImage, b: MatchImage, ia: int, ib: int, mapping: PairMapping, s: MatchSettings,
-               fa_cache: FeatureCache, fb_cache: FeatureCache, progress=None) -> PairMatches:
+               fa_cache: FeatureCache, fb_cache: FeatureCache, progress=None, terrain=None) -> PairMatches:
     """Every tile of a that falls inside b at some height of the range, matched (module
-    docstring); the features come from the images' caches (detected once per image)."""
+    docstring) over the tile's height range (:class:`TileHeights`; ``terrain``: a DEM's); the
+    features come from the images' caches (detected once per image)."""
     counts: dict[str, int] = {"tiles": 0}
     layout, per_cell = tiles(a, s)
+    ranges = TileHeights(a, mapping, s, terrain)
     corners = np.array([[0.0, 0.0], [0.0, 1.0], [1.0, 0.0], [1.0, 1.0], [0.5, 0.5]])
     pas, pbs = [], []
     for n, t in enumerate(layout):
@@ -311,7 +373,19 @@ def match_pair(a: MatchImage, b: MatchImage, ia: int, ib: int, mapping: PairMapp
             fa = fa.take(np.flatnonzero(mapping.reaches_b(fa.pos[:, 0], fa.pos[:, 1])))
             fa = strongest_per_cell(fa, a.lines, a.columns, s.grid, per_cell)
             if len(fa):
-                pa, pb = match_tile(a, b, fa, fb_cache, mapping, s, counts)
+                heights = ranges.of(n, t)
+                tried: dict[str, int] = {}
+                pa, pb = match_tile(a, b, fa, fb_cache, mapping, s, tried, heights)
+                if heights is not None and ranges.retry(len(pa)):
+                    counts["tiles_widened"] = counts.get("tiles_widened", 0) + 1
+                    tried = {}
+                    pa, pb = match_tile(a, b, fa, fb_cache, mapping, s, tried)
+                elif heights is not None:
+                    counts["tiles_narrowed"] = counts.get("tiles_narrowed", 0) + 1
+                for key, v in tried.items():
+                    counts[key] = counts.get(key, 0) + v
+                if len(pa):
+                    ranges.found_at(n, mapping.height_of(pa, pb))
                 pas.append(pa)
                 pbs.append(pb)
         if progress is not None:

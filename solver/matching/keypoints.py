@@ -22,7 +22,7 @@ import numpy as np
 
 from solver.matching.orientation import MatchImage
 
-BLOCK_PX = 64  # side of a detection block (full-resolution pixels, a multiple of the decimation)
+BLOCK_PX = 32  # side of a detection block (full-resolution pixels, a multiple of the decimation)
 MARGIN_PX = 32  # context read around the blocks being detected (full-resolution pixels)
 
 

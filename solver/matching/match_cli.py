@@ -198,13 +198,14 @@ def cmd_match(args: argparse.Namespace) -> int:
     try:
         settings = settings_from_args(args)
         images, heights = load_images(args)
+        terrain = None
         if args.dem is not None:
-            from solver.matching.heights import dem_height_range
+            from solver.matching.heights import dem_heights
 
             if args.heights:
                 raise ValueError("give --heights or --dem, not both")
-            heights = dem_height_range(images, heights, args.dem, args.dem_vertical)
-        result = match_images(images, heights, settings, _bar(not args.quiet))
+            heights, terrain = dem_heights(images, heights, args.dem, args.dem_vertical)
+        result = match_images(images, heights, settings, _bar(not args.quiet), terrain=terrain)
     except MatchError as exc:
         return _fail(str(exc) + _write_summary(args.summary, exc.summary))
     except (RasterError, OrientationError, ModelMismatch, ValueError) as exc:

@@ -221,6 +221,34 @@ class PairMapping:
         bl, bc = self.at_heights(line, column)
         return np.column_stack([bl[0], bc[0]]), np.column_stack([bl[-1], bc[-1]])
 
+    def at_height(self, line: np.ndarray, column: np.ndarray, height: np.ndarray | float) -> np.ndarray:
+        """(n, 2) b's (line, column) of a's points at ellipsoidal ``height`` (m, one or one per
+        point): linear between the grid heights, extended beyond the lowest and the highest."""
+        bl, bc = self.at_heights(line, column)
+        h = np.broadcast_to(np.asarray(height, float), bl.shape[1:])
+        k = np.clip(np.searchsorted(self.heights, h, side="right") - 1, 0, N_HEIGHTS - 2)
+        f = (h - self.heights[k]) / (self.heights[k + 1] - self.heights[k])
+        n = np.arange(bl.shape[1])
+        return np.column_stack([bl[k, n] + f * (bl[k + 1, n] - bl[k, n]), bc[k, n] + f * (bc[k + 1, n] - bc[k, n])])
+
+    def height_of(self, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
+        """(n,) the ellipsoidal height (m, within the range) at which a's points ``pa`` (n, 2)
+        fall nearest to b's ``pb`` (n, 2): ``pb`` projected on the epipolar curve (straight
+        between the grid heights)."""
+        bl, bc = self.at_heights(pa[:, 0], pa[:, 1])
+        best = np.full(len(pa), np.inf)
+        out = np.full(len(pa), np.nan)
+        with np.errstate(all="ignore"):
+            for k in range(N_HEIGHTS - 1):
+                p0 = np.column_stack([bl[k], bc[k]])
+                d = np.column_stack([bl[k + 1], bc[k + 1]]) - p0
+                t = np.clip(np.sum((pb - p0) * d, axis=1) / np.maximum(np.sum(d * d, axis=1), 1e-12), 0.0, 1.0)
+                dist = np.hypot(*(pb - p0 - t[:, None] * d).T)
+                nearer = dist < best
+                best = np.where(nearer, dist, best)
+                out = np.where(nearer, self.heights[k] + t * (self.heights[k + 1] - self.heights[k]), out)
+        return out
+
     def jacobian(self, line: float, column: float, step: float = 4.0) -> np.ndarray:
         """2 x 2 d(b line, b column) / d(a line, a column) at the middle height."""
         k = N_HEIGHTS // 2

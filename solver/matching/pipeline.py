@@ -84,8 +84,11 @@ def candidate_pairs(images: list[MatchImage], heights: tuple[float, float]) -> l
     return out
 
 
-def match_images(images: list[MatchImage], heights: tuple[float, float], settings: MatchSettings = MatchSettings(), progress: Progress | None = None) -> MatchResult:
-    """Tie-point measurements and the summary of ``images`` (module docstring); raises
+def match_images(images: list[MatchImage], heights: tuple[float, float], settings: MatchSettings = MatchSettings(), progress: Progress | None = None,
+                 terrain: Any = None) -> MatchResult:
+    """Tie-point measurements and the summary of ``images`` (module docstring), over the
+    terrain heights ``heights`` (ellipsoidal m) and each tile's from ``terrain`` (a DEM's:
+    :class:`solver.matching.heights.DemHeights`) when given; raises
     :class:`MatchError` when no pair overlaps. One thread for OpenCV and for BLAS: the same
     result whatever the machine (the server runs several jobs), and the many small products of
     descriptors are slower when BLAS threads have to meet for each (10 times on a loaded
@@ -95,10 +98,10 @@ def match_images(images: list[MatchImage], heights: tuple[float, float], setting
 
     cv2.setNumThreads(1)
     with threadpool_limits(limits=1, user_api="blas"):
-        return _match_images(images, heights, settings, progress)
+        return _match_images(images, heights, settings, progress, terrain)
 
 
-def _match_images(images: list[MatchImage], heights: tuple[float, float], settings: MatchSettings, progress: Progress | None) -> MatchResult:
+def _match_images(images: list[MatchImage], heights: tuple[float, float], settings: MatchSettings, progress: Progress | None, terrain: Any) -> MatchResult:
     say = progress or (lambda f, m: None)
     if len(images) < 2:
         raise MatchError("matching needs at least two images")
@@ -143,7 +146,7 @@ def _match_images(images: list[MatchImage], heights: tuple[float, float], settin
             caches.setdefault(k, FeatureCache(images[k], settings.decimation))
             if last_pair[k] == n:  # its last pair: keep the blocks of the last four rows of tiles (one window each)
                 caches[k].keep_recent(4 * settings.grid)
-        matches.append(match_pair(images[i], images[j], i, j, mapping(i, j), settings, caches[i], caches[j], tile_progress))
+        matches.append(match_pair(images[i], images[j], i, j, mapping(i, j), settings, caches[i], caches[j], tile_progress, terrain))
         for k in (i, j):
             if last_pair[k] == n:  # the image's features are not needed any more
                 detected[k] = caches.pop(k).detected_fraction()

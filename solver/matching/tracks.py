@@ -60,12 +60,34 @@ def components(n: int, edges: np.ndarray) -> np.ndarray:
         label = new
 
 
+def close_pairs(pos: np.ndarray, radius: float) -> np.ndarray:
+    """(m, 2) the index pairs (i < j) of points ``pos`` (n, 2) at most ``radius`` apart: points
+    binned in cells of ``radius``, each cell compared with itself and four of its neighbours
+    (the other four see it from their side)."""
+    cell = np.floor(pos / radius).astype(np.int64)
+    cell -= cell.min(axis=0)
+    width = int(cell[:, 1].max()) + 3
+    key = cell[:, 0] * width + cell[:, 1] + 1
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    out = []
+    for dl, dc in ((0, 0), (0, 1), (1, -1), (1, 0), (1, 1)):
+        target = key + dl * width + dc
+        lo = np.searchsorted(sorted_key, target, side="left")
+        hi = np.searchsorted(sorted_key, target, side="right")
+        count = hi - lo
+        i = np.repeat(np.arange(len(pos)), count)
+        j = order[np.repeat(lo - np.cumsum(count) + count, count) + np.arange(int(count.sum()))]
+        keep = np.sum((pos[i] - pos[j]) ** 2, axis=1) <= radius * radius
+        keep &= (i < j) if (dl, dc) == (0, 0) else np.ones(len(i), dtype=bool)
+        out.append(np.column_stack([np.minimum(i, j), np.maximum(i, j)])[keep])
+    return np.vstack(out)
+
+
 def link(pairs, n_images: int, scale: float = 1.0) -> tuple[list[Track], int]:
     """Tracks from the pairwise matches (``PairMatches`` a, b, pa, pb), sorted by
     :meth:`Track.key`, and the number of inconsistent components dropped; ``scale`` multiplies
     the link radius and the largest spread (the decimation features were detected at)."""
-    from scipy.spatial import cKDTree
-
     images, positions, edges = [], [], []
     n = 0
     for pm in pairs:
@@ -87,7 +109,7 @@ def link(pairs, n_images: int, scale: float = 1.0) -> tuple[list[Track], int]:
     for i in range(n_images):
         sel = np.flatnonzero(img == i)
         if len(sel) > 1:
-            pairs_i = cKDTree(pos[sel]).query_pairs(LINK_RADIUS_PX * scale, output_type="ndarray")
+            pairs_i = close_pairs(pos[sel], LINK_RADIUS_PX * scale)
             if len(pairs_i):
                 near.append(sel[pairs_i])
     label = components(n, np.vstack(near))
@@ -99,9 +121,10 @@ def link(pairs, n_images: int, scale: float = 1.0) -> tuple[list[Track], int]:
     sizes = np.diff(np.r_[starts, n])
     mean = np.add.reduceat(pos[order], starts, axis=0) / sizes[:, None]
     spread = np.zeros(len(starts))
-    for g in np.flatnonzero(sizes > 1):  # few: one feature reached by several pairs
-        p = pos[order[starts[g]:starts[g] + sizes[g]]]
-        spread[g] = np.max(np.linalg.norm(p - np.median(p, axis=0), axis=1))
+    for size in np.unique(sizes[sizes > 1]):  # the groups of each size at once
+        g = np.flatnonzero(sizes == size)
+        p = pos[order[starts[g][:, None] + np.arange(size)]]  # (groups, size, 2)
+        spread[g] = np.max(np.linalg.norm(p - np.median(p, axis=1, keepdims=True), axis=2), axis=1)
     g_label = label[order[starts]]
     g_img = img[order[starts]]
     bad = np.unique(g_label[spread > MAX_SPREAD_PX * scale])

@@ -484,25 +484,27 @@ def test_features_are_detected_once_and_agree_with_a_whole_image_detection(tmp_p
 def test_an_image_in_its_last_pair_keeps_only_recent_blocks(tmp_path):
     """After keep_recent(1), a window far away lets the first window's blocks go (memory); asked
     for again, they are detected again, with the same features."""
-    from solver.matching.keypoints import FeatureCache
+    from solver.matching.keypoints import BLOCK_PX, FeatureCache
 
     raster = _textured_raster(tmp_path)
+    n = 128 // BLOCK_PX  # blocks per side of the first window
     try:
         cache = FeatureCache(_image("t", raster), 2)
         cache.keep_recent(1)
         lo, hi = np.array([0, 0]), np.array([128, 128])
         first = cache.window(lo, hi)
         cache.window(np.array([512, 512]), np.array([640, 640]))
-        assert not any(i < 2 and j < 2 for i, j in cache.blocks)  # the first window's blocks are gone
+        assert not any(i < n and j < n for i, j in cache.blocks)  # the first window's blocks are gone
         calls = cache.detections
         again = cache.window(lo, hi)
         assert cache.detections == calls + 1
         assert np.array_equal(again.pos, first.pos) and np.array_equal(again.desc, first.desc)
-        assert cache.detected_fraction() == pytest.approx(8 / 100)  # 4 + 4 of the 10 x 10 blocks, counted once
+        assert cache.detected_fraction() == pytest.approx(8 / 100)  # the two 128 px windows: 2 x 4 % of the 640 px image, counted once
         # an image read only through its a tiles from now on keeps only those tiles' blocks
-        cache.retain([(np.array([0, 0]), np.array([64, 64]))])
+        cache.retain([(np.array([0, 0]), np.array([BLOCK_PX, BLOCK_PX]))])
         assert sorted(cache.blocks) == [(0, 0)]
-        assert np.array_equal(cache.window(np.array([0, 0]), np.array([64, 64])).pos, first.pos[np.all(first.pos < 64, axis=1)])
+        corner = cache.window(np.array([0, 0]), np.array([BLOCK_PX, BLOCK_PX])).pos
+        assert np.array_equal(corner, first.pos[np.all(first.pos < BLOCK_PX, axis=1)])
     finally:
         raster.close()
 
@@ -547,3 +549,107 @@ def test_union_find_over_arrays_finds_the_connected_components():
         pairs = set(zip(label.tolist(), expected.tolist(), strict=True))
         assert len(pairs) == len(set(label.tolist())) == len(set(expected.tolist()))
         assert all(label[i] <= i for i in range(n))  # each label is a node of its component (the smallest)
+
+
+# --- each tile's height range -------------------------------------------------------------
+
+PARALLAX_MODEL = AffineModel(np.eye(2), np.array([-3.0, 7.0]), np.array([0.5, 0.2]))  # b = a + t + h (0.5, 0.2)
+
+
+def test_positions_at_a_height_and_the_height_of_a_match():
+    """``at_height`` agrees with the model at heights inside and beyond the grid's range, and
+    ``height_of`` gives back the height a b position was made at (from the model itself)."""
+    raster = ArrayRaster(np.zeros((400, 400)))
+    pm = PairMapping(_image("a", raster, PARALLAX_MODEL), _image("b", raster, PARALLAX_MODEL), (0.0, 1000.0))
+    rng = np.random.default_rng(3)
+    pa = rng.uniform(0, 399, (50, 2))
+    h = rng.uniform(-200.0, 1200.0, 50)
+    truth = np.column_stack(PARALLAX_MODEL.ground_to_image(np.column_stack([pa, h]))[:2])
+    assert np.allclose(pm.at_height(pa[:, 0], pa[:, 1], h), truth, atol=1e-6)
+    inside = (h >= 0) & (h <= 1000)
+    across = np.array([-0.2, 0.5]) / np.hypot(0.2, 0.5) * 0.3  # 0.3 px off the epipolar line
+    assert np.allclose(pm.height_of(pa[inside], truth[inside] + across), h[inside], atol=1e-6)
+    assert np.allclose(pm.height_of(pa[~inside], truth[~inside]), np.clip(h[~inside], 0.0, 1000.0), atol=1e-6)
+
+
+def _tile_heights(size: int = 4096, heights=(0.0, 2000.0), terrain=None):
+    from solver.matching.features import TileHeights
+
+    raster = ArrayRaster(np.zeros((size, size)))
+    pm = PairMapping(_image("a", raster, PARALLAX_MODEL), _image("b", raster, PARALLAX_MODEL), heights)
+    return TileHeights(pm.a, pm, SETTINGS, terrain)
+
+
+def test_a_tile_is_searched_over_its_neighbours_heights_with_a_margin():
+    """Over 0-2,000 m the band is 1,077 px long; a tile next to a matched tile whose matches lie
+    at 500-520 m is searched over that range widened by 32 px of band (59.4 m) each side; a tile
+    with no matched neighbour, the whole range; a tile left, above or above right of nothing
+    matched too."""
+    from solver.matching.features import NARROW_MARGIN_PX, Tile
+
+    th = _tile_heights()
+    t = Tile(np.zeros(2), np.full(2, 256.0), ((0, 0),))
+    assert th.of(0, t) is None
+    th.found_at(0, np.linspace(500.0, 520.0, 20))
+    m = NARROW_MARGIN_PX * 2000.0 / (2000.0 * np.hypot(0.5, 0.2))
+    for n in (1, 16, 17):  # right of it, below it, below right
+        lo, hi = th.of(n, t)
+        assert lo == pytest.approx(500.0 - m) and hi == pytest.approx(520.0 + m)
+    assert th.of(2, t) is None and th.of(18, t) is None and th.of(32, t) is None
+    th.found_at(2, np.linspace(900.0, 1000.0, 20))  # a steeper neighbour: a quarter of the spread
+    lo, hi = th.of(17, t)
+    assert lo == pytest.approx(500.0 - 125.0) and hi == pytest.approx(1000.0 + 125.0)
+    # too few matches to tell a range
+    th.found_at(40, np.linspace(0.0, 10.0, 9))
+    assert th.of(41, t) is None
+
+
+def test_a_narrowed_tile_with_few_matches_is_searched_again():
+    from solver.matching.features import Tile
+
+    th = _tile_heights()
+    assert th.retry(9) and not th.retry(10)
+    dem = _tile_heights(terrain=lambda image, lo, hi: (100.0, 200.0))
+    assert dem.of(5, Tile(np.zeros(2), np.full(2, 256.0), ((0, 5),))) == (100.0, 200.0) and not dem.retry(0)  # the DEM is the evidence: no second search
+
+
+def test_tiles_keep_the_whole_range_where_narrowing_cannot_pay():
+    """A short band (0-200 m: 108 px) or an image of small cells (detected whole anyway)."""
+    from solver.matching.features import Tile
+
+    t = Tile(np.zeros(2), np.full(2, 256.0), ((0, 0),))
+    for th in (_tile_heights(heights=(0.0, 200.0)), _tile_heights(size=1024)):
+        th.found_at(0, np.linspace(50.0, 60.0, 20))
+        assert th.of(1, t) is None
+
+
+def test_dem_heights_under_a_tile():
+    """A DEM whose height is 200 m + 1 m per column of the image (the image's longitude is its
+    column x 1e-5 degrees): the tile of columns 100-199 gets 300-399 m +- 50 m."""
+    from types import SimpleNamespace
+
+    from solver.geometry.geodesy import geodetic_to_ecef
+    from solver.matching.heights import DEM_MARGIN_M, DemHeights
+
+    class LonLatModel:
+        def image_to_ground(self, line, column, height_m=None):
+            line, column = np.atleast_1d(line), np.atleast_1d(column)
+            return geodetic_to_ecef(np.column_stack([10.0 + column * 1e-5, 45.0 - line * 1e-5, np.full(len(line), float(height_m))]))
+
+    dem = SimpleNamespace(cell_m=0.5, height=lambda lon, lat: 200.0 + (np.asarray(lon) - 10.0) * 1e5)
+    got = DemHeights(dem, (0.0, 1000.0))(_image("a", None, LonLatModel()), np.array([0.0, 100.0]), np.array([50.0, 200.0]))
+    assert got[0] == pytest.approx(300.0 - DEM_MARGIN_M, abs=1.0) and got[1] == pytest.approx(399.0 + DEM_MARGIN_M, abs=1.0)
+
+
+def test_close_pairs_are_every_pair_within_the_radius():
+    from solver.matching.tracks import close_pairs
+
+    rng = np.random.default_rng(5)
+    pos = rng.uniform(0, 60, (400, 2))
+    pos[::10] = pos[1::10] + 0.5  # near duplicates
+    pos[5] = pos[6] + [2.999, 0.0]  # just inside the radius
+    pos[7] = pos[8] + [0.0, 3.001]  # just outside
+    d = np.hypot(*(pos[:, None, :] - pos[None, :, :]).T)
+    want = {(i, j) for i, j in zip(*np.nonzero(d <= 3.0), strict=True) if i < j}
+    got = close_pairs(pos, 3.0)
+    assert len(got) == len(want) and {tuple(p) for p in got.tolist()} == want
