@@ -9,8 +9,6 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
-from pydantic import ValidationError
-
 from solver.errors import Cancelled, JobError
 from solver.report.json_text import report_json
 
@@ -82,6 +80,8 @@ class ProgressBar:
 
 
 def _load(path: Path) -> Any:
+    from pydantic import ValidationError
+
     from solver.schema.job import load_job
 
     try:

@@ -24,19 +24,12 @@ import json
 import shlex
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from pydantic import ValidationError
-
-from solver.importers.compose import (
-    ComposeRequest,
-    ImageSources,
-    SourceFile,
-    compose_job,
-    format_summary,
-    summarize,
-)
 from solver.importers.errors import SourceError, fail
+
+if TYPE_CHECKING:  # imported where a job is composed: not for every command line (pydantic, the readers)
+    from solver.importers.compose import ComposeRequest, ImageSources, SourceFile
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -128,6 +121,8 @@ def _pairs(values: list[str], flag: str) -> list[tuple[str, str]]:
 
 
 def _file(path: Path | str, columns: dict[str, dict[str, str]]) -> SourceFile:
+    from solver.importers.compose import SourceFile
+
     path = Path(path)
     try:
         data = path.read_bytes()
@@ -148,6 +143,8 @@ def _column_maps(values: list[str]) -> dict[str, dict[str, str]]:
 
 def request_from_args(args: argparse.Namespace) -> ComposeRequest:
     """The composition the flags describe (files read here)."""
+    from solver.importers.compose import ComposeRequest, ImageSources, SourceFile
+
     columns = _column_maps(args.columns)
     images: dict[str, ImageSources] = {}
 
@@ -221,7 +218,10 @@ def request_from_args(args: argparse.Namespace) -> ComposeRequest:
 
 
 def cmd_job(args: argparse.Namespace) -> int:
+    from pydantic import ValidationError
+
     from solver.api import validate
+    from solver.importers.compose import compose_job, format_summary, summarize
     from solver.schema.job import load_job
 
     try:

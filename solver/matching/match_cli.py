@@ -184,11 +184,15 @@ def load_images(args: argparse.Namespace):
     return images, heights
 
 
-def cmd_match(args: argparse.Namespace) -> int:
-    from pydantic import ValidationError
+def _validation_errors(exc: Exception) -> list[dict] | None:
+    """pydantic's errors of ``exc`` when it is a ValidationError (an invalid job document), else
+    None; pydantic is only looked for where a job was read (imported by then)."""
+    pydantic = sys.modules.get("pydantic")
+    return exc.errors() if pydantic is not None and isinstance(exc, pydantic.ValidationError) else None
 
+
+def cmd_match(args: argparse.Namespace) -> int:
     from solver.errors import JobError
-    from solver.gis.model import ModelMismatch
     from solver.matching.orientation import OrientationError
     from solver.matching.pipeline import MatchError, failure_advice, match_images, measurements_csv
     from solver.matching.raster import RasterError
@@ -208,10 +212,11 @@ def cmd_match(args: argparse.Namespace) -> int:
         result = match_images(images, heights, settings, _bar(not args.quiet), terrain=terrain)
     except MatchError as exc:
         return _fail(str(exc) + _write_summary(args.summary, exc.summary))
-    except (RasterError, OrientationError, ModelMismatch, ValueError) as exc:
+    except (RasterError, OrientationError, ValueError) as exc:  # the model's ModelMismatch and pydantic's ValidationError are ValueErrors
+        errors = _validation_errors(exc)
+        if errors is not None:
+            return _fail(f"{args.job}: invalid job document: " + "; ".join(f"{'/'.join(map(str, e['loc']))}: {e['msg']}" for e in errors[:5]))
         return _fail(str(exc))
-    except ValidationError as exc:
-        return _fail(f"{args.job}: invalid job document: " + "; ".join(f"{'/'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors()[:5]))
     except JobError as exc:
         return _fail(f"{args.job}: " + "; ".join(f"[{p.code}] {p.message}" for p in exc.problems[:5]))
     finally:
