@@ -8,7 +8,8 @@
 4. sub-pixel positions by correlation against the track's reference image and the epipolar
    check of every pair, with each pair's precision (:mod:`solver.matching.refine`);
 4b. tracks of three or more images checked in 3-D against the orientation with a per-image
-   bias (:mod:`solver.matching.verify`): blunders along the epipolar lines removed;
+   bias (:mod:`solver.matching.verify`): blunders along the epipolar lines removed, and each
+   image's stated sigmas in such tracks scaled to what their 3-D residuals show;
 5. the measurements (``image, point, line, column, sigma_px``), sorted by point then image order.
 
 Deterministic: no randomness but OpenCV's RANSAC with a fixed seed; images in the order given,
@@ -26,7 +27,7 @@ import numpy as np
 from solver.matching.features import MatchSettings, PairMatches, detection_scale, match_pair, tiles
 from solver.matching.keypoints import FeatureCache
 from solver.matching.orientation import MatchImage, PairMapping
-from solver.matching.refine import REFERENCE_SIGMA_PX, epipolar_check, other_sigma, refine_track
+from solver.matching.refine import REFERENCE_SIGMA_PX, SIGMA_FLOOR_PX, epipolar_check, other_sigma, refine_track
 from solver.matching.tracks import cell_of, link, thin
 
 Progress = Callable[[float, str], None]
@@ -165,13 +166,15 @@ def _match_images(images: list[MatchImage], heights: tuple[float, float], settin
             say(0.8 + 0.15 * n / max(len(kept), 1), "correlation")
     say(0.95, "epipolar check")
     sigmas, removed = _check(refined, images, mapping, settings)
-    removed_3d, bias = _verify_3d(refined, images, heights, sigmas)
-    measurements = _measurements(refined, images, sigmas)
-    summary = _summary(images, heights, settings, pairs, overlaps, matches, tracks, inconsistent, kept, refined, sigmas, removed, measurements)
-    for row, n_removed, b, f in zip(summary["images"], removed_3d, bias, detected, strict=True):
+    removed_3d, bias, scale = _verify_3d(refined, images, heights, sigmas)
+    stated = _Stated(sigmas, scale)
+    measurements = _measurements(refined, images, stated)
+    summary = _summary(images, heights, settings, pairs, overlaps, matches, tracks, inconsistent, kept, refined, sigmas, removed, measurements, stated)
+    for row, n_removed, b, f, k in zip(summary["images"], removed_3d, bias, detected, scale, strict=True):
         row["detected_fraction"] = round(f, 3)
         row["removed_3d"] = n_removed
         row["bias_px"] = [round(float(b[0]), 3), round(float(b[1]), 3)]
+        row["sigma_scale_3d"] = round(float(k), 3)
     say(1.0, "done")
     return MatchResult(measurements, summary)
 
@@ -201,11 +204,31 @@ def _check(refined: list[dict], images, mapping, s: MatchSettings) -> tuple[dict
     return sigmas, removed
 
 
-def _verify_3d(refined: list[dict], images: list[MatchImage], heights: tuple[float, float], sigmas: dict[tuple[int, int], float]) -> tuple[list[int], np.ndarray]:
+class _Stated:
+    """The sigma (px) written for each measurement: the reference's convention, the pair's
+    (:func:`other_sigma` of its epipolar scatter) for the others, times the image's factor from
+    the 3-D residuals (:func:`solver.matching.verify.sigma_scales`) in a tie point of three or
+    more images (where the 3-D check measured it), at least the pair's floor."""
+
+    def __init__(self, sigmas: dict[tuple[int, int], float], scale: np.ndarray):
+        self.sigmas, self.scale = sigmas, scale
+
+    def __call__(self, r: dict, m: int) -> float:
+        ref = min(r)
+        if m == ref:
+            return REFERENCE_SIGMA_PX
+        sigma = other_sigma(self.sigmas[(ref, m)])
+        if len(r) >= 3:
+            sigma = max(sigma * float(self.scale[m]), other_sigma(SIGMA_FLOOR_PX))
+        return sigma
+
+
+def _verify_3d(refined: list[dict], images: list[MatchImage], heights: tuple[float, float], sigmas: dict[tuple[int, int], float]) -> tuple[list[int], np.ndarray, np.ndarray]:
     """Tracks of three or more images checked in 3-D (:mod:`solver.matching.verify`; in place:
     removed members deleted, tracks left with one member dropped): the measurements removed per
-    image and each image's bias against the tracks (pixels)."""
-    from solver.matching.verify import verify
+    image, each image's bias against the tracks (pixels) and the factor of its stated sigmas the
+    kept measurements' 3-D residuals ask for."""
+    from solver.matching.verify import sigma_scales, verify
 
     tracks = [{m: np.asarray(v[0], float) for m, v in r.items()} for r in refined]
     stated = [{m: REFERENCE_SIGMA_PX if m == min(r) else other_sigma(sigmas[(min(r), m)]) for m in r} for r in refined]
@@ -217,18 +240,20 @@ def _verify_3d(refined: list[dict], images: list[MatchImage], heights: tuple[flo
             del r[m]
             counts[m] += 1
     refined[:] = [r for r in refined if len(r) >= 2]
-    return counts, np.array([bias[i][0] for i in range(len(images))])  # the shift (line, column) at the image's centre
+    kept = [{m: np.asarray(v[0], float) for m, v in r.items()} for r in refined]
+    kept_stated = [{m: REFERENCE_SIGMA_PX if m == min(r) else other_sigma(sigmas[(min(r), m)]) for m in r} for r in refined]
+    scale = sigma_scales(kept, kept_stated, [im.model for im in images], heights, bias, sizes)
+    return counts, np.array([bias[i][0] for i in range(len(images))]), scale  # the shift (line, column) at the image's centre
 
 
-def _measurements(refined: list[dict], images: list[MatchImage], sigmas: dict[tuple[int, int], float]) -> list[dict[str, Any]]:
+def _measurements(refined: list[dict], images: list[MatchImage], stated: _Stated) -> list[dict[str, Any]]:
     width = max(5, len(str(len(refined))))
     out = []
     for n, r in enumerate(refined):
-        ref = min(r)
         point = f"M{n + 1:0{width}d}"
         for m in sorted(r):
             pos, _ncc = r[m]
-            sigma = REFERENCE_SIGMA_PX if m == ref else other_sigma(sigmas[(ref, m)])
+            sigma = stated(r, m)
             out.append({"image": images[m].id, "point": point, "line": round(float(pos[0]), 3), "column": round(float(pos[1]), 3), "sigma_px": round(sigma, 3)})
     return out
 
@@ -241,7 +266,7 @@ def measurements_csv(measurements: list[dict[str, Any]]) -> str:
     return "\n".join(rows) + "\n"
 
 
-def _summary(images, heights, settings, pairs, overlaps, matches, tracks, inconsistent, kept, refined, sigmas, removed, measurements) -> dict[str, Any]:
+def _summary(images, heights, settings, pairs, overlaps, matches, tracks, inconsistent, kept, refined, sigmas, removed, measurements, stated) -> dict[str, Any]:
     pair_rows = []
     for (i, j), pm in zip(pairs, matches, strict=True):
         both = sum(1 for r in refined if i in r and j in r)
@@ -256,7 +281,7 @@ def _summary(images, heights, settings, pairs, overlaps, matches, tracks, incons
     image_rows = []
     for k, im in enumerate(images):
         cells = {cell_of(r[k][0], im.lines, im.columns, settings.grid) for r in refined if k in r}
-        own = [other_sigma(sigmas[(min(r), k)]) for r in refined if k in r and k != min(r)]
+        own = [stated(r, k) for r in refined if k in r and k != min(r)]
         image_rows.append({"id": im.id, "lines": im.lines, "columns": im.columns, "tie_points": sum(1 for r in refined if k in r),
                            "cells_covered": round(len(cells) / settings.grid**2, 3),
                            "sigma_px": round(float(np.median(own)), 3) if own else None,
@@ -265,7 +290,7 @@ def _summary(images, heights, settings, pairs, overlaps, matches, tracks, incons
     for r in refined:
         lengths[str(len(r))] = lengths.get(str(len(r)), 0) + 1
     ncc = [v[1] for r in refined for m, v in r.items() if m != min(r)]
-    sig = [other_sigma(sigmas[(min(r), m)]) for r in refined for m in r if m != min(r)]  # the reference's is a convention
+    sig = [stated(r, m) for r in refined for m in r if m != min(r)]  # the reference's is a convention
     return {
         "images": image_rows,
         "height_range_m": [float(heights[0]), float(heights[1])],

@@ -21,6 +21,16 @@ measurements are removed (one blunder along an epipolar line cannot be told from
 any of the three rays could be moved to meet the two others; the reference pixel defines the
 tie point); of a longer track the worst measurement, and the test is repeated. A two-image
 track has no redundancy along the epipolar line (the epipolar check judged it across).
+
+Then the stated sigmas are calibrated on what remains (:func:`sigma_scales`): per image, the
+factor of its stated sigmas that makes the kept measurements' residuals (against the point the
+track's other images give) as large as their stated sigmas predict. A residual's variance is
+the measurement's own plus the other measurements' as they move the point (their effect on the
+residual, 2 x 2 per measurement, by moving each by :data:`DELTA_PX`); the reference measurement
+defines the tie point and has none. The squared factors are the least-squares solution of the
+squared residuals (weighted by their predicted variance's inverse square, residuals beyond
+:data:`CALIBRATION_CLIP` predicted sigmas left out, iterated); an image with fewer than
+:data:`CALIBRATION_MIN` non-reference measurements in such tracks keeps its stated sigmas.
 """
 
 from __future__ import annotations
@@ -30,6 +40,10 @@ import numpy as np
 OUTLIER_SIGMAS = 5.0  # a residual beyond this many stated sigmas is a blunder
 OUTLIER_FLOOR_PX = 0.5  # ... and beyond half a pixel (the stated sigmas are 0.05-0.2 px)
 BIAS_ITERATIONS = 6
+DELTA_PX = 0.05  # the move of a measurement that gives its effect on the other residuals
+CALIBRATION_MIN = 20  # non-reference measurements in tracks of three or more images an image needs for its sigma's factor
+CALIBRATION_CLIP = 3.5  # residuals beyond this many predicted sigmas do not calibrate
+CALIBRATION_ITERATIONS = 10
 
 
 def _rays(model, pos: np.ndarray, heights: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
@@ -193,3 +207,63 @@ def verify(tracks: list[dict[int, np.ndarray]], sigmas: list[dict[int, float]], 
             r = {}
         final[k] = r
     return removed, bias, final
+
+
+def sigma_scales(tracks: list[dict[int, np.ndarray]], sigmas: list[dict[int, float]], models: list, heights: tuple[float, float],
+                 bias: np.ndarray, sizes: list[tuple[int, int]]) -> np.ndarray:
+    """(n_images,) the factor of each image's stated ``sigmas`` that its tracks' 3-D residuals
+    ask for (module docstring): tracks ``{image: (line, column)}`` of three or more images (the
+    measurements kept), the reference the lowest image, the orientation with its ``bias``
+    (:func:`image_bias`). 1 for an image without enough measurements."""
+    n = len(models)
+    multi = [(t, s) for t, s in zip(tracks, sigmas, strict=True) if len(t) >= 3]
+    if not multi:
+        return np.ones(n)
+    ts = [t for t, _s in multi]
+    r0 = residuals(ts, models, heights, bias, sizes, leave_out=True)
+    # effect[q][(i, j)]: d residual of i / d measurement of j (2 x 2), j a non-reference member
+    effect: list[dict[tuple[int, int], np.ndarray]] = [{} for _ in ts]
+    for j in range(n):
+        sel = [q for q, t in enumerate(ts) if j in t and j != min(t)]
+        for axis in range(2):
+            step = np.zeros(2)
+            step[axis] = DELTA_PX
+            moved = [{**ts[q], j: ts[q][j] + step} for q in sel]
+            for q, r1 in zip(sel, residuals(moved, models, heights, bias, sizes, leave_out=True), strict=True):
+                for i in ts[q]:
+                    if i != j and i in r1 and i in r0[q]:
+                        effect[q].setdefault((i, j), np.zeros((2, 2)))[:, axis] = (r1[i] - r0[q][i]) / DELTA_PX
+    rows, ys = [], []
+    for q, (t, s) in enumerate(multi):
+        ref = min(t)
+        for i in t:
+            r = r0[q].get(i)
+            if r is None or not np.all(np.isfinite(r)):
+                continue
+            for axis in range(2):
+                a = np.zeros(n)
+                if i != ref:
+                    a[i] += s[i] ** 2
+                for j in t:
+                    g = effect[q].get((i, j))
+                    if g is not None:
+                        a[j] += s[j] ** 2 * float(np.sum(g[axis] ** 2))
+                rows.append(a)
+                ys.append(float(r[axis]) ** 2)
+    if not rows:
+        return np.ones(n)
+    a, y = np.array(rows), np.array(ys)
+    own = np.array([sum(1 for t, _s in multi if i in t and i != min(t)) for i in range(n)])
+    free = np.flatnonzero(own >= CALIBRATION_MIN)
+    v = np.ones(n)
+    if not len(free):
+        return v
+    fixed = np.setdiff1d(np.arange(n), free)
+    for it in range(CALIBRATION_ITERATIONS):
+        pred = np.maximum(a @ v, 1e-12)
+        keep = (y <= CALIBRATION_CLIP**2 * pred) if it else np.ones(len(y), dtype=bool)  # the first from every residual
+        w = 1.0 / pred[keep]
+        target = y[keep] - a[keep][:, fixed] @ v[fixed]
+        sol = np.linalg.lstsq(a[keep][:, free] * w[:, None], target * w, rcond=None)[0]
+        v[free] = np.maximum(sol, 1e-6)
+    return np.sqrt(v)
