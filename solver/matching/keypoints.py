@@ -96,6 +96,7 @@ class FeatureCache:
         self.last_use: dict[tuple[int, int], int] = {}  # block -> the request that last needed it
         self.horizon: int | None = None  # keep only the blocks needed within this many requests
         self.since = 0  # ... among those needed after this request
+        self.used_at: dict[int, list[tuple[int, int]]] = {}  # request -> the blocks it needed (while a horizon is set)
 
     def _blocks_of(self, lo: np.ndarray, hi: np.ndarray) -> tuple[range, range]:
         b = self.block
@@ -110,10 +111,15 @@ class FeatureCache:
             self.detections += 1
             bi = np.floor(f.pos[:, 0] / b).astype(int)
             bj = np.floor(f.pos[:, 1] / b).astype(int)
-            for i in range(i0, i1):
-                for j in range(j0, j1):
-                    self.blocks[(i, j)] = f.take(np.flatnonzero((bi == i) & (bj == j)))
-                    self.detected.add((i, j))
+            width = j1 - j0
+            inside = (bi >= i0) & (bi < i1) & (bj >= j0) & (bj < j1)
+            key = np.where(inside, (bi - i0) * width + (bj - j0), -1)
+            order = np.argsort(key, kind="stable")  # each block's features in their detection order
+            bounds = np.searchsorted(key[order], np.arange(-1, (i1 - i0) * width) + 0.5)
+            for n in range((i1 - i0) * width):
+                i, j = i0 + n // width, j0 + n % width
+                self.blocks[(i, j)] = f.take(order[bounds[n]:bounds[n + 1]])
+                self.detected.add((i, j))
 
     def window(self, lo: np.ndarray, hi: np.ndarray) -> Features:
         """The features with ``lo <= position < hi`` (full-resolution line, column), detected
@@ -125,10 +131,12 @@ class FeatureCache:
         self.requests += 1
         for key in ((i, j) for i in rows for j in cols):
             self.last_use[key] = self.requests
-        if self.horizon is not None:
-            old = [k for k, t in self.last_use.items() if self.since < t <= self.requests - self.horizon]
-            for key in old:
-                del self.blocks[key], self.last_use[key]
+        if self.horizon is not None:  # the blocks last needed ``horizon`` requests ago (after ``since``) go
+            self.used_at[self.requests] = [(i, j) for i in rows for j in cols]
+            expired = self.requests - self.horizon
+            for key in self.used_at.pop(expired, []) if expired > self.since else []:
+                if self.last_use.get(key) == expired and key in self.blocks:
+                    del self.blocks[key], self.last_use[key]
         return f.take(np.flatnonzero(inside))
 
     def keep_recent(self, requests: int) -> None:
