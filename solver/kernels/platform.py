@@ -419,7 +419,9 @@ def _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt,
     ang, angdot = vecs[4], vecs[5]
     _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot)
     _rotation_into(ang[0], ang[1], ang[2], rot)
-    mm[:, :] = rot[0]
+    for i in range(3):  # element by element: a slice assignment of an array compiles numba's
+        for j in range(3):  # shape check and its error message (a tenth of a cold compile)
+            mm[i, j] = rot[0, i, j]
     for i in range(3):
         v[i] = p[i] - s[i]
     for i in range(3):
@@ -525,8 +527,10 @@ def _projection_terms(kind, coef, kc, acc, da_dr, mnt) -> None:
     orbit-attitude kinds, the camera mounting Ry(mount) (``mnt``)."""
     if kind == KIND_KEPLER or kind == KIND_ORBIT_ATTITUDE:
         a, g = _kepler_terms(coef, kc)
-        acc[:] = a
-        da_dr[:, :] = g
+        for i in range(3):  # element by element (see _camera_state)
+            acc[i] = a[i]
+            for j in range(3):
+                da_dr[i, j] = g[i, j]
     else:
         acc[:] = 0.0
         da_dr[:, :] = 0.0

@@ -135,7 +135,8 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
                 tau = line * tpl
                 _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
             break
-        prev_ddt[:] = ddt
+        for i in range(3):  # element by element (see platform._camera_state)
+            prev_ddt[i] = ddt[i]
         prev_step = step
     if not ok:
         col = cc + (-f * d[1] / d[2] - yo) / px
@@ -364,9 +365,54 @@ def intersect_all(kinds, coefs, kcs, obs_img, ocs, order, bounds, which):
                     a[i, j] += qij
                     b[i] += qij * s[j]
             n += 1
-        if n >= 2 and abs(np.linalg.det(a)) > 1e-18:
-            out[w] = np.linalg.solve(a, b)
+        if n >= 2:
+            x = np.empty(3)
+            if abs(_solve3(a, b, x)) > 1e-18:
+                for i in range(3):
+                    out[w, i] = x[i]
     return out
+
+
+@njit(**_JIT)
+def _solve3(a, b, x) -> float:
+    """Solve the 3 x 3 system ``a x = b`` into ``x`` by LU with partial pivoting, as LAPACK's
+    dgesv does (rows scaled by the pivot's reciprocal, the same substitutions); returns the
+    determinant of ``a`` (``x`` is not finite when it is 0). ``a`` and ``b`` are left unchanged.
+
+    Written out rather than ``np.linalg.solve`` and ``np.linalg.det``: those compile numba's
+    LAPACK bindings and their checks into the kernel, a third of :func:`intersect_all`'s
+    compilation, for a 3 x 3 system."""
+    lu = a.copy()
+    y = b.copy()
+    det = 1.0
+    for k in range(3):
+        piv = k
+        for i in range(k + 1, 3):
+            if abs(lu[i, k]) > abs(lu[piv, k]):
+                piv = i
+        if piv != k:
+            det = -det
+            for j in range(3):
+                lu[k, j], lu[piv, j] = lu[piv, j], lu[k, j]
+            y[k], y[piv] = y[piv], y[k]
+        det *= lu[k, k]
+        if lu[k, k] == 0.0:
+            continue
+        r = 1.0 / lu[k, k]
+        for i in range(k + 1, 3):
+            lu[i, k] *= r
+            for j in range(k + 1, 3):
+                lu[i, j] -= lu[i, k] * lu[k, j]
+    for k in range(3):  # L y = P b (unit lower)
+        for i in range(k + 1, 3):
+            y[i] -= y[k] * lu[i, k]
+    for k in range(2, -1, -1):  # U x = y
+        y[k] /= lu[k, k]
+        for i in range(k):
+            y[i] -= y[k] * lu[i, k]
+    for i in range(3):
+        x[i] = y[i]
+    return det
 
 
 @njit(**_JIT)

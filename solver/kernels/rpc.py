@@ -62,13 +62,23 @@ def terms_and_gradient(x: float, y: float, z: float):
 @njit(**_JIT)
 def _ratio(num, den, t, tx, ty, tz):
     """r = num.t / den.t and its gradient wrt (x, y, z)."""
-    n = num @ t
-    d = den @ t
+    # sums written out: ``@`` on arrays compiles numba's BLAS dot (and its shape checks) into
+    # every kernel above this one, a tenth of a cold compile, for 20-term products
+    n = d = nx = dx = ny = dy = nz = dz = 0.0
+    for k in range(t.shape[0]):
+        n += num[k] * t[k]
+        d += den[k] * t[k]
+        nx += num[k] * tx[k]
+        dx += den[k] * tx[k]
+        ny += num[k] * ty[k]
+        dy += den[k] * ty[k]
+        nz += num[k] * tz[k]
+        dz += den[k] * tz[k]
     r = n / d
     g = np.empty(3)
-    g[0] = (num @ tx - r * (den @ tx)) / d
-    g[1] = (num @ ty - r * (den @ ty)) / d
-    g[2] = (num @ tz - r * (den @ tz)) / d
+    g[0] = (nx - r * dx) / d
+    g[1] = (ny - r * dy) / d
+    g[2] = (nz - r * dz) / d
     return r, g
 
 
@@ -90,7 +100,9 @@ def lgs_to_geodetic(kc, p):
     rot = kc[0:9].reshape(3, 3)
     a = kc[KC_A]
     e2 = kc[KC_E2]
-    ecef = kc[9:12] + rot.T @ p
+    ecef = np.empty(3)  # kc[9:12] + R^T p, written out (see _ratio)
+    for i in range(3):
+        ecef[i] = kc[9 + i] + (rot[0, i] * p[0] + rot[1, i] * p[1] + rot[2, i] * p[2])
     lon = math.atan2(ecef[1], ecef[0])
     rho = math.hypot(ecef[0], ecef[1])
     lat = math.atan2(ecef[2], rho * (1.0 - e2))
@@ -110,10 +122,11 @@ def lgs_to_geodetic(kc, p):
     east = np.array([-so, co, 0.0]) / ((nn + h) * cl)
     north = np.array([-sl * co, -sl * so, cl]) / (mm + h)
     up = np.array([cl * co, cl * so, sl])
-    jac = np.empty((3, 3))
-    jac[0] = rot @ east  # d lon / d p = east^T R^T
-    jac[1] = rot @ north
-    jac[2] = rot @ up
+    jac = np.empty((3, 3))  # rows: d lon / d p = (R east)^T, then R north, R up (written out)
+    for i in range(3):
+        jac[0, i] = rot[i, 0] * east[0] + rot[i, 1] * east[1] + rot[i, 2] * east[2]
+        jac[1, i] = rot[i, 0] * north[0] + rot[i, 1] * north[1] + rot[i, 2] * north[2]
+        jac[2, i] = rot[i, 0] * up[0] + rot[i, 1] * up[1] + rot[i, 2] * up[2]
     return lon, lat, h, jac
 
 

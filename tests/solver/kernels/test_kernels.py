@@ -346,3 +346,28 @@ def test_ray_with_interior_orientation_passes_through_the_projected_point(model)
         oc[0], oc[1] = line, col
         s, d = ray_cam(img.kind, coef, img.kc, oc, iop, chip, chip_len)
         assert np.linalg.norm(np.cross(p - s, d)) < RAY_MISS_M, (k, line)
+
+
+SOLVE3_REL = 1e-12  # the written-out 3 x 3 LU vs LAPACK's (numpy): the same algorithm, condition numbers below 1e3
+
+
+def test_solve3_matches_lapack_and_reports_singular_systems():
+    """intersect_all's 3 x 3 solver (written out to keep numba's LAPACK bindings out of the
+    kernel) against numpy's LAPACK solve and determinant, pivoting included (a zero leading
+    entry), and a singular system's zero determinant."""
+    from solver.kernels.projection import _solve3
+
+    rng = np.random.default_rng(3)
+    systems = [(np.array([[0.0, 2.0, 1.0], [1.0, 1.0, 0.0], [3.0, 0.0, 1.0]]), np.array([1.0, -2.0, 0.5]))]
+    for _ in range(200):
+        a = rng.normal(size=(3, 3)) + 3.0 * np.eye(3)
+        systems.append((a * 10.0 ** rng.uniform(-3, 6), rng.normal(size=3) * 10.0 ** rng.uniform(-2, 6)))
+    for a, b in systems:
+        assert np.linalg.cond(a) < 1e3
+        x = np.empty(3)
+        det = _solve3(a, b, x)
+        expected = np.linalg.solve(a, b)
+        assert np.max(np.abs(x - expected)) <= SOLVE3_REL * np.max(np.abs(expected))
+        assert det == pytest.approx(np.linalg.det(a), rel=SOLVE3_REL)
+    singular = np.array([[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [1.0, 0.0, 1.0]])
+    assert abs(_solve3(singular, np.ones(3), np.empty(3))) < 1e-15
