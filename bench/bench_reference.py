@@ -17,7 +17,9 @@ Runs alternate (ours, then the reference) and the medians are printed:
   values, rank check, solve, covariance and the default report); the reference is its whole
   process (reading its input, building, solving, covariance);
 * per iteration: the solve's wall time over its iterations (ours includes building the Ceres
-  problem), and the time inside Ceres (residuals, Jacobians, linear solver) over the iterations.
+  problem), and the time inside Ceres (residuals, Jacobians, linear solver) over the iterations;
+  then each of those three per iteration, both iteration counts, and the time per iteration
+  outside them (ours: building the problem, Ceres' preprocessor, the iteration callback).
 
 ``--form time`` makes the reference use the collinearity at the observed line's time instead
 (no line search: about half its Jacobian cost, a slightly different objective).
@@ -144,6 +146,15 @@ def main() -> None:
     print(f"medians of {args.repeat}: end to end ours {med(mine, 'run_s'):.2f} s / reference {med(theirs, 'process_s'):.2f} s = {e2e:.2f}; "
           f"per iteration {med(mine, 'per_iteration_s'):.3f} / {med(theirs, 'per_iteration_s'):.3f} s = {per_it:.2f} "
           f"(inside Ceres {med(mine, 'ceres_per_iteration_s'):.3f} / {med(theirs, 'ceres_per_iteration_s'):.3f} s = {inside:.2f})")
+    for name in ("residual_evaluation", "jacobian_evaluation", "linear_solver"):
+        a = statistics.median(r["ceres_s"].get(name, 0.0) / max(r["iterations"], 1) for r in mine)
+        b = statistics.median(r[f"{name}_s"] / max(r["iterations"], 1) for r in theirs)
+        print(f"  {name} per iteration: ours {1e3 * a:.1f} ms / reference {1e3 * b:.1f} ms = {a / b if b else float('nan'):.2f}")
+    print(f"  iterations: ours {med(mine, 'iterations'):.0f}, reference {med(theirs, 'iterations'):.0f}; "
+          f"ours outside Ceres' three per iteration (problem building, callback, preprocessing) "
+          f"{med(mine, 'per_iteration_s') - med(mine, 'ceres_per_iteration_s'):.3f} s, reference "
+          f"{med(theirs, 'per_iteration_s') - med(theirs, 'ceres_per_iteration_s'):.3f} s; "
+          f"our preprocessor {statistics.median(r['ceres_s'].get('preprocessor', 0.0) for r in mine):.2f} s")
 
 
 if __name__ == "__main__":
