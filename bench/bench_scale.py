@@ -43,6 +43,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from functools import wraps
 from pathlib import Path
@@ -169,6 +170,9 @@ def block_for(n_obs: int, model: str, seed: int) -> dict[str, Any]:
 
 PEAK_AFTER: dict[str, float] = {}  # stage -> peak RSS (MB) when it ended
 RSS_AFTER: dict[str, float] = {}  # stage -> RSS (MB) when it ended: what the stage leaves held
+RSS_BEFORE: dict[str, float] = {}  # stage -> RSS (MB) when it began: what the earlier stages held
+PEAK_IN: dict[str, float] = {}  # stage -> the highest RSS (MB) sampled while it ran (``--memory``)
+STAGE: list[str] = ["run"]  # the stages running, innermost last (the sampler charges the innermost)
 
 
 def _peak_mb() -> float:
@@ -187,15 +191,29 @@ def _rss_mb() -> float:
 def _timed(table: dict[str, float], name: str, fn: Callable) -> Callable:
     @wraps(fn)
     def wrapper(*args, **kwargs):
+        RSS_BEFORE.setdefault(name, _rss_mb())
+        STAGE.append(name)
         t0 = time.perf_counter()
         try:
             return fn(*args, **kwargs)
         finally:
             table[name] = table.get(name, 0.0) + time.perf_counter() - t0
+            STAGE.pop()
             PEAK_AFTER[name] = _peak_mb()
             RSS_AFTER[name] = _rss_mb()
 
     return wrapper
+
+
+def _sample_rss(stop: threading.Event, period_s: float = 0.02) -> None:
+    """Sample the resident set every ``period_s`` (``--memory``) and keep each stage's highest
+    (MB): where inside the run the peak is, without tracemalloc's cost (the GIL is released
+    while the solve and numpy run, so the samples keep coming; a stage shorter than the period
+    may be missed)."""
+    while not stop.wait(period_s):
+        rss, stage = _rss_mb(), STAGE[-1]
+        if rss > PEAK_IN.get(stage, 0.0):
+            PEAK_IN[stage] = rss
 
 
 def _traced(backend: Any, rows: list[dict[str, Any]]) -> None:
@@ -246,7 +264,7 @@ def _linear_solver(backend: Any, spec: str) -> None:
     backend.ceres_options = with_solver
 
 
-def child(path: Path, trace: bool = False, linear_solver: str | None = None) -> dict[str, Any]:
+def child(path: Path, trace: bool = False, linear_solver: str | None = None, memory: bool = False) -> dict[str, Any]:
     """One job in this process: load its JSON, adjust end to end, return the measurements."""
     try:
         import solver.procedures.single as single
@@ -287,15 +305,27 @@ def child(path: Path, trace: bool = False, linear_solver: str | None = None) -> 
         _linear_solver(backend, linear_solver)
     if trace:
         _traced(backend, rows)
+    stop = threading.Event()
+    sampler = threading.Thread(target=_sample_rss, args=(stop,), daemon=True)
+    if memory:
+        sampler.start()
+    RSS_BEFORE["run"] = _rss_mb()
+    counts = {k: len(doc[k]) for k in ("observations", "images", "points")}
+    try:
+        from solver.api import Handover
+    except ImportError:  # an older tree: the document stays held here for the whole run
+        handed = doc
+    else:
+        handed = Handover(doc)  # the solver frees the document once it has parsed it
+    del doc
     t0 = time.perf_counter()
-    report = run(doc)
+    report = run(handed)
     total_s = time.perf_counter() - t0
+    stop.set()
     adj = report["adjustment"]
     return {
         "load_average": os.getloadavg()[0],
-        "observations": len(doc["observations"]),
-        "images": len(doc["images"]),
-        "points": len(doc["points"]),
+        **counts,
         "evaluation": backend.evaluation_path() if hasattr(backend, "evaluation_path") else "python",
         "generation_s": generation_s,
         "run_s": total_s,
@@ -310,6 +340,8 @@ def child(path: Path, trace: bool = False, linear_solver: str | None = None) -> 
         "peak_rss_mb": _peak_mb(),
         "peak_after_stage_mb": dict(PEAK_AFTER),
         "rss_after_stage_mb": dict(RSS_AFTER),
+        "rss_before_stage_mb": dict(RSS_BEFORE),
+        "peak_in_stage_mb": dict(PEAK_IN),
         "trace": rows,
     }
 
@@ -326,6 +358,8 @@ def main() -> None:
                         "(any model, PASS ones included; disjoint triplets) instead of the model-consistent block")
     ap.add_argument("--no-states", action="store_true", help="connected strip: header states not weighted")
     ap.add_argument("--trace", action="store_true", help="print Ceres' summary of every iteration (cost, rho, trust region, ...)")
+    ap.add_argument("--memory", action="store_true", help="sample the resident set every 20 ms and print each stage's "
+                    "highest and the resident set when it began (where the peak memory is)")
     ap.add_argument("--linear-solver", default=None, help="override the linear solver: Ceres' TYPE or TYPE:PRECONDITIONER "
                     "(e.g. DENSE_SCHUR, ITERATIVE_SCHUR:SCHUR_JACOBI)")
     ap.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
@@ -333,7 +367,7 @@ def main() -> None:
     args = ap.parse_args()
     kind = "disjoint" if args.disjoint else "strip" if args.strip else "connected"
     if args.child is not None:
-        print(json.dumps(child(args.child, args.trace, args.linear_solver)))
+        print(json.dumps(child(args.child, args.trace, args.linear_solver, args.memory)))
         return
     if args.generate is not None:
         print(generate(args.generate, args.model, args.seed, kind, not args.no_states))
@@ -350,7 +384,7 @@ def main() -> None:
         print(f"{kind} block of about {n} observations: {path} ({time.perf_counter() - t0:.1f} s to generate or find)", flush=True)
         runs = []
         for _ in range(args.repeat):
-            out = subprocess.run([sys.executable, __file__, "--child", str(path)] + (["--trace"] if args.trace else [])
+            out = subprocess.run([sys.executable, __file__, "--child", str(path)] + (["--trace"] if args.trace else []) + (["--memory"] if args.memory else [])
                                  + (["--linear-solver", args.linear_solver] if args.linear_solver else []),
                                  check=True, capture_output=True, text=True)
             r = json.loads(out.stdout.strip().splitlines()[-1])
@@ -363,6 +397,9 @@ def main() -> None:
             stages += "; in Ceres: " + " ".join(f"{k} {v:.2f}" for k, v in r["ceres_s"].items())
             stages += "; peak RSS after: " + " ".join(f"{k} {v:.0f}" for k, v in r["peak_after_stage_mb"].items())
             stages += "; RSS after: " + " ".join(f"{k} {v:.0f}" for k, v in r.get("rss_after_stage_mb", {}).items())
+            if r.get("peak_in_stage_mb"):
+                stages += "; RSS at start / highest sampled in: " + " ".join(
+                    f"{k} {r['rss_before_stage_mb'].get(k, 0.0):.0f}/{v:.0f}" for k, v in r["peak_in_stage_mb"].items())
             print(
                 f"  {r['observations']:>8} obs {r['images']:>4} images [{r['evaluation']}, load {r['load_average']:.1f}]: "
                 f"run {r['run_s']:.2f} s ({stages}), {r['iterations']} iterations, {r['per_iteration_s']:.3f} s/iteration, "

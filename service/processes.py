@@ -91,7 +91,9 @@ class Process:
     queue's lane; default: ``count`` in observations). ``check(job, inputs, caller)``: the job (camera references resolved)
     and the other inputs checked as this process needs them; raises :class:`InvalidInput` with
     pointers into the request. ``run(document, progress, cancel)``: in a worker, the report of
-    a stored document (``progress``/``cancel`` as in ``solver.api``). ``tables``: the CSV
+    a stored document (``progress``/``cancel`` as in ``solver.api``); the document is the run's
+    to consume: an adjustment takes its ``job`` out and hands it over (``solver.api.Handover``),
+    so that the worker does not hold the parsed document for the whole solve. ``tables``: the CSV
     tables of its results (``/jobs/{id}/results/{table}.csv``, service.report_csv).
     """
 
@@ -182,7 +184,10 @@ def _check_adjustment(job: Job, inputs: ExecuteInputs, _caller: Caller) -> Check
 def _run_adjustment(document: dict[str, Any], progress: Progress, cancel: Cancel) -> dict[str, Any]:
     import solver.api
 
-    return solver.api.run(document["job"], progress=progress, cancel=cancel, validated=document.get("validation"))
+    # the job is taken out of the worker's document and handed over: the solver frees it once parsed
+    return solver.api.run(
+        solver.api.Handover(document.pop("job")), progress=progress, cancel=cancel, validated=document.get("validation")
+    )
 
 
 def _compared_models(job: Job, inputs: ExecuteInputs) -> list[str]:
@@ -221,7 +226,8 @@ def _run_comparison(document: dict[str, Any], progress: Progress, cancel: Cancel
 
     models = document.get("models") or document["job"].get("options", {}).get("models", [])
     return solver.api.compare(
-        document["job"], models, progress=progress, cancel=cancel, validated=document.get("validation")
+        solver.api.Handover(document.pop("job")), models, progress=progress, cancel=cancel,
+        validated=document.get("validation"),
     )
 
 

@@ -2,6 +2,7 @@
 
     validate(job)                      -> dict   dry run: schema, references, degrees of freedom
     run(job, progress=..., cancel=...) -> dict   the adjustment report (JSON-ready)
+    Handover(document)                 -> a job document handed to run/compare once, freed once parsed
     validation_record(summary)         -> dict   a validate() to hand to run(validated=...)
     compare(job, models, ...)          -> dict   one report per model plus a side-by-side table
     preanalyse(job)                    -> dict   predicted precision of a planned block (no measurements)
@@ -99,11 +100,39 @@ def _kernel_notices(progress: ProgressFn | None) -> Iterator[ProgressFn | None]:
 CancelFn = Callable[[], bool]
 
 
-def _as_job(job: Job | dict[str, Any] | str | bytes) -> Job:
+class Handover:
+    """A job document (dict or JSON text) handed to :func:`run` or :func:`compare` once, for a
+    caller that keeps no reference to it: the solver takes it out of the holder when it parses
+    it, and the document is freed as soon as the job exists, before the problem is built (at a
+    million image observations the parsed JSON is about 550 MB, more than the job). Called as
+    ``run(Handover(document))`` with no other reference to ``document`` left (``del`` it, or
+    ``document.pop("job")``); the holder is empty afterwards and cannot be handed again."""
+
+    __slots__ = ("_document",)
+
+    def __init__(self, document: dict[str, Any] | str | bytes) -> None:
+        self._document: dict[str, Any] | str | bytes | None = document
+
+    def take(self) -> dict[str, Any] | str | bytes:
+        """The document, once (the holder then holds nothing; RuntimeError the second time)."""
+        document, self._document = self._document, None
+        if document is None:
+            raise RuntimeError("this job document was handed over already")
+        return document
+
+
+JobInput = Job | dict[str, Any] | str | bytes | Handover
+"""What the entry points take: the parsed job, its document (dict or JSON text), or a
+:class:`Handover` of the document."""
+
+
+def _as_job(job: JobInput) -> Job:
+    if isinstance(job, Handover):
+        job = job.take()  # held only by this frame now: freed when it returns
     return job if isinstance(job, Job) else load_job(job)  # inside the guard: parsing allocates most
 
 
-def validate(job: Job | dict[str, Any] | str | bytes) -> dict[str, Any]:
+def validate(job: JobInput) -> dict[str, Any]:
     """Check a job without solving it.
 
     Returns ``{"valid": bool, "problems": [...], "n_observations", "n_unknowns", "dof",
@@ -117,7 +146,7 @@ def validate(job: Job | dict[str, Any] | str | bytes) -> dict[str, Any]:
 
 
 def run(
-    job: Job | dict[str, Any] | str | bytes,
+    job: JobInput,
     progress: ProgressFn | None = None,
     cancel: CancelFn | None = None,
     validated: dict[str, Any] | None = None,
@@ -128,12 +157,13 @@ def run(
     If ``job.options.models`` is not empty this is a model comparison (same as :func:`compare`).
     ``validated``: the record of a validation already made (:func:`validation_record` of
     :func:`validate`'s counts, e.g. at a server's submission); when it was made by this code
-    the job is not checked again.
+    the job is not checked again. ``job`` handed as :class:`Handover` is freed once parsed.
     """
     from solver.engine.validate import handed
 
     with _gc_paused():
         j = _as_job(job)
+        del job  # this frame's reference to the caller's document (a Handover is empty now)
         models = list(JobSettings.of(j).procedures.models)
         if models:
             return compare(j, models, progress=progress, cancel=cancel, validated=validated)
@@ -152,7 +182,7 @@ def validation_record(summary: dict[str, Any]) -> dict[str, Any]:
 
 
 def compare(
-    job: Job | dict[str, Any] | str | bytes,
+    job: JobInput,
     models: list[str],
     progress: ProgressFn | None = None,
     cancel: CancelFn | None = None,
@@ -166,7 +196,7 @@ def compare(
         return compare_models(_as_job(job), models, progress=progress, cancel=cancel, validated=validated)
 
 
-def preanalyse(job: Job | dict[str, Any] | str | bytes) -> dict[str, Any]:
+def preanalyse(job: JobInput) -> dict[str, Any]:
     """Pre-analysis of a planned block: the predicted precision of its check and ground points
     from planned coordinates and the approximate orientation, before anything is measured
     (:mod:`solver.quality.preanalysis`; ``kind: "preanalysis"`` in docs/report-contract.md)."""
@@ -176,7 +206,7 @@ def preanalyse(job: Job | dict[str, Any] | str | bytes) -> dict[str, Any]:
         return _preanalyse(_as_job(job))
 
 
-def preanalysis_problems(job: Job | dict[str, Any] | str | bytes) -> list[Problem]:
+def preanalysis_problems(job: JobInput) -> list[Problem]:
     """What makes a job unusable as a pre-analysis before any computation (planned points
     without coordinates); the rest is found when it runs."""
     from solver.engine.validate import planning_problems  # light: the server checks pre-analyses in its API process

@@ -160,3 +160,38 @@ def test_an_adjustment_is_validated_once_from_request_to_report(
         assert run_claimed_job(store, claimed, "test-worker", RunLimits(job_time_limit_s=600)) == JobStatus.successful
         assert len(calls) == 1
         assert c.get(f"/jobs/{job_id}/results", headers=alice).json()["report"]["adjustment"]["converged"]
+
+
+class _Document(dict):
+    """A job document a test can watch (a plain dict cannot be weakly referenced)."""
+
+
+@pytest.mark.parametrize("process_id", ["bundle-adjustment", "model-comparison"])
+def test_the_worker_hands_the_job_over_and_keeps_no_reference(
+    process_id: str, small_doc: dict[str, Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The worker's run hands the job document to the solver (``solver.api.Handover``) and holds
+    it nowhere else: once the solver has taken it, nothing keeps it (a million observations'
+    parsed document is about 550 MB, held for the whole solve otherwise)."""
+    import weakref
+
+    import solver.api
+
+    job = _Document(small_doc)
+    watched = weakref.ref(job)
+    document = {"job": job, "models": ["K1", "K2"], "validation": None}
+    del job
+    freed: list[bool] = []
+
+    def taking(handed: Any, *args: Any, **kwargs: Any) -> dict[str, Any]:
+        assert isinstance(handed, solver.api.Handover)
+        taken = handed.take()
+        assert watched() is taken
+        del taken
+        freed.append(watched() is None)  # the solver held the last reference: freed once parsed
+        return {}
+
+    monkeypatch.setattr(solver.api, "run", taking)
+    monkeypatch.setattr(solver.api, "compare", taking)
+    PROCESSES[process_id].run(document, lambda *a: None, lambda: False)
+    assert freed == [True]
