@@ -234,10 +234,11 @@ def _b_times_into(fcol, jf, jpt, q_of, v, u):
                         u[c, k] += jf[i, r, j] * t
 
 
-def b_times(lin: Linearisation, parts: SchurParts, v: np.ndarray) -> np.ndarray:
+def b_times(lin: Linearisation, parts: SchurParts, v: np.ndarray, n_reduced: int | None = None) -> np.ndarray:
     """B V (reduced columns x k) for point-space vectors ``v`` (n_est, 3, k) in the estimated
-    points' order (B: the normal matrix's block between the reduced parameters and the points)."""
-    u = np.zeros((parts.s.shape[0], v.shape[2]))
+    points' order (B: the normal matrix's block between the reduced parameters and the points);
+    ``n_reduced``: the reduced parameters' number where ``parts`` dropped S (a kept linearisation)."""
+    u = np.zeros((parts.s.shape[0] if n_reduced is None else n_reduced, v.shape[2]))
     if len(lin.obs_pt) and len(parts.est_points):
         pt_q = -np.ones(int(max(lin.obs_pt.max(), parts.est_points.max())) + 1, dtype=np.int64)
         pt_q[parts.est_points] = np.arange(len(parts.est_points))

@@ -168,13 +168,15 @@ def adjust_once(
         raise UnusableSolution.from_outcome(reasons, _outcome_detail(outcome))
     _progress(progress, frac(0.92), "assessing the solution")
     datum = confirm_datum(problem, datum)
-    solution = Solution(problem, outcome, time.perf_counter() - t_start, datum, keep_linearised)
+    with_dem = problem.job.dem is not None  # the job as solved (handed validated or not)
+    solution = Solution(problem, outcome, time.perf_counter() - t_start, datum, keep_linearised or with_dem)
     for k, sentence in enumerate(foreign):  # the control that does not fit, first among the warnings
         solution.prepend_warning(sentence, k)
     quality: dict[str, Any] = {"datum": datum.to_report()}
-    if problem.job.dem is not None:  # the test of a common DEM bias, at the solution (the job as solved: handed validated or not)
-        lin = linearise(problem)
-        bias = dem_bias(problem, lin, schur(lin, problem), JobSettings.of(problem.job).statistics.alpha)
+    if with_dem:
+        bias = _dem_bias(solution, JobSettings.of(problem.job).statistics.alpha)
+        if not keep_linearised:
+            solution.take_linearised()  # not kept for anyone else
         if bias is not None:
             quality["dem_bias"] = bias
     solution.set_quality(quality)
@@ -182,6 +184,18 @@ def adjust_once(
         solution.prepend_warning(f"the datum is not determined: {datum.message()} (quality.datum)")
     _progress(progress, frac(1.0), "done", {"sigma0": solution.sigma0})
     return solution
+
+
+def _dem_bias(solution: Solution, alpha: float) -> dict[str, Any] | None:
+    """The test of a common DEM bias at the solution (:func:`solver.quality.datum.dem_bias`), on
+    the report's linearisation and the covariance's inverse of the reduced matrix, as data
+    snooping's tests; linearised again only where the report kept none (no covariance)."""
+    problem = solution.problem
+    kept = solution.kept_linearised()
+    if kept is not None:
+        return dem_bias(problem, kept.lin, kept.parts, alpha, kept.s_inv)
+    lin = linearise(problem)
+    return dem_bias(problem, lin, schur(lin, problem), alpha)
 
 
 def _outcome_detail(outcome) -> dict[str, Any]:

@@ -296,12 +296,19 @@ def _largest(weight: np.ndarray, names: list[str]) -> list[str]:
     return [names[j] for j in order[:NAMED_PARAMETERS] if top > 0 and weight[j] >= 0.5 * top]
 
 
-def functional_variances(lin: Linearisation, parts: SchurParts, g: np.ndarray) -> np.ndarray:
+def functional_variances(lin: Linearisation, parts: SchurParts, g: np.ndarray, s_inv: np.ndarray | None = None) -> np.ndarray:
     """g^T N^-1 g (a-priori scale) of point-space functionals ``g`` (n_est, 3, k) on the
-    estimated points' LGS coordinates (module docstring; infinite where S is singular along it)."""
+    estimated points' LGS coordinates (module docstring; infinite where S is singular along it).
+    ``s_inv``: the inverse of the reduced matrix S where it is known already (the covariance's,
+    kept with the report's linearisation; S is then positive definite and ``parts`` may have
+    dropped it), else S is solved through its factor."""
     v = np.einsum("qab,qbk->qak", parts.c_inv, g)
-    u = b_times(lin, parts, v)
-    x, in_null, _ = _solve_reduced(parts, u)
+    if s_inv is not None:
+        u = b_times(lin, parts, v, s_inv.shape[0])
+        x, in_null = s_inv @ u, np.zeros(u.shape[1])
+    else:
+        u = b_times(lin, parts, v)
+        x, in_null, _ = _solve_reduced(parts, u)
     var = np.einsum("qak,qak->k", g, v) + np.einsum("jk,jk->k", u, x)
     return np.where(in_null > NULL_SHARE, np.inf, var)
 
@@ -331,10 +338,11 @@ def dem_bias_test(residual_w: np.ndarray, a_w: np.ndarray, hat: float, alpha: fl
             "passed": bool(abs(w) <= critical)}
 
 
-def dem_bias(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, alpha: float) -> dict[str, Any] | None:
+def dem_bias(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, alpha: float, s_inv: np.ndarray | None = None) -> dict[str, Any] | None:
     """:func:`dem_bias_test` of the DEM heights of ``problem`` (the family named "dem") at its
     current parameters: a = 1/sigma per DEM height, r its whitened residual, and a^T H a from the
-    DEM rows' Jacobian onto the points (w_i^2 dv/dp per point). None without DEM heights."""
+    DEM rows' Jacobian onto the points (w_i^2 dv/dp per point). None without DEM heights.
+    ``s_inv``: the reduced matrix's inverse when known (:func:`functional_variances`)."""
     dem_terms = [t for t in lin.terms if t.family.name == "dem" and t.block == "point"]
     if not dem_terms:
         return None
@@ -349,5 +357,5 @@ def dem_bias(problem: AdjustmentState, lin: Linearisation, parts: SchurParts, al
         r_w.append(float(r[0]))
         if q is not None:
             g[q, :, 0] += term.w * jac[0]  # J_i^T a_i (whitened row times a_i = w_i)
-    hat = float(functional_variances(lin, parts, g)[0])
+    hat = float(functional_variances(lin, parts, g, s_inv)[0])
     return dem_bias_test(np.array(r_w), np.array(a_w), hat, alpha)

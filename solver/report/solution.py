@@ -120,6 +120,10 @@ class Solution:
         """v^T P v of the whitened residuals (a-priori sigma0 = 1)."""
         return self._inputs.vtpv
 
+    def kept_linearised(self) -> Linearised | None:
+        """The kept linearisation (as :meth:`take_linearised`), read without handing it over."""
+        return self._linearised
+
     def take_linearised(self) -> Linearised | None:
         """The linearisation the covariance came from, with its Jacobians (kept when the
         adjustment was asked to, for data snooping's tests; None otherwise or without a
