@@ -35,12 +35,16 @@ def alive_when_built(monkeypatch: pytest.MonkeyPatch) -> tuple[list[bool], list[
     return alive, watched
 
 
-def test_a_handed_document_is_freed_before_the_problem_is_built(alive_when_built: tuple[list[bool], list[Any]]) -> None:
-    alive, watched = alive_when_built
+def _handed(watched: list[Any]) -> solver.api.Handover:
+    """A job document handed over, watched (the caller's own reference dropped)."""
     doc = _Document(single_image_job("K2", seed=3)[0])
     watched.append(weakref.ref(doc))
-    handed = solver.api.Handover(doc)
-    del doc
+    return solver.api.Handover(doc)
+
+
+def test_a_handed_document_is_freed_before_the_problem_is_built(alive_when_built: tuple[list[bool], list[Any]]) -> None:
+    alive, watched = alive_when_built
+    handed = _handed(watched)
     report = solver.api.run(handed)
     assert alive and not any(alive)
     assert report["adjustment"]["n_observations"] > 0
@@ -60,9 +64,5 @@ def test_a_document_the_caller_keeps_stays_alive(alive_when_built: tuple[list[bo
 
 def test_a_comparison_takes_a_handed_document(alive_when_built: tuple[list[bool], list[Any]]) -> None:
     alive, watched = alive_when_built
-    doc = _Document(single_image_job("K2", seed=3)[0])
-    watched.append(weakref.ref(doc))
-    handed = solver.api.Handover(doc)
-    del doc
-    report = solver.api.compare(handed, ["K1", "K2"])
+    report = solver.api.compare(_handed(watched), ["K1", "K2"])
     assert set(report["reports"]) == {"K1", "K2"} and len(alive) >= 2 and not any(alive)
