@@ -7,6 +7,7 @@ Run by hand (never in CI), on a quiet machine:
     .venv/bin/python bench/bench_scale.py --observations 1000000 --no-states      # header states not weighted
     .venv/bin/python bench/bench_scale.py --observations 1000000 --disjoint       # the old block-diagonal layout
     .venv/bin/python bench/bench_scale.py --observations 300000 --repeat 1 --trace  # Ceres' summary of every iteration
+    .venv/bin/python bench/bench_scale.py --observations 1000000 --repeat 1 --memory  # RSS per stage: where the peak is
     PBA_EVALUATION=python .venv/bin/python bench/bench_scale.py ...   # the Python fallback path
 
 By default each block is a connected strip (``connected_strip_job`` of tests/utils/scenes.py):
@@ -30,7 +31,8 @@ directory; every run then loads it in a fresh process (``--child``) so that the 
 (ru_maxrss) is that size's alone. Printed per run: the load average, the stage times
 (validation + assembly + initial values, rank check, solve, report; inside the solve Ceres' own
 timings), the solve's iterations and time per iteration, ``solver.api.run`` end to end, and the
-peak RSS after each stage.
+peak RSS after each stage. The job's document is handed to ``solver.api.run`` as a
+``Handover`` (freed once parsed, as the server's worker does), not kept for the run.
 """
 
 from __future__ import annotations
