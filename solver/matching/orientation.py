@@ -200,6 +200,7 @@ class PairMapping:
                 bl[k] = np.asarray(line, float).reshape(ll.shape)
                 bc[k] = np.asarray(col, float).reshape(ll.shape)
         self.bl, self.bc = bl, bc
+        self._mid: np.ndarray | None = None  # (2, lines, columns) b's line and column at the middle height (jacobian)
 
     def _bilinear(self, grid: np.ndarray, line: np.ndarray, column: np.ndarray) -> np.ndarray:
         ls, cs = self.ls, self.cs
@@ -254,8 +255,9 @@ class PairMapping:
         k = N_HEIGHTS // 2
         lv = np.array([line - step, line + step, line, line])
         cv = np.array([column, column, column - step, column + step])
-        bl = self._bilinear(self.bl[k], lv, cv)
-        bc = self._bilinear(self.bc[k], lv, cv)
+        if self._mid is None:
+            self._mid = np.stack([self.bl[k], self.bc[k]])
+        bl, bc = self._bilinear(self._mid, lv, cv)
         return np.array([[bl[1] - bl[0], bl[3] - bl[2]], [bc[1] - bc[0], bc[3] - bc[2]]]) / (2 * step)
 
     def reaches_b(self, line: np.ndarray, column: np.ndarray, margin_px: float = 0.0) -> np.ndarray:

@@ -1,5 +1,7 @@
-"""Raster access for matching: windows and decimated reads through GDAL (rasterio), never the
-whole image.
+"""Raster access for matching: windows and decimated reads through GDAL (rasterio). An image
+of at most :data:`WHOLE_MAX_PX` pixels is read whole at its first full-resolution window and
+its windows are then slices of that array (the same values: a correlation reads a few thousand
+small windows, each a GDAL call); a larger image is never held whole.
 
 Pixel convention: our image coordinates (line, column) are those of pixel centres with the
 top-left pixel's centre at (0, 0) (:mod:`solver.schema.job`), so the array index of a window
@@ -23,6 +25,7 @@ import numpy as np
 MAX_SIDE_PX = 1_000_000  # an image side beyond this is refused (no sensor delivers it)
 MIN_SIDE_PX = 32  # a side below this holds no correlation template with its search (2 x 12 + 1 + 2 x 3 px)
 STATS_SIZE = 1024  # long side of the decimated read for the 8-bit stretch
+WHOLE_MAX_PX = 2048 * 2048  # at most 16 MB per image (4-byte pixels) held in memory
 DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
 
 
@@ -42,6 +45,7 @@ class Raster:
     _dataset: Any = field(repr=False)  # solver.raster_gate.GatedRaster
     stretch: tuple[float, float] = (0.0, 255.0)
     nodata: float | None = None
+    _whole: np.ndarray | None = field(default=None, repr=False)  # raw band 1 of a small image (WHOLE_MAX_PX)
 
     @classmethod
     def open(cls, path: str | Path) -> "Raster":
@@ -80,6 +84,7 @@ class Raster:
         return r
 
     def close(self) -> None:
+        self._whole = None
         self._dataset.close()  # the gated raster: its dataset, descriptors and private folder
 
     def _read(self, **kw) -> np.ndarray:
@@ -112,6 +117,10 @@ class Raster:
         r1, c1 = min(int(row0) + int(rows), self.lines), min(int(col0) + int(cols), self.columns)
         if r1 <= r0 or c1 <= c0:
             return np.zeros((0, 0), np.float32)
+        if self.lines * self.columns <= WHOLE_MAX_PX:
+            if self._whole is None:
+                self._whole = self._read()
+            return self._whole[r0:r1, c0:c1].astype(np.float32)
         return self._read(window=Window(c0, r0, c1 - c0, r1 - r0)).astype(np.float32)
 
     def decimated(self, row0: int, col0: int, rows: int, cols: int, k: int) -> tuple[np.ndarray, int, int]:

@@ -22,6 +22,8 @@ about it is the pair's matching precision, and the points beyond are removed.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from solver.matching.orientation import MatchImage, PairMapping, distance_to_segment
@@ -40,7 +42,16 @@ REFERENCE_SIGMA_PX = 0.02
 
 def _parabola(r_minus: float, r0: float, r_plus: float) -> float:
     den = r_minus - 2.0 * r0 + r_plus
-    return 0.0 if den >= 0 else float(np.clip(0.5 * (r_minus - r_plus) / den, -0.5, 0.5))
+    return 0.0 if den >= 0 else float(min(max(0.5 * (r_minus - r_plus) / den, -0.5), 0.5))
+
+
+@functools.cache
+def _offsets(radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """The (line, column) offsets (px, each (2 radius + 1)^2, read-only) of a square window."""
+    u = np.arange(-radius, radius + 1, dtype=float)
+    uu, vv = np.meshgrid(u, u, indexing="ij")
+    uu.flags.writeable = vv.flags.writeable = False
+    return uu, vv
 
 
 def template(image: MatchImage, centre: np.ndarray, half: int) -> np.ndarray | None:
@@ -62,15 +73,16 @@ def correlate(tpl: np.ndarray, other: MatchImage, start: np.ndarray, jac: np.nda
     half = tpl.shape[0] // 2
     p = np.asarray(start, float).copy()
     radius = half + SEARCH_PX
-    u = np.arange(-radius, radius + 1, dtype=float)
-    uu, vv = np.meshgrid(u, u, indexing="ij")
+    uu, vv = _offsets(radius)
     read = (0, 0, 0, 0)  # the window read (r0, c0, r1, c1), with READ_MARGIN_PX for the next iterations
     win = np.zeros((0, 0), np.float32)
     for it in range(MAX_ITERATIONS):
         lines = p[0] + jac[0, 0] * uu + jac[0, 1] * vv
         cols = p[1] + jac[1, 0] * uu + jac[1, 1] * vv
-        r0, c0 = int(np.floor(lines.min())) - 3, int(np.floor(cols.min())) - 3
-        r1, c1 = int(np.ceil(lines.max())) + 4, int(np.ceil(cols.max())) + 4
+        # an affine grid's extremes are at its corners (rounding is monotonic: the same values as min and max)
+        cl, cc = lines[::2 * radius, ::2 * radius], cols[::2 * radius, ::2 * radius]
+        r0, c0 = int(np.floor(cl.min())) - 3, int(np.floor(cc.min())) - 3
+        r1, c1 = int(np.ceil(cl.max())) + 4, int(np.ceil(cc.max())) + 4
         if r0 < 0 or c0 < 0 or r1 > other.lines or c1 > other.columns:
             return None
         if r0 < read[0] or c0 < read[1] or r1 > read[2] or c1 > read[3]:
