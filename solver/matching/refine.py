@@ -7,7 +7,8 @@ other image resampled into the reference's geometry: the local affine of the ori
 (:meth:`PairMapping.jacobian`, terrain-height independent to first order) around the current
 estimate, bicubic (OpenCV ``remap``). The normalised cross-correlation (``TM_CCOEFF_NORMED``)
 over +-``SEARCH_PX`` shifts, a parabola through the peak and its neighbours on each axis, the
-estimate moved by the fitted shift, and again, until the shift is below ``CONVERGED_PX``: the
+estimate moved by the fitted shift, and again (over +-``RECENTRED_SEARCH_PX``: the estimate is
+now at the peak; a peak on that border moves it by a whole pixel and goes on), until the shift is below ``CONVERGED_PX``: the
 last fit is centred on the peak, which removes the parabola's pull towards whole pixels. A
 peak below ``min_ncc``, on the border of the search after the last iteration, or a template
 without texture: the image is left out of the track.
@@ -29,6 +30,7 @@ import numpy as np
 from solver.matching.orientation import MatchImage, PairMapping, distance_to_segment
 
 SEARCH_PX = 3
+RECENTRED_SEARCH_PX = 1  # the later iterations start at the last peak: +-1 px holds it and its parabola's neighbours
 READ_MARGIN_PX = 4  # read around the first iteration's window: the later ones move by a pixel or less
 MAX_ITERATIONS = 6
 CONVERGED_PX = 0.01
@@ -72,11 +74,12 @@ def correlate(tpl: np.ndarray, other: MatchImage, start: np.ndarray, jac: np.nda
 
     half = tpl.shape[0] // 2
     p = np.asarray(start, float).copy()
-    radius = half + SEARCH_PX
-    uu, vv = _offsets(radius)
     read = (0, 0, 0, 0)  # the window read (r0, c0, r1, c1), with READ_MARGIN_PX for the next iterations
     win = np.zeros((0, 0), np.float32)
     for it in range(MAX_ITERATIONS):
+        search = SEARCH_PX if it == 0 else RECENTRED_SEARCH_PX
+        radius = half + search
+        uu, vv = _offsets(radius)
         lines = p[0] + jac[0, 0] * uu + jac[0, 1] * vv
         cols = p[1] + jac[1, 0] * uu + jac[1, 1] * vv
         # an affine grid's extremes are at its corners (rounding is monotonic: the same values as min and max)
@@ -98,12 +101,12 @@ def correlate(tpl: np.ndarray, other: MatchImage, start: np.ndarray, jac: np.nda
             return None
         on_border = i in (0, res.shape[0] - 1) or j in (0, res.shape[1] - 1)
         if on_border:
-            shift = np.array([i - SEARCH_PX, j - SEARCH_PX], float)
+            shift = np.array([i - search, j - search], float)
             if it == MAX_ITERATIONS - 1:
                 return None
         else:
-            shift = np.array([i - SEARCH_PX + _parabola(res[i - 1, j], peak, res[i + 1, j]),
-                              j - SEARCH_PX + _parabola(res[i, j - 1], peak, res[i, j + 1])])
+            shift = np.array([i - search + _parabola(res[i - 1, j], peak, res[i + 1, j]),
+                              j - search + _parabola(res[i, j - 1], peak, res[i, j + 1])])
         p = p + jac @ shift
         if not on_border and np.max(np.abs(shift)) < CONVERGED_PX:
             break
