@@ -468,6 +468,26 @@ def test_two_image_tracks_are_not_judged_in_3d():
     assert removed == [set()]
 
 
+def test_small_image_windows_are_the_files_pixels(tmp_path):
+    """A small image is read whole once and its windows sliced: each window (clipped where it
+    leaves the image) holds the file's own pixels at its offset (independent evidence: the values
+    written), in our convention (array index = line - row0, column - col0)."""
+    values = np.arange(70 * 90, dtype=np.uint16).reshape(70, 90) * 7  # every pixel distinct
+    path = tmp_path / "small.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=90, height=70, count=1, dtype="uint16") as dst:
+        dst.write(values, 1)
+    raster = Raster.open(path)
+    try:
+        for r0, c0, rows, cols in [(10, 20, 25, 31), (0, 0, 70, 90), (60, 80, 25, 25), (-5, -3, 12, 9), (3, 4, 1, 1)]:
+            got = raster.window(r0, c0, rows, cols)
+            want = values[max(r0, 0):min(r0 + rows, 70), max(c0, 0):min(c0 + cols, 90)].astype(np.float32)
+            assert got.dtype == np.float32 and got.shape == want.shape, (r0, c0, got.shape, want.shape)
+            assert np.max(np.abs(got - want)) < 0.5, (r0, c0)
+        assert raster.window(80, 0, 5, 5).size == 0
+    finally:
+        raster.close()
+
+
 # --- features detected once per image, the strongest of each cell ----------------------------
 
 def _textured_raster(tmp_path, size: int = 640) -> Raster:
