@@ -7,8 +7,9 @@ other image resampled into the reference's geometry: the local affine of the ori
 (:meth:`PairMapping.jacobian`, terrain-height independent to first order) around the current
 estimate, bicubic (OpenCV ``remap``). The normalised cross-correlation (``TM_CCOEFF_NORMED``)
 over +-``SEARCH_PX`` shifts, a parabola through the peak and its neighbours on each axis, the
-estimate moved by the fitted shift, and again (over +-``RECENTRED_SEARCH_PX``: the estimate is
-now at the peak; a peak on that border moves it by a whole pixel and goes on), until the shift is below ``CONVERGED_PX``: the
+estimate moved by the fitted shift, and again (after a peak inside the search, over
++-``RECENTRED_SEARCH_PX`` only: the estimate is now on the peak; after a peak on the border,
+over +-``SEARCH_PX`` again, so a far start moves as far as before), until the shift is below ``CONVERGED_PX``: the
 last fit is centred on the peak, which removes the parabola's pull towards whole pixels. A
 peak below ``min_ncc``, on the border of the search after the last iteration, or a template
 without texture: the image is left out of the track.
@@ -30,7 +31,7 @@ import numpy as np
 from solver.matching.orientation import MatchImage, PairMapping, distance_to_segment
 
 SEARCH_PX = 3
-RECENTRED_SEARCH_PX = 1  # the later iterations start at the last peak: +-1 px holds it and its parabola's neighbours
+RECENTRED_SEARCH_PX = 1  # after a peak inside the search the estimate is on it: +-1 px holds it and its parabola's neighbours
 READ_MARGIN_PX = 4  # read around the first iteration's window: the later ones move by a pixel or less
 MAX_ITERATIONS = 6
 CONVERGED_PX = 0.01
@@ -76,8 +77,9 @@ def correlate(tpl: np.ndarray, other: MatchImage, start: np.ndarray, jac: np.nda
     p = np.asarray(start, float).copy()
     read = (0, 0, 0, 0)  # the window read (r0, c0, r1, c1), with READ_MARGIN_PX for the next iterations
     win = np.zeros((0, 0), np.float32)
+    on_border = True  # the first iteration searches the whole +-SEARCH_PX
     for it in range(MAX_ITERATIONS):
-        search = SEARCH_PX if it == 0 else RECENTRED_SEARCH_PX
+        search = SEARCH_PX if on_border else RECENTRED_SEARCH_PX
         radius = half + search
         uu, vv = _offsets(radius)
         lines = p[0] + jac[0, 0] * uu + jac[0, 1] * vv
