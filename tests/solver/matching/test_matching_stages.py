@@ -204,6 +204,23 @@ def test_correlation_finds_a_template_and_refuses_noise():
     assert found is None or found[1] < SETTINGS.min_ncc
 
 
+def test_correlation_from_a_far_start_moves_the_whole_search_each_time():
+    """A start 10 px off (beyond the +-3 px search) on a smooth texture: the iterations whose peak
+    is on the border move by the whole search, so the template is still found (within 0.15 px:
+    the smooth texture's peak is broad); a search narrowed to +-1 px after the first iteration
+    moves a pixel at a time and gives up (it fails from 8 px)."""
+    from scipy.ndimage import gaussian_filter
+    from scipy.ndimage import shift as nd_shift
+
+    base = 1000.0 + 400.0 * gaussian_filter(np.random.default_rng(1).normal(size=(160, 160)), 4.0)
+    half = SETTINGS.template_half_px
+    tpl = base[80 - half:80 + half + 1, 80 - half:80 + half + 1].astype(np.float32)
+    moved = nd_shift(base, (2.3, -1.6), order=3, mode="reflect")  # the point is at (82.3, 78.4)
+    got = correlate(tpl, _image("b", ArrayRaster(moved)), np.array([72.3, 78.4]), np.eye(2), SETTINGS.min_ncc)
+    assert got is not None
+    assert np.allclose(got[0], [82.3, 78.4], atol=0.15), got
+
+
 # --- the pair mapping's Jacobian ------------------------------------------------------------
 
 def test_pair_mapping_jacobian_of_a_sheared_mapping():
