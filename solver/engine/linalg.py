@@ -17,6 +17,7 @@ factor where a report needs it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
@@ -234,11 +235,10 @@ def _b_times_into(fcol, jf, jpt, q_of, v, u):
                         u[c, k] += jf[i, r, j] * t
 
 
-def b_times(lin: Linearisation, parts: SchurParts, v: np.ndarray, n_reduced: int | None = None) -> np.ndarray:
+def b_times(lin: Linearisation, parts: SchurParts, v: np.ndarray) -> np.ndarray:
     """B V (reduced columns x k) for point-space vectors ``v`` (n_est, 3, k) in the estimated
-    points' order (B: the normal matrix's block between the reduced parameters and the points);
-    ``n_reduced``: the reduced parameters' number where ``parts`` dropped S (a kept linearisation)."""
-    u = np.zeros((parts.s.shape[0] if n_reduced is None else n_reduced, v.shape[2]))
+    points' order (B: the normal matrix's block between the reduced parameters and the points)."""
+    u = np.zeros((parts.n_reduced, v.shape[2]))
     if len(lin.obs_pt) and len(parts.est_points):
         pt_q = -np.ones(int(max(lin.obs_pt.max(), parts.est_points.max())) + 1, dtype=np.int64)
         pt_q[parts.est_points] = np.arange(len(parts.est_points))
@@ -462,20 +462,39 @@ def _image_only_leverage(s_inv, fcol, jf, rows, lev):
 
 @dataclass
 class SchurParts:
-    s: np.ndarray  # reduced image normal matrix (dense)
+    s: np.ndarray  # reduced image normal matrix (dense); empty once consumed (see factor, covariance)
     c_inv: np.ndarray  # (npt_est, 3, 3) inverse point blocks
     est_points: np.ndarray  # point indices in column order
     point_singular: np.ndarray  # (npt_est,) bool
     order: np.ndarray  # observation rows grouped by estimated point
     bounds: np.ndarray
-    _factor: "ReducedFactor | None" = field(default=None, repr=False, compare=False)
+    n_reduced: int = -1  # S's size, kept when S is consumed (-1: S's own)
+    _factor: ReducedFactor | None = field(default=None, repr=False, compare=False)
+    _rebuild: Callable[[], np.ndarray] | None = field(default=None, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.n_reduced < 0:
+            self.n_reduced = self.s.shape[0]
 
     def factor(self) -> "ReducedFactor":
         """The Cholesky factor of the Jacobi-scaled S, computed once and shared by the rank
-        check and the datum analysis (both need it before the solve)."""
+        check and the datum analysis (both need it before the solve). Where S can be computed
+        again (:func:`schur` with ``rebuildable``) the factor is made in S's own memory: the
+        dense S of 1,500 images is 3.5 GB, and S beside its factor was the peak of the largest
+        blocks; :meth:`reduced` gives S again on the rare paths that need it after."""
         if self._factor is None:
-            self._factor = ReducedFactor.of(self.s)
+            consume = self._rebuild is not None and self.s.flags.c_contiguous
+            self._factor = ReducedFactor.of(self.s, overwrite=consume)
+            if consume:
+                self.s = np.zeros((0, 0))
         return self._factor
+
+    def reduced(self) -> np.ndarray:
+        """S, computed again (the same sums in the same order) when the factor consumed it."""
+        if self.s.shape[0] != self.n_reduced:
+            assert self._rebuild is not None, "S was consumed without a way to compute it again"
+            self.s = self._rebuild()
+        return self.s
 
 
 @dataclass
@@ -488,11 +507,13 @@ class ReducedFactor:
     norm1: float  # the 1-norm of Sn, for LAPACK's condition estimate
 
     @classmethod
-    def of(cls, s: np.ndarray) -> "ReducedFactor":
+    def of(cls, s: np.ndarray, overwrite: bool = False) -> "ReducedFactor":
+        """``overwrite``: scaled and factored in ``s``'s own memory (``s`` C-contiguous; garbage
+        afterwards, also when the factor fails)."""
         d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
         if s.size == 0 or (np.diag(s) <= 1e-300).any():
             return cls(d, None, 0.0)
-        sn = _jacobi_scaled(s, d)
+        sn = _divide_by_outer(s, d, s) if overwrite else _jacobi_scaled(s, d)
         norm1 = max(float(np.abs(sn[:, k : k + STRIP]).sum(axis=0).max()) for k in range(0, sn.shape[1], STRIP))
         with dense_threads.for_matrix(len(d)):
             factor, info = lapack.dpotrf(sn.T, lower=1, clean=1, overwrite_a=1)  # in place (sn is symmetric)
@@ -513,7 +534,10 @@ class ReducedFactor:
         return x / self.d[:, None]
 
 
-def schur(lin: Linearisation, problem: AdjustmentState) -> SchurParts:
+def schur(lin: Linearisation, problem: AdjustmentState, rebuildable: bool = False) -> SchurParts:
+    """The points eliminated from the normal equations (:class:`SchurParts`). ``rebuildable``:
+    S may be consumed by its factor and computed again from ``lin`` when needed
+    (:meth:`SchurParts.factor`; ``lin`` and ``problem`` are then kept with the parts)."""
     lay = lin.layout
     est = np.array([p.index for p in problem.points if p.estimated], dtype=np.int64)
     pt_q = -np.ones(len(problem.points), dtype=np.int64)
@@ -541,7 +565,10 @@ def schur(lin: Linearisation, problem: AdjustmentState) -> SchurParts:
     order, bounds = grouped(q_of_obs[has], len(est))
     order = has[order]
     s = _reduce(a, lin.fcol, lin.jf, lin.jpt, order, bounds, c_inv) if len(est) else a
-    return SchurParts(s, c_inv, est, singular, order, bounds)
+    parts = SchurParts(s, c_inv, est, singular, order, bounds)
+    if rebuildable:
+        parts._rebuild = lambda: schur(lin, problem).s
+    return parts
 
 
 @dataclass
@@ -564,14 +591,14 @@ def check_rank(parts: SchurParts, names: list[str], tol: float = 1e-15, fast: bo
     100 covers.) Otherwise, and always without ``fast``, the eigen-analysis decides and names the
     parameters of the null directions; a block of 300 images takes seconds instead of minutes
     in the usual case."""
-    s = parts.s
-    if s.size == 0:
+    if parts.n_reduced == 0:
         return RankReport(False, 1.0, [])
-    d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
     if fast:
         estimate = parts.factor().condition()
         if estimate is not None and estimate < FAST_RANK_MARGIN / tol:
             return RankReport(False, estimate, [])
+    s = parts.reduced()
+    d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
     sn = _jacobi_scaled(s, d)
     with dense_threads.for_matrix(len(d)):
         w, v = np.linalg.eigh(sn)

@@ -66,7 +66,7 @@ def assert_full_rank(problem: AdjustmentState) -> DatumAnalysis:
     initial values (a direction only weakly determined there is confirmed at the solution by
     :func:`confirm_datum`)."""
     lin = linearise(problem)
-    parts = schur(lin, problem)
+    parts = schur(lin, problem, rebuildable=True)
     datum_options = JobSettings.from_options(problem.job.options).blocks.datum
     datum = analyse_datum(problem, lin, parts, parameter_names(problem), datum_options.max_sigma_m)
     issues = []
@@ -112,7 +112,7 @@ def confirm_datum(problem: AdjustmentState, before: DatumAnalysis) -> DatumAnaly
         return before
     datum_options = JobSettings.from_options(problem.job.options).blocks.datum
     lin = linearise(problem)
-    datum = analyse_datum(problem, lin, schur(lin, problem), parameter_names(problem), datum_options.max_sigma_m)
+    datum = analyse_datum(problem, lin, schur(lin, problem, rebuildable=True), parameter_names(problem), datum_options.max_sigma_m)
     datum.at = "solution"
     if datum.undetermined and datum_options.undetermined == "refuse":
         raise RankDeficientError([datum_problem(datum.to_report())])

@@ -153,12 +153,12 @@ def _solve_reduced(parts: SchurParts, u: np.ndarray) -> tuple[np.ndarray, np.nda
     """(S^+ u; the relative size of each column of u's part in the null space of S; that part,
     in the Jacobi-scaled parameters). S's Cholesky factor is the rank check's own
     (:meth:`SchurParts.factor`); where S is singular, the eigen-decomposition."""
-    s = parts.s
-    if s.size == 0:
+    if parts.n_reduced == 0:
         return np.zeros_like(u), np.zeros(u.shape[1]), np.zeros_like(u)
     factor = parts.factor()
     if factor.lower is not None:  # positive definite to working precision: a weak direction shows in its sigma
         return factor.solve(u), np.zeros(u.shape[1]), np.zeros_like(u)
+    s = parts.reduced()
     d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
     sn = s / np.outer(d, d)
     un = u / d[:, None]
@@ -264,7 +264,7 @@ def analyse_datum(problem: AdjustmentState, lin: Linearisation, parts: SchurPart
                     moved = _largest(np.abs(null_part[:, k]), names)
                 else:
                     if s_inv_diag is None:
-                        s_inv_diag = _reduced_inverse_diagonal(parts.s)
+                        s_inv_diag = _reduced_inverse_diagonal(parts.reduced())
                     moved = _moving_parameters(x[:, k], s_inv_diag, names)
                 undetermined.append({**entry, "parameters": moved})
     return DatumAnalysis(_defined_by(problem), directions, undetermined, _image_ties(problem), max_sigma_m)
@@ -304,7 +304,7 @@ def functional_variances(lin: Linearisation, parts: SchurParts, g: np.ndarray, s
     dropped it), else S is solved through its factor."""
     v = np.einsum("qab,qbk->qak", parts.c_inv, g)
     if s_inv is not None:
-        u = b_times(lin, parts, v, s_inv.shape[0])
+        u = b_times(lin, parts, v)
         x, in_null = s_inv @ u, np.zeros(u.shape[1])
     else:
         u = b_times(lin, parts, v)

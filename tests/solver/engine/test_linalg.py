@@ -94,6 +94,27 @@ def test_fast_rank_check_falls_back_to_naming_the_null_parameters():
     assert {"p7", "p8"} <= {n for n, _ in report.null_parameters}
 
 
+def test_a_factor_that_consumed_a_singular_matrix_leaves_the_rank_check_unchanged():
+    """With S computable again (the adjustment's rank stage), the factor is made in S's memory;
+    on a singular S it fails, and the eigen-analysis runs on S computed again: the same null
+    parameters and condition as with S kept."""
+    from solver.engine.linalg import check_rank
+
+    s = _spd_with_condition(30, 1e3, seed=5)
+    s[7, :] = s[8, :]
+    s[:, 7] = s[:, 8]
+    names = [f"p{i}" for i in range(30)]
+    kept = check_rank(_parts_of(s.copy()), names, fast=True)
+    parts = _parts_of(s.copy())
+    rebuilt = []
+    parts._rebuild = lambda: rebuilt.append(1) or s.copy()
+    assert parts.factor().lower is None and parts.s.size == 0  # failed, in S's own memory
+    report = check_rank(parts, names, fast=True)
+    assert rebuilt == [1]  # computed again once, for the eigen-analysis
+    assert report.deficient and report.null_parameters == kept.null_parameters
+    assert report.condition == pytest.approx(kept.condition, rel=1e-9)  # the same eigen-analysis of the same matrix
+
+
 # The threaded passes split rows between threads: residuals, Jacobians, point covariances,
 # leverages and intersections are computed row by row either way (equal to the bit); the reduced
 # normal matrix adds the threads' shares in range order, i.e. in another order than one thread's

@@ -107,3 +107,39 @@ def test_control_defines_the_datum_and_a_tie_only_image_is_named(rpc_triplet) ->
     assert tied["prism-forward"].startswith("tie points only")
     assert not tied["prism-nadir"].startswith("tie points only")
     assert not datum["undetermined"] and "remedies" not in datum
+
+
+@pytest.mark.parametrize("sigmas", [[PRIOR_PX] * 3, [HELD_SIGMA_M, None, None]], ids=["priors", "held-bias"])
+def test_the_factor_made_in_the_reduced_matrix_memory_changes_no_analysis(rpc_triplet, sigmas) -> None:
+    """``schur(..., rebuildable=True)`` (the adjustment's rank stage): the Cholesky factor takes
+    S's own memory and S is computed again only where a path needs it (a weak direction's
+    parameters, a singular S's eigen-analysis). The datum analysis and the rank check are those
+    of the parts that keep S: a full-rank block and a weak height (held bias). The singular S
+    is in tests/solver/engine/test_linalg.py."""
+    from solver.engine.linalg import check_rank
+
+    problem = prepare(load_job(_with_priors(rpc_triplet, sigmas)))
+    lin = linearise(problem)
+    names = parameter_names(problem)
+    kept = schur(lin, problem)
+    s_before = kept.s.copy()
+    consumed = schur(lin, problem, rebuildable=True)
+    consumed.factor()
+    assert consumed.s.size == 0 and consumed.n_reduced == len(s_before)  # the factor took S's memory
+    want = analyse_datum(problem, lin, kept, names, 100.0).to_report()
+    got = analyse_datum(problem, lin, consumed, names, 100.0).to_report()
+    assert [u["direction"] for u in got["undetermined"]] == [u["direction"] for u in want["undetermined"]]
+    assert [u.get("parameters") for u in got["undetermined"]] == [u.get("parameters") for u in want["undetermined"]]
+    for a, b in zip(got["directions"], want["directions"], strict=True):
+        # the same factor of the same matrix: equal to rounding (1e-9 relative)
+        assert (a["sigma_m"] is None) == (b["sigma_m"] is None)
+        if a["sigma_m"] is not None:
+            assert a["sigma_m"] == pytest.approx(b["sigma_m"], rel=1e-9)
+    rank_kept, rank_consumed = check_rank(kept, names, fast=True), check_rank(consumed, names, fast=True)
+    assert rank_consumed.deficient == rank_kept.deficient
+    assert [n for n, _ in rank_consumed.null_parameters] == [n for n, _ in rank_kept.null_parameters]
+    assert rank_consumed.condition == pytest.approx(rank_kept.condition, rel=1e-6)
+    # S computed again is the S the factor consumed (the same sums in the same order; 1e-12 of
+    # the largest entry guards against a wrong matrix, not rounding)
+    again = consumed.reduced()
+    assert np.max(np.abs(again - s_before)) <= 1e-12 * np.max(np.abs(s_before))
