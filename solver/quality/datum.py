@@ -303,11 +303,10 @@ def functional_variances(lin: Linearisation, parts: SchurParts, g: np.ndarray, s
     kept with the report's linearisation; S is then positive definite and ``parts`` may have
     dropped it), else S is solved through its factor."""
     v = np.einsum("qab,qbk->qak", parts.c_inv, g)
+    u = b_times(lin, parts, v)
     if s_inv is not None:
-        u = b_times(lin, parts, v)
         x, in_null = s_inv @ u, np.zeros(u.shape[1])
     else:
-        u = b_times(lin, parts, v)
         x, in_null, _ = _solve_reduced(parts, u)
     var = np.einsum("qak,qak->k", g, v) + np.einsum("jk,jk->k", u, x)
     return np.where(in_null > NULL_SHARE, np.inf, var)
