@@ -1,4 +1,4 @@
-"""Ceres backend: the only module that imports pyceres.
+"""Ceres backend: the only module that uses pyceres (imported by :mod:`solver.engine.ceres_import`).
 
 Residual-block design (measured in ../shared/PYCERES_NOTES.md): every Python cost function
 costs a trampoline call, so
@@ -28,16 +28,18 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator
 
 import numpy as np
-import pyceres
 
 from solver.blocks import registry as block_kinds
 from solver.engine import native
+from solver.engine.ceres_import import import_pyceres
 from solver.engine.packed_tables import camera_table, image_table
 from solver.engine.residual_blocks import ResidualBlocks, fixed_blocks, fixed_points, point_blocks
 from solver.engine.terms import block_owner, family_terms
 from solver.kernels import fixed_obs_block, point_obs_block
 from solver.schema.settings import SolveSettings
 from solver.state import AdjustmentState
+
+pyceres = import_pyceres()  # glog's failure signal handlers left out (solver/engine/ceres_import.py)
 
 
 class SolveControl:

@@ -67,6 +67,9 @@ def requested() -> str:
 
 @lru_cache(maxsize=1)
 def _load() -> tuple[ModuleType | None, str]:
+    from solver.engine.ceres_import import import_pyceres
+
+    import_pyceres()  # the extension imports pyceres: first without glog's signal handlers
     try:
         module = importlib.import_module("solver.engine.native.callback_cost")
     except ImportError as exc:
