@@ -68,9 +68,9 @@ def test_an_adjustment_runs_bounded(monkeypatch) -> None:
     seen: list[set[int]] = []
     original = linalg.ReducedFactor.of.__func__
 
-    def spy(cls, s: np.ndarray):
+    def spy(cls, s: np.ndarray, overwrite: bool = False):
         seen.append(_blas_threads())
-        return original(cls, s)
+        return original(cls, s, overwrite)
 
     monkeypatch.setattr(linalg.ReducedFactor, "of", classmethod(spy))
     doc = json.loads((Path(__file__).resolve().parents[3] / "examples" / "prism-triplet.json").read_text())
