@@ -23,27 +23,33 @@ FOOTPRINT_NODES = 9  # points per image edge for the footprint
 TILE_SAMPLES_PER_SIDE = 9  # the fewest DEM samples per side of a tile's footprint
 
 
+def _border_lon_lat(image: MatchImage, lo: tuple[float, float], hi: tuple[float, float], heights: tuple[float, ...],
+                    nodes: int) -> np.ndarray:
+    """(k, 2) longitude and latitude (degrees) of the border of the window ``lo``..``hi``
+    (line, column; ``hi`` exclusive) of ``image`` on the ground at each of ``heights``,
+    ``nodes`` points per edge; the points that reach the ground only."""
+    from solver.geometry.geodesy import ecef_to_geodetic
+
+    t = np.linspace(0.0, 1.0, nodes)
+    l0, c0, l1, c1 = float(lo[0]), float(lo[1]), float(hi[0]) - 1.0, float(hi[1]) - 1.0
+    line = np.concatenate([l0 + t * (l1 - l0), l0 + t * (l1 - l0), np.full(nodes, l0), np.full(nodes, l1)])
+    col = np.concatenate([np.full(nodes, c0), np.full(nodes, c1), c0 + t * (c1 - c0), c0 + t * (c1 - c0)])
+    with np.errstate(all="ignore"):
+        llh = np.vstack([ecef_to_geodetic(image.model.image_to_ground(line, col, height_m=float(h))) for h in heights])
+    return llh[np.all(np.isfinite(llh), axis=1), :2]
+
+
+def _box(lon_lat: np.ndarray) -> tuple[float, float, float, float] | None:
+    """(west, south, east, north) of the points, None without any."""
+    if not len(lon_lat):
+        return None
+    return float(lon_lat[:, 0].min()), float(lon_lat[:, 1].min()), float(lon_lat[:, 0].max()), float(lon_lat[:, 1].max())
+
+
 def footprint_lon_lat(images: list[MatchImage], heights: tuple[float, float]) -> tuple[float, float, float, float] | None:
     """(west, south, east, north) degrees of the images' borders on the ground at the lowest and
     the highest height; None when no border point reaches the ground."""
-    from solver.geometry.geodesy import ecef_to_geodetic
-
-    t = np.linspace(0, 1, FOOTPRINT_NODES)
-    lon, lat = [], []
-    for im in images:
-        L, C = im.lines - 1.0, im.columns - 1.0
-        line = np.concatenate([t * L, t * L, np.zeros_like(t), np.full_like(t, L)])
-        col = np.concatenate([np.zeros_like(t), np.full_like(t, C), t * C, t * C])
-        for h in heights:
-            with np.errstate(all="ignore"):
-                llh = ecef_to_geodetic(im.model.image_to_ground(line, col, height_m=float(h)))
-            ok = np.all(np.isfinite(llh), axis=1)
-            lon.append(llh[ok, 0])
-            lat.append(llh[ok, 1])
-    lon_a, lat_a = np.concatenate(lon), np.concatenate(lat)
-    if not lon_a.size:
-        return None
-    return float(lon_a.min()), float(lat_a.min()), float(lon_a.max()), float(lat_a.max())
+    return _box(np.vstack([_border_lon_lat(im, (0.0, 0.0), (im.lines, im.columns), heights, FOOTPRINT_NODES) for im in images]))
 
 
 class DemHeights:
@@ -56,18 +62,9 @@ class DemHeights:
         self.dem, self.heights = dem, heights
 
     def __call__(self, image: MatchImage, lo: np.ndarray, hi: np.ndarray) -> tuple[float, float] | None:
-        from solver.geometry.geodesy import ecef_to_geodetic
-
-        t = np.linspace(0.0, 1.0, 3)
-        l0, c0, l1, c1 = float(lo[0]), float(lo[1]), float(hi[0]) - 1.0, float(hi[1]) - 1.0
-        line = np.concatenate([l0 + t * (l1 - l0), l0 + t * (l1 - l0), np.full(3, l0), np.full(3, l1)])
-        col = np.concatenate([np.full(3, c0), np.full(3, c1), c0 + t * (c1 - c0), c0 + t * (c1 - c0)])
-        with np.errstate(all="ignore"):
-            llh = np.vstack([ecef_to_geodetic(image.model.image_to_ground(line, col, height_m=float(h))) for h in self.heights])
-        llh = llh[np.all(np.isfinite(llh), axis=1)]
-        if not len(llh):
+        box = _box(_border_lon_lat(image, (lo[0], lo[1]), (hi[0], hi[1]), self.heights, 3))
+        if box is None:
             return None
-        box = (float(llh[:, 0].min()), float(llh[:, 1].min()), float(llh[:, 0].max()), float(llh[:, 1].max()))
         h_lo, h_hi = _sampled_range(self.dem, box, need=0.5, least=TILE_SAMPLES_PER_SIDE)
         if h_lo is None or h_hi is None:
             return None
