@@ -513,7 +513,7 @@ class ReducedFactor:
         d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
         if s.size == 0 or (np.diag(s) <= 1e-300).any():
             return cls(d, None, 0.0)
-        sn = _divide_by_outer(s, d, s) if overwrite else _jacobi_scaled(s, d)
+        sn = _jacobi_scaled(s, d, overwrite)
         norm1 = max(float(np.abs(sn[:, k : k + STRIP]).sum(axis=0).max()) for k in range(0, sn.shape[1], STRIP))
         with dense_threads.for_matrix(len(d)):
             factor, info = lapack.dpotrf(sn.T, lower=1, clean=1, overwrite_a=1)  # in place (sn is symmetric)
@@ -639,9 +639,9 @@ def _divide_by_outer(src: np.ndarray, d: np.ndarray, out: np.ndarray) -> np.ndar
     return out
 
 
-def _jacobi_scaled(s: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """``s / outer(d, d)`` in one new array."""
-    return _divide_by_outer(s, d, np.empty_like(s))
+def _jacobi_scaled(s: np.ndarray, d: np.ndarray, overwrite: bool = False) -> np.ndarray:
+    """``s / outer(d, d)`` in one new array, or with ``overwrite`` in ``s`` itself (C-contiguous)."""
+    return _divide_by_outer(s, d, s if overwrite else np.empty_like(s))
 
 
 def _mirror_lower(a: np.ndarray) -> None:
@@ -677,7 +677,7 @@ def positive_definite_inverse(s: np.ndarray, overwrite: bool = False) -> np.ndar
     d = np.sqrt(diag)
     # the transpose of the symmetric, C-ordered scaled matrix is the same matrix in Fortran
     # order: LAPACK then works in place instead of on a copy
-    work = (_divide_by_outer(s, d, s) if overwrite and s.flags.c_contiguous else _jacobi_scaled(s, d)).T
+    work = _jacobi_scaled(s, d, overwrite and s.flags.c_contiguous).T
     with dense_threads.for_matrix(len(d)):
         factor, info = lapack.dpotrf(work, lower=1, clean=0, overwrite_a=1)
         if info != 0:
