@@ -252,13 +252,19 @@ class PairMapping:
 
     def jacobian(self, line: float, column: float, step: float = 4.0) -> np.ndarray:
         """2 x 2 d(b line, b column) / d(a line, a column) at the middle height."""
+        return self.jacobians(np.array([line], float), np.array([column], float), step)[0]
+
+    def jacobians(self, line: np.ndarray, column: np.ndarray, step: float = 4.0) -> np.ndarray:
+        """(n, 2, 2) :meth:`jacobian` at each of a's points: central differences of ``step`` px
+        of b's position at the middle height."""
         k = N_HEIGHTS // 2
-        lv = np.array([line - step, line + step, line, line])
-        cv = np.array([column, column, column - step, column + step])
+        line, column = np.atleast_1d(np.asarray(line, float)), np.atleast_1d(np.asarray(column, float))
+        lv = np.concatenate([line - step, line + step, line, line])
+        cv = np.concatenate([column, column, column - step, column + step])
         if self._mid is None:
             self._mid = np.stack([self.bl[k], self.bc[k]])
-        bl, bc = self._bilinear(self._mid, lv, cv)
-        return np.array([[bl[1] - bl[0], bl[3] - bl[2]], [bc[1] - bc[0], bc[3] - bc[2]]]) / (2 * step)
+        bl, bc = self._bilinear(self._mid, lv, cv).reshape(2, 4, -1)
+        return np.stack([np.stack([bl[1] - bl[0], bl[3] - bl[2]], -1), np.stack([bc[1] - bc[0], bc[3] - bc[2]], -1)], -2) / (2 * step)
 
     def reaches_b(self, line: np.ndarray, column: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
         """(n,) whether a's points fall inside b (``margin_px`` from its border) at some height

@@ -27,12 +27,13 @@ import numpy as np
 from solver.matching.features import MatchSettings, PairMatches, detection_scale, match_pair, tiles
 from solver.matching.keypoints import FeatureCache
 from solver.matching.orientation import MatchImage, PairMapping
-from solver.matching.refine import REFERENCE_SIGMA_PX, SIGMA_FLOOR_PX, epipolar_check, other_sigma, refine_track
+from solver.matching.refine import REFERENCE_SIGMA_PX, SIGMA_FLOOR_PX, epipolar_check, other_sigma, refine_tracks
 from solver.matching.tracks import cell_of, link, thin
 
 Progress = Callable[[float, str], None]
 FOOTPRINT_NODES = 9  # points per image edge for the footprint pre-selection of pairs
 MIN_OVERLAP = 0.004  # fraction of the prediction grid (at least ~1 node of 17 x 17)
+CORRELATION_BATCH = 512  # tracks correlated together (memory: a window of about 8 kB per image of each)
 
 
 class MatchError(ValueError):
@@ -158,12 +159,10 @@ def _match_images(images: list[MatchImage], heights: tuple[float, float], settin
     kept = thin(tracks, sizes, settings.grid, settings.per_cell)
     say(0.8, "correlation")
     refined = []
-    for n, t in enumerate(kept):
-        r = refine_track(t.members, images, mapping, settings.template_half_px, settings.min_ncc)
-        if r:
-            refined.append(r)
-        if n % 50 == 0:
-            say(0.8 + 0.15 * n / max(len(kept), 1), "correlation")
+    for n in range(0, len(kept), CORRELATION_BATCH):
+        say(0.8 + 0.15 * n / max(len(kept), 1), "correlation")
+        batch = [t.members for t in kept[n:n + CORRELATION_BATCH]]
+        refined += [r for r in refine_tracks(batch, images, mapping, settings.template_half_px, settings.min_ncc) if r]
     say(0.95, "epipolar check")
     sigmas, removed = _check(refined, images, mapping, settings)
     removed_3d, bias, scale = _verify_3d(refined, images, heights, sigmas)

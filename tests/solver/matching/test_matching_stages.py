@@ -221,6 +221,94 @@ def test_correlation_from_a_far_start_moves_the_whole_search_each_time():
     assert np.allclose(got[0], [82.3, 78.4], atol=0.15), got
 
 
+def _correlate_alone(tpl, other, start, jac, min_ncc):
+    """The correlation's iteration (solver.matching.refine's docstring) written plainly, one
+    search at a time with OpenCV: the reference the batched searches must reproduce."""
+    import cv2
+
+    from solver.matching.refine import CONVERGED_PX, MAX_ITERATIONS, READ_MARGIN_PX, RECENTRED_SEARCH_PX, SEARCH_PX
+
+    def vertex(rm, r0, rp):
+        den = rm - 2.0 * r0 + rp
+        return 0.0 if den >= 0 else min(max(0.5 * (rm - rp) / den, -0.5), 0.5)
+
+    half = tpl.shape[0] // 2
+    p = np.array(start, float)
+    on_border = True
+    peak = -np.inf
+    read, win = (0, 0, 0, 0), None
+    for it in range(MAX_ITERATIONS):
+        search = SEARCH_PX if on_border else RECENTRED_SEARCH_PX
+        u = np.arange(-(half + search), half + search + 1, dtype=float)
+        uu, vv = np.meshgrid(u, u, indexing="ij")
+        lines, cols = p[0] + jac[0, 0] * uu + jac[0, 1] * vv, p[1] + jac[1, 0] * uu + jac[1, 1] * vv
+        r0, c0 = int(np.floor(lines.min())) - 3, int(np.floor(cols.min())) - 3
+        r1, c1 = int(np.ceil(lines.max())) + 4, int(np.ceil(cols.max())) + 4
+        if r0 < 0 or c0 < 0 or r1 > other.lines or c1 > other.columns:
+            return None
+        if r0 < read[0] or c0 < read[1] or r1 > read[2] or c1 > read[3]:  # read again, with a margin for the next iterations
+            read = (max(r0 - READ_MARGIN_PX, 0), max(c0 - READ_MARGIN_PX, 0), min(r1 + READ_MARGIN_PX, other.lines), min(c1 + READ_MARGIN_PX, other.columns))
+            win = other.raster.window(read[0], read[1], read[2] - read[0], read[3] - read[1])
+        warped = cv2.remap(win, (cols - read[1]).astype(np.float32), (lines - read[0]).astype(np.float32), cv2.INTER_CUBIC)
+        res = cv2.matchTemplate(warped, tpl, cv2.TM_CCOEFF_NORMED).astype(float)
+        i, j = np.unravel_index(int(np.argmax(res)), res.shape)
+        peak = res[i, j]
+        on_border = i in (0, res.shape[0] - 1) or j in (0, res.shape[1] - 1)
+        if on_border and it == MAX_ITERATIONS - 1:
+            return None
+        shift = np.array([i - search, j - search], float)
+        if not on_border:
+            shift += [vertex(res[i - 1, j], peak, res[i + 1, j]), vertex(res[i, j - 1], peak, res[i, j + 1])]
+        p = p + jac @ shift
+        if not on_border and np.max(np.abs(shift)) < CONVERGED_PX:
+            break
+    return (p, peak) if peak >= min_ncc else None
+
+
+def test_batched_correlation_gives_each_search_its_own_result():
+    """Searches run together (correlate_many: in step, whole-array bookkeeping) give what each
+    gives alone (the plain loop above): 200 searches in two images and through two affines,
+    from starts near (sub-pixel), far (beyond the +-3 px search: the border path), too far
+    (still on the border at the last iteration: refused), at the image edge (refused), in an
+    unrelated image (noise: refused) and some that do not converge in MAX_ITERATIONS. Positions within 1e-5 px (the batch's parabolas are in float64,
+    the plain loop's too: the same numbers up to rounding); the same searches refused."""
+    from scipy.ndimage import shift as nd_shift
+
+    from solver.matching.refine import correlate_many
+
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(11)
+    base = _texture((300, 300), 4)
+    moved = _image("b", ArrayRaster(nd_shift(base, (2.3, -1.6), order=3, mode="reflect")))
+    noise = _image("n", ArrayRaster(_texture((300, 300), 5)))
+    smooth = 1000.0 + 400.0 * gaussian_filter(rng.normal(size=(300, 300)), 4.0)  # broad peaks: far starts climb to them
+    smooth_moved = _image("s", ArrayRaster(nd_shift(smooth, (2.3, -1.6), order=3, mode="reflect")))
+    half = SETTINGS.template_half_px
+    tpls, others, starts, jacs = [], [], [], []
+    for k in range(200):
+        c = rng.integers(half + 30, 300 - half - 30, 2)
+        src, other = (smooth, smooth_moved) if k % 5 == 4 else (base, noise if k % 7 == 0 else moved)
+        tpls.append(src[c[0] - half:c[0] + half + 1, c[1] - half:c[1] + half + 1].astype(np.float32))
+        others.append(other)
+        off = rng.uniform(-0.8, 0.8, 2) if k % 3 else rng.uniform(-9.0, 9.0, 2)
+        if k % 5 == 4:  # beyond what MAX_ITERATIONS border moves of SEARCH_PX reach: refused
+            off = rng.choice([-1.0, 1.0], 2) * rng.uniform(20.0, 24.0, 2)
+        if k % 11 == 0:  # the search's window leaves the image: refused
+            c[0] = half + 2
+        starts.append(c + np.array([2.3, -1.6]) + off)
+        jacs.append(np.eye(2) if k % 2 else np.array([[1.0, 0.02], [-0.01, 1.0]]))
+    for min_ncc in (SETTINGS.min_ncc, -1.0):  # without a threshold only the iteration refuses
+        got = correlate_many(tpls, others, np.array(starts), np.array(jacs), min_ncc)
+        alone = [_correlate_alone(*args, min_ncc) for args in zip(tpls, others, starts, jacs, strict=True)]
+        assert [g is None for g in got] == [a is None for a in alone]
+        found = [(g, a) for g, a in zip(got, alone, strict=True) if a is not None]
+        assert 100 < len(found) < 200  # both outcomes are exercised
+        for g, a in found:
+            assert np.allclose(g[0], a[0], atol=1e-5), (g, a)
+            assert abs(g[1] - a[1]) < 1e-6
+
+
 # --- the pair mapping's Jacobian ------------------------------------------------------------
 
 def test_pair_mapping_jacobian_of_a_sheared_mapping():
