@@ -33,7 +33,7 @@ from solver.matching.tracks import cell_of, link, thin
 Progress = Callable[[float, str], None]
 FOOTPRINT_NODES = 9  # points per image edge for the footprint pre-selection of pairs
 MIN_OVERLAP = 0.004  # fraction of the prediction grid (at least ~1 node of 17 x 17)
-CORRELATION_BATCH = 512  # tracks correlated together (memory: a window of about 8 kB per image of each)
+CORRELATION_BATCH = 128  # tracks correlated together (memory: a window of about 8 kB per image of each)
 
 
 class MatchError(ValueError):

@@ -35,6 +35,7 @@ RECENTRED_SEARCH_PX = 1  # after a peak inside the search the estimate is on it:
 READ_MARGIN_PX = 4  # read around the first iteration's window: the later ones move by a pixel or less
 MAX_ITERATIONS = 6
 CONVERGED_PX = 0.01
+GRID_CHUNK = 128  # searches whose sample grids are computed together (about 4 MB of float64 temporaries)
 MIN_TEMPLATE_STD = 1e-3  # relative to the image's stretch: a flat template has no position
 SIGMA_FLOOR_PX = 0.05  # the least matching precision of a pair (quantisation, resampling)
 # The reference measurement is the defining pixel: the tie point is its ground point, so it has
@@ -134,13 +135,15 @@ def _iterate(sel, search, it, tpls, others, half, p, jacs, size, read, wins, on_
         wins[k] = others[k].raster.window(read[k, 0], read[k, 1], read[k, 2] - read[k, 0], read[k, 3] - read[k, 1])
     w = 2 * search + 1
     res = np.empty((len(sel), w, w), np.float32)
-    for t, k in enumerate(sel):
-        (q0, q1), ((j00, j01), (j10, j11)) = q[t], jac[t]
-        # every sample and its bicubic neighbours are inside the read: the border mode never acts
-        my = (q0 + j00 * uu + j01 * vv - read[k, 0]).astype(np.float32)
-        mx = (q1 + j10 * uu + j11 * vv - read[k, 1]).astype(np.float32)
-        warped = cv2.remap(wins[k], mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
-        res[t] = cv2.matchTemplate(warped, tpls[k], cv2.TM_CCOEFF_NORMED)
+    for t0 in range(0, len(sel), GRID_CHUNK):  # the sample grids of GRID_CHUNK searches at a time (memory)
+        part = slice(t0, t0 + GRID_CHUNK)
+        qq, jj, rr = q[part], jac[part], read[sel[part]]
+        my = (qq[:, 0, None, None] + jj[:, 0, 0, None, None] * uu + jj[:, 0, 1, None, None] * vv - rr[:, 0, None, None]).astype(np.float32)
+        mx = (qq[:, 1, None, None] + jj[:, 1, 0, None, None] * uu + jj[:, 1, 1, None, None] * vv - rr[:, 1, None, None]).astype(np.float32)
+        for t, k in enumerate(sel[part]):
+            # every sample and its bicubic neighbours are inside the read: the border mode never acts
+            warped = cv2.remap(wins[k], mx[t], my[t], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+            res[t0 + t] = cv2.matchTemplate(warped, tpls[k], cv2.TM_CCOEFF_NORMED)
     res64 = res.astype(np.float64)
     best = np.argmax(res.reshape(len(sel), -1), axis=1)
     i, j = best // w, best % w
