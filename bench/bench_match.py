@@ -11,9 +11,12 @@ per-image gain, offset and noise) through a linear RPC whose line depends on the
 (+-0.1 per normalised height unit: the views' parallax), the ground at 37.3 m above the RPC's
 height offset, so neighbouring views are shifted by a non-integer number of lines, and the
 images are offset along track by 5% of their length (partial overlap). The matching is run
-as a separate ``pba match`` process (its own peak RSS from ``getrusage``), with the default
-settings; the load (``os.getloadavg``) is printed beside every time: on a shared machine the
-time is only indicative.
+as a separate ``pba match`` process (its own peak RSS and CPU time from ``getrusage``), with the
+default settings; the load (``os.getloadavg``) is printed beside every time: on a shared machine
+the time is only indicative. The package's bytecode is compiled first (``compileall``), as an
+installation has it (pip compiles it at install): with ``PYTHONDONTWRITEBYTECODE`` set, as on
+some development machines, every run would otherwise compile the solver's modules again
+(about 0.2 s).
 
 Usage: ``python bench/bench_match.py [--scene crops|pair|prism|all] [--keep DIR]``
 """
@@ -21,6 +24,7 @@ Usage: ``python bench/bench_match.py [--scene crops|pair|prism|all] [--keep DIR]
 from __future__ import annotations
 
 import argparse
+import compileall
 import os
 import resource
 import subprocess
@@ -103,34 +107,43 @@ def make_scene(d: Path, n_images: int, lines: int, columns: int) -> list[Path]:
 
 def run_match(paths: list[Path], out: Path) -> dict:
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    usage0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     cmd = [sys.executable, "-m", "solver.cli", "match", *map(str, paths), "-o", str(out), "--summary", str(out.with_suffix(".json")), "-q",
            "--heights", f"{HEIGHT_OFF_M - 200},{HEIGHT_OFF_M + 200}"]
     proc = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
     seconds = time.perf_counter() - t0
-    peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
-    return {"ok": proc.returncode == 0, "seconds": seconds, "peak_rss_mb": max(peak_mb, before / 1024.0), "load": (load0, os.getloadavg()[0]),
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    peak_mb = usage.ru_maxrss / 1024.0
+    cpu = usage.ru_utime + usage.ru_stime - usage0.ru_utime - usage0.ru_stime
+    return {"ok": proc.returncode == 0, "seconds": seconds, "cpu_s": cpu, "peak_rss_mb": max(peak_mb, before / 1024.0), "load": (load0, os.getloadavg()[0]),
             "stdout": proc.stdout.strip().splitlines()[:1], "stderr": proc.stderr.strip()[-500:]}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", choices=("crops", "pair", "prism", "all"), default="all")
-    ap.add_argument("--keep", type=Path, help="write the rasters here and keep them")
+    ap.add_argument("--keep", type=Path, help="write the rasters here and keep them (a scene already kept there is used again)")
     args = ap.parse_args()
     scenes = {"crops": (3, 1024, 1024), "pair": (2, 10_000, 10_000), "prism": (3, 16_000, 14_500)}
     names = list(scenes) if args.scene == "all" else [args.scene]
+    compileall.compile_dir(str(ROOT / "solver"), quiet=1)
     with tempfile.TemporaryDirectory(prefix="pba-bench-match-") as tmp:
         base = args.keep or Path(tmp)
         for name in names:
             d = base / name
             d.mkdir(parents=True, exist_ok=True)
             t0 = time.perf_counter()
-            paths = make_scene(d, *scenes[name])
-            print(f"{name}: {scenes[name][0]} images {scenes[name][1]} x {scenes[name][2]} written in {time.perf_counter() - t0:.0f} s")
+            kept = [d / f"view{i}.tif" for i in range(scenes[name][0])]
+            if args.keep and all(p.exists() and p.with_name(p.stem + "_RPC.TXT").exists() for p in kept):
+                paths = kept
+                print(f"{name}: the scene kept in {d} used again")
+            else:
+                paths = make_scene(d, *scenes[name])
+                print(f"{name}: {scenes[name][0]} images {scenes[name][1]} x {scenes[name][2]} written in {time.perf_counter() - t0:.0f} s")
             r = run_match(paths, d / "ties.csv")
-            print(f"{name}: pba match {'ok' if r['ok'] else 'FAILED'} in {r['seconds']:.1f} s, peak RSS {r['peak_rss_mb']:.0f} MB "
+            print(f"{name}: pba match {'ok' if r['ok'] else 'FAILED'} in {r['seconds']:.1f} s ({r['cpu_s']:.1f} s CPU), peak RSS {r['peak_rss_mb']:.0f} MB "
                   f"(load average {r['load'][0]:.1f} before, {r['load'][1]:.1f} after)")
             print("  " + " ".join(r["stdout"]))
             if not r["ok"]:

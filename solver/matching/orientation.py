@@ -275,10 +275,8 @@ class PairMapping:
     def _enters_b(self, bl: np.ndarray, bc: np.ndarray, margin_px: float) -> np.ndarray:
         lo = np.array([margin_px, margin_px])
         hi = np.array([self.b.lines - 1 - margin_px, self.b.columns - 1 - margin_px])
-        hit = np.zeros(bl.shape[1:], dtype=bool)
-        for k in range(bl.shape[0] - 1):
-            hit |= segment_enters_box(np.stack([bl[k], bc[k]], -1), np.stack([bl[k + 1], bc[k + 1]], -1), lo, hi)
-        return hit
+        ends = np.stack([bl, bc], -1)  # (heights, ..., 2)
+        return segment_enters_box(ends[:-1], ends[1:], lo, hi).any(axis=0)  # every height step at once
 
     def overlap_fraction(self, margin_px: float = 0.0) -> float:
         """Fraction of a's grid nodes that fall inside b at some height of the range."""
