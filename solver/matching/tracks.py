@@ -14,7 +14,7 @@ one of the image cells they fall in (``grid`` x ``grid`` per image) holds fewer 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,15 +25,19 @@ MAX_SPREAD_PX = 2.0
 @dataclass
 class Track:
     """One tie point: its images (indices) and (line, column) in each; the number of pairwise
-    matches that support it."""
+    matches that support it. Its members are not changed once made (the key is kept)."""
 
     members: dict[int, np.ndarray]
     support: int
+    _key: tuple | None = field(default=None, repr=False, compare=False)
 
     def key(self) -> tuple:
-        ref = min(self.members)
-        p = self.members[ref]
-        return (ref, round(float(p[0]), 3), round(float(p[1]), 3))
+        """(first image, its line and column to 1e-3 px): the order of tracks."""
+        if self._key is None:
+            ref = min(self.members)
+            p = self.members[ref]
+            self._key = (ref, round(float(p[0]), 3), round(float(p[1]), 3))
+        return self._key
 
 
 def components(n: int, edges: np.ndarray) -> np.ndarray:
@@ -130,10 +134,14 @@ def link(pairs, n_images: int, scale: float = 1.0) -> tuple[list[Track], int]:
     bad = np.unique(g_label[spread > MAX_SPREAD_PX * scale])
     ok = ~np.isin(g_label, bad)
     comp_starts = np.flatnonzero(np.r_[True, g_label[1:] != g_label[:-1]])
+    comp_ends = np.r_[comp_starts[1:], len(starts)]
+    made = comp_starts[(comp_ends - comp_starts >= 2) & ok[comp_starts]]
+    images_, means = g_img.tolist(), list(mean)
     tracks = []
-    for c0, c1 in zip(comp_starts, np.r_[comp_starts[1:], len(starts)], strict=True):
-        if c1 - c0 >= 2 and ok[c0]:
-            tracks.append(Track({int(g_img[g]): mean[g] for g in range(c0, c1)}, int(support[g_label[c0]])))
+    # a component's groups are in image order: its first is the reference (Track.key)
+    for c0, c1, s, ref, line, col in zip(made.tolist(), comp_ends[np.searchsorted(comp_starts, made)].tolist(), support[g_label[made]].tolist(),
+                                          g_img[made].tolist(), mean[made, 0].tolist(), mean[made, 1].tolist(), strict=True):
+        tracks.append(Track({images_[g]: means[g] for g in range(c0, c1)}, s, (ref, round(line, 3), round(col, 3))))
     tracks.sort(key=Track.key)
     return tracks, len(bad)
 
@@ -147,14 +155,30 @@ def cell_of(position: np.ndarray, lines: int, columns: int, grid: int) -> tuple[
 
 def thin(tracks: list[Track], sizes: list[tuple[int, int]], grid: int, per_cell: int) -> list[Track]:
     """The tracks kept for an even spread (module docstring), in :meth:`Track.key` order."""
-    counts = [np.zeros((grid, grid), int) for _ in sizes]
-    ranked = sorted(tracks, key=lambda t: (-len(t.members), -t.support, t.key()))
+    if not tracks:
+        return []
+    n = len(tracks)
+    keys = [t.key() for t in tracks]
+    by_key = np.empty(n, np.int64)
+    by_key[sorted(range(n), key=keys.__getitem__)] = np.arange(n)  # each track's place in key order
+    n_members = np.array([len(t.members) for t in tracks])
+    support = np.array([t.support for t in tracks])
+    ranked = np.lexsort((by_key, -support, -n_members)).tolist()  # more images, more support, then the key
+    # every member's cell (:func:`cell_of`) at once, numbered image by image
+    img = np.fromiter((i for t in tracks for i in t.members), np.int64, int(n_members.sum()))
+    pos = np.array([p for t in tracks for p in t.members.values()], float).reshape(-1, 2)
+    dims = np.array(sizes, float)[img]
+    r = np.clip(np.trunc(pos[:, 0] * grid / dims[:, 0]), 0, grid - 1).astype(np.int64)
+    c = np.clip(np.trunc(pos[:, 1] * grid / dims[:, 1]), 0, grid - 1).astype(np.int64)
+    flat = ((img * grid + r) * grid + c).tolist()
+    ends = np.cumsum(n_members).tolist()
+    cells = [flat[e - k:e] for e, k in zip(ends, n_members.tolist(), strict=True)]
+    counts = [0] * (len(sizes) * grid * grid)
     kept = []
-    for t in ranked:
-        cells = {i: cell_of(p, *sizes[i], grid) for i, p in t.members.items()}
-        if any(counts[i][c] < per_cell for i, c in cells.items()):
-            kept.append(t)
-            for i, c in cells.items():
-                counts[i][c] += 1
-    kept.sort(key=Track.key)
-    return kept
+    for k in ranked:
+        if any(counts[i] < per_cell for i in cells[k]):
+            kept.append(k)
+            for i in cells[k]:
+                counts[i] += 1
+    kept.sort(key=by_key.__getitem__)
+    return [tracks[k] for k in kept]
