@@ -31,6 +31,12 @@ defines the tie point and has none. The squared factors are the least-squares so
 squared residuals (weighted by their predicted variance's inverse square, residuals beyond
 :data:`CALIBRATION_CLIP` predicted sigmas left out, iterated); an image with fewer than
 :data:`CALIBRATION_MIN` non-reference measurements in such tracks keeps its stated sigmas.
+
+The computation (:class:`_Block`): the tracks are flattened once into one entry per measurement
+and every track's point is solved at once. A ray depends only on its measurement and its image's
+bias, so each image's rays are kept until its bias changes (the bias is estimated one image at a
+time), and a measurement's effect is found with only its own image's rays computed again at the
+moved positions (the other rays reused) and only the other members of its tracks projected.
 """
 
 from __future__ import annotations
