@@ -89,9 +89,9 @@ class _Block:
         p = self.pos[rows] if pos is None else pos
         return p - apply_bias(bias, i, p, self.sizes[i])
 
-    def image_rays(self, bias: np.ndarray, i: int, pos: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """The rays of image ``i``'s entries (at ``pos`` instead of its measurements if given)."""
-        return _rays(self.models[i], self.corrected(bias, i, self.rows[i], pos), self.span)
+    def image_rays(self, bias: np.ndarray, i: int, rows: np.ndarray, pos: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The rays of image ``i``'s entries ``rows`` (at ``pos`` instead of their measurements if given)."""
+        return _rays(self.models[i], self.corrected(bias, i, rows, pos), self.span)
 
     def rays(self, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(origins, directions) (n, 3) of every entry's ray, the bias removed."""
@@ -99,7 +99,7 @@ class _Block:
         for i, rows in self.rows.items():
             key = bias[i].tobytes()
             if i not in self._cache or self._cache[i][0] != key:
-                self._cache[i] = (key, *self.image_rays(bias, i))
+                self._cache[i] = (key, *self.image_rays(bias, i, rows))
             o[rows], d[rows] = self._cache[i][1], self._cache[i][2]
         return o, d
 
@@ -313,7 +313,7 @@ def _calibration_design(block: _Block, bias: np.ndarray) -> tuple[np.ndarray, np
             step = np.zeros(2)
             step[axis] = DELTA_PX
             o1, d1 = o.copy(), d.copy()
-            o1[moved], d1[moved] = _rays(block.models[j], block.corrected(bias, j, moved, block.pos[moved] + step), block.span)
+            o1[moved], d1[moved] = block.image_rays(bias, j, moved, block.pos[moved] + step)
             r1, _u = block.residuals(bias, leave_out=True, rays=(o1, d1), rows=targets)
             gsq[targets, j] += ((r1 - r0[targets]) / DELTA_PX) ** 2
     s2 = np.zeros((block.n_tracks, n_images))
