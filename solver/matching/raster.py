@@ -11,10 +11,15 @@ Radiometry: band 1, 8 to 16 bits (integers) or floats. For feature detection a w
 stretched to 8 bits between the 0.5 and 99.5 percentiles of a decimated read of the whole
 image (at most :data:`STATS_SIZE` pixels on its long side; GDAL takes an overview level when
 the file has one); correlation works on the raw values (NCC is gain and offset invariant).
+
+Threads: one raster's reads are serialised (a lock per raster: a GDAL dataset is not read from
+two threads at once); two rasters are read at the same time (the matching's detection thread,
+:mod:`solver.matching.keypoints`).
 """
 
 from __future__ import annotations
 
+import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +51,7 @@ class Raster:
     stretch: tuple[float, float] = (0.0, 255.0)
     nodata: float | None = None
     _whole: np.ndarray | None = field(default=None, repr=False)  # raw band 1 of a small image (WHOLE_MAX_PX)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)  # one read at a time
 
     @classmethod
     def open(cls, path: str | Path) -> "Raster":
@@ -91,7 +97,7 @@ class Raster:
         from rasterio.errors import RasterioError
 
         try:
-            with warnings.catch_warnings():
+            with self._lock, warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 return self._dataset.dataset.read(1, **kw)
         except (RasterioError, OSError, ValueError) as exc:
@@ -118,9 +124,10 @@ class Raster:
         if r1 <= r0 or c1 <= c0:
             return np.zeros((0, 0), np.float32)
         if self.lines * self.columns <= WHOLE_MAX_PX:
-            if self._whole is None:
-                self._whole = self._read()
-            return self._whole[r0:r1, c0:c1].astype(np.float32)
+            whole = self._whole
+            if whole is None:
+                whole = self._whole = self._read()  # (read twice at worst, by two threads at once: the same values)
+            return whole[r0:r1, c0:c1].astype(np.float32)
         return self._read(window=Window(c0, r0, c1 - c0, r1 - r0)).astype(np.float32)
 
     def decimated(self, row0: int, col0: int, rows: int, cols: int, k: int) -> tuple[np.ndarray, int, int]:
