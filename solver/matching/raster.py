@@ -12,9 +12,10 @@ stretched to 8 bits between the 0.5 and 99.5 percentiles of a decimated read of 
 image (at most :data:`STATS_SIZE` pixels on its long side; GDAL takes an overview level when
 the file has one); correlation works on the raw values (NCC is gain and offset invariant).
 
-Threads: one raster's reads are serialised (a lock per raster: a GDAL dataset is not read from
-two threads at once); two rasters are read at the same time (the matching's detection thread,
-:mod:`solver.matching.keypoints`).
+Threads: reads are serialised, one at a time in the process (:data:`_READ_LOCK`): a GDAL
+dataset is not read from two threads at once, and the warnings filters a read sets aside are
+global. The matching's detection thread (:mod:`solver.matching.keypoints`) spends most of its
+time in SIFT, not in reads.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ MAX_SIDE_PX = 1_000_000  # an image side beyond this is refused (no sensor deliv
 MIN_SIDE_PX = 32  # a side below this holds no correlation template with its search (2 x 12 + 1 + 2 x 3 px)
 STATS_SIZE = 1024  # long side of the decimated read for the 8-bit stretch
 WHOLE_MAX_PX = 2048 * 2048  # at most 16 MB per image (4-byte pixels) held in memory
+_READ_LOCK = threading.Lock()  # one raster read at a time (module docstring)
 DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
 
 
@@ -51,7 +53,6 @@ class Raster:
     stretch: tuple[float, float] = (0.0, 255.0)
     nodata: float | None = None
     _whole: np.ndarray | None = field(default=None, repr=False)  # raw band 1 of a small image (WHOLE_MAX_PX)
-    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)  # one read at a time
 
     @classmethod
     def open(cls, path: str | Path) -> "Raster":
@@ -97,7 +98,7 @@ class Raster:
         from rasterio.errors import RasterioError
 
         try:
-            with self._lock, warnings.catch_warnings():
+            with _READ_LOCK, warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 return self._dataset.dataset.read(1, **kw)
         except (RasterioError, OSError, ValueError) as exc:
