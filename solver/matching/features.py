@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.matching.keypoints import BLOCK_PX, FeatureCache, Features
+from solver.matching.keypoints import BLOCK_PX, PREFETCH_TILES, FeatureCache, Features
 from solver.matching.orientation import MatchImage, PairMapping
 
 EXACT_PAIRS = 4_000_000  # descriptor distances computed exactly up to this many (na x nb) per tile (16 MB)
@@ -364,10 +364,19 @@ def match_pair(a: MatchImage, b: MatchImage, ia: int, ib: int, mapping: PairMapp
     layout, per_cell = tiles(a, s)
     ranges = TileHeights(a, mapping, s, terrain)
     corners = np.array([[0.0, 0.0], [0.0, 1.0], [1.0, 0.0], [1.0, 1.0], [0.5, 0.5]])
+    reached = []
+    for t in layout:
+        probe = t.lo + corners * (t.hi - 1 - t.lo)
+        reached.append(bool(mapping.reaches_b(probe[:, 0], probe[:, 1]).any()))  # at some height of the range
+    ahead = iter([t for t, r in zip(layout, reached, strict=True) if r])
+    fb_cache.prefetch_whole()  # a small b: detected whole beside a
     pas, pbs = [], []
     for n, t in enumerate(layout):
-        probe = t.lo + corners * (t.hi - 1 - t.lo)
-        if mapping.reaches_b(probe[:, 0], probe[:, 1]).any():  # at some height of the range
+        if reached[n]:
+            for _ in range(PREFETCH_TILES - len(fa_cache.pending)):  # a's next tiles detected ahead (none without a pool)
+                nxt = next(ahead, None)
+                if nxt is not None:
+                    fa_cache.prefetch(nxt.lo, nxt.hi)
             counts["tiles"] += 1
             fa = fa_cache.window(t.lo, t.hi)
             fa = fa.take(np.flatnonzero(mapping.reaches_b(fa.pos[:, 0], fa.pos[:, 1])))
@@ -390,6 +399,7 @@ def match_pair(a: MatchImage, b: MatchImage, ia: int, ib: int, mapping: PairMapp
                 pbs.append(pb)
         if progress is not None:
             progress((n + 1) / len(layout))
+    fa_cache.drop_pending()  # (a's tiles went otherwise than announced: detections not used)
     pa = np.vstack(pas) if pas else np.zeros((0, 2))
     pb = np.vstack(pbs) if pbs else np.zeros((0, 2))
     counts["matched"] = len(pa)

@@ -9,6 +9,19 @@ kept with the block. So a window of the image is detected once, whichever pair a
 in whatever role; large images are detected only where a pair needs them. In the image's last
 pair only the blocks of the last few rows of tiles are kept (:meth:`FeatureCache.keep_recent`).
 
+A small image (one :class:`solver.matching.raster.Raster` holds whole: at most
+:data:`solver.matching.raster.WHOLE_MAX_PX` pixels) is detected in one SIFT call, the whole image
+without margins, at its first window, and its features split into the same blocks (kept until
+the image's last pair is done): one call instead of hundreds of margined ones.
+
+Detection on more than one core (``PBA_MATCH_THREADS``, :func:`match_threads`): a cache given a
+thread pool detects windows announced ahead (:meth:`FeatureCache.prefetch`: the a tiles of a
+pair a few tiles ahead, a small image whole) in the pool's thread while the main thread detects
+and matches the others. Each SIFT call stays single-threaded and a prefetched detection is
+used only for exactly the rectangle the sequential path would detect at that point (the same
+read, so the same features); any other is detected by the main thread. The result is the same
+as with one thread, whatever the timing.
+
 Positions are (line, column) in our convention (pixel centres, top-left at (0, 0)), full
 resolution; descriptors are OpenCV's (128 values from 0 to 255, stored as uint8); the response
 is SIFT's (the strength of the extremum, for choosing the strongest features of a cell).
@@ -16,7 +29,11 @@ is SIFT's (the strength of the extremum, for choosing the strongest features of 
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
@@ -24,6 +41,43 @@ from solver.matching.orientation import MatchImage
 
 BLOCK_PX = 32  # side of a detection block (full-resolution pixels, a multiple of the decimation)
 MARGIN_PX = 32  # context read around the blocks being detected (full-resolution pixels)
+THREADS_ENV = "PBA_MATCH_THREADS"  # threads detecting SIFT features (default: 2, or the cores available if fewer)
+DEFAULT_THREADS = 2
+PREFETCH_TILES = 4  # a tiles of a pair detected ahead in the pool's thread (bounds the features held ahead)
+WHOLE = ((0, -1), (0, -1))  # the key of a small image's one detection
+
+
+def match_threads() -> int:
+    """Threads detecting features: ``PBA_MATCH_THREADS``, by default :data:`DEFAULT_THREADS` or
+    the cores this process may use if fewer; 1 detects everything in the main thread."""
+    value = os.environ.get(THREADS_ENV, "").strip()
+    if value:
+        try:
+            n = int(value)
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise ValueError(f"{THREADS_ENV}={value!r}: expected a positive integer")
+        return n
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(DEFAULT_THREADS, cores))
+
+
+@contextmanager
+def detection_pool(threads: int) -> Iterator[Executor | None]:
+    """The pool of ``threads - 1`` threads that detect ahead of the main thread (None for one
+    thread: everything detected in the main thread); waits for its detections at the end."""
+    if threads <= 1:
+        yield None
+        return
+    pool = ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="pba-detect")
+    try:
+        yield pool
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 @dataclass
@@ -82,11 +136,17 @@ def detect(image: MatchImage, row0: int, col0: int, rows: int, cols: int, k: int
 
 
 class FeatureCache:
-    """One image's features, detected block by block the first time a window needs them
-    (module docstring)."""
+    """One image's features, detected block by block the first time a window needs them, or
+    whole for a small image (``whole``: by default when the raster holds it whole), detected
+    ahead in ``pool`` when given (module docstring)."""
 
-    def __init__(self, image: MatchImage, decimation: int):
-        self.image, self.k = image, decimation
+    def __init__(self, image: MatchImage, decimation: int, pool: Executor | None = None, whole: bool | None = None):
+        from solver.matching.raster import WHOLE_MAX_PX
+
+        self.image, self.k, self.pool = image, decimation, pool
+        self.whole = image.lines * image.columns <= WHOLE_MAX_PX if whole is None else whole
+        self.pending: dict[tuple[tuple[int, int], tuple[int, int]], Future] = {}  # rectangle -> its detection, started ahead
+        self.planned: set[tuple[int, int]] = set()  # blocks of the pending detections
         self.block = BLOCK_PX // decimation * decimation
         self.shape = (-(-image.lines // self.block), -(-image.columns // self.block))
         self.blocks: dict[tuple[int, int], Features] = {}
@@ -104,11 +164,61 @@ class FeatureCache:
         c = range(max(int(lo[1]) // b, 0), min(int(np.ceil(hi[1] / b)), self.shape[1]))
         return r, c
 
-    def _fill(self, rows: range, cols: range) -> None:
+    def _plan(self, rows: range, cols: range, skip: set[tuple[int, int]]) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+        """The rectangles of blocks the window's detection reads, for its blocks not in the
+        cache nor in ``skip`` (the whole image's for a small image with a block missing)."""
+        missing = {(i, j) for i in rows for j in cols if (i, j) not in self.blocks and (i, j) not in skip}
+        if self.whole:
+            return [WHOLE] if missing else []
+        return _rectangles(missing)
+
+    def _detect(self, rect: tuple[tuple[int, int], tuple[int, int]]) -> Features:
+        """The features of a rectangle of blocks read with :data:`MARGIN_PX` of context (the
+        whole image, without margins, for :data:`WHOLE`)."""
+        if rect == WHOLE:
+            return detect(self.image, 0, 0, self.image.lines, self.image.columns, self.k)
         b, m = self.block, MARGIN_PX
-        for (i0, i1), (j0, j1) in _rectangles({(i, j) for i in rows for j in cols if (i, j) not in self.blocks}):
-            f = detect(self.image, i0 * b - m, j0 * b - m, (i1 - i0) * b + 2 * m, (j1 - j0) * b + 2 * m, self.k)
+        (i0, i1), (j0, j1) = rect
+        return detect(self.image, i0 * b - m, j0 * b - m, (i1 - i0) * b + 2 * m, (j1 - j0) * b + 2 * m, self.k)
+
+    def prefetch(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        """Start detecting, in the pool's thread, what :meth:`window` (lo, hi) will need when it
+        is asked for after the windows announced or asked for before it (nothing without a
+        pool). A detection the window finds not started yet is taken back by the main thread."""
+        if self.pool is None:
+            return
+        rows, cols = self._blocks_of(lo, hi)
+        for rect in self._plan(rows, cols, self.planned):
+            if rect not in self.pending:
+                self.pending[rect] = self.pool.submit(self._detect, rect)
+                self.planned |= set(self._rect_blocks(rect))
+
+    def prefetch_whole(self) -> None:
+        """A small image: start its one detection in the pool's thread (:meth:`prefetch`)."""
+        if self.whole:
+            self.prefetch(np.zeros(2), np.array([self.image.lines, self.image.columns]))
+
+    def drop_pending(self) -> None:
+        """Forget the detections started ahead (those not used: the windows went otherwise)."""
+        for fut in self.pending.values():
+            fut.cancel()
+        self.pending.clear()
+        self.planned.clear()
+
+    def _rect_blocks(self, rect: tuple[tuple[int, int], tuple[int, int]]) -> list[tuple[int, int]]:
+        (i0, i1), (j0, j1) = ((0, self.shape[0]), (0, self.shape[1])) if rect == WHOLE else rect
+        return [(i, j) for i in range(i0, i1) for j in range(j0, j1)]
+
+    def _fill(self, rows: range, cols: range) -> None:
+        b = self.block
+        for rect in self._plan(rows, cols, set()):
+            fut = self.pending.pop(rect, None)
+            if fut is not None and fut.cancel():  # not started: detected here rather than waited for
+                fut = None
+            f = self._detect(rect) if fut is None else fut.result()
+            self.planned -= set(self._rect_blocks(rect))
             self.detections += 1
+            (i0, i1), (j0, j1) = ((0, self.shape[0]), (0, self.shape[1])) if rect == WHOLE else rect
             bi = np.floor(f.pos[:, 0] / b).astype(int)
             bj = np.floor(f.pos[:, 1] / b).astype(int)
             width = j1 - j0
@@ -118,7 +228,8 @@ class FeatureCache:
             bounds = np.searchsorted(key[order], np.arange(-1, (i1 - i0) * width) + 0.5)
             for n in range((i1 - i0) * width):
                 i, j = i0 + n // width, j0 + n % width
-                self.blocks[(i, j)] = f.take(order[bounds[n]:bounds[n + 1]])
+                if (i, j) not in self.blocks:  # (a small image's blocks already there stay as they are)
+                    self.blocks[(i, j)] = f.take(order[bounds[n]:bounds[n + 1]])
                 self.detected.add((i, j))
 
     def window(self, lo: np.ndarray, hi: np.ndarray) -> Features:
@@ -131,7 +242,7 @@ class FeatureCache:
         self.requests += 1
         for key in ((i, j) for i in rows for j in cols):
             self.last_use[key] = self.requests
-        if self.horizon is not None:  # the blocks last needed ``horizon`` requests ago (after ``since``) go
+        if self.horizon is not None and not self.whole:  # the blocks last needed ``horizon`` requests ago (after ``since``) go
             self.used_at[self.requests] = [(i, j) for i in rows for j in cols]
             expired = self.requests - self.horizon
             for key in self.used_at.pop(expired, []) if expired > self.since else []:
@@ -143,12 +254,16 @@ class FeatureCache:
         """From now on let go of the blocks the last ``requests`` windows did not need, among
         those needed since (the image's last pair: its tiles go over the image once, so such a
         block is seldom needed again; if it is, it is detected again). The blocks detected for
-        earlier pairs stay until a window needs them. Bounds the memory by a few rows of tiles."""
+        earlier pairs stay until a window needs them. Bounds the memory by a few rows of tiles.
+        A small image keeps all its blocks (detected in one call)."""
         self.horizon, self.since = requests, self.requests
 
     def retain(self, windows: list[tuple[np.ndarray, np.ndarray]]) -> None:
         """Keep only the blocks that ``windows`` (lo, hi) touch (an image whose later pairs all
-        read it as their a: the same tile windows every time)."""
+        read it as their a: the same tile windows every time). A small image keeps all (one
+        detection: a block let go would cost the whole image again)."""
+        if self.whole:
+            return
         keep = {(i, j) for lo, hi in windows for rows, cols in [self._blocks_of(lo, hi)] for i in rows for j in cols}
         for key in [k for k in self.blocks if k not in keep]:
             del self.blocks[key]

@@ -19,13 +19,14 @@ pairs (i < j) in order, tracks in their reference position's order.
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Executor
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
 from solver.matching.features import MatchSettings, PairMatches, detection_scale, match_pair, tiles
-from solver.matching.keypoints import FeatureCache
+from solver.matching.keypoints import FeatureCache, detection_pool, match_threads
 from solver.matching.orientation import MatchImage, PairMapping
 from solver.matching.refine import REFERENCE_SIGMA_PX, SIGMA_FLOOR_PX, epipolar_check, other_sigma, refine_tracks
 from solver.matching.tracks import cell_of, link, thin
@@ -99,11 +100,12 @@ def match_images(images: list[MatchImage], heights: tuple[float, float], setting
     from threadpoolctl import threadpool_limits
 
     cv2.setNumThreads(1)
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _match_images(images, heights, settings, progress, terrain)
+    with threadpool_limits(limits=1, user_api="blas"), detection_pool(match_threads()) as pool:
+        return _match_images(images, heights, settings, progress, terrain, pool)
 
 
-def _match_images(images: list[MatchImage], heights: tuple[float, float], settings: MatchSettings, progress: Progress | None, terrain: Any) -> MatchResult:
+def _match_images(images: list[MatchImage], heights: tuple[float, float], settings: MatchSettings, progress: Progress | None, terrain: Any,
+                  pool: Executor | None = None) -> MatchResult:
     say = progress or (lambda f, m: None)
     if len(images) < 2:
         raise MatchError("matching needs at least two images")
@@ -145,9 +147,11 @@ def _match_images(images: list[MatchImage], heights: tuple[float, float], settin
             say(0.05 + 0.75 * (n + f) / len(pairs), f"{images[i].id}-{images[j].id}")
 
         for k in (i, j):
-            caches.setdefault(k, FeatureCache(images[k], settings.decimation))
+            caches.setdefault(k, FeatureCache(images[k], settings.decimation, pool))
             if last_pair[k] == n:  # its last pair: keep the blocks of the last four rows of tiles (one window each)
                 caches[k].keep_recent(4 * settings.grid)
+        for k in pairs[n + 1] if n + 1 < len(pairs) else ():  # the next pair's small images: detected ahead
+            caches.setdefault(k, FeatureCache(images[k], settings.decimation, pool)).prefetch_whole()
         matches.append(match_pair(images[i], images[j], i, j, mapping(i, j), settings, caches[i], caches[j], tile_progress, terrain))
         for k in (i, j):
             if last_pair[k] == n:  # the image's features are not needed any more

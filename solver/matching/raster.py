@@ -11,10 +11,16 @@ Radiometry: band 1, 8 to 16 bits (integers) or floats. For feature detection a w
 stretched to 8 bits between the 0.5 and 99.5 percentiles of a decimated read of the whole
 image (at most :data:`STATS_SIZE` pixels on its long side; GDAL takes an overview level when
 the file has one); correlation works on the raw values (NCC is gain and offset invariant).
+
+Threads: reads are serialised, one at a time in the process (:data:`_READ_LOCK`): a GDAL
+dataset is not read from two threads at once, and the warnings filters a read sets aside are
+global. The matching's detection thread (:mod:`solver.matching.keypoints`) spends most of its
+time in SIFT, not in reads.
 """
 
 from __future__ import annotations
 
+import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +32,7 @@ MAX_SIDE_PX = 1_000_000  # an image side beyond this is refused (no sensor deliv
 MIN_SIDE_PX = 32  # a side below this holds no correlation template with its search (2 x 12 + 1 + 2 x 3 px)
 STATS_SIZE = 1024  # long side of the decimated read for the 8-bit stretch
 WHOLE_MAX_PX = 2048 * 2048  # at most 16 MB per image (4-byte pixels) held in memory
+_READ_LOCK = threading.Lock()  # one raster read at a time (module docstring)
 DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
 
 
@@ -91,7 +98,7 @@ class Raster:
         from rasterio.errors import RasterioError
 
         try:
-            with warnings.catch_warnings():
+            with _READ_LOCK, warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 return self._dataset.dataset.read(1, **kw)
         except (RasterioError, OSError, ValueError) as exc:
@@ -118,9 +125,10 @@ class Raster:
         if r1 <= r0 or c1 <= c0:
             return np.zeros((0, 0), np.float32)
         if self.lines * self.columns <= WHOLE_MAX_PX:
-            if self._whole is None:
-                self._whole = self._read()
-            return self._whole[r0:r1, c0:c1].astype(np.float32)
+            whole = self._whole
+            if whole is None:
+                whole = self._whole = self._read()  # (read twice at worst, by two threads at once: the same values)
+            return whole[r0:r1, c0:c1].astype(np.float32)
         return self._read(window=Window(c0, r0, c1 - c0, r1 - r0)).astype(np.float32)
 
     def decimated(self, row0: int, col0: int, rows: int, cols: int, k: int) -> tuple[np.ndarray, int, int]:

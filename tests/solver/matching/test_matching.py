@@ -78,7 +78,9 @@ def _truth_errors(scene, measurements) -> dict[tuple[str, str], np.ndarray]:
 def matched(triplet):
     scene, job, d, paths = triplet
     out, summary = d / "ties.csv", d / "summary.json"
-    assert main(["match", *map(str, paths), "--job", str(d / "sim.json"), "-o", str(out), "--summary", str(summary), "-q", *GRID]) == 0
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("PBA_MATCH_THREADS", "2")  # detection ahead in a second thread (test_deterministic_output: the same with one)
+        assert main(["match", *map(str, paths), "--job", str(d / "sim.json"), "-o", str(out), "--summary", str(summary), "-q", *GRID]) == 0
     measurements = read_measurements(out.read_text(), "ties.csv")  # the importers read what we write
     return measurements, json.loads(summary.read_text()), out
 
@@ -110,10 +112,13 @@ def test_matched_ties_are_within_0_2_px_of_the_truth(triplet, matched):
             assert 0.5 * rms_1d < row["sigma_px"] < 2.0 * rms_1d, (ref, other, row["sigma_px"], rms_1d)
 
 
-def test_deterministic_output(triplet, matched):
+def test_deterministic_output(triplet, matched, monkeypatch):
+    """The same ties CSV again, and with the detection in one thread (the fixture's detects
+    ahead in a second: PBA_MATCH_THREADS=2)."""
     _scene, _job, d, paths = triplet
     _m, _s, first = matched
     again = d / "again.csv"
+    monkeypatch.setenv("PBA_MATCH_THREADS", "1")
     assert main(["match", *map(str, paths), "--job", str(d / "sim.json"), "-o", str(again), "-q", *GRID]) == 0
     assert again.read_text() == first.read_text()
 

@@ -614,14 +614,14 @@ def test_features_are_detected_once_and_agree_with_a_whole_image_detection(tmp_p
     raster = _textured_raster(tmp_path)
     try:
         image = _image("t", raster)
-        cache = FeatureCache(image, 2)
+        cache = FeatureCache(image, 2, whole=False)  # a large image's path (this one is small enough to be detected whole)
         first = cache.window(np.array([0, 0]), np.array([300, 300]))
         calls = cache.detections
         again = cache.window(np.array([100, 100]), np.array([300, 300]))
         assert cache.detections == calls == 1
         inside = np.all((first.pos >= 100) & (first.pos < 300), axis=1)
         assert np.array_equal(again.pos, first.pos[inside]) and np.array_equal(again.desc, first.desc[inside])
-        cache = FeatureCache(image, 2)  # block by block: every block detected on its own
+        cache = FeatureCache(image, 2, whole=False)  # block by block: every block detected on its own
         for i in range(0, 640, BLOCK_PX):
             for j in range(0, 640, BLOCK_PX):
                 cache.window(np.array([i, j]), np.array([i + BLOCK_PX, j + BLOCK_PX]))
@@ -645,7 +645,7 @@ def test_an_image_in_its_last_pair_keeps_only_recent_blocks(tmp_path):
     raster = _textured_raster(tmp_path)
     n = 128 // BLOCK_PX  # blocks per side of the first window
     try:
-        cache = FeatureCache(_image("t", raster), 2)
+        cache = FeatureCache(_image("t", raster), 2, whole=False)
         cache.keep_recent(1)
         lo, hi = np.array([0, 0]), np.array([128, 128])
         first = cache.window(lo, hi)
@@ -663,6 +663,104 @@ def test_an_image_in_its_last_pair_keeps_only_recent_blocks(tmp_path):
         assert np.array_equal(corner, first.pos[np.all(first.pos < BLOCK_PX, axis=1)])
     finally:
         raster.close()
+
+
+def test_a_small_image_is_detected_whole_once_and_split_into_its_blocks(tmp_path):
+    """A small image (the raster holds it whole) is detected in one SIFT call of the whole image,
+    at its first window, whatever window that is; its windows are then that detection's
+    features (the same arrays: a slice of one detection), and its blocks are all kept (never
+    detected again) in its last pair and when an image keeps only its a tiles."""
+    from solver.matching.keypoints import FeatureCache
+
+    raster = _textured_raster(tmp_path)
+    try:
+        image = _image("t", raster)
+        cache = FeatureCache(image, 2)
+        assert cache.whole
+        cache.keep_recent(1)
+        part = cache.window(np.array([100, 200]), np.array([228, 328]))
+        whole = detect(image, 0, 0, 640, 640, 2)
+        assert cache.detections == 1 and cache.detected_fraction() == 1.0
+        inside = np.all((whole.pos >= [100, 200]) & (whole.pos < [228, 328]), axis=1)
+        assert _rows(part) == _rows(whole.take(np.flatnonzero(inside)))  # (in block order)
+        assert _rows(cache.window(np.array([0, 0]), np.array([640, 640]))) == _rows(whole)
+        cache.window(np.array([512, 512]), np.array([640, 640]))
+        cache.retain([(np.array([0, 0]), np.array([32, 32]))])
+        cache.window(np.array([100, 200]), np.array([228, 328]))
+        assert cache.detections == 1 and len(cache.blocks) == cache.shape[0] * cache.shape[1]
+    finally:
+        raster.close()
+
+
+def _rows(f) -> list[tuple]:
+    """A window's features as sorted rows (position, response, descriptor): the same set."""
+    return sorted((*p, r, d.tobytes()) for p, r, d in zip(f.pos.tolist(), f.response.tolist(), f.desc, strict=True))
+
+
+def _tile_windows(size: int, side: int, step: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    return [(np.array([i, j]), np.array([i + side, j + side])) for i in range(0, size - side + 1, step) for j in range(0, size - side + 1, step)]
+
+
+@pytest.mark.parametrize("whole", [False, True])
+def test_detection_ahead_in_a_thread_gives_the_sequential_features(tmp_path, whole):
+    """Windows detected ahead in the pool's thread (as match_pair announces a's tiles) give the
+    same features as the sequential path, window for window and block for block, also when
+    earlier windows of other shapes left some blocks detected (other rectangles to detect) and
+    when the main thread gets to a window first. Exact equality: the same SIFT call on the same
+    read, single-threaded, so the same result (any difference is a wrong prefetch)."""
+    from concurrent.futures import wait
+
+    from solver.matching.keypoints import FeatureCache, detection_pool
+
+    raster = _textured_raster(tmp_path)
+    # windows in a b role first (a large image: blocks left detected, so other rectangles to
+    # detect); a small image's first window detects it whole, so it is one of the tiles
+    earlier = [] if whole else [(np.array([40, 300]), np.array([250, 420])), (np.array([400, 0]), np.array([460, 640]))]
+    tiles = _tile_windows(640, 160, 96)  # overlapping tiles: blocks shared between neighbours
+    try:
+        image = _image("t", raster)
+        sequential = FeatureCache(image, 2, whole=whole)
+        expected = [sequential.window(lo, hi) for lo, hi in earlier + tiles]
+        with detection_pool(2) as pool:
+            for waiting in (True, False):  # prefetched detections all used; then the main thread racing the pool's
+                cache = FeatureCache(image, 2, pool, whole=whole)
+                got = [cache.window(lo, hi) for lo, hi in earlier]
+                used = 0
+                for n, (lo, hi) in enumerate(tiles):
+                    for ahead in tiles[n:n + 3]:
+                        cache.prefetch(*ahead)
+                    if waiting:
+                        wait(list(cache.pending.values()))
+                        used += len(cache.pending)
+                    got.append(cache.window(lo, hi))
+                assert not cache.pending and not cache.planned  # every detection started ahead was used
+                if waiting:
+                    assert used > 0 and cache.detections == sequential.detections
+                for g, e in zip(got, expected, strict=True):
+                    assert np.array_equal(g.pos, e.pos) and np.array_equal(g.desc, e.desc) and np.array_equal(g.response, e.response)
+                assert sorted(cache.blocks) == sorted(sequential.blocks)
+                for key, f in sequential.blocks.items():
+                    assert np.array_equal(cache.blocks[key].pos, f.pos) and np.array_equal(cache.blocks[key].desc, f.desc)
+    finally:
+        raster.close()
+
+
+def test_match_threads_setting(monkeypatch):
+    """PBA_MATCH_THREADS: a positive integer; by default 2, or the cores available if fewer."""
+    import os
+
+    from solver.matching.keypoints import THREADS_ENV, match_threads
+
+    monkeypatch.setenv(THREADS_ENV, "1")
+    assert match_threads() == 1
+    monkeypatch.setenv(THREADS_ENV, " 3 ")
+    assert match_threads() == 3
+    for bad in ("0", "-2", "two"):
+        monkeypatch.setenv(THREADS_ENV, bad)
+        with pytest.raises(ValueError, match=THREADS_ENV):
+            match_threads()
+    monkeypatch.delenv(THREADS_ENV)
+    assert match_threads() == min(2, len(os.sched_getaffinity(0)))
 
 
 def test_each_cell_keeps_its_strongest_features():
