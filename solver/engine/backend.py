@@ -18,8 +18,6 @@ callback stops the solve cleanly between iterations; progress is reported from t
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import math
 import threading
 import time
@@ -32,6 +30,7 @@ import numpy as np
 from solver.blocks import registry as block_kinds
 from solver.engine import native
 from solver.engine.ceres_import import import_pyceres
+from solver.engine.heap import release_freed_memory
 from solver.engine.packed_tables import camera_table, image_table
 from solver.engine.residual_blocks import ResidualBlocks, fixed_blocks, fixed_points, point_blocks
 from solver.engine.terms import block_owner, family_terms
@@ -580,31 +579,11 @@ def solve(problem: AdjustmentState, options: SolveSettings, control: SolveContro
     block_kinds.refresh(problem)  # what the kinds derive from their parameters (the pass trajectories) for the final values
     outcome = summarise(summary, control, time.perf_counter() - t0)
     del built, so, summary
+    # the Ceres problem of a large job (residual blocks, cost functions, Jacobian and Schur
+    # buffers: about 1.6 GB at a million observations), much of it freed in the solver threads'
+    # heaps (about 640 MB at a million observations), where the report could not reuse it and
+    # raised the peak above the solve's (bench/bench_scale.py --memory)
     release_freed_memory()
     return outcome
 
 
-def _trim_function() -> Callable[[int], int] | None:
-    """glibc's ``malloc_trim`` (None on another C library)."""
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        trim = libc.malloc_trim
-    except (OSError, AttributeError):
-        return None
-    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
-    return trim
-
-
-_TRIM = _trim_function()
-
-
-def release_freed_memory() -> None:
-    """Hand the heap's free memory back to the system (glibc's ``malloc_trim``; nothing elsewhere).
-
-    The Ceres problem of a large job (its residual blocks, cost functions, Jacobian and Schur
-    buffers: about 1.6 GB at a million observations) is allocated in many small pieces, much of
-    it by the solver's threads in heaps of their own; freed, it stayed in those heaps (about 640 MB
-    at a million observations), where the report's allocations on the main thread cannot reuse
-    it, so the report raised the peak above the solve's. Measured in bench/bench_scale.py --memory."""
-    if _TRIM is not None:
-        _TRIM(0)

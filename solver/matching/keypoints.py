@@ -10,13 +10,16 @@ in whatever role; large images are detected only where a pair needs them. In the
 pair only the blocks of the last few rows of tiles are kept (:meth:`FeatureCache.keep_recent`).
 
 A small image (one :class:`solver.matching.raster.Raster` holds whole: at most
-:data:`solver.matching.raster.WHOLE_MAX_PX` pixels) is detected in one SIFT call, the whole image
-without margins, at its first window, and its features split into the same blocks (kept until
-the image's last pair is done): one call instead of hundreds of margined ones.
+:data:`solver.matching.raster.WHOLE_MAX_PX` pixels) is detected in strips of :data:`STRIP_BLOCKS`
+rows of blocks across its whole width (with :data:`MARGIN_PX` of context), each at the first
+window that needs one of its blocks, and its features kept until the image's last pair is done:
+a few calls instead of hundreds of margined rectangles, with the margins above and below a strip
+only. (One call over the whole image is cheaper still, but SIFT's scale space of a whole image is
+about 55 MB per 1,024 px image while it runs: the strips keep the memory of before.)
 
 Detection on more than one core (``PBA_MATCH_THREADS``, :func:`match_threads`): a cache given a
 thread pool detects windows announced ahead (:meth:`FeatureCache.prefetch`: the a tiles of a
-pair a few tiles ahead, a small image whole) in the pool's thread while the main thread detects
+pair a few tiles ahead, a small image's strips) in the pool's thread while the main thread detects
 and matches the others. Each SIFT call stays single-threaded and a prefetched detection is
 used only for exactly the rectangle the sequential path would detect at that point (the same
 read, so the same features); any other is detected by the main thread. The result is the same
@@ -44,7 +47,7 @@ MARGIN_PX = 32  # context read around the blocks being detected (full-resolution
 THREADS_ENV = "PBA_MATCH_THREADS"  # threads detecting SIFT features (default: 2, or the cores available if fewer)
 DEFAULT_THREADS = 2
 PREFETCH_TILES = 4  # a tiles of a pair detected ahead in the pool's thread (bounds the features held ahead)
-WHOLE = ((0, -1), (0, -1))  # the key of a small image's one detection
+STRIP_BLOCKS = 4  # rows of blocks a small image's strips hold (128 px: SIFT's scale space of a 1,024 px strip is about 10 MB)
 
 
 def match_threads() -> int:
@@ -136,9 +139,9 @@ def detect(image: MatchImage, row0: int, col0: int, rows: int, cols: int, k: int
 
 
 class FeatureCache:
-    """One image's features, detected block by block the first time a window needs them, or
-    whole for a small image (``whole``: by default when the raster holds it whole), detected
-    ahead in ``pool`` when given (module docstring)."""
+    """One image's features, detected block by block the first time a window needs them, or in
+    whole-width strips for a small image (``whole``: by default when the raster holds it whole),
+    detected ahead in ``pool`` when given (module docstring)."""
 
     def __init__(self, image: MatchImage, decimation: int, pool: Executor | None = None, whole: bool | None = None):
         from solver.matching.raster import WHOLE_MAX_PX
@@ -166,17 +169,15 @@ class FeatureCache:
 
     def _plan(self, rows: range, cols: range, skip: set[tuple[int, int]]) -> list[tuple[tuple[int, int], tuple[int, int]]]:
         """The rectangles of blocks the window's detection reads, for its blocks not in the
-        cache nor in ``skip`` (the whole image's for a small image with a block missing)."""
+        cache nor in ``skip`` (for a small image: the strips that hold them)."""
         missing = {(i, j) for i in rows for j in cols if (i, j) not in self.blocks and (i, j) not in skip}
         if self.whole:
-            return [WHOLE] if missing else []
+            strips = sorted({i // STRIP_BLOCKS for i, _j in missing})
+            return [((k * STRIP_BLOCKS, min((k + 1) * STRIP_BLOCKS, self.shape[0])), (0, self.shape[1])) for k in strips]
         return _rectangles(missing)
 
     def _detect(self, rect: tuple[tuple[int, int], tuple[int, int]]) -> Features:
-        """The features of a rectangle of blocks read with :data:`MARGIN_PX` of context (the
-        whole image, without margins, for :data:`WHOLE`)."""
-        if rect == WHOLE:
-            return detect(self.image, 0, 0, self.image.lines, self.image.columns, self.k)
+        """The features of a rectangle of blocks read with :data:`MARGIN_PX` of context."""
         b, m = self.block, MARGIN_PX
         (i0, i1), (j0, j1) = rect
         return detect(self.image, i0 * b - m, j0 * b - m, (i1 - i0) * b + 2 * m, (j1 - j0) * b + 2 * m, self.k)
@@ -194,7 +195,7 @@ class FeatureCache:
                 self.planned |= set(self._rect_blocks(rect))
 
     def prefetch_whole(self) -> None:
-        """A small image: start its one detection in the pool's thread (:meth:`prefetch`)."""
+        """A small image: start detecting its strips in the pool's thread (:meth:`prefetch`)."""
         if self.whole:
             self.prefetch(np.zeros(2), np.array([self.image.lines, self.image.columns]))
 
@@ -206,7 +207,7 @@ class FeatureCache:
         self.planned.clear()
 
     def _rect_blocks(self, rect: tuple[tuple[int, int], tuple[int, int]]) -> list[tuple[int, int]]:
-        (i0, i1), (j0, j1) = ((0, self.shape[0]), (0, self.shape[1])) if rect == WHOLE else rect
+        (i0, i1), (j0, j1) = rect
         return [(i, j) for i in range(i0, i1) for j in range(j0, j1)]
 
     def _fill(self, rows: range, cols: range) -> None:
@@ -218,7 +219,7 @@ class FeatureCache:
             f = self._detect(rect) if fut is None else fut.result()
             self.planned -= set(self._rect_blocks(rect))
             self.detections += 1
-            (i0, i1), (j0, j1) = ((0, self.shape[0]), (0, self.shape[1])) if rect == WHOLE else rect
+            (i0, i1), (j0, j1) = rect
             bi = np.floor(f.pos[:, 0] / b).astype(int)
             bj = np.floor(f.pos[:, 1] / b).astype(int)
             width = j1 - j0

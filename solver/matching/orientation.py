@@ -199,7 +199,8 @@ class PairMapping:
                 line, col, _chip = b.model.ground_to_image(ground)
                 bl[k] = np.asarray(line, float).reshape(ll.shape)
                 bc[k] = np.asarray(col, float).reshape(ll.shape)
-        self.bl, self.bc = bl, bc
+        self._both = np.stack([bl, bc])  # (2, heights, lines, columns): one interpolation for both
+        self.bl, self.bc = self._both[0], self._both[1]
         self._mid: np.ndarray | None = None  # (2, lines, columns) b's line and column at the middle height (jacobian)
 
     def _bilinear(self, grid: np.ndarray, line: np.ndarray, column: np.ndarray) -> np.ndarray:
@@ -215,7 +216,8 @@ class PairMapping:
         """b's (line, column), each (N_HEIGHTS, n), of a's points at every grid height."""
         line = np.atleast_1d(np.asarray(line, float))
         column = np.atleast_1d(np.asarray(column, float))
-        return self._bilinear(self.bl, line, column), self._bilinear(self.bc, line, column)
+        both = self._bilinear(self._both, line, column)
+        return both[0], both[1]
 
     def segment(self, line: np.ndarray, column: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The epipolar segments of a's points in b: (n, 2) ends at the lowest and highest height."""

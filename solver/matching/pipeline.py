@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from solver.engine.heap import release_freed_memory
 from solver.matching.features import MatchSettings, PairMatches, detection_scale, match_pair, tiles
 from solver.matching.keypoints import FeatureCache, detection_pool, match_threads
 from solver.matching.orientation import MatchImage, PairMapping
@@ -158,6 +159,7 @@ def _match_images(images: list[MatchImage], heights: tuple[float, float], settin
                 detected[k] = caches.pop(k).detected_fraction()
             elif all(p[0] == k for p in pairs[n + 1:] if k in p):  # from now on only its tiles as a are read
                 caches[k].retain([(t.lo, t.hi) for t in tiles(images[k], settings)[0]])
+        release_freed_memory()  # SIFT's scale spaces freed in the detection thread's heap: back to the system
     tracks, inconsistent = link(matches, len(images), settings.decimation)
     sizes = [(im.lines, im.columns) for im in images]
     kept = thin(tracks, sizes, settings.grid, settings.per_cell)
@@ -166,7 +168,8 @@ def _match_images(images: list[MatchImage], heights: tuple[float, float], settin
     for n in range(0, len(kept), CORRELATION_BATCH):
         say(0.8 + 0.15 * n / max(len(kept), 1), "correlation")
         batch = [t.members for t in kept[n:n + CORRELATION_BATCH]]
-        refined += [r for r in refine_tracks(batch, images, mapping, settings.template_half_px, settings.min_ncc) if r]
+        refined += [r for r in refine_tracks(batch, images, mapping, settings.template_half_px, settings.min_ncc, pool) if r]
+    release_freed_memory()
     say(0.95, "epipolar check")
     sigmas, removed = _check(refined, images, mapping, settings)
     removed_3d, bias, scale = _verify_3d(refined, images, heights, sigmas)

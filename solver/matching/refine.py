@@ -25,6 +25,7 @@ about it is the pair's matching precision, and the points beyond are removed.
 from __future__ import annotations
 
 import functools
+from concurrent.futures import Executor
 
 import numpy as np
 
@@ -75,7 +76,7 @@ def correlate(tpl: np.ndarray, other: MatchImage, start: np.ndarray, jac: np.nda
 
 
 def correlate_many(tpls: list[np.ndarray], others: list[MatchImage], starts: np.ndarray, jacs: np.ndarray,
-                   min_ncc: float) -> list[tuple[np.ndarray, float] | None]:
+                   min_ncc: float, pool: Executor | None = None) -> list[tuple[np.ndarray, float] | None]:
     """:func:`correlate` of many searches at once: template ``tpls[n]`` (all the same size) in
     ``others[n]`` from ``starts[n]`` (line, column) with the local affine ``jacs[n]`` (2 x 2).
 
@@ -83,7 +84,8 @@ def correlate_many(tpls: list[np.ndarray], others: list[MatchImage], starts: np.
     sample grids, the windows to read, the peaks, the parabolas and the moves are whole-array
     operations over the searches, and only OpenCV's ``remap`` and ``matchTemplate`` run once
     per search (about 50 us together, where the arithmetic around them cost four times that
-    per search in Python). A search's result is the one it gets alone."""
+    per search in Python), half of them in ``pool``'s thread when given. A search's result is
+    the one it gets alone."""
     import cv2
 
     n = len(tpls)
@@ -104,15 +106,16 @@ def correlate_many(tpls: list[np.ndarray], others: list[MatchImage], starts: np.
         rounds = [(np.flatnonzero(going & on_border), SEARCH_PX), (np.flatnonzero(going & ~on_border), RECENTRED_SEARCH_PX)]
         for sel, search in rounds:
             if len(sel):
-                _iterate(sel, search, it, tpls, others, half, p, jacs, size, read, wins, on_border, going, failed, peak, cv2)
+                _iterate(sel, search, it, tpls, others, half, p, jacs, size, read, wins, on_border, going, failed, peak, cv2, pool)
         if not going.any():
             break
     return [None if failed[k] or not peak[k] >= min_ncc else (p[k].copy(), float(peak[k])) for k in range(n)]
 
 
-def _iterate(sel, search, it, tpls, others, half, p, jacs, size, read, wins, on_border, going, failed, peak, cv2) -> None:
+def _iterate(sel, search, it, tpls, others, half, p, jacs, size, read, wins, on_border, going, failed, peak, cv2, pool) -> None:
     """One iteration of the searches ``sel`` (indices) that search +-``search`` px: the state
-    arrays of :func:`correlate_many` updated in place."""
+    arrays of :func:`correlate_many` updated in place (``pool``: a thread that resamples and
+    correlates half of them)."""
     radius = half + search
     uu, vv = _offsets(radius)
     jac, q = jacs[sel], p[sel]
@@ -138,15 +141,25 @@ def _iterate(sel, search, it, tpls, others, half, p, jacs, size, read, wins, on_
         wins[k] = others[k].raster.window(read[k, 0], read[k, 1], read[k, 2] - read[k, 0], read[k, 3] - read[k, 1])
     w = 2 * search + 1
     res = np.empty((len(sel), w, w), np.float32)
-    for t0 in range(0, len(sel), GRID_CHUNK):  # the sample grids of GRID_CHUNK searches at a time (memory)
-        part = slice(t0, t0 + GRID_CHUNK)
+
+    def fill(part: slice) -> None:
         qq, jj, rr = q[part], jac[part], read[sel[part]]
         my = (qq[:, 0, None, None] + jj[:, 0, 0, None, None] * uu + jj[:, 0, 1, None, None] * vv - rr[:, 0, None, None]).astype(np.float32)
         mx = (qq[:, 1, None, None] + jj[:, 1, 0, None, None] * uu + jj[:, 1, 1, None, None] * vv - rr[:, 1, None, None]).astype(np.float32)
         for t, k in enumerate(sel[part]):
             # every sample and its bicubic neighbours are inside the read: the border mode never acts
             warped = cv2.remap(wins[k], mx[t], my[t], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
-            res[t0 + t] = cv2.matchTemplate(warped, tpls[k], cv2.TM_CCOEFF_NORMED)
+            res[part.start + t] = cv2.matchTemplate(warped, tpls[k], cv2.TM_CCOEFF_NORMED)
+
+    # the sample grids of GRID_CHUNK searches at a time (memory); with a pool, every other part
+    # in its thread (OpenCV lets go of Python's lock: each search's result is its own)
+    step = GRID_CHUNK if pool is None or len(sel) > 2 * GRID_CHUNK else max(1, -(-len(sel) // 2))
+    parts = [slice(t0, t0 + step) for t0 in range(0, len(sel), step)]
+    ahead = [pool.submit(fill, part) for part in parts[1::2]] if pool is not None else []
+    for part in parts[0::2] if pool is not None else parts:
+        fill(part)
+    for done in ahead:
+        done.result()
     res64 = res.astype(np.float64)
     best = np.argmax(res.reshape(len(sel), -1), axis=1)
     i, j = best // w, best % w
@@ -176,9 +189,10 @@ def _parabola(r_minus: np.ndarray, r0: np.ndarray, r_plus: np.ndarray) -> np.nda
     return np.where(den < 0, x, 0.0)
 
 
-def refine_tracks(tracks: list[dict[int, np.ndarray]], images: list[MatchImage], mapping, half: int, min_ncc: float) -> list[dict[int, tuple[np.ndarray, float]]]:
+def refine_tracks(tracks: list[dict[int, np.ndarray]], images: list[MatchImage], mapping, half: int, min_ncc: float,
+                  pool: Executor | None = None) -> list[dict[int, tuple[np.ndarray, float]]]:
     """:func:`refine_track` of every track, the correlations of all of them run together
-    (:func:`correlate_many`)."""
+    (:func:`correlate_many`, ``pool``: a thread that takes half of them)."""
     out: list[dict[int, tuple[np.ndarray, float]]] = [{} for _ in tracks]
     pending: dict[tuple[int, int], list[tuple[int, np.ndarray]]] = {}  # (ref, member) -> (track, centre)
     tpls: dict[int, np.ndarray] = {}
@@ -205,7 +219,7 @@ def refine_tracks(tracks: list[dict[int, np.ndarray]], images: list[MatchImage],
                 starts.append(tracks[k][m] + J @ (c - tracks[k][ref]))
                 jacs.append(J)
     got = correlate_many([tpls[k] for k, _m in searches], [images[m] for _k, m in searches], np.array(starts).reshape(-1, 2),
-                         np.array(jacs).reshape(-1, 2, 2), min_ncc)
+                         np.array(jacs).reshape(-1, 2, 2), min_ncc, pool)
     for (k, m), g in zip(searches, got, strict=True):
         if g is not None:
             out[k][m] = g
