@@ -14,7 +14,7 @@ import rasterio
 
 from solver.matching.features import MatchSettings, band_matches
 from solver.matching.features import _nearest as _flann
-from solver.matching.keypoints import detect
+from solver.matching.keypoints import Features, detect
 from solver.matching.orientation import MatchImage, PairMapping, rpc_height_range, segment_enters_box
 from solver.matching.pipeline import PairMatches
 from solver.matching.raster import Raster
@@ -665,12 +665,13 @@ def test_an_image_in_its_last_pair_keeps_only_recent_blocks(tmp_path):
         raster.close()
 
 
-def test_a_small_image_is_detected_whole_once_and_split_into_its_blocks(tmp_path):
-    """A small image (the raster holds it whole) is detected in one SIFT call of the whole image,
-    at its first window, whatever window that is; its windows are then that detection's
-    features (the same arrays: a slice of one detection), and its blocks are all kept (never
-    detected again) in its last pair and when an image keeps only its a tiles."""
-    from solver.matching.keypoints import FeatureCache
+def test_a_small_image_is_detected_in_strips_once_and_split_into_its_blocks(tmp_path):
+    """A small image (the raster holds it whole) is detected in whole-width strips of
+    STRIP_BLOCKS rows of blocks, each read with MARGIN_PX above and below, the first time a
+    window needs one of its blocks: a window's features are those strips' own (the features of
+    each strip's detection in the strip's blocks), and every block is kept (never detected
+    again) in its last pair and when an image keeps only its a tiles."""
+    from solver.matching.keypoints import BLOCK_PX, MARGIN_PX, STRIP_BLOCKS, FeatureCache
 
     raster = _textured_raster(tmp_path)
     try:
@@ -679,15 +680,25 @@ def test_a_small_image_is_detected_whole_once_and_split_into_its_blocks(tmp_path
         assert cache.whole
         cache.keep_recent(1)
         part = cache.window(np.array([100, 200]), np.array([228, 328]))
-        whole = detect(image, 0, 0, 640, 640, 2)
-        assert cache.detections == 1 and cache.detected_fraction() == 1.0
-        inside = np.all((whole.pos >= [100, 200]) & (whole.pos < [228, 328]), axis=1)
-        assert _rows(part) == _rows(whole.take(np.flatnonzero(inside)))  # (in block order)
-        assert _rows(cache.window(np.array([0, 0]), np.array([640, 640]))) == _rows(whole)
+        rows_px = BLOCK_PX * STRIP_BLOCKS
+        strips = range(100 // rows_px, (228 - 1) // rows_px + 1)
+        assert cache.detections == len(strips) == 2
+
+        def strip_features(k):
+            f = detect(image, k * rows_px - MARGIN_PX, -MARGIN_PX, rows_px + 2 * MARGIN_PX, 640 + 2 * MARGIN_PX, 2)
+            return f.take(np.flatnonzero((f.pos[:, 0] >= k * rows_px) & (f.pos[:, 0] < (k + 1) * rows_px)))
+
+        own = Features.concat([strip_features(k) for k in strips])
+        inside = np.all((own.pos >= [100, 200]) & (own.pos < [228, 328]), axis=1)
+        assert _rows(part) == _rows(own.take(np.flatnonzero(inside)))
+        everything = cache.window(np.array([0, 0]), np.array([640, 640]))
+        n_strips = -(-640 // rows_px)
+        assert cache.detections == n_strips and cache.detected_fraction() == 1.0
+        assert _rows(everything) == _rows(Features.concat([strip_features(k) for k in range(n_strips)]))
         cache.window(np.array([512, 512]), np.array([640, 640]))
         cache.retain([(np.array([0, 0]), np.array([32, 32]))])
         cache.window(np.array([100, 200]), np.array([228, 328]))
-        assert cache.detections == 1 and len(cache.blocks) == cache.shape[0] * cache.shape[1]
+        assert cache.detections == n_strips and len(cache.blocks) == cache.shape[0] * cache.shape[1]
     finally:
         raster.close()
 
