@@ -409,6 +409,27 @@ def test_epipolar_check_removes_a_match_off_its_epipolar_line():
     assert 0.08 < sigma < 0.12
 
 
+def test_epipolar_check_removes_matches_beyond_3_5_sigma_and_states_the_kept_scatter():
+    """Matches scattered by 0.06 px (a real pair's precision) and eight 0.3-0.45 px off (5-7.5
+    sigma, under half a pixel): those eight are removed and the stated sigma is the scatter of
+    the rest (0.06 px), not raised by them (about 0.07 px with them kept): the scatter data
+    snooping leaves, so an adjustment's sigma0 stays near 1 after snooping."""
+    rng = np.random.default_rng(8)
+    A = np.eye(2)
+    model = AffineModel(A, np.array([3.0, 2.0]), np.array([0.0, 0.02]))
+    raster = ArrayRaster(np.zeros((500, 500)))
+    pm = PairMapping(_image("a", raster, model), _image("b", raster, model), (0.0, 500.0))
+    ref = rng.uniform(20, 480, size=(400, 2))
+    pos = ref @ A.T + np.array([3.0, 2.0]) + np.column_stack([np.zeros(400), rng.uniform(0, 10, 400)])
+    pos[:, 0] += 0.4 + 0.001 * ref[:, 1] + rng.normal(0, 0.06, 400)
+    off = np.arange(8) * 7
+    pos[off, 0] += rng.choice([-1.0, 1.0], 8) * rng.uniform(0.3, 0.45, 8)
+    keep, sigma, _resid = epipolar_check(ref, pos, pm, SETTINGS.search_px)
+    assert not keep[off].any()
+    assert keep.sum() >= 390
+    assert 0.052 < sigma < 0.065, sigma
+
+
 # --- detection on decimated windows: a blob at a known sub-pixel position -------------------
 
 def _blob_raster(tmp_path, centre: tuple[float, float], sigma: float = 3.0, size: int = 160) -> Raster:
