@@ -272,11 +272,10 @@ def test_batched_correlation_gives_each_search_its_own_result():
     (still on the border at the last iteration: refused), at the image edge (refused), in an
     unrelated image (noise: refused) and some that do not converge in MAX_ITERATIONS. Positions within 1e-5 px (the batch's parabolas are in float64,
     the plain loop's too: the same numbers up to rounding); the same searches refused."""
+    from scipy.ndimage import gaussian_filter
     from scipy.ndimage import shift as nd_shift
 
     from solver.matching.refine import correlate_many
-
-    from scipy.ndimage import gaussian_filter
 
     rng = np.random.default_rng(11)
     base = _texture((300, 300), 4)
