@@ -1,6 +1,6 @@
 """Sub-pixel positions by correlation, and the check of matches against the sensor model.
 
-Correlation (:func:`refine_track`): a track's reference is its first image (lowest index); its
+Correlation (:func:`refine_tracks`): a track's reference is its first image (lowest index); its
 measurement is the pixel nearest to the linked position, an integer (line, column), so the tie
 point is that pixel's ground point. A (2 h + 1)-pixel template around it is compared with each
 other image resampled into the reference's geometry: the local affine of the orientation
@@ -90,8 +90,6 @@ def correlate_many(tpls: list[np.ndarray], others: list[MatchImage], starts: np.
     per search (about 50 us together, where the arithmetic around them cost four times that
     per search in Python), half of them in ``pool``'s thread when given. A search's result is
     the one it gets alone."""
-    import cv2
-
     n = len(tpls)
     if n == 0:
         return []
@@ -110,16 +108,18 @@ def correlate_many(tpls: list[np.ndarray], others: list[MatchImage], starts: np.
         rounds = [(np.flatnonzero(going & on_border), SEARCH_PX), (np.flatnonzero(going & ~on_border), RECENTRED_SEARCH_PX)]
         for sel, search in rounds:
             if len(sel):
-                _iterate(sel, search, it, tpls, others, half, p, jacs, size, read, wins, on_border, going, failed, peak, cv2, pool)
+                _iterate(sel, search, it, tpls, others, half, p, jacs, size, read, wins, on_border, going, failed, peak, pool)
         if not going.any():
             break
     return [None if failed[k] or not peak[k] >= min_ncc else (p[k].copy(), float(peak[k])) for k in range(n)]
 
 
-def _iterate(sel, search, it, tpls, others, half, p, jacs, size, read, wins, on_border, going, failed, peak, cv2, pool) -> None:
+def _iterate(sel, search, it, tpls, others, half, p, jacs, size, read, wins, on_border, going, failed, peak, pool) -> None:
     """One iteration of the searches ``sel`` (indices) that search +-``search`` px: the state
     arrays of :func:`correlate_many` updated in place (``pool``: a thread that resamples and
     correlates half of them)."""
+    import cv2
+
     radius = half + search
     uu, vv = _offsets(radius)
     jac, q = jacs[sel], p[sel]
@@ -195,8 +195,11 @@ def _parabola(r_minus: np.ndarray, r0: np.ndarray, r_plus: np.ndarray) -> np.nda
 
 def refine_tracks(tracks: list[dict[int, np.ndarray]], images: list[MatchImage], mapping, half: int, min_ncc: float,
                   pool: Executor | None = None) -> list[dict[int, tuple[np.ndarray, float]]]:
-    """:func:`refine_track` of every track, the correlations of all of them run together
-    (:func:`correlate_many`, ``pool``: a thread that takes half of them)."""
+    """Refined members ``{image: ((line, column), ncc)}`` of every track (module docstring): the
+    reference (first image) at an integer pixel with NCC 1, empty for a track left with fewer
+    than two members; ``mapping(a, b)`` gives the :class:`PairMapping` of a pair. The
+    correlations of all of them run together (:func:`correlate_many`, ``pool``: a thread that
+    takes half of them)."""
     out: list[dict[int, tuple[np.ndarray, float]]] = [{} for _ in tracks]
     pending: dict[tuple[int, int], list[tuple[int, np.ndarray]]] = {}  # (ref, member) -> (track, centre)
     tpls: dict[int, np.ndarray] = {}
@@ -228,13 +231,6 @@ def refine_tracks(tracks: list[dict[int, np.ndarray]], images: list[MatchImage],
         if g is not None:
             out[k][m] = g
     return [r if len(r) >= 2 else {} for r in out]
-
-
-def refine_track(members: dict[int, np.ndarray], images: list[MatchImage], mapping, half: int, min_ncc: float) -> dict[int, tuple[np.ndarray, float]]:
-    """Refined members ``{image: ((line, column), ncc)}`` of a track (module docstring); the
-    reference (first image) at an integer pixel with NCC 1. ``mapping(a, b)`` gives the
-    :class:`PairMapping` of a pair. Fewer than two members: empty."""
-    return refine_tracks([members], images, mapping, half, min_ncc)[0]
 
 
 def other_sigma(pair_sigma: float) -> float:
