@@ -110,15 +110,19 @@ class Features:
         return cls(np.vstack([p.pos for p in parts]), np.vstack([p.desc for p in parts]), np.concatenate([p.response for p in parts]))
 
 
-def sift(image8: np.ndarray, n: int = 0) -> Features:
+def sift(image8: np.ndarray, n: int = 0, mask: np.ndarray | None = None) -> Features:
     """SIFT features of an 8-bit array (array coordinates: line, column of pixel centres), the
-    strongest ``n`` (all for 0), in a deterministic order."""
+    strongest ``n`` (all for 0), in a deterministic order; with ``mask`` (uint8, the array's
+    shape) only those whose nearest pixel is non-zero in it. The mask does not change the
+    features it keeps: OpenCV detects on the whole array and drops the others before computing
+    descriptors (about half of a call's cost), so the context around a window costs no
+    descriptors."""
     import cv2
 
     # precise upscale: OpenCV's default doubling puts every keypoint 0.25 px (of its input) down
     # and right of the feature; k times that after a read decimated by k
     detector = cv2.SIFT_create(nfeatures=n, enable_precise_upscale=True)
-    kps, desc = detector.detectAndCompute(image8, None)
+    kps, desc = detector.detectAndCompute(image8, mask)
     if desc is None or not kps:
         return Features.empty()
     xy = np.array([k.pt for k in kps], float)  # OpenCV: x = column, y = line, pixel centres at integers
@@ -128,13 +132,24 @@ def sift(image8: np.ndarray, n: int = 0) -> Features:
     return Features(xy[order][:, ::-1].copy(), np.clip(np.rint(desc[order]), 0, 255).astype(np.uint8), response[order])
 
 
-def detect(image: MatchImage, row0: int, col0: int, rows: int, cols: int, k: int, n: int = 0) -> Features:
-    """SIFT features (full-resolution line, column) of a window read decimated by k."""
+def detect(image: MatchImage, row0: int, col0: int, rows: int, cols: int, k: int, n: int = 0,
+           inner: tuple[np.ndarray, np.ndarray] | None = None) -> Features:
+    """SIFT features (full-resolution line, column) of a window read decimated by k; with
+    ``inner`` (lo, hi: full-resolution line, column), at least those with ``lo <= position < hi``
+    (the rest of the window is context: its features get no descriptors, :func:`sift`)."""
     values, r0, c0 = image.raster.decimated(row0, col0, rows, cols, k)
     if values.size == 0:
         return Features.empty()
-    f = sift(image.raster.to_8bit(values), n)
-    f.pos = f.pos * k + (r0 + (k - 1) / 2.0, c0 + (k - 1) / 2.0)
+    origin = np.array([r0 + (k - 1) / 2.0, c0 + (k - 1) / 2.0])
+    mask = None
+    if inner is not None:
+        # every decimated pixel nearest to a position in [lo, hi) (OpenCV tests a feature's nearest pixel)
+        first = np.maximum(np.floor((np.asarray(inner[0]) - origin) / k).astype(int), 0)
+        last = np.ceil((np.asarray(inner[1]) - origin) / k).astype(int) + 1
+        mask = np.zeros(values.shape, np.uint8)
+        mask[first[0]:last[0], first[1]:last[1]] = 1
+    f = sift(image.raster.to_8bit(values), n, mask)
+    f.pos = f.pos * k + origin
     return f
 
 
@@ -180,7 +195,8 @@ class FeatureCache:
         """The features of a rectangle of blocks read with :data:`MARGIN_PX` of context."""
         b, m = self.block, MARGIN_PX
         (i0, i1), (j0, j1) = rect
-        return detect(self.image, i0 * b - m, j0 * b - m, (i1 - i0) * b + 2 * m, (j1 - j0) * b + 2 * m, self.k)
+        inner = (np.array([i0 * b, j0 * b]), np.array([i1 * b, j1 * b]))
+        return detect(self.image, i0 * b - m, j0 * b - m, (i1 - i0) * b + 2 * m, (j1 - j0) * b + 2 * m, self.k, inner=inner)
 
     def prefetch(self, lo: np.ndarray, hi: np.ndarray) -> None:
         """Start detecting, in the pool's thread, what :meth:`window` (lo, hi) will need when it
@@ -227,10 +243,13 @@ class FeatureCache:
             key = np.where(inside, (bi - i0) * width + (bj - j0), -1)
             order = np.argsort(key, kind="stable")  # each block's features in their detection order
             bounds = np.searchsorted(key[order], np.arange(-1, (i1 - i0) * width) + 0.5)
+            g = f.take(order[bounds[0]:])  # the rectangle's features, block after block (one copy; the blocks are views of it)
+            bounds = bounds - bounds[0]
             for n in range((i1 - i0) * width):
                 i, j = i0 + n // width, j0 + n % width
                 if (i, j) not in self.blocks:  # (a small image's blocks already there stay as they are)
-                    self.blocks[(i, j)] = f.take(order[bounds[n]:bounds[n + 1]])
+                    lo, hi = bounds[n], bounds[n + 1]
+                    self.blocks[(i, j)] = Features(g.pos[lo:hi], g.desc[lo:hi], g.response[lo:hi])
                 self.detected.add((i, j))
 
     def window(self, lo: np.ndarray, hi: np.ndarray) -> Features:

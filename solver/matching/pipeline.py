@@ -93,16 +93,26 @@ def match_images(images: list[MatchImage], heights: tuple[float, float], setting
     """Tie-point measurements and the summary of ``images`` (module docstring), over the
     terrain heights ``heights`` (ellipsoidal m) and each tile's from ``terrain`` (a DEM's:
     :class:`solver.matching.heights.DemHeights`) when given; raises
-    :class:`MatchError` when no pair overlaps. One thread for OpenCV and for BLAS: the same
-    result whatever the machine (the server runs several jobs), and the many small products of
-    descriptors are slower when BLAS threads have to meet for each (10 times on a loaded
-    machine)."""
+    :class:`MatchError` when no pair overlaps.
+
+    Threads: :func:`solver.matching.keypoints.match_threads` (``PBA_MATCH_THREADS``) for
+    OpenCV's own (inside each SIFT call: the scale space, the extrema and the descriptors are
+    computed in parallel; a call made while they are busy runs in its caller's thread alone) and
+    for the detection ahead; one for BLAS: the many small products of descriptors are slower
+    when BLAS threads have to meet for each (10 times on a loaded machine). The result is the
+    same whatever the number of threads (features are sorted, each computed alone). OpenCV's
+    thread count is put back afterwards (it is global to the process)."""
     import cv2
     from threadpoolctl import threadpool_limits
 
-    cv2.setNumThreads(1)
-    with threadpool_limits(limits=1, user_api="blas"), detection_pool(match_threads()) as pool:
-        return _match_images(images, heights, settings, progress, terrain, pool)
+    threads = match_threads()
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(threads)
+    try:
+        with threadpool_limits(limits=1, user_api="blas"), detection_pool(threads) as pool:
+            return _match_images(images, heights, settings, progress, terrain, pool)
+    finally:
+        cv2.setNumThreads(previous)
 
 
 def _match_images(images: list[MatchImage], heights: tuple[float, float], settings: MatchSettings, progress: Progress | None, terrain: Any,

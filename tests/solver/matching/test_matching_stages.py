@@ -723,6 +723,61 @@ def test_a_small_image_is_detected_in_strips_once_and_split_into_its_blocks(tmp_
         raster.close()
 
 
+@pytest.mark.parametrize("k", [1, 2])
+def test_the_context_of_a_window_gets_no_descriptors_and_leaves_its_features_as_they_are(tmp_path, k):
+    """detect(..., inner=(lo, hi)) computes descriptors only near [lo, hi) (the rest of the read
+    is context) and gives exactly the features a detection of the whole read finds there, also
+    for features within a pixel of the inner rectangle's edges (OpenCV tests a feature's
+    nearest pixel against the mask): inner rectangles at arbitrary offsets, many features on
+    their edges."""
+    raster = _textured_raster(tmp_path)
+    rng = np.random.default_rng(5)
+    try:
+        image = _image("t", raster)
+        near_edge = 0
+        for _ in range(12):
+            r0, c0 = (int(v) for v in rng.integers(0, 200, 2))
+            rows, cols = (int(v) for v in rng.integers(200, 400, 2))
+            lo = np.array([r0, c0]) + rng.uniform(20, 60, 2)
+            hi = np.array([r0 + rows, c0 + cols]) - rng.uniform(20, 60, 2)
+            full = detect(image, r0, c0, rows, cols, k)
+            masked = detect(image, r0, c0, rows, cols, k, inner=(lo, hi))
+
+            def within(f, lo=lo, hi=hi):
+                return f.take(np.flatnonzero(np.all((f.pos >= lo) & (f.pos < hi), axis=1)))
+
+            assert _rows(within(masked)) == _rows(within(full))
+            assert len(masked) < 0.8 * len(full)  # the context's features are dropped ...
+            outside = np.maximum(np.maximum(lo - masked.pos, masked.pos - hi), 0).max(axis=1)
+            assert outside.max() <= 1.5 * k  # ... all but those of the pixels on the edge
+            edge = np.minimum(np.abs(full.pos - lo), np.abs(full.pos - hi)).min(axis=1)
+            near_edge += int(np.sum(edge < 0.5 * k))
+        assert near_edge >= 10  # the edges were tested
+    finally:
+        raster.close()
+
+
+def test_sift_gives_the_same_features_on_one_and_on_two_opencv_threads():
+    """OpenCV's threads inside a SIFT call (match_images sets PBA_MATCH_THREADS of them) do
+    not change its features: positions, responses and descriptors identical."""
+    import cv2
+
+    from solver.matching.keypoints import sift
+
+    t = _texture((300, 420), 9)
+    image8 = np.clip(128 + 40 * (t - t.mean()) / t.std(), 0, 255).astype(np.uint8)
+    previous = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(1)
+        one = sift(image8)
+        cv2.setNumThreads(2)
+        two = sift(image8)
+    finally:
+        cv2.setNumThreads(previous)
+    assert len(one) > 200
+    assert _rows(one) == _rows(two)
+
+
 def _rows(f) -> list[tuple]:
     """A window's features as sorted rows (position, response, descriptor): the same set."""
     return sorted((*p, r, d.tobytes()) for p, r, d in zip(f.pos.tolist(), f.response.tolist(), f.desc, strict=True))
