@@ -260,8 +260,7 @@ class FeatureCache:
         f = Features.concat([self.blocks[(i, j)] for i in rows for j in cols])
         inside = np.all((f.pos >= lo) & (f.pos < hi), axis=1)
         self.requests += 1
-        for key in ((i, j) for i in rows for j in cols):
-            self.last_use[key] = self.requests
+        self.last_use.update(dict.fromkeys(((i, j) for i in rows for j in cols), self.requests))
         if self.horizon is not None and not self.whole:  # the blocks last needed ``horizon`` requests ago (after ``since``) go
             self.used_at[self.requests] = [(i, j) for i in rows for j in cols]
             expired = self.requests - self.horizon
@@ -300,9 +299,11 @@ class FeatureCache:
 def _rectangles(cells: set[tuple[int, int]]) -> list[tuple[tuple[int, int], tuple[int, int]]]:
     """The cells (row, column) as rectangles ((row0, row1), (col0, col1)), ends excluded: the
     runs of each row, merged with the same run of the rows below."""
+    by_row: dict[int, list[int]] = {}
+    for i, j in sorted(cells):
+        by_row.setdefault(i, []).append(j)
     runs: dict[tuple[int, int], list[int]] = {}
-    for i in sorted({i for i, _ in cells}):
-        js = sorted(j for r, j in cells if r == i)
+    for i, js in by_row.items():
         start = js[0]
         for a, b in zip(js, js[1:] + [None], strict=True):
             if b != a + 1:
