@@ -20,10 +20,17 @@ about 55 MB per 1,024 px image while it runs: the strips keep the memory of befo
 Detection on more than one core (``PBA_MATCH_THREADS``, :func:`match_threads`): a cache given a
 thread pool detects windows announced ahead (:meth:`FeatureCache.prefetch`: the a tiles of a
 pair a few tiles ahead, a small image's strips) in the pool's thread while the main thread detects
-and matches the others. Each SIFT call stays single-threaded and a prefetched detection is
-used only for exactly the rectangle the sequential path would detect at that point (the same
-read, so the same features); any other is detected by the main thread. The result is the same
-as with one thread, whatever the timing.
+and matches the others. Inside a SIFT call OpenCV's own threads (as many, set by
+:func:`solver.matching.pipeline.match_images`) share the scale space, the extrema and the
+descriptors; a call made while they are busy runs in its caller's thread alone; each feature is
+computed on its own, so the features do not depend on them. A prefetched detection is used only
+for exactly the rectangle the sequential path would detect at that point (the same read, so the
+same features); any other is detected by the main thread. The result is the same as with one
+thread, whatever the timing.
+
+A detection reads :data:`MARGIN_PX` of context around its blocks (so that a block's features
+do not depend on which rectangle detected it); the context's own features are dropped before
+their descriptors are computed (a mask: :func:`sift`).
 
 Positions are (line, column) in our convention (pixel centres, top-left at (0, 0)), full
 resolution; descriptors are OpenCV's (128 values from 0 to 255, stored as uint8); the response
