@@ -240,22 +240,19 @@ class FeatureCache:
             if fut is not None and fut.cancel():  # not started: detected here rather than waited for
                 fut = None
             f = self._detect(rect) if fut is None else fut.result()
-            self.planned -= set(self._rect_blocks(rect))
+            blocks = self._rect_blocks(rect)  # row by row
+            self.planned -= set(blocks)
             self.detections += 1
             (i0, i1), (j0, j1) = rect
             bi = np.floor(f.pos[:, 0] / b).astype(int)
             bj = np.floor(f.pos[:, 1] / b).astype(int)
-            width = j1 - j0
-            inside = (bi >= i0) & (bi < i1) & (bj >= j0) & (bj < j1)
-            key = np.where(inside, (bi - i0) * width + (bj - j0), -1)
+            sel = np.flatnonzero((bi >= i0) & (bi < i1) & (bj >= j0) & (bj < j1))  # (not the context's)
+            key = (bi[sel] - i0) * (j1 - j0) + (bj[sel] - j0)  # the block's place in ``blocks``
             order = np.argsort(key, kind="stable")  # each block's features in their detection order
-            bounds = np.searchsorted(key[order], np.arange(-1, (i1 - i0) * width) + 0.5)
-            g = f.take(order[bounds[0]:])  # the rectangle's features, block after block (one copy; the blocks are views of it)
-            bounds = bounds - bounds[0]
-            for n in range((i1 - i0) * width):
-                i, j = i0 + n // width, j0 + n % width
+            bounds = np.searchsorted(key[order], np.arange(len(blocks) + 1))
+            g = f.take(sel[order])  # block after block: one copy, the blocks are views of it
+            for (i, j), lo, hi in zip(blocks, bounds[:-1], bounds[1:], strict=True):
                 if (i, j) not in self.blocks:  # (a small image's blocks already there stay as they are)
-                    lo, hi = bounds[n], bounds[n + 1]
                     self.blocks[(i, j)] = Features(g.pos[lo:hi], g.desc[lo:hi], g.response[lo:hi])
                 self.detected.add((i, j))
 
@@ -264,12 +261,13 @@ class FeatureCache:
         where not yet done."""
         rows, cols = self._blocks_of(lo, hi)
         self._fill(rows, cols)
-        f = Features.concat([self.blocks[(i, j)] for i in rows for j in cols])
+        keys = [(i, j) for i in rows for j in cols]
+        f = Features.concat([self.blocks[key] for key in keys])
         inside = np.all((f.pos >= lo) & (f.pos < hi), axis=1)
         self.requests += 1
-        self.last_use.update(dict.fromkeys(((i, j) for i in rows for j in cols), self.requests))
+        self.last_use.update(dict.fromkeys(keys, self.requests))
         if self.horizon is not None and not self.whole:  # the blocks last needed ``horizon`` requests ago (after ``since``) go
-            self.used_at[self.requests] = [(i, j) for i in rows for j in cols]
+            self.used_at[self.requests] = keys
             expired = self.requests - self.horizon
             for key in self.used_at.pop(expired, []) if expired > self.since else []:
                 if self.last_use.get(key) == expired and key in self.blocks:
