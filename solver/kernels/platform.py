@@ -375,6 +375,69 @@ def _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, m, v, gx0, gx2, gy
 
 
 @njit(**_JIT)
+def _cubic(coef, k: int, tau: float):
+    """The cubic coef[k] + coef[k+1] tau + coef[k+2] tau^2 + coef[k+3] tau^3 and its tau-rate."""
+    c0, c1, c2, c3 = coef[k], coef[k + 1], coef[k + 2], coef[k + 3]
+    return c0 + tau * (c1 + tau * (c2 + tau * c3)), c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
+
+
+@njit(**_JIT)
+def _image_camera_vector(kind, coef, kc, acc, tau, p):
+    """d = M (P - S) and dd/dtau at tau for the per-image kinds (polynomial, Kepler), as six
+    floats: the arithmetic of :func:`_camera_state`'s per-image branch without its arrays (no
+    work array is read or written, so the Newton loop on the line keeps everything in
+    registers; on the 100k strip this is most of a residual evaluation). The factors the
+    Jacobians need (S, M, its angle derivatives) are left to :func:`_camera_state` at the
+    solution."""
+    om, dom = _cubic(coef, 12, tau)
+    ph, dph = _cubic(coef, 16, tau)
+    ka, dka = _cubic(coef, 20, tau)
+    if kind == KIND_POLYNOMIAL:
+        s0, w0 = _cubic(coef, 0, tau)
+        s1, w1 = _cubic(coef, 4, tau)
+        s2, w2 = _cubic(coef, 8, tau)
+    else:  # Kepler: the Earth-fixed quadratic less the LGS origin, rotated into the LGS
+        h = 0.5 * tau * tau
+        e0 = coef[0] + coef[1] * tau + acc[0] * h - kc[9]
+        e1 = coef[4] + coef[5] * tau + acc[1] * h - kc[10]
+        e2 = coef[8] + coef[9] * tau + acc[2] * h - kc[11]
+        u0 = coef[1] + acc[0] * tau
+        u1 = coef[5] + acc[1] * tau
+        u2 = coef[9] + acc[2] * tau
+        s0 = kc[0] * e0 + kc[1] * e1 + kc[2] * e2
+        s1 = kc[3] * e0 + kc[4] * e1 + kc[5] * e2
+        s2 = kc[6] * e0 + kc[7] * e1 + kc[8] * e2
+        w0 = kc[0] * u0 + kc[1] * u1 + kc[2] * u2
+        w1 = kc[3] * u0 + kc[4] * u1 + kc[5] * u2
+        w2 = kc[6] * u0 + kc[7] * u1 + kc[8] * u2
+    co, so = np.cos(om), np.sin(om)
+    cp, sp = np.cos(ph), np.sin(ph)
+    ck, sk = np.cos(ka), np.sin(ka)
+    # M = Rx(om) Ry(ph) Rz(ka) and dM/dtau = sum over the angles of dM/dangle angle' (the
+    # entries of solver.kernels.rotation._rotation_into)
+    m00, m01, m02 = cp * ck, -cp * sk, sp
+    m10, m11, m12 = co * sk + so * sp * ck, co * ck - so * sp * sk, -so * cp
+    m20, m21, m22 = so * sk - co * sp * ck, so * ck + co * sp * sk, co * cp
+    n00 = -sp * ck * dph - cp * sk * dka
+    n01 = sp * sk * dph - cp * ck * dka
+    n02 = cp * dph
+    n10 = (-so * sk + co * sp * ck) * dom + so * cp * ck * dph + (co * ck - so * sp * sk) * dka
+    n11 = (-so * ck - co * sp * sk) * dom - so * cp * sk * dph + (-co * sk - so * sp * ck) * dka
+    n12 = -co * cp * dom + so * sp * dph
+    n20 = (co * sk + so * sp * ck) * dom - co * cp * ck * dph + (so * ck + co * sp * sk) * dka
+    n21 = (co * ck - so * sp * sk) * dom + co * cp * sk * dph + (-so * sk + co * sp * ck) * dka
+    n22 = -so * cp * dom - co * sp * dph
+    v0, v1, v2 = p[0] - s0, p[1] - s1, p[2] - s2
+    d0 = m00 * v0 + m01 * v1 + m02 * v2
+    d1 = m10 * v0 + m11 * v1 + m12 * v2
+    d2 = m20 * v0 + m21 * v1 + m22 * v2
+    t0 = (n00 * v0 - m00 * w0) + (n01 * v1 - m01 * w1) + (n02 * v2 - m02 * w2)
+    t1 = (n10 * v0 - m10 * w0) + (n11 * v1 - m11 * w1) + (n12 * v2 - m12 * w2)
+    t2 = (n20 * v0 - m20 * w0) + (n21 * v1 - m21 * w1) + (n22 * v2 - m22 * w2)
+    return d0, d1, d2, t0, t1, t2
+
+
+@njit(**_JIT)
 def _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs, b):
     """What a Newton step on the line needs at tau, for every kind, filled in place: S, dS/dtau,
     v = P - S, d = M v and dd/dtau; ``rot`` receives the angle rotation and its angle
@@ -471,43 +534,44 @@ def _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, g
         # state (S0, u) or pass x0: through S(t) and the orbital frame R_orbit(S, V)
         _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, mm, v, gx0, gx2, gy1, gy2, gxs, gys)
         return gxs, gys
-    # position: dd/dS_lgs = -M
-    wx = np.empty(3)
-    wy = np.empty(3)
-    for j in range(3):
-        wx[j] = -(gx0 * mm[0, j] + gx2 * mm[2, j])
-        wy[j] = -(gy1 * mm[1, j] + gy2 * mm[2, j])
+    # position: dd/dS_lgs = -M (the row vectors w = -g M, in scalars: this runs for every observation)
+    wx0 = -(gx0 * mm[0, 0] + gx2 * mm[2, 0])
+    wx1 = -(gx0 * mm[0, 1] + gx2 * mm[2, 1])
+    wx2 = -(gx0 * mm[0, 2] + gx2 * mm[2, 2])
+    wy0 = -(gy1 * mm[1, 0] + gy2 * mm[2, 0])
+    wy1 = -(gy1 * mm[1, 1] + gy2 * mm[2, 1])
+    wy2 = -(gy1 * mm[1, 2] + gy2 * mm[2, 2])
     if kind == KIND_POLYNOMIAL:
         tp = 1.0
         for k in range(4):
-            for e in range(3):
-                gxs[e * 4 + k] = wx[e] * tp
-                gys[e * 4 + k] = wy[e] * tp
+            gxs[k], gxs[4 + k], gxs[8 + k] = wx0 * tp, wx1 * tp, wx2 * tp
+            gys[k], gys[4 + k], gys[8 + k] = wy0 * tp, wy1 * tp, wy2 * tp
             tp *= tau
         return gxs, gys
     # Kepler: S_lgs = R (S0 + u tau + a h - O); dS_ecef/dS0 = I + h da/dr, dS_ecef/du = tau I + h da/du
     h = 0.5 * tau * tau
     om2 = 2.0 * kc[13] * h
-    ex = np.empty(3)  # row vectors wx^T R and wy^T R (ECEF)
-    ey = np.empty(3)
+    # row vectors wx^T R and wy^T R (ECEF)
+    ex0, ex1, ex2 = (wx0 * kc[0] + wx1 * kc[3] + wx2 * kc[6], wx0 * kc[1] + wx1 * kc[4] + wx2 * kc[7],
+                     wx0 * kc[2] + wx1 * kc[5] + wx2 * kc[8])
+    ey0, ey1, ey2 = (wy0 * kc[0] + wy1 * kc[3] + wy2 * kc[6], wy0 * kc[1] + wy1 * kc[4] + wy2 * kc[7],
+                     wy0 * kc[2] + wy1 * kc[5] + wy2 * kc[8])
     for j in range(3):
-        ex[j] = wx[0] * kc[j] + wx[1] * kc[3 + j] + wx[2] * kc[6 + j]
-        ey[j] = wy[0] * kc[j] + wy[1] * kc[3 + j] + wy[2] * kc[6 + j]
-    for j in range(3):
-        gxj = ex[j]
-        gyj = ey[j]
-        for i in range(3):
-            gxj += ex[i] * h * da_dr[i, j]
-            gyj += ey[i] * h * da_dr[i, j]
-        gxs[j * 4] = gxj
-        gys[j * 4] = gyj
+        gxs[j * 4] = ex0 if j == 0 else (ex1 if j == 1 else ex2)
+        gys[j * 4] = ey0 if j == 0 else (ey1 if j == 1 else ey2)
+        gxs[j * 4] += ex0 * h * da_dr[0, j]
+        gxs[j * 4] += ex1 * h * da_dr[1, j]
+        gxs[j * 4] += ex2 * h * da_dr[2, j]
+        gys[j * 4] += ey0 * h * da_dr[0, j]
+        gys[j * 4] += ey1 * h * da_dr[1, j]
+        gys[j * 4] += ey2 * h * da_dr[2, j]
     # d/du: tau I + h * [[0, 2W, 0], [-2W, 0, 0], [0, 0, 0]]
-    gxs[1] = ex[0] * tau - ex[1] * om2
-    gys[1] = ey[0] * tau - ey[1] * om2
-    gxs[5] = ex[1] * tau + ex[0] * om2
-    gys[5] = ey[1] * tau + ey[0] * om2
-    gxs[9] = ex[2] * tau
-    gys[9] = ey[2] * tau
+    gxs[1] = ex0 * tau - ex1 * om2
+    gys[1] = ey0 * tau - ey1 * om2
+    gxs[5] = ex1 * tau + ex0 * om2
+    gys[5] = ey1 * tau + ey0 * om2
+    gxs[9] = ex2 * tau
+    gys[9] = ey2 * tau
     return gxs, gys
 
 

@@ -11,11 +11,12 @@ from numba.extending import intrinsic
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.kernels.layout import JIT as _JIT
-from solver.kernels.layout import KIND_RPC, N_COEF, N_IOP
+from solver.kernels.layout import KIND_KEPLER, KIND_POLYNOMIAL, KIND_RPC, N_COEF, N_IOP
 from solver.kernels.platform import (
     _camera_state,
     _coef_gradients,
     _derivative_factors,
+    _image_camera_vector,
     _projection_terms,
     _projection_work,
     object_to_camera,
@@ -38,10 +39,11 @@ def runtime_flag(typingctx, flag):
 
 
 @njit(**_JIT)
-def _line_newton_step(d, ddt, f: float, xo: float, tpl: float) -> float:
-    """Newton step (lines) on the along-track condition ``-f d_x/d_z = xo``; NaN if singular."""
-    g = -f * d[0] / d[2] - xo
-    dg_dl = -f * (ddt[0] * d[2] - d[0] * ddt[2]) / (d[2] * d[2]) * tpl
+def _line_newton_step(d0: float, d2: float, t0: float, t2: float, f: float, xo: float, tpl: float) -> float:
+    """Newton step (lines) on the along-track condition ``-f d_x/d_z = xo`` (camera vector d,
+    its tau-rate t); NaN if singular."""
+    g = -f * d0 / d2 - xo
+    dg_dl = -f * (t0 * d2 - d0 * t2) / (d2 * d2) * tpl
     if dg_dl == 0.0 or not np.isfinite(dg_dl):
         return np.nan
     return g / dg_dl
@@ -58,26 +60,27 @@ STOP_STEP_MAX = 1e-2
 
 
 @njit(**_JIT)
-def _quotient_rates(d, ddt, prev_ddt, prev_dtau: float, a: int):
-    """First and (estimated) second tau-derivatives of -d_a/d_z (a = 0: along track, 1: across),
-    d'' estimated as the change of dd/dtau over the previous step of ``prev_dtau``."""
-    iz = 1.0 / d[2]
-    q = ddt[a] * d[2] - d[a] * ddt[2]  # (d_a' d_z - d_a d_z')
-    d2a = (ddt[a] - prev_ddt[a]) / prev_dtau
-    d2z = (ddt[2] - prev_ddt[2]) / prev_dtau
-    return -q * iz * iz, -((d2a * d[2] - d[a] * d2z) * iz * iz - 2.0 * ddt[2] * q * iz * iz * iz)
+def _quotient_rates(da: float, dz: float, ta: float, tz: float, pa: float, pz: float, prev_dtau: float):
+    """First and (estimated) second tau-derivatives of -d_a/d_z (a: along or across track) from
+    the camera vector's components (da, dz), their tau-rates (ta, tz) and the rates before the
+    previous step of ``prev_dtau`` (pa, pz), from which d'' is estimated."""
+    iz = 1.0 / dz
+    q = ta * dz - da * tz  # (d_a' d_z - d_a d_z')
+    d2a = (ta - pa) / prev_dtau
+    d2z = (tz - pz) / prev_dtau
+    return -q * iz * iz, -((d2a * dz - da * d2z) * iz * iz - 2.0 * tz * q * iz * iz * iz)
 
 
 @njit(**_JIT)
-def _stop_error(d, ddt, prev_ddt, prev_dtau: float, dtau: float, f: float, tpl: float, px: float) -> float:
+def _stop_error(d0, d1, d2, t0, t1, t2, p0, p1, p2, prev_dtau: float, dtau: float, f: float, tpl: float, px: float) -> float:
     """Error (line, pixel: the larger) of stopping after a Newton step of ``dtau`` (scaled time)
-    with the camera vector moved to the new line to first order (d + ddt dtau) instead of
-    evaluated there; d'' is estimated from ``prev_ddt``, dd/dtau before the previous step
-    (``prev_dtau``). The along-track function x = -f d_x/d_z is left 0.5 x'' dtau^2 from its
-    target (its Newton model is linear), which the slope x' turns into a line error; the
+    with the camera vector d moved to the new line to first order (d + t dtau, t its tau-rate)
+    instead of evaluated there; d'' is estimated from (p0, p1, p2), dd/dtau before the previous
+    step (``prev_dtau``). The along-track function x = -f d_x/d_z is left 0.5 x'' dtau^2 from
+    its target (its Newton model is linear), which the slope x' turns into a line error; the
     column's y = -f d_y/d_z is off by that line error times y' and by 0.5 y'' dtau^2."""
-    slope_x, second_x = _quotient_rates(d, ddt, prev_ddt, prev_dtau, 0)
-    slope_y, second_y = _quotient_rates(d, ddt, prev_ddt, prev_dtau, 1)
+    slope_x, second_x = _quotient_rates(d0, d2, t0, t2, p0, p2, prev_dtau)
+    slope_y, second_y = _quotient_rates(d1, d2, t1, t2, p1, p2, prev_dtau)
     if slope_x == 0.0:
         return np.inf
     line_err = 0.5 * abs(second_x) * dtau * dtau / abs(slope_x)  # scaled time (f cancels)
@@ -93,6 +96,11 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
     observed line, then evaluates the column. Returns (ok, line, column, dL_dcoef[24],
     dL_dp[3], dC_dcoef[24], dC_dp[3]); derivatives by the implicit function theorem (for
     KIND_PASS the pass-state derivatives are in the coefficient slots PASS_COEF_INDEX).
+
+    The Newton loop holds the camera vector d and its tau-rate in scalars. The per-image kinds
+    compute them without work arrays (:func:`_image_camera_vector`) and form the Jacobians'
+    factors once, at the end, with :func:`_camera_state`; the orbit-attitude kinds fill their
+    factors at every step (their derivatives need the last step's frames).
     """
     if kind == KIND_RPC:
         return rpc_project(coef, kc, p, oc, want_jac)
@@ -105,47 +113,56 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
     line = oc[0]
     col = 0.0
     ok = False
+    per_image = kind == KIND_POLYNOMIAL or kind == KIND_KEPLER
     rot, mats, vecs, b, da_dr = _projection_work()
     mm, a_att, mnt, ro, dro = mats[0], mats[1], mats[2], mats[3], mats[4]
     s, sdot, v, d, ddt, acc = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4], vecs[5]
     _projection_terms(kind, coef, kc, acc, da_dr, mnt)
-    prev_ddt = np.empty(3)
+    d0 = d1 = d2 = t0 = t1 = t2 = 0.0
+    p0 = p1 = p2 = 0.0  # dd/dtau before the previous step
     prev_step = 0.0
+    tau = line * tpl
+    jac_tau = tau  # where the derivatives are taken: the last line evaluated, or the solution
     for it in range(31):
         tau = line * tpl
-        _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
+        jac_tau = tau
+        if per_image:  # (not a helper with the work arrays as arguments: such a call costs a step)
+            d0, d1, d2, t0, t1, t2 = _image_camera_vector(kind, coef, kc, acc, tau, p)
+        else:
+            _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
+            d0, d1, d2, t0, t1, t2 = d[0], d[1], d[2], ddt[0], ddt[1], ddt[2]
         if it == 30:
             break
-        step = _line_newton_step(d, ddt, f, xo, tpl)
+        step = _line_newton_step(d0, d2, t0, t2, f, xo, tpl)
         if not np.isfinite(step):
             break
         line -= step
         dtau = -step * tpl
         done = abs(step) < LINE_STEP_TOL
         if not done and it > 0 and abs(step) < STOP_STEP_MAX and abs(step) < 0.1 * abs(prev_step):
-            done = _stop_error(d, ddt, prev_ddt, -prev_step * tpl, dtau, f, tpl, px) < STOP_ERROR_TOL
+            done = _stop_error(d0, d1, d2, t0, t1, t2, p0, p1, p2, -prev_step * tpl, dtau, f, tpl, px) < STOP_ERROR_TOL
         if done:
             ok = True
             # the column from the camera vector moved to the new line to first order (its error
             # is in _stop_error): the same residuals whether or not derivatives are wanted
-            col = cc + (-f * (d[1] + ddt[1] * dtau) / (d[2] + ddt[2] * dtau) - yo) / px
-            if want_jac and abs(step) >= LINE_STEP_TOL:
+            col = cc + (-f * (d1 + t1 * dtau) / (d2 + t2 * dtau) - yo) / px
+            if abs(step) >= LINE_STEP_TOL:
                 # the derivatives at the solution itself: over a step they move by more than the
                 # rounding (~1e-5 relative at 0.01 line), enough to change Ceres' path
-                tau = line * tpl
-                _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
+                jac_tau = line * tpl
             break
-        for i in range(3):  # element by element (see platform._camera_state)
-            prev_ddt[i] = ddt[i]
+        p0, p1, p2 = t0, t1, t2
         prev_step = step
     if not ok:
-        col = cc + (-f * d[1] / d[2] - yo) / px
-    dl_dc = np.zeros(N_COEF)
-    dl_dp = np.zeros(3)
-    dc_dc = np.zeros(N_COEF)
-    dc_dp = np.zeros(3)
+        col = cc + (-f * d1 / d2 - yo) / px
+    grads = np.zeros(2 * N_COEF + 6)  # one allocation for the four derivative vectors
+    dl_dc, dc_dc = grads[0:N_COEF], grads[N_COEF : 2 * N_COEF]
+    dl_dp, dc_dp = grads[2 * N_COEF : 2 * N_COEF + 3], grads[2 * N_COEF + 3 : 2 * N_COEF + 6]
     if not want_jac:
         return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
+    if per_image or jac_tau != tau:
+        tau = jac_tau
+        _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
     _derivative_factors(kind, rot, mnt, ro, a_att, mm)
     # the derivatives at the last line evaluated (tau): the solution, or within LINE_STEP_TOL of it
     iz = 1.0 / d[2]
@@ -238,16 +255,22 @@ def project_cam(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac
     dxi_diop = np.zeros(N_IOP)
     dyi_diop = np.zeros(N_IOP)
     j11 = j12 = j21 = j22 = 0.0
+    per_image = kind == KIND_POLYNOMIAL or kind == KIND_KEPLER
+    tau = line * tpl
     for it in range(31):
         tau = line * tpl
-        _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
+        if per_image:  # as in project: scalars here, the Jacobians' factors at the end
+            d0, d1, d2, t0, t1, t2 = _image_camera_vector(kind, coef, kc, acc, tau, p)
+        else:
+            _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
+            d0, d1, d2, t0, t1, t2 = d[0], d[1], d[2], ddt[0], ddt[1], ddt[2]
         xi, yi, big_f, dxi_dc, dyi_dc, dxi_diop, dyi_diop = camera_model(oc, iop, chip, chip_len, col, it == 30 or ok)
         if it == 30 or ok:
             break
-        g1 = xi + big_f * d[0] / d[2]
-        g2 = yi + big_f * d[1] / d[2]
-        j11 = big_f * (ddt[0] * d[2] - d[0] * ddt[2]) / (d[2] * d[2]) * tpl
-        j21 = big_f * (ddt[1] * d[2] - d[1] * ddt[2]) / (d[2] * d[2]) * tpl
+        g1 = xi + big_f * d0 / d2
+        g2 = yi + big_f * d1 / d2
+        j11 = big_f * (t0 * d2 - d0 * t2) / (d2 * d2) * tpl
+        j21 = big_f * (t1 * d2 - d1 * t2) / (d2 * d2) * tpl
         j12 = dxi_dc
         j22 = dyi_dc
         det = j11 * j22 - j12 * j21
@@ -267,6 +290,8 @@ def project_cam(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac
     dc_di = np.zeros(N_IOP)
     if not want_jac:
         return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp, dl_di, dc_di
+    if per_image:  # the factors at the last state evaluated (the orbit-attitude kinds have them)
+        _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
     _derivative_factors(kind, rot, mnt, ro, a_att, mm)
     tau = line * tpl
     iz = 1.0 / d[2]
