@@ -93,7 +93,7 @@ from solver.schema.iop_names import IOP_CHIP, IOP_OPTICAL, MAX_CHIPS
 _KERNEL_MODULES = {
     "blocks": ("_eval_record", "_fill", "_put_rows", "all_observation_blocks", "fixed_obs_block", "observation_blocks_into", "point_obs_block"),
     "platform": (
-        "_attitude_angles", "_attitude_base_into", "_attitude_time", "_camera_state", "_coef_gradients", "_kepler_terms", "_derivative_factors",
+        "_attitude_angles", "_attitude_base_into", "_attitude_time", "_camera_state", "_coef_gradients_into", "_kepler_terms", "_derivative_factors",
         "_oa_factors_into", "_oa_frames_into", "_oa_pose", "_oa_state_gradients", "_projection_terms", "_projection_work", "_pose", "_state_column", "assemble", "object_to_camera", "platform_state",
     ),
     "projection": (
@@ -128,7 +128,7 @@ __all__ = [
     "PASS_COEF_INDEX", "PASS_INDEX", "PASS_T_OFF", "REC_CAMERA", "REC_CAM_SLOT", "REC_CHIP",
     "REC_CHIP_LEN", "REC_COLUMN", "REC_IMAGE", "REC_IMG_SLOT", "REC_LINE", "REC_OC",
     "REC_PASS_SLOT", "REC_SIGMA", "_attitude_angles", "_attitude_base_into", "_attitude_time", "_camera_state",
-    "_coef_gradients", "_eval_record", "_fill", "_kepler_terms", "_derivative_factors", "_oa_factors_into",
+    "_coef_gradients_into", "_eval_record", "_fill", "_kepler_terms", "_derivative_factors", "_oa_factors_into",
     "_oa_frames_into", "_projection_terms", "_projection_work",
     "_line_newton_step", "_mount", "_oa_pose", "_oa_state_gradients", "_orbital_frame",
     "_orbital_frame_rate", "_pose", "_put_rows", "_rotation_into", "_state_column",

@@ -32,6 +32,7 @@ from solver.kernels.layout import (
     REC_SIGMA,
 )
 from solver.kernels.layout import JIT as _JIT
+from solver.kernels.layout import LEAF as _LEAF
 from solver.kernels.projection import project_observation, runtime_flag
 from solver.kernels.propagation import PASS_COEF_INDEX, PASS_INDEX, ensure_segment
 
@@ -65,7 +66,7 @@ def _eval_record(r, img_tab, cam_tab, p, params, want: bool):
     return project_observation(kind, coef, kc, p, oc, iop, int(r[REC_CHIP]), r[REC_CHIP_LEN], want)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _put_rows(block, i, idx, dl, dc, w):
     """Rows 2i, 2i+1 of a residual block's dense Jacobian wrt one parameter block whose entries
     are dl[idx[j]], dc[idx[j]] (line and column derivatives), whitened and negated."""
@@ -76,7 +77,7 @@ def _put_rows(block, i, idx, dl, dc, w):
         block[(2 * i + 1) * n + j] = -dc[q] * w
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _fill(i, r, img_tab, cam_tab, w, jacs, dl_dc, dc_dc, dl_di, dc_di):
     """Observation i's rows in the Jacobians of its image, pass and camera blocks (slots)."""
     islot = int(r[REC_IMG_SLOT])

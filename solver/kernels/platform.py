@@ -12,6 +12,7 @@ from numba import njit
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.kernels.layout import JIT as _JIT
 from solver.kernels.layout import KC_ATT_BASE, KIND_KEPLER, KIND_ORBIT_ATTITUDE, KIND_PASS, KIND_POLYNOMIAL, N_COEF
+from solver.kernels.layout import LEAF as _LEAF
 from solver.kernels.propagation import (
     PASS_ATT_OFF,
     PASS_COEF_INDEX,
@@ -119,7 +120,7 @@ def _kepler_terms(coef, kc):
     return a, gg
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _attitude_time(kind, kc, tau: float) -> float:
     """Time variable of the angle polynomials: tau, shifted for pass images whose attitude is
     shared by the images of one camera (then in s since the pass reference epoch)."""
@@ -128,7 +129,7 @@ def _attitude_time(kind, kc, tau: float) -> float:
     return tau
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _attitude_base_into(kc, ta: float, ang, angdot) -> None:
     """Add the image's attitude base at the angle polynomials' time ``ta`` (s) to ``ang`` and
     its rate to ``angdot`` (rad, rad/s): the delivered attitude (roll, pitch, yaw relative to
@@ -164,7 +165,7 @@ def _attitude_base_into(kc, ta: float, ang, angdot) -> None:
         angdot[e] += (a1 - a0) / dt
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _attitude_angles(coef, tau, ang, angdot):
     for e in range(3):
         c0 = coef[(3 + e) * 4]
@@ -175,7 +176,7 @@ def _attitude_angles(coef, tau, ang, angdot):
         angdot[e] = c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot):
     """Position (LGS) and its tau-derivative, angles and their tau-derivatives, at tau."""
     _attitude_angles(coef, tau, ang, angdot)
@@ -202,7 +203,7 @@ def _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot):
         sdot[i] = kc[3 * i] * vx + kc[3 * i + 1] * vy + kc[3 * i + 2] * vz
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _orbit_pos_into(kind, coef, kc, acc, tau, s, sdot, vdot, b, vecs) -> None:
     """Position (LGS), velocity and acceleration (LGS axes) of the orbit-attitude kinds at tau,
     into ``s``, ``sdot``, ``vdot``: the Kepler/J2 quadratic (KIND_ORBIT_ATTITUDE) or the
@@ -222,7 +223,7 @@ def _orbit_pos_into(kind, coef, kc, acc, tau, s, sdot, vdot, b, vecs) -> None:
         vdot[i] = kc[3 * i] * acc[0] + kc[3 * i + 1] * acc[1] + kc[3 * i + 2] * acc[2]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _state_column(kind, kc, da_dr, tau, bas, k0, q, ds, dv) -> None:
     """Column q of d(S, V)/d(state) in ECEF axes into ``ds``, ``dv`` (3 each): state = (S0, u)
     at line 0 for the Kepler quadratic, the pass state x0 at the reference epoch for KIND_PASS
@@ -250,7 +251,7 @@ def _state_column(kind, kc, da_dr, tau, bas, k0, q, ds, dv) -> None:
         dv[0] += tau * w2
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _oa_frames_into(kind, coef, kc, acc, tau, rot, s, sdot, ro, dro, b, vecs) -> None:
     """The orbit-attitude kinds' factors at tau, in place and without allocating: S and Sdot
     (LGS), R_att and its angle derivatives (``rot``), R_orbit and its rate (``ro``, ``dro``);
@@ -266,7 +267,7 @@ def _oa_frames_into(kind, coef, kc, acc, tau, rot, s, sdot, ro, dro, b, vecs) ->
     _orbital_frame_rate_into(s, sdot, c0, c1, c2, sdot, vdot, ro, dro)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _derivative_factors(kind, rot, mnt, ro, a_att, m) -> None:
     """Before derivatives, after the last :func:`_camera_state`: M (``m``) for every kind, and A
     for the orbit-attitude kinds, whose Newton steps do not form them (the per-image kinds
@@ -275,7 +276,7 @@ def _derivative_factors(kind, rot, mnt, ro, a_att, m) -> None:
         _oa_factors_into(rot, mnt, ro, a_att, m)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _oa_factors_into(rot, mnt, ro, a_att, m) -> None:
     """A = Ry(mount) R_att and M = A R_orbit from the factors (what the Jacobians need)."""
     for i in range(3):
@@ -286,7 +287,7 @@ def _oa_factors_into(rot, mnt, ro, a_att, m) -> None:
             m[i, j] = a_att[i, 0] * ro[0, j] + a_att[i, 1] * ro[1, j] + a_att[i, 2] * ro[2, j]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _oa_pose_into(kind, coef, kc, acc, tau, rot, s, sdot, m, dm_dt, a_att, mnt, ro, b, vecs, mats) -> None:
     """:func:`_oa_frames_into` and the matrices from its factors: M = A R_orbit, dM/dtau, the
     attitude part A = Ry(mount) R_att and the mounting. ``mats`` (3 x 3 x 3) is scratch."""
@@ -319,10 +320,10 @@ def _oa_pose(kind, coef, kc, acc, tau, rot):
     return s, sdot, fac[0], fac[1], fac[2], fac[3], fac[4]
 
 
-@njit(**_JIT)
-def _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, m, v, gx0, gx2, gy1, gy2, gxs, gys) -> None:
+@njit(**_LEAF)
+def _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, m, v, gx0, gx2, gy1, gy2, gxs, gys, bas, col) -> None:
     """Derivatives along the six state components of the two image functions of
-    :func:`_coef_gradients` (gradients (gx0, 0, gx2), (0, gy1, gy2) wrt d) for the orbit-attitude
+    :func:`_coef_gradients_into` (gradients (gx0, 0, gx2), (0, gy1, gy2) wrt d) for the orbit-attitude
     kinds, into their slots of ``gxs``, ``gys``. The camera vector d = A R_orbit(S, V) (P - S)
     moves through S(t) and through the orbital frame's dependence on S and V:
 
@@ -331,10 +332,8 @@ def _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, m, v, gx0, gx2, gy
     where dR_orbit/dstate_q is the frame's directional derivative along (dS, dV)_q: the
     formulas of :func:`solver.kernels.rotation._orbital_frame_rate` with the state's
     derivatives in place of the time rates. The gradients are applied to A and M first (g A,
-    g M), so each component costs a few dot products; in scalars and without allocating beyond
-    two work vectors (this runs for every observation)."""
-    bas = np.empty((3, 6))
-    col = np.empty((2, 3))
+    g M), so each component costs a few dot products; in scalars (this runs for every
+    observation). ``bas`` (3 x 6) and ``col`` (2 x 3) are scratch."""
     k0 = 0
     if kind == KIND_PASS:
         k0 = _hermite_basis(kc, kc[PASS_T_OFF] + tau, bas)
@@ -374,14 +373,14 @@ def _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, m, v, gx0, gx2, gy
         gys[idx] = ay0 * w0 + ay1 * w1 + ay2 * w2 - (my0 * s0 + my1 * s1 + my2 * s2)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _cubic(coef, k: int, tau: float):
     """The cubic coef[k] + coef[k+1] tau + coef[k+2] tau^2 + coef[k+3] tau^3 and its tau-rate."""
     c0, c1, c2, c3 = coef[k], coef[k + 1], coef[k + 2], coef[k + 3]
     return c0 + tau * (c1 + tau * (c2 + tau * c3)), c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _image_camera_vector(kind, coef, kc, acc, tau, p):
     """d = M (P - S) and dd/dtau at tau for the per-image kinds (polynomial, Kepler), as six
     floats: the arithmetic of :func:`_camera_state`'s per-image branch without its arrays (no
@@ -437,7 +436,7 @@ def _image_camera_vector(kind, coef, kc, acc, tau, p):
     return d0, d1, d2, t0, t1, t2
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs, b):
     """What a Newton step on the line needs at tau, for every kind, filled in place: S, dS/dtau,
     v = P - S, d = M v and dd/dtau; ``rot`` receives the angle rotation and its angle
@@ -499,13 +498,13 @@ def _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt,
         ddt[i] = dti
 
 
-@njit(**_JIT)
-def _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, gx0, gx2, gy1, gy2):
+@njit(**_LEAF)
+def _coef_gradients_into(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, gx0, gx2, gy1, gy2, gxs, gys, bas, col) -> None:
     """Derivatives along every coefficient of two image functions whose gradients wrt the
-    camera vector d are (gx0, 0, gx2) and (0, gy1, gy2), at the line's tau: returns (gxs[24],
-    gys[24]). For KIND_PASS the pass-state derivatives are in the slots PASS_COEF_INDEX."""
-    gxs = np.zeros(N_COEF)
-    gys = np.zeros(N_COEF)
+    camera vector d are (gx0, 0, gx2) and (0, gy1, gy2), at the line's tau, into ``gxs`` and
+    ``gys`` (24 each, zeros on entry: the slots a kind has no coefficient for stay 0). For
+    KIND_PASS the pass-state derivatives are in the slots PASS_COEF_INDEX. ``bas`` (3 x 6) and
+    ``col`` (2 x 3) are scratch."""
     oa = kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS
     # angles: dd/d(angle) = dM/d(angle) v, x t^k; orbit-attitude: Ry(mount) dR_att R_orbit v, the
     # gradients taken through the mounting first (g Ry) and R_orbit v formed once (in scalars:
@@ -532,8 +531,8 @@ def _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, g
             tp *= ta
     if oa:
         # state (S0, u) or pass x0: through S(t) and the orbital frame R_orbit(S, V)
-        _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, mm, v, gx0, gx2, gy1, gy2, gxs, gys)
-        return gxs, gys
+        _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, mm, v, gx0, gx2, gy1, gy2, gxs, gys, bas, col)
+        return
     # position: dd/dS_lgs = -M (the row vectors w = -g M, in scalars: this runs for every observation)
     wx0 = -(gx0 * mm[0, 0] + gx2 * mm[2, 0])
     wx1 = -(gx0 * mm[0, 1] + gx2 * mm[2, 1])
@@ -547,7 +546,7 @@ def _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, g
             gxs[k], gxs[4 + k], gxs[8 + k] = wx0 * tp, wx1 * tp, wx2 * tp
             gys[k], gys[4 + k], gys[8 + k] = wy0 * tp, wy1 * tp, wy2 * tp
             tp *= tau
-        return gxs, gys
+        return
     # Kepler: S_lgs = R (S0 + u tau + a h - O); dS_ecef/dS0 = I + h da/dr, dS_ecef/du = tau I + h da/du
     h = 0.5 * tau * tau
     om2 = 2.0 * kc[13] * h
@@ -572,7 +571,6 @@ def _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, g
     gys[5] = ey1 * tau + ey0 * om2
     gxs[9] = ex2 * tau
     gys[9] = ey2 * tau
-    return gxs, gys
 
 
 @njit(**_JIT)

@@ -14,7 +14,7 @@ from solver.kernels.layout import JIT as _JIT
 from solver.kernels.layout import KIND_KEPLER, KIND_POLYNOMIAL, KIND_RPC, N_COEF, N_IOP
 from solver.kernels.platform import (
     _camera_state,
-    _coef_gradients,
+    _coef_gradients_into,
     _derivative_factors,
     _image_camera_vector,
     _projection_terms,
@@ -177,10 +177,11 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
         dyp = gy1 * mm[1, j] + gy2 * mm[2, j]
         dl_dp[j] = -dxp / dx_dl
         dc_dp[j] = (dyp + dy_dl * dl_dp[j]) / px
-    gxs, gys = _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, gx0, gx2, gy1, gy2)
+    # the coefficients' gradients of x and y into dl_dc and dc_dc, then turned into those of L and C
+    _coef_gradients_into(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, gx0, gx2, gy1, gy2, dl_dc, dc_dc, b, vecs[6:8])
     for idx in range(N_COEF):
-        dl_dc[idx] = -gxs[idx] / dx_dl
-        dc_dc[idx] = (gys[idx] + dy_dl * dl_dc[idx]) / px
+        dl_dc[idx] = -dl_dc[idx] / dx_dl
+        dc_dc[idx] = (dc_dc[idx] + dy_dl * dl_dc[idx]) / px
     return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp
 
 
@@ -313,9 +314,10 @@ def project_cam(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, want_jac
         gx = hx0 * mm[0, j] + hx2 * mm[2, j]
         gy = hy1 * mm[1, j] + hy2 * mm[2, j]
         dl_dp[j], dc_dp[j] = _solve(gx, gy)
-    gxs, gys = _coef_gradients(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, hx0, hx2, hy1, hy2)
+    # the coefficients' gradients of g into dl_dc and dc_dc, then solved in place
+    _coef_gradients_into(kind, kc, da_dr, tau, s, sdot, v, mm, rot, a_att, mnt, ro, hx0, hx2, hy1, hy2, dl_dc, dc_dc, b, vecs[6:8])
     for idx in range(N_COEF):
-        dl_dc[idx], dc_dc[idx] = _solve(gxs[idx], gys[idx])
+        dl_dc[idx], dc_dc[idx] = _solve(dl_dc[idx], dc_dc[idx])
     # interior orientation: dg/diop = (dx_i/diop, dy_i/diop) + (d_x/d_z, d_y/d_z) for df
     for q in range(N_IOP):
         gx = dxi_diop[q]

@@ -40,6 +40,8 @@ import numpy as np
 from numba import njit
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
+from solver.kernels.layout import JIT as _JIT
+from solver.kernels.layout import LEAF as _LEAF
 from solver.kernels.layout import (  # noqa: F401  (the segment layout, defined with the other offsets; re-exported)
     NODE_SIZE,
     NODE_STEP_S,
@@ -53,8 +55,6 @@ from solver.kernels.layout import (  # noqa: F401  (the segment layout, defined 
     PASS_X0,
     segment_length,
 )
-
-_JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
 # kc layout (indices into an image's constant vector)
 KC_GM, KC_OMEGA, KC_J2, KC_AE = 12, 13, 14, 15
@@ -198,7 +198,7 @@ def ensure_segment(kc, x0) -> None:
             return
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _hermite_basis(kc, t: float, b) -> int:
     """Fill ``b`` (3 x 6) with the quintic Hermite basis at ``t`` (values, first and second time
     derivatives, over the two nodes' position, velocity and acceleration) and return the index
@@ -238,7 +238,7 @@ def _hermite_basis(kc, t: float, b) -> int:
     return k
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def pass_values_into(kc, t: float, b, pos, vel, acc) -> int:
     """ECEF position, velocity and acceleration at ``t`` into ``pos``, ``vel``, ``acc`` (no
     allocation: the Newton iterations of the projection call this); ``b`` (3 x 6) is scratch
@@ -275,7 +275,7 @@ def pass_state(kc, t: float, want_jac: bool):
     return pos, vel, acc, ds, dv
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def pass_state_column(kc, b, k: int, c: int, ds, dv) -> None:
     """Column ``c`` of dS/dx0 and dV/dx0 (ECEF) into ``ds``, ``dv`` (3 each): the node
     derivatives of interval ``k`` through the Hermite basis ``b`` of :func:`_hermite_basis`."""

@@ -9,6 +9,7 @@ from numba import njit
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.kernels.layout import JIT as _JIT
+from solver.kernels.layout import LEAF as _LEAF
 
 
 @njit(**_JIT)
@@ -48,7 +49,7 @@ def rotation_and_derivatives(om: float, ph: float, ka: float):
     return out[0], out[1], out[2], out[3]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _rotation_into(om: float, ph: float, ka: float, out):
     """Fill out[0] = M, out[1..3] = dM/d(omega, phi, kappa) for M = Rx(om) Ry(ph) Rz(ka)."""
     co, so = np.cos(om), np.sin(om)
@@ -96,7 +97,7 @@ def _rotation_into(om: float, ph: float, ka: float, out):
     out[3, 2, 2] = 0.0
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _mount_into(angle: float, m) -> None:
     """The camera mounting Ry(angle) into ``m`` (3 x 3)."""
     c, s = np.cos(angle), np.sin(angle)
@@ -157,7 +158,7 @@ def _orbital_frame(s, v, c):
     return r, d_s, d_v
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _orbital_frame_rate_into(s, v, c0: float, c1: float, c2: float, sdot, vdot, r, dr) -> None:
     """Orbital frame (as :func:`_orbital_frame`) into ``r`` and its time derivative along the
     trajectory (position rate ``sdot``, velocity rate ``vdot``) into ``dr``, without the state
@@ -185,7 +186,7 @@ def _orbital_frame_rate_into(s, v, c0: float, c1: float, c2: float, sdot, vdot, 
     dr[1, 0], dr[1, 1], dr[1, 2] = dy0, dy1, dy2
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _frame_rows_rate(z0, z1, z2, dz0, dz1, dz2, x0, x1, x2, hn, vz, v0, v1, v2, u0, u1, u2):
     """The derivatives of the orbital frame's rows x and y = z x x along a direction in which
     the radial row z moves by (dz0, dz1, dz2) and the velocity by (u0, u1, u2): x is the
@@ -211,7 +212,7 @@ def _orbital_frame_rate(s, v, c, sdot, vdot):
     return r, dr
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def ro_offset_scalars(kc):
     """R_ecef->lgs @ LGS origin, as three floats: added to an LGS position it gives the
     geocentric position in LGS axes (the orbital frame's radial direction)."""
