@@ -18,7 +18,7 @@ from solver.kernels.propagation import (
     PASS_COEF_INDEX,
     PASS_T_OFF,
     _hermite_basis,
-    gravity_and_gradient,
+    gravity_and_gradient_into,
     pass_state,
     pass_state_column,
     pass_values_into,
@@ -106,18 +106,21 @@ def platform_state(kind: int, coef, kc, tau: float):
 @njit(**_JIT)
 def _kepler_terms(coef, kc):
     """Rotating-frame acceleration at the state (S0, u) and its derivatives (once per call)."""
-    r0 = np.empty(3)
-    r0[0] = coef[0]
-    r0[1] = coef[4]
-    r0[2] = coef[8]
+    a = np.empty(3)
+    gg = np.empty((3, 3))
+    _kepler_terms_into(coef, kc, a, gg)
+    return a, gg
+
+
+@njit(**_LEAF)
+def _kepler_terms_into(coef, kc, a, gg) -> None:
+    """:func:`_kepler_terms` into ``a`` (3) and ``gg`` (3 x 3)."""
     om = kc[13]
-    g, gg = gravity_and_gradient(r0, kc[12], kc[14], kc[15])
-    a = g
-    a[0] += om * om * r0[0] + 2.0 * om * coef[5]
-    a[1] += om * om * r0[1] - 2.0 * om * coef[1]
+    gravity_and_gradient_into(coef[0], coef[4], coef[8], kc[12], kc[14], kc[15], a, gg)
+    a[0] += om * om * coef[0] + 2.0 * om * coef[5]
+    a[1] += om * om * coef[4] - 2.0 * om * coef[1]
     gg[0, 0] += om * om
     gg[1, 1] += om * om
-    return a, gg
 
 
 @njit(**_LEAF)
@@ -582,20 +585,18 @@ def _projection_work():
     return np.empty((4, 3, 3)), np.empty((5, 3, 3)), np.empty((12, 3)), np.empty((3, 6)), np.empty((3, 3))
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _projection_terms(kind, coef, kc, acc, da_dr, mnt) -> None:
     """What stays constant over a projection's Newton steps, in place: the Kepler acceleration
     and its gradient (``acc``, ``da_dr``; zeros where the kind has none) and, for the
     orbit-attitude kinds, the camera mounting Ry(mount) (``mnt``)."""
     if kind == KIND_KEPLER or kind == KIND_ORBIT_ATTITUDE:
-        a, g = _kepler_terms(coef, kc)
-        for i in range(3):  # element by element (see _camera_state)
-            acc[i] = a[i]
-            for j in range(3):
-                da_dr[i, j] = g[i, j]
+        _kepler_terms_into(coef, kc, acc, da_dr)
     else:
-        acc[:] = 0.0
-        da_dr[:, :] = 0.0
+        for i in range(3):  # element by element (see _camera_state)
+            acc[i] = 0.0
+            for j in range(3):
+                da_dr[i, j] = 0.0
     if kind == KIND_ORBIT_ATTITUDE or kind == KIND_PASS:
         _mount_into(kc[16], mnt)
 

@@ -66,32 +66,42 @@ PASS_COEF_INDEX = np.array([0, 4, 8, 1, 5, 9], dtype=np.int64)
 @njit(**_JIT)
 def gravity_and_gradient(r, gm: float, j2: float, ae: float):
     """Acceleration (m/s^2) of point mass + J2 at ECEF position r (m) and its 3x3 gradient."""
-    x, y, z = r[0], r[1], r[2]
+    g = np.empty(3)
+    grad = np.empty((3, 3))
+    gravity_and_gradient_into(r[0], r[1], r[2], gm, j2, ae, g, grad)
+    return g, grad
+
+
+@njit(**_LEAF)
+def gravity_and_gradient_into(x: float, y: float, z: float, gm: float, j2: float, ae: float, g, grad) -> None:
+    """:func:`gravity_and_gradient` at the ECEF position (x, y, z) (m) into ``g`` (3) and
+    ``grad`` (3 x 3)."""
     r2 = x * x + y * y + z * z
     rn = np.sqrt(r2)
     r3 = r2 * rn
     r5 = r3 * r2
-    g = np.empty(3)
-    grad = np.empty((3, 3))
     for i in range(3):
-        g[i] = -gm * r[i] / r3
+        ri = x if i == 0 else (y if i == 1 else z)
+        g[i] = -gm * ri / r3
         for j in range(3):
-            grad[i, j] = -gm * ((1.0 if i == j else 0.0) / r3 - 3.0 * r[i] * r[j] / r5)
+            rj = x if j == 0 else (y if j == 1 else z)
+            grad[i, j] = -gm * ((1.0 if i == j else 0.0) / r3 - 3.0 * ri * rj / r5)
     if j2 != 0.0:
         k = 1.5 * j2 * gm * ae * ae
         r7 = r5 * r2
         r9 = r7 * r2
         z2 = z * z
         # g_i = -k * r_i * (c_i r^-5 - 5 z^2 r^-7), c = (1, 1, 3)
-        c = np.array([1.0, 1.0, 3.0])
         for i in range(3):
-            g[i] += -k * r[i] * (c[i] / r5 - 5.0 * z2 / r7)
+            ri = x if i == 0 else (y if i == 1 else z)
+            ci = 3.0 if i == 2 else 1.0
+            g[i] += -k * ri * (ci / r5 - 5.0 * z2 / r7)
             for j in range(3):
+                rj = x if j == 0 else (y if j == 1 else z)
                 dz2 = 2.0 * z if j == 2 else 0.0
-                dbr = -5.0 * c[i] * r[j] / r7 - 5.0 * (dz2 / r7 - 7.0 * z2 * r[j] / r9)
-                br = c[i] / r5 - 5.0 * z2 / r7
-                grad[i, j] += -k * ((1.0 if i == j else 0.0) * br + r[i] * dbr)
-    return g, grad
+                dbr = -5.0 * ci * rj / r7 - 5.0 * (dz2 / r7 - 7.0 * z2 * rj / r9)
+                br = ci / r5 - 5.0 * z2 / r7
+                grad[i, j] += -k * ((1.0 if i == j else 0.0) * br + ri * dbr)
 
 
 @njit(**_JIT)

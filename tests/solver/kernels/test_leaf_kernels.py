@@ -95,7 +95,7 @@ def test_leaf_kernels_return_no_array_and_leak_nothing(tmp_path):
     # the projections of three kinds, with and without interior orientation and derivatives,
     # reach the leaves of every step (camera state, frames, gradients); all were compiled here
     for name in ("_camera_state", "_image_camera_vector", "_oa_frames_into", "_coef_gradients_into", "_oa_state_gradients",
-                 "_rotation_into", "_orbital_frame_rate_into", "_derivative_factors"):
+                 "_rotation_into", "_orbital_frame_rate_into", "_derivative_factors", "_projection_terms", "_kepler_terms_into"):
         assert name in got["leaves"], (name, got["leaves"])
     assert got["returning_arrays"] == []
     # the kernels allocate (work arrays, outputs) and free all of it: not one allocation left over
