@@ -55,7 +55,7 @@ def _eval_record(r, img_tab, cam_tab, p, params, want: bool):
     if r[REC_PASS_SLOT] >= 0:  # a pass image with an estimated pass state
         ensure_segment(kc, params[int(r[REC_PASS_SLOT])])
     oc = r[REC_OC:REC_PASS_SLOT]
-    iop = np.empty(0)  # no interior orientation (or no camera): _fill skips the camera (slot -1)
+    iop = coef[:0]  # no interior orientation (or no camera): _fill skips the camera (slot -1); a view, not an allocation
     if cm >= 0 and cam_tab[cm, 1] != 0.0:
         ct = cam_tab[cm]
         iop = ct[2 + N_IOP : 2 + 2 * N_IOP].copy()
@@ -195,7 +195,7 @@ def observation_blocks_into(lo, hi, rec, img_tab, cam_tab, img_p, cam_p, pts, pt
             coef[int(it[IT_FREE + j])] = img_p[im, j]
         oc = r[REC_OC:REC_PASS_SLOT]
         p = pts[pt_idx[i]]
-        iop = np.empty(0)
+        iop = coef[:0]  # none (a view, not an allocation)
         if cm >= 0 and ct[1] != 0.0:
             iop = ct[2 + N_IOP : 2 + 2 * N_IOP].copy()
             for j in range(nc):

@@ -134,9 +134,9 @@ def _point_block_callback(block, table, parameters, residuals, jacobians, want):
             params[s, q] = src[q]
     res = _doubles_at(residuals, 2 * nrec)
     rows = 2 * nrec
+    if want == 0:  # no Jacobian: empty views stand for the arrays it would fill (no allocation)
+        return point_obs_block(rec, img_tab, cam_tab, point, params, res, res[:0], params[:0], runtime_flag(False))
     jacs = np.empty((nslots, rows * width))
-    if want == 0:
-        return point_obs_block(rec, img_tab, cam_tab, point, params, res, np.empty(3 * rows), jacs, runtime_flag(False))
     jptr = carray(jacobians, (nslots + 1,), dtype=np.int64)
     jac_p = _doubles(jptr[0], 3 * rows)
     ok = point_obs_block(rec, img_tab, cam_tab, point, params, res, jac_p, jacs, runtime_flag(True))
@@ -168,9 +168,9 @@ def _fixed_block_callback(block, table, parameters, residuals, jacobians, want):
             params[s, q] = src[q]
     res = _doubles_at(residuals, 2 * nrec)
     rows = 2 * nrec
+    if want == 0:  # no Jacobian: an empty view stands for the array it would fill (no allocation)
+        return fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, params[:0], runtime_flag(False))
     jacs = np.empty((nslots, rows * width))
-    if want == 0:
-        return fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, jacs, runtime_flag(False))
     ok = fixed_obs_block(rec, img_tab, cam_tab, pts, params, res, jacs, runtime_flag(True))
     jptr = carray(jacobians, (nslots,), dtype=np.int64)
     for s in range(nslots):

@@ -582,7 +582,8 @@ def _projection_work():
     derivatives), ``mats`` (5 x 3 x 3: M, A, Ry(mount), R_orbit and its rate), ``vecs``
     (12 x 3: S, Sdot, v, d, dd/dtau, the Kepler acceleration, then six rows of scratch for
     :func:`_camera_state`), ``b`` (3 x 6, scratch) and ``da_dr`` (3 x 3)."""
-    return np.empty((4, 3, 3)), np.empty((5, 3, 3)), np.empty((12, 3)), np.empty((3, 6)), np.empty((3, 3))
+    m = np.empty((10, 3, 3))  # the 3 x 3 ones as views of one allocation (an allocation costs about 30 ns)
+    return m[0:4], m[4:9], np.empty((12, 3)), np.empty((3, 6)), m[9]
 
 
 @njit(**_LEAF)

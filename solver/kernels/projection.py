@@ -451,5 +451,5 @@ def project_observation(kind, coef, kc, p, oc, iop, chip: int, chip_len: float, 
     if iop.shape[0] > 0 and kind != KIND_RPC:
         return project_cam(kind, coef, kc, p, oc, iop, chip, chip_len, want_jac)
     ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp = project(kind, coef, kc, p, oc, want_jac)
-    empty = np.empty(0)
+    empty = dl_dc[:0]  # no IOP derivatives (a view, not an allocation)
     return ok, line, col, dl_dc, dl_dp, dc_dc, dc_dp, empty, empty
