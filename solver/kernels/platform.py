@@ -221,7 +221,10 @@ def _orbit_pos_into(kind, coef, kc, acc, tau, s, sdot, vdot, b, vecs) -> None:
             sdot[i] = kc[3 * i] * ve[0] + kc[3 * i + 1] * ve[1] + kc[3 * i + 2] * ve[2]
             vdot[i] = kc[3 * i] * ae[0] + kc[3 * i + 1] * ae[1] + kc[3 * i + 2] * ae[2]
         return
-    _pose(KIND_KEPLER, coef, kc, acc, tau, s, sdot, vecs[0], vecs[1])  # (its angles are not these: scratch)
+    # the Kepler position (_pose's branch for every kind but the polynomial; ``kind``, not the
+    # constant KIND_KEPLER: a constant argument compiles the callee once more for its value);
+    # its angles are not these: scratch
+    _pose(kind, coef, kc, acc, tau, s, sdot, vecs[0], vecs[1])
     for i in range(3):
         vdot[i] = kc[3 * i] * acc[0] + kc[3 * i + 1] * acc[1] + kc[3 * i + 2] * acc[2]
 
@@ -377,9 +380,9 @@ def _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, m, v, gx0, gx2, gy
 
 
 @njit(**_LEAF)
-def _cubic(coef, k: int, tau: float):
-    """The cubic coef[k] + coef[k+1] tau + coef[k+2] tau^2 + coef[k+3] tau^3 and its tau-rate."""
-    c0, c1, c2, c3 = coef[k], coef[k + 1], coef[k + 2], coef[k + 3]
+def _cubic(c0: float, c1: float, c2: float, c3: float, tau: float):
+    """The cubic c0 + c1 tau + c2 tau^2 + c3 tau^3 and its tau-rate. (The coefficients as floats,
+    not an array and a constant index: numba compiles a callee once per constant argument.)"""
     return c0 + tau * (c1 + tau * (c2 + tau * c3)), c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
 
 
@@ -391,13 +394,13 @@ def _image_camera_vector(kind, coef, kc, acc, tau, p):
     registers; on the 100k strip this is most of a residual evaluation). The factors the
     Jacobians need (S, M, its angle derivatives) are left to :func:`_camera_state` at the
     solution."""
-    om, dom = _cubic(coef, 12, tau)
-    ph, dph = _cubic(coef, 16, tau)
-    ka, dka = _cubic(coef, 20, tau)
+    om, dom = _cubic(coef[12], coef[13], coef[14], coef[15], tau)
+    ph, dph = _cubic(coef[16], coef[17], coef[18], coef[19], tau)
+    ka, dka = _cubic(coef[20], coef[21], coef[22], coef[23], tau)
     if kind == KIND_POLYNOMIAL:
-        s0, w0 = _cubic(coef, 0, tau)
-        s1, w1 = _cubic(coef, 4, tau)
-        s2, w2 = _cubic(coef, 8, tau)
+        s0, w0 = _cubic(coef[0], coef[1], coef[2], coef[3], tau)
+        s1, w1 = _cubic(coef[4], coef[5], coef[6], coef[7], tau)
+        s2, w2 = _cubic(coef[8], coef[9], coef[10], coef[11], tau)
     else:  # Kepler: the Earth-fixed quadratic less the LGS origin, rotated into the LGS
         h = 0.5 * tau * tau
         e0 = coef[0] + coef[1] * tau + acc[0] * h - kc[9]

@@ -193,9 +193,9 @@ def build_segment(kc, x0) -> None:
         kc[PASS_X0 + i] = x0[i]
     phi = np.eye(6)
     y, phi = propagate(y, phi, kc[PASS_T0], gm, omega, j2, ae)
-    _write_node(kc, 0, y, phi, gm, omega, j2, ae)
-    for k in range(1, n):
-        y, phi = propagate(y, phi, h, gm, omega, j2, ae)
+    for k in range(n):  # (node 0 inside the loop: a constant index would compile _write_node twice)
+        if k > 0:
+            y, phi = propagate(y, phi, h, gm, omega, j2, ae)
         _write_node(kc, k, y, phi, gm, omega, j2, ae)
 
 
