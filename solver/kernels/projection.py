@@ -126,7 +126,7 @@ def project(kind, coef, kc, p, oc, want_jac: bool):
     for it in range(31):
         tau = line * tpl
         jac_tau = tau
-        if per_image:  # (not a helper with the work arrays as arguments: such a call costs a step)
+        if per_image:  # a per-image step reads the coefficients only: no work array touched
             d0, d1, d2, t0, t1, t2 = _image_camera_vector(kind, coef, kc, acc, tau, p)
         else:
             _camera_state(kind, coef, kc, acc, tau, p, rot, s, sdot, v, d, ddt, mm, mnt, ro, dro, vecs[6:], b)
