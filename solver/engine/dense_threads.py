@@ -10,7 +10,8 @@ with other processes running, the Cholesky factor and inverse of a 420-square ma
 So an adjustment runs its dense algebra on one thread (:func:`bounded`, entered by
 :mod:`solver.api` around every job), and the few large factorisations of the reduced system
 (the rank check's factor, the covariance, the eigen-analyses) take more threads only when
-their matrix has at least :data:`DENSE_PARALLEL_MIN` rows and cores are idle at that moment
+their matrix has at least :data:`DENSE_PARALLEL_MIN` rows (and fewer than
+:data:`DENSE_PARALLEL_MAX`: OpenBLAS's threads corrupt memory above) and cores are idle at that moment
 (:func:`for_matrix`): the threads the solve may use (``PBA_SOLVER_THREADS``) minus the runnable
 threads of other processes (``/proc/loadavg`` less this process's own), at least one.
 """
@@ -25,6 +26,15 @@ from typing import Callable, Iterator
 DENSE_PARALLEL_MIN = 1500
 """Rows of a dense matrix from which its factorisation may use more than one thread (below,
 one thread is as fast on an idle machine: 0.10 s against 0.16 s at 1,200 rows)."""
+
+DENSE_PARALLEL_MAX = 12_000
+"""Rows from which a factorisation runs on one thread again, whatever the idle cores: OpenBLAS's
+threaded Cholesky writes outside its per-thread buffer on large matrices
+(https://github.com/OpenMathLib/OpenBLAS/issues/2562). Measured with the OpenBLAS that scipy
+ships here (bench/bench_openblas_large.py): ``dpotrf`` of a 16,000-square matrix on two threads
+kills the process with a segmentation fault, of a 15,000-square one it does not; one thread
+factors a 21,200-square one (a 1,515-image block's reduced matrix) in 43 s. Where the write
+lands short of a crash it corrupts the heap, and a later ``free`` aborts the process."""
 
 _controller = None
 _modules_seen = -1
@@ -77,11 +87,12 @@ def runnable_others() -> int | None:
 
 def threads_for(rows: int, others: Callable[[], int | None] = runnable_others) -> int:
     """BLAS threads for a dense factorisation of a ``rows``-square matrix: one below
-    :data:`DENSE_PARALLEL_MIN`; else the solve's threads less the other runnable threads
-    (all of the solve's threads when that cannot be read), at least one."""
+    :data:`DENSE_PARALLEL_MIN` and from :data:`DENSE_PARALLEL_MAX`; else the solve's threads
+    less the other runnable threads (all of the solve's threads when that cannot be read), at
+    least one."""
     from solver.engine.native import solver_threads
 
-    if rows < DENSE_PARALLEL_MIN:
+    if rows < DENSE_PARALLEL_MIN or rows >= DENSE_PARALLEL_MAX:
         return 1
     allowed = solver_threads()
     busy = others()

@@ -33,6 +33,15 @@ def test_large_matrices_take_the_idle_cores(four_cores) -> None:
     assert dense_threads.threads_for(n, others=lambda: None) == 4  # unreadable: the solve's threads
 
 
+def test_very_large_matrices_take_one_thread(four_cores) -> None:
+    """Above DENSE_PARALLEL_MAX OpenBLAS's threaded Cholesky crashes the process (measured:
+    16,000 rows on two threads; bench/bench_openblas_large.py), idle cores or not."""
+    assert dense_threads.DENSE_PARALLEL_MAX <= 15_000  # below the largest size measured to survive two threads
+    assert dense_threads.threads_for(dense_threads.DENSE_PARALLEL_MAX - 1, others=lambda: 0) == 4
+    assert dense_threads.threads_for(dense_threads.DENSE_PARALLEL_MAX, others=lambda: 0) == 1
+    assert dense_threads.threads_for(21_200, others=lambda: None) == 1
+
+
 def test_runnable_others_reads_the_kernel_count() -> None:
     others = dense_threads.runnable_others()
     assert others is None or others >= 0
