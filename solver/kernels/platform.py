@@ -169,41 +169,48 @@ def _attitude_base_into(kc, ta: float, ang, angdot) -> None:
 
 
 @njit(**_LEAF)
+def _cubic(c0: float, c1: float, c2: float, c3: float, tau: float):
+    """The cubic c0 + c1 tau + c2 tau^2 + c3 tau^3 and its tau-rate. (The coefficients as floats,
+    not an array and a constant index: numba compiles a callee once per constant argument.)"""
+    return c0 + tau * (c1 + tau * (c2 + tau * c3)), c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
+
+
+@njit(**_LEAF)
 def _attitude_angles(coef, tau, ang, angdot):
+    """The angle polynomials (rad) and their tau-rates at tau, into ``ang`` and ``angdot``."""
     for e in range(3):
-        c0 = coef[(3 + e) * 4]
-        c1 = coef[(3 + e) * 4 + 1]
-        c2 = coef[(3 + e) * 4 + 2]
-        c3 = coef[(3 + e) * 4 + 3]
-        ang[e] = c0 + tau * (c1 + tau * (c2 + tau * c3))
-        angdot[e] = c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
+        k = (3 + e) * 4
+        ang[e], angdot[e] = _cubic(coef[k], coef[k + 1], coef[k + 2], coef[k + 3], tau)
+
+
+@njit(**_LEAF)
+def _to_lgs(kc, x: float, y: float, z: float):
+    """The ECEF vector (x, y, z) in LGS axes (the rotation's rows are ``kc[0:9]``), as three floats."""
+    return (kc[0] * x + kc[1] * y + kc[2] * z, kc[3] * x + kc[4] * y + kc[5] * z, kc[6] * x + kc[7] * y + kc[8] * z)
+
+
+@njit(**_LEAF)
+def _position_rate(kind, coef, kc, acc, tau):
+    """Position (LGS, m) and its tau-rate at tau, as six floats, for every kind but the pass:
+    the cubics of the polynomial kind, else the Kepler/J2 quadratic of the Earth-fixed state
+    (``acc``: its acceleration) less the LGS origin, in LGS axes."""
+    if kind == KIND_POLYNOMIAL:
+        s0, w0 = _cubic(coef[0], coef[1], coef[2], coef[3], tau)
+        s1, w1 = _cubic(coef[4], coef[5], coef[6], coef[7], tau)
+        s2, w2 = _cubic(coef[8], coef[9], coef[10], coef[11], tau)
+        return s0, s1, s2, w0, w1, w2
+    h = 0.5 * tau * tau
+    s0, s1, s2 = _to_lgs(kc, coef[0] + coef[1] * tau + acc[0] * h - kc[9], coef[4] + coef[5] * tau + acc[1] * h - kc[10],
+                         coef[8] + coef[9] * tau + acc[2] * h - kc[11])
+    w0, w1, w2 = _to_lgs(kc, coef[1] + acc[0] * tau, coef[5] + acc[1] * tau, coef[9] + acc[2] * tau)
+    return s0, s1, s2, w0, w1, w2
 
 
 @njit(**_LEAF)
 def _pose(kind, coef, kc, acc, tau, s, sdot, ang, angdot):
     """Position (LGS) and its tau-derivative, angles and their tau-derivatives, at tau."""
     _attitude_angles(coef, tau, ang, angdot)
-    if kind == KIND_POLYNOMIAL:
-        for e in range(3):
-            c0 = coef[e * 4]
-            c1 = coef[e * 4 + 1]
-            c2 = coef[e * 4 + 2]
-            c3 = coef[e * 4 + 3]
-            s[e] = c0 + tau * (c1 + tau * (c2 + tau * c3))
-            sdot[e] = c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
-        return
-    h = 0.5 * tau * tau
-    for i in range(3):
-        se_i = coef[i * 4] + coef[i * 4 + 1] * tau + acc[i] * h - kc[9 + i]
-        sd_i = coef[i * 4 + 1] + acc[i] * tau
-        sdot[i] = sd_i
-        s[i] = se_i
-    # rotate ECEF offsets into the LGS
-    x, y, z = s[0], s[1], s[2]
-    vx, vy, vz = sdot[0], sdot[1], sdot[2]
-    for i in range(3):
-        s[i] = kc[3 * i] * x + kc[3 * i + 1] * y + kc[3 * i + 2] * z
-        sdot[i] = kc[3 * i] * vx + kc[3 * i + 1] * vy + kc[3 * i + 2] * vz
+    s[0], s[1], s[2], sdot[0], sdot[1], sdot[2] = _position_rate(kind, coef, kc, acc, tau)
 
 
 @njit(**_LEAF)
@@ -214,19 +221,14 @@ def _orbit_pos_into(kind, coef, kc, acc, tau, s, sdot, vdot, b, vecs) -> None:
     if kind == KIND_PASS:
         pe, ve, ae = vecs[0], vecs[1], vecs[2]
         pass_values_into(kc, kc[PASS_T_OFF] + tau, b, pe, ve, ae)
-        for i in range(3):
-            pe[i] -= kc[9 + i]
-        for i in range(3):
-            s[i] = kc[3 * i] * pe[0] + kc[3 * i + 1] * pe[1] + kc[3 * i + 2] * pe[2]
-            sdot[i] = kc[3 * i] * ve[0] + kc[3 * i + 1] * ve[1] + kc[3 * i + 2] * ve[2]
-            vdot[i] = kc[3 * i] * ae[0] + kc[3 * i + 1] * ae[1] + kc[3 * i + 2] * ae[2]
+        s[0], s[1], s[2] = _to_lgs(kc, pe[0] - kc[9], pe[1] - kc[10], pe[2] - kc[11])
+        sdot[0], sdot[1], sdot[2] = _to_lgs(kc, ve[0], ve[1], ve[2])
+        vdot[0], vdot[1], vdot[2] = _to_lgs(kc, ae[0], ae[1], ae[2])
         return
-    # the Kepler position (_pose's branch for every kind but the polynomial; ``kind``, not the
-    # constant KIND_KEPLER: a constant argument compiles the callee once more for its value);
-    # its angles are not these: scratch
-    _pose(kind, coef, kc, acc, tau, s, sdot, vecs[0], vecs[1])
-    for i in range(3):
-        vdot[i] = kc[3 * i] * acc[0] + kc[3 * i + 1] * acc[1] + kc[3 * i + 2] * acc[2]
+    # the Kepler position (``kind``, not the constant KIND_KEPLER: a constant argument compiles
+    # the callee once more for its value)
+    s[0], s[1], s[2], sdot[0], sdot[1], sdot[2] = _position_rate(kind, coef, kc, acc, tau)
+    vdot[0], vdot[1], vdot[2] = _to_lgs(kc, acc[0], acc[1], acc[2])
 
 
 @njit(**_LEAF)
@@ -358,15 +360,8 @@ def _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, m, v, gx0, gx2, gy
     my0, my1, my2 = gy1 * m[1, 0] + gy2 * m[2, 0], gy1 * m[1, 1] + gy2 * m[2, 1], gy1 * m[1, 2] + gy2 * m[2, 2]
     for q in range(6):
         _state_column(kind, kc, da_dr, tau, bas, k0, q, col[0], col[1])
-        e0, e1, e2 = col[0, 0], col[0, 1], col[0, 2]
-        f0, f1, f2 = col[1, 0], col[1, 1], col[1, 2]
-        # into LGS axes
-        s0 = kc[0] * e0 + kc[1] * e1 + kc[2] * e2
-        s1 = kc[3] * e0 + kc[4] * e1 + kc[5] * e2
-        s2 = kc[6] * e0 + kc[7] * e1 + kc[8] * e2
-        u0 = kc[0] * f0 + kc[1] * f1 + kc[2] * f2
-        u1 = kc[3] * f0 + kc[4] * f1 + kc[5] * f2
-        u2 = kc[6] * f0 + kc[7] * f1 + kc[8] * f2
+        s0, s1, s2 = _to_lgs(kc, col[0, 0], col[0, 1], col[0, 2])  # dS, dV of the state component in LGS axes
+        u0, u1, u2 = _to_lgs(kc, col[1, 0], col[1, 1], col[1, 2])
         zs = z0 * s0 + z1 * s1 + z2 * s2
         dz0, dz1, dz2 = (s0 - zs * z0) / gn, (s1 - zs * z1) / gn, (s2 - zs * z2) / gn
         dx0, dx1, dx2, dy0, dy1, dy2 = _frame_rows_rate(z0, z1, z2, dz0, dz1, dz2, x0, x1, x2, hn, vz, sdot[0], sdot[1], sdot[2],
@@ -380,13 +375,6 @@ def _oa_state_gradients(kind, kc, da_dr, tau, s, sdot, a_att, m, v, gx0, gx2, gy
 
 
 @njit(**_LEAF)
-def _cubic(c0: float, c1: float, c2: float, c3: float, tau: float):
-    """The cubic c0 + c1 tau + c2 tau^2 + c3 tau^3 and its tau-rate. (The coefficients as floats,
-    not an array and a constant index: numba compiles a callee once per constant argument.)"""
-    return c0 + tau * (c1 + tau * (c2 + tau * c3)), c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
-
-
-@njit(**_LEAF)
 def _image_camera_vector(kind, coef, kc, acc, tau, p):
     """d = M (P - S) and dd/dtau at tau for the per-image kinds (polynomial, Kepler), as six
     floats: the arithmetic of :func:`_camera_state`'s per-image branch without its arrays (no
@@ -397,24 +385,7 @@ def _image_camera_vector(kind, coef, kc, acc, tau, p):
     om, dom = _cubic(coef[12], coef[13], coef[14], coef[15], tau)
     ph, dph = _cubic(coef[16], coef[17], coef[18], coef[19], tau)
     ka, dka = _cubic(coef[20], coef[21], coef[22], coef[23], tau)
-    if kind == KIND_POLYNOMIAL:
-        s0, w0 = _cubic(coef[0], coef[1], coef[2], coef[3], tau)
-        s1, w1 = _cubic(coef[4], coef[5], coef[6], coef[7], tau)
-        s2, w2 = _cubic(coef[8], coef[9], coef[10], coef[11], tau)
-    else:  # Kepler: the Earth-fixed quadratic less the LGS origin, rotated into the LGS
-        h = 0.5 * tau * tau
-        e0 = coef[0] + coef[1] * tau + acc[0] * h - kc[9]
-        e1 = coef[4] + coef[5] * tau + acc[1] * h - kc[10]
-        e2 = coef[8] + coef[9] * tau + acc[2] * h - kc[11]
-        u0 = coef[1] + acc[0] * tau
-        u1 = coef[5] + acc[1] * tau
-        u2 = coef[9] + acc[2] * tau
-        s0 = kc[0] * e0 + kc[1] * e1 + kc[2] * e2
-        s1 = kc[3] * e0 + kc[4] * e1 + kc[5] * e2
-        s2 = kc[6] * e0 + kc[7] * e1 + kc[8] * e2
-        w0 = kc[0] * u0 + kc[1] * u1 + kc[2] * u2
-        w1 = kc[3] * u0 + kc[4] * u1 + kc[5] * u2
-        w2 = kc[6] * u0 + kc[7] * u1 + kc[8] * u2
+    s0, s1, s2, w0, w1, w2 = _position_rate(kind, coef, kc, acc, tau)
     co, so = np.cos(om), np.sin(om)
     cp, sp = np.cos(ph), np.sin(ph)
     ck, sk = np.cos(ka), np.sin(ka)
