@@ -46,7 +46,8 @@ STARTS = ("service", "ephemeris")
 def ephemeris_start(problem) -> None:
     """Replace the service's initial attitude by the one a program holding only the ephemeris
     would take (in place): the position from the header state as before, the nominal attitude
-    (flight direction and the camera's mounting pitch, no resection on the control points), zero
+    (flight direction and the camera's mounting pitch from the platform's vertical, no resection
+    on the control points), zero
     rates; then the tie points intersected again from those rays."""
     from solver.engine.initialize import _nominal_attitude, intersect_estimated_points
     from solver.observations.ephemeris import image_state
@@ -56,7 +57,9 @@ def ephemeris_start(problem) -> None:
         state = image_state(im_doc, problem.job.options)
         v = None if state is None else np.array(state.velocity_ecef_m_s, dtype=float)
         orders = img.model.effective_orders(img.options)
-        for e, value in zip(ANGLES, _nominal_attitude(img, problem.frame, v)):
+        held = any(orders[ELEMENTS.index(e)] == HELD for e in ANGLES)  # then the LGS vertical, as the service
+        r = None if state is None or held else np.array(state.position_ecef_m, dtype=float)
+        for e, value in zip(ANGLES, _nominal_attitude(img, problem.frame, v, r)):
             if orders[ELEMENTS.index(e)] == HELD:
                 continue
             for order in range(4):  # the angle and its rates

@@ -5,8 +5,9 @@
    variable; or from the job's ``initial`` values.
 2. Attitude: the rotation that best aligns the image rays of the control points with their
    object-space directions (Wahba's problem, solved by SVD), converted to (omega, phi, kappa);
-   without control on the image, the nominal attitude from the flight direction and the
-   camera's mounting pitch. Rates start at zero. Refining the angles (or a whole resection) on
+   without control on the image, the nominal attitude (:func:`nominal_attitude`): the camera
+   pitched by its mounting angle from the platform's own geodetic vertical, its x axis along
+   the flight direction. Rates start at zero. Refining the angles (or a whole resection) on
    the control points before the bundle was measured and rejected: it moves each image along
    its weakly determined pitch / along-track-position direction away from the header state, and
    the bundle then needs 51+ instead of 8 (triplet) or 26 (20 triplets) iterations.
@@ -89,12 +90,53 @@ def _wahba(obj_dirs: np.ndarray, cam_dirs: np.ndarray) -> np.ndarray:
     return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
 
 
-def nominal_attitude(img: ImageState, frame, v_ecef: np.ndarray | None) -> tuple[float, float, float]:
+def matrix_from_angles(omega: float, phi: float, kappa: float) -> np.ndarray:
+    """M = Rx(omega) Ry(phi) Rz(kappa) (rad; the inverse of :func:`angles_from_matrix`)."""
+    co, so, cp, sp, ck, sk = math.cos(omega), math.sin(omega), math.cos(phi), math.sin(phi), math.cos(kappa), math.sin(kappa)
+    rx = np.array([[1, 0, 0], [0, co, -so], [0, so, co]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[ck, -sk, 0], [sk, ck, 0], [0, 0, 1]])
+    return rx @ ry @ rz
+
+
+def platform_level(frame, r_ecef: np.ndarray) -> np.ndarray:
+    """The rotation T (3 x 3, LGS axes) that takes the LGS up to the geodetic up at the platform
+    position ``r_ecef`` (ECEF m) by the smallest turn (Rodrigues): the axes of a level frame
+    there, as columns in LGS components. The identity on the LGS origin's vertical; 2.7 deg
+    away per 300 km from it, 68 deg at 7,500 km."""
+    from solver.geometry.geodesy import ecef_to_geodetic, enu_rotation
+
+    lon, lat, _h = ecef_to_geodetic(np.asarray(r_ecef, dtype=float)[None, :])[0]
+    up = frame.vector_to_lgs(enu_rotation(math.radians(lon), math.radians(lat))[2])
+    ez = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(ez, up)
+    s, c = float(np.linalg.norm(axis)), float(ez @ up)
+    if s < 1e-15:
+        return np.eye(3)
+    k = axis / s
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * kx + (1 - c) * (kx @ kx)
+
+
+def nominal_attitude(img: ImageState, frame, v_ecef: np.ndarray | None, r_ecef: np.ndarray | None = None) -> tuple[float, float, float]:
+    """(omega, phi, kappa) in rad of the nominal attitude in the LGS: no roll, the camera's
+    mounting pitch, the camera x axis along the flight direction (``v_ecef``, m/s, Earth-fixed).
+
+    With the platform position ``r_ecef`` (ECEF m), the pitch and the heading are
+    taken from the platform's own geodetic vertical (:func:`platform_level`), as a satellite
+    pointing at its nadir sees: with T that level frame and M_0 the nominal rotation in it,
+    ``M = M_0 T^T``. Without, from the LGS vertical, which is right only near the LGS origin: an
+    image 1,500 km along a strip would start 13.5 deg off nadir, one 7,500 km away 68 deg (the
+    rays then miss the ground and the bundle diverges)."""
+    pitch = math.radians(img.camera.mounting_pitch_deg)
     if v_ecef is None:
-        return 0.0, math.radians(img.camera.mounting_pitch_deg), 0.0
+        return 0.0, pitch, 0.0
     v = frame.vector_to_lgs(v_ecef)
-    kappa = math.atan2(-v[1], v[0])
-    return 0.0, math.radians(img.camera.mounting_pitch_deg), kappa
+    if r_ecef is None:
+        return 0.0, pitch, math.atan2(-v[1], v[0])
+    t = platform_level(frame, r_ecef)
+    v = t.T @ v  # the velocity in the level frame's axes
+    return angles_from_matrix(matrix_from_angles(0.0, pitch, math.atan2(-v[1], v[0])) @ t.T)
 
 
 def initial_platform_values(problem: AdjustmentState, states: dict[int, Any]) -> list[Problem]:
@@ -121,7 +163,7 @@ def initial_platform_values(problem: AdjustmentState, states: dict[int, Any]) ->
             apply_initial(img)
             img.params[:] = img.base[img.free_idx]
             continue
-        v_ecef = None
+        v_ecef = r_ecef = None
         state = states.get(img.index)  # approx_state or the interpolated ephemeris
         if state is not None:
             r_ecef = np.array(state.position_ecef_m, dtype=float)
@@ -148,8 +190,10 @@ def initial_platform_values(problem: AdjustmentState, states: dict[int, Any]) ->
         # user-given position-related values before the attitude resection
         apply_initial(img)
         img.params[:] = img.base[img.free_idx]
-        omega, phi, kappa = _attitude_by_resection(problem, img, v_ecef, seen)
         orders = img.model.effective_orders(img.options)
+        # a model that holds an angle keeps the LGS vertical: its held angles are LGS values
+        levelled = r_ecef is not None and all(orders[ELEMENTS.index(e)] != HELD for e in ANGLES)
+        omega, phi, kappa = _attitude_by_resection(problem, img, v_ecef, seen, r_ecef if levelled else None)
         for e, val in zip(ANGLES, (omega, phi, kappa)):
             if orders[ELEMENTS.index(e)] != HELD:
                 img.base[coef_index(e, 0)] = val
@@ -182,7 +226,10 @@ class _ControlSeen:
         return r[self.known_obs[r]]
 
 
-def _attitude_by_resection(problem: AdjustmentState, img: ImageState, v_ecef, seen: _ControlSeen) -> tuple[float, float, float]:
+def _attitude_by_resection(problem: AdjustmentState, img: ImageState, v_ecef, seen: _ControlSeen,
+                           r_ecef: np.ndarray | None = None) -> tuple[float, float, float]:
+    """The image's initial angles: Wahba's rotation on three or more observations of surveyed
+    control, else the nominal attitude (levelled at ``r_ecef`` when given)."""
     if img.model.kind.attitude_in_orbital_frame:
         # relative to the orbital frame: nominally zero; without control in the image, the mean of
         # its attitude samples (roll, pitch, yaw in that frame) when the job weights them
@@ -200,7 +247,7 @@ def _attitude_by_resection(problem: AdjustmentState, img: ImageState, v_ecef, se
     obs = problem.obs
     sel = seen.known(img.index)
     if len(sel) < 3:
-        return nominal_attitude(img, problem.frame, v_ecef)
+        return nominal_attitude(img, problem.frame, v_ecef, r_ecef)
     from solver.kernels import platform_state
 
     coef = img.coef()

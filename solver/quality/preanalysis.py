@@ -21,12 +21,12 @@ from typing import Any
 import numpy as np
 
 from solver.engine.assemble import build_problem, parameter_names
-from solver.engine.initialize import angles_from_matrix, initialise
+from solver.engine.initialize import initialise, nominal_attitude
 from solver.engine.linalg import check_rank, covariance, linearise, schur
 from solver.engine.packed_tables import current_tables, records
 from solver.engine.validate import planning_problems, require_valid
 from solver.errors import JobError, Problem
-from solver.geometry.geodesy import ecef_to_geodetic, enu_rotation
+from solver.geometry.geodesy import ecef_to_geodetic
 from solver.geometry.rpc import RPC
 from solver.kernels import all_observation_blocks
 from solver.observations.ephemeris import image_state
@@ -70,23 +70,14 @@ def _all_pairs(job: Job, placement: dict[tuple[str, str], tuple[float, float]]) 
     return out
 
 
-def _rotation(omega: float, phi: float, kappa: float) -> np.ndarray:
-    """M = Rx(omega) Ry(phi) Rz(kappa) (the inverse of :func:`angles_from_matrix`)."""
-    co, so, cp, sp, ck, sk = math.cos(omega), math.sin(omega), math.cos(phi), math.sin(phi), math.cos(kappa), math.sin(kappa)
-    rx = np.array([[1, 0, 0], [0, co, -so], [0, so, co]])
-    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    rz = np.array([[ck, -sk, 0], [sk, ck, 0], [0, 0, 1]])
-    return rx @ ry @ rz
-
-
-def level_nominal_attitude(problem: AdjustmentState, images: list[int]) -> None:
-    """Tilt the nominal attitude of position-rotation models (LGS axes) to the platform's own
-    vertical (in place). Without control on an image the initial attitude points the camera
-    along the LGS vertical of the scene centre; the platform, hundreds of kilometres away, has
-    its vertical tilted by ~2.7 deg per 300 km, which puts the planned points thousands of lines
-    off. With T the rotation taking the LGS up to the platform's geodetic up (both in LGS),
-    ``M = M_nominal T^T``. Orbit-attitude and pass models are relative to the orbital frame
-    already; images with ``initial`` or ``approx_state.attitude_deg`` angles are left alone."""
+def nominal_attitudes(problem: AdjustmentState, images: list[int], levelled: bool) -> None:
+    """Set the nominal attitude of position-rotation models (LGS axes) on ``images`` (in place):
+    from the platform's own geodetic vertical (``levelled``, as the adjustment's initial values
+    are without control, :func:`solver.blocks.platform_values.nominal_attitude`) or from the
+    LGS vertical of the scene centre. A plan may have been drawn either way, and the variant that
+    sees more planned points is kept per image (:func:`plan_observations`). Orbit-attitude and pass
+    models are relative to the orbital frame already; images with ``initial`` or
+    ``approx_state.attitude_deg`` angles, and models that hold an angle, are left alone."""
     for i in images:
         img = problem.images[i]
         im_doc = problem.job.images[i]
@@ -98,19 +89,9 @@ def level_nominal_attitude(problem: AdjustmentState, images: list[int]) -> None:
         orders = img.model.effective_orders(img.options)
         if any(orders[ELEMENTS.index(e)] == HELD for e in ANGLES):
             continue
-        r = np.array(state.position_ecef_m, dtype=float)
-        lon, lat, _h = ecef_to_geodetic(r[None, :])[0]
-        up = problem.frame.vector_to_lgs(enu_rotation(math.radians(lon), math.radians(lat))[2])
-        ez = np.array([0.0, 0.0, 1.0])
-        axis = np.cross(ez, up)
-        s, c = float(np.linalg.norm(axis)), float(ez @ up)
-        if s < 1e-12:
-            continue
-        k = axis / s
-        kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-        t = np.eye(3) + s * kx + (1 - c) * (kx @ kx)  # Rodrigues: t @ ez = up
-        m = _rotation(*(img.base[coef_index(e, 0)] for e in ANGLES)) @ t.T
-        for e, v in zip(ANGLES, angles_from_matrix(m)):
+        r = np.array(state.position_ecef_m, dtype=float) if levelled else None
+        angles = nominal_attitude(img, problem.frame, np.array(state.velocity_ecef_m_s, dtype=float), r)
+        for e, v in zip(ANGLES, angles):
             img.base[coef_index(e, 0)] = v
         img.params[:] = img.base[img.free_idx]
 
@@ -127,9 +108,9 @@ def _projections(job: Job, level: bool) -> tuple[dict[tuple[str, str], tuple[flo
         doc = job.model_copy(update={"points": points, "observations": [], "lines": []})
         doc = Job.model_validate({**doc.model_dump(), "observations": _all_pairs(job, placement)})
         problem = build_problem(doc)
-        initialise(problem)
-        if level:
-            level_nominal_attitude(problem, list(range(len(problem.images))))
+        initialise(problem)  # levelled nominal attitudes (no control here: every point a check point)
+        if not level:
+            nominal_attitudes(problem, list(range(len(problem.images))), levelled=False)
         obs = problem.obs
         rows = np.arange(len(obs.pt))
         img_tab, cam_tab, img_p, cam_p = current_tables(problem)
@@ -178,7 +159,7 @@ def _line_samples(job: Job, n: int) -> tuple[list[dict[str, Any]], dict[str, lis
 def plan_observations(job: Job) -> tuple[list[dict[str, Any]], set[str], dict[str, list[dict[str, Any]]]]:
     """The image observations of the planned points: their projections with the initial
     orientation that fall inside the images (JSON-ready, ``sigma_px`` of ``options.preanalysis``),
-    the images whose nominal attitude was levelled (:func:`level_nominal_attitude`: per
+    the images whose nominal attitude was levelled (:func:`nominal_attitudes`: per
     image, the variant that sees more planned points), and per control line its planned image
     observations (``options.preanalysis.line_points`` points evenly spaced between its
     endpoints, projected; an image sees the line where at least two of them fall inside)."""
@@ -226,11 +207,11 @@ def preanalyse(job: Job) -> dict[str, Any]:
     problem = build_problem(doc)
     initialise(problem)
     gcp = np.array([problem.points[k].role == "gcp" for k in problem.obs.pt], dtype=bool)
-    uncontrolled = [
-        im.index for im in problem.images if im.id in levelled and not np.any(gcp & (problem.obs.img == im.index))
+    flat = [
+        im.index for im in problem.images if im.id not in levelled and not np.any(gcp & (problem.obs.img == im.index))
     ]
-    level_nominal_attitude(problem, uncontrolled)
-    if uncontrolled:
+    nominal_attitudes(problem, flat, levelled=False)
+    if flat:
         from solver.engine.initialize import intersect_estimated_points
 
         intersect_estimated_points(problem)
