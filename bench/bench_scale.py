@@ -18,7 +18,9 @@ whole strip are linked as in a real strip and the reduced camera system is bande
 and one check point per triplet spread along the strip (100 + 100 for 300 images, as the
 strip of the issue that asked for this benchmark), the header states weighted (20 m, 0.05 m/s)
 as a user with an ephemeris would (``--no-states``: unweighted approximations 20 m off), and
-the default report (covariance, quality sections). About 3,300 observations per image, so a
+the default report (covariance, quality sections). The scenes follow a geodesic 30 km apart,
+each view as a satellite takes it; a strip longer than 9,000 km (300 triplets) has its scenes
+closer instead, so that it stays within 81 degrees of arc. About 3,300 observations per image, so a
 block of N observations has about N / 9,900 triplets.
 
 ``--disjoint`` gives the former layout instead: triplets that share no point (``block_job``,
@@ -98,6 +100,9 @@ def strip_for(n_obs: int, model: str, seed: int) -> dict[str, Any]:
 
 
 OVERLAP_SHARE = 0.36  # a connected strip at 30 km spacing: 36 % of a scene's points also in a neighbour's 3 images
+SPACING_M = 30000.0  # the scenes' spacing along the strip (each scene about 40 km long)
+STRIP_MAX_M = 9.0e6  # the longest strip: 300 triplets at 30 km (81 deg of arc); longer blocks get their scenes closer
+# (the model-consistent scenes lose their observations beyond about 90 deg of arc from the LGS origin)
 GCP_PER_TRIPLET = 1.0  # the issue's strip: 100 control and 100 check points on 300 images
 MIN_GCP_CONNECTED = 4  # a strip of one to three triplets with one control point each leaves a tilt and a scale to the datum analysis, which refuses it
 CHECKS_PER_TRIPLET_CONNECTED = 1.0
@@ -108,10 +113,13 @@ def connected_for(n_obs: int, model: str, seed: int, states: bool) -> dict[str, 
     from utils.scenes import connected_strip_job
 
     triplets = max(1, round(n_obs / (3 * OBS_PER_IMAGE)))
+    spacing = min(SPACING_M, STRIP_MAX_M / triplets)
+    share = (1.0 + OVERLAP_SHARE) * SPACING_M / spacing - 1.0  # a point's other triplets, on average
     doc, _truth = connected_strip_job(
         model,
         n_triplets=triplets,
-        points_per_triplet=max(10, round(n_obs / (triplets * 3.0 * (1.0 + OVERLAP_SHARE * (triplets - 1) / triplets)))),
+        points_per_triplet=max(10, round(n_obs / (triplets * 3.0 * (1.0 + share * (triplets - 1) / triplets)))),
+        spacing_m=spacing,
         n_gcp=max(MIN_GCP_CONNECTED, round(GCP_PER_TRIPLET * triplets)),
         n_check=max(1, round(CHECKS_PER_TRIPLET_CONNECTED * triplets)),
         seed=seed,
@@ -120,7 +128,7 @@ def connected_for(n_obs: int, model: str, seed: int, states: bool) -> dict[str, 
     return doc
 
 
-GENERATOR_VERSION = {"connected": "-v3"}  # bumped when a layout's generator changes: a cached job of an older one is not reused
+GENERATOR_VERSION = {"connected": "-v4"}  # bumped when a layout's generator changes: a cached job of an older one is not reused
 
 
 def job_path(n_obs: int, model: str, seed: int, layout: str, states: bool) -> Path:

@@ -49,14 +49,48 @@ def terrain_height(e: np.ndarray, n: np.ndarray) -> np.ndarray:
     return 60.0 * np.sin(e / 7000.0) * np.cos(n / 9000.0) + 40.0 * np.sin((e + n) / 13000.0)
 
 
-def _state_for_pass(frame: LocalFrame, t_mid: float, pitch_deg: float, altitude_m: float, heading_deg: float, along_offset_m: float = 0.0):
-    """ECEF position/velocity at line 0 of an image whose middle line looks at the scene centre."""
+def _view_arcs(frame: LocalFrame, pitch_deg: float, altitude_m: float) -> tuple[float, float]:
+    """(incidence, arc) in rad of a view pitched ``pitch_deg`` off the platform's own vertical
+    at ``altitude_m`` over a sphere of the scene centre's geocentric radius: the angle of the
+    line of sight to the scene's vertical (the pitch as the scene's frame sees it) and the arc
+    from the platform's nadir to the scene centre (both signed as the pitch; law of sines)."""
+    radius = float(np.linalg.norm(frame.origin_ecef_m))
+    eta = math.radians(pitch_deg)
+    incidence = math.asin((radius + altitude_m) / radius * math.sin(eta))
+    return incidence, incidence - eta
+
+
+def incidence_deg(frame: LocalFrame, pitch_deg: float, altitude_m: float = 692e3) -> float:
+    """The scene-frame pitch (deg) of a camera mounted ``pitch_deg`` off its platform's vertical
+    (23.8 deg: 26.6 deg at the scene): the angle a scene's true attitude is written with."""
+    return math.degrees(_view_arcs(frame, pitch_deg, altitude_m)[0])
+
+
+def _state_for_pass(frame: LocalFrame, t_mid: float, pitch_deg: float, altitude_m: float, heading_deg: float, along_offset_m: float = 0.0,
+                    satellite: bool = False):
+    """ECEF position/velocity at line 0 of an image whose middle line looks at the scene centre.
+
+    By default in the scene's tangent plane: the platform ``altitude_m`` above it and
+    ``tan(pitch) altitude`` along the track, its velocity in the plane (a flat Earth: the
+    platform's own vertical is then 2.8 deg off the scene's for a 23.8 deg view, so the camera
+    looks from a mounting the job does not state). ``satellite``: with the camera pitched
+    ``pitch_deg`` off the platform's own vertical (a satellite's mounting) and the platform flying
+    level, over a sphere of the scene centre's radius: an arc behind the centre for a forward
+    view, ahead for a backward one; write the scene-frame attitude with :func:`incidence_deg`."""
     h = math.radians(heading_deg)
     speed = 7560.0 * (6378137.0 + 0.0) / (6378137.0 + altitude_m) * 1.0
     vdir = np.array([math.sin(h), math.cos(h), 0.0])  # east, north
-    look_back = math.tan(math.radians(-pitch_deg)) * altitude_m  # backward camera is ahead
-    s_mid = vdir * (look_back + along_offset_m) + np.array([0.0, 0.0, altitude_m])
-    v = vdir * speed
+    if not satellite:
+        look_back = math.tan(math.radians(-pitch_deg)) * altitude_m  # backward camera is ahead
+        s_mid = vdir * (look_back + along_offset_m) + np.array([0.0, 0.0, altitude_m])
+        v = vdir * speed
+        s0 = s_mid - v * t_mid
+        return frame.to_ecef(s0), frame.vector_to_ecef(v)
+    up = np.array([0.0, 0.0, 1.0])
+    radius = float(np.linalg.norm(frame.origin_ecef_m))
+    _incidence, arc = _view_arcs(frame, pitch_deg, altitude_m)
+    s_mid = (radius + altitude_m) * (-math.sin(arc) * vdir + math.cos(arc) * up) - radius * up + vdir * along_offset_m
+    v = speed * (math.cos(arc) * vdir + math.sin(arc) * up)
     s0 = s_mid - v * t_mid
     return frame.to_ecef(s0), frame.vector_to_ecef(v)
 
@@ -329,21 +363,39 @@ def _block_cameras(lines: int, columns: int, chips: int, line_time_s: float) -> 
     return cams
 
 
-def _triplet_states(rng: np.random.Generator, frame: LocalFrame, n_triplets: int, spacing_m: float, t_mid: float) -> list[tuple]:
+def _triplet_states(rng: np.random.Generator, frame: LocalFrame, n_triplets: int, spacing_m: float, t_mid: float,
+                    satellite: bool = False) -> list[tuple]:
     """(image id, view, r0, v0, local frame, attitude angles in it) of every image: each triplet
-    has its own scene centre ``spacing_m`` further along the track, with its own local vertical."""
+    has its own scene centre ``spacing_m`` further along the track, with its own local vertical.
+
+    By default the centres lie on a straight line in the first centre's tangent plane (their
+    spacing on the ground shrinks with the distance: 24.6 km instead of 30 at 3,000 km, 4.6 km at
+    15,000 km, where every point fell in up to 15 images) and every scene is flown at heading
+    190 deg in the flat geometry of :func:`_state_for_pass`. ``satellite``: the centres along a
+    geodesic from the first one with their local headings, and each view in the satellite geometry
+    (a long strip as a satellite images it)."""
+    from pyproj import Geod
+
+    geod = Geod(ellps="WGS84")
+    lon0, lat0, _h = ecef_to_geodetic(frame.origin_ecef_m[None, :])[0]
     h = math.radians(190.0)
-    kappa0 = math.atan2(-math.cos(h), math.sin(h))
-    states = []
     vdir0 = np.array([math.sin(h), math.cos(h), 0.0])
+    states = []
     for t in range(n_triplets):
-        c_ecef = frame.to_ecef(vdir0 * (-t * spacing_m))
-        lon, lat, _ = ecef_to_geodetic(c_ecef[None, :])[0]
+        if satellite:  # the track runs back along the flight (the next triplet lies behind, at heading 190 + 180)
+            lon, lat, back_az = geod.fwd(lon0, lat0, 10.0, t * spacing_m) if t else (lon0, lat0, 190.0)
+            heading = float(back_az) % 360.0  # the flight's heading at this centre
+        else:
+            lon, lat, _ = ecef_to_geodetic(frame.to_ecef(vdir0 * (-t * spacing_m))[None, :])[0]
+            heading = 190.0
+        h = math.radians(heading)
+        kappa0 = math.atan2(-math.cos(h), math.sin(h))
         local = LocalFrame.at(geodetic_to_ecef(np.array([[lon, lat, 450.0]]))[0])
         for name in ("backward", "nadir", "forward"):
             pitch = PRISM_PITCH_DEG[name]
-            r0, v0 = _state_for_pass(local, t_mid, pitch, 692e3, 190.0)
-            angles_local = (math.radians(0.01 * rng.normal()), math.radians(pitch + 0.01 * rng.normal()), kappa0 + math.radians(0.1 * rng.normal()))
+            r0, v0 = _state_for_pass(local, t_mid, pitch, 692e3, heading, satellite=satellite)
+            seen = incidence_deg(local, pitch) if satellite else pitch
+            angles_local = (math.radians(0.01 * rng.normal()), math.radians(seen + 0.01 * rng.normal()), kappa0 + math.radians(0.1 * rng.normal()))
             states.append((f"T{t:02d}-{name}", name, r0, v0, local, angles_local))
     return states
 
@@ -559,7 +611,10 @@ def connected_strip_job(
     ``points_per_triplet`` tie points are drawn in each nadir image (lines 2-98 %, columns
     5-95 %); ``n_gcp`` control and ``n_check`` check points are spread evenly along the strip.
     Header states: weighted with ``state_sigma`` (m, m/s) and noise drawn from it, or, with
-    ``state_sigma=None``, unweighted approximations ``approx_error_m`` off. Returns (job, truth).
+    ``state_sigma=None``, unweighted approximations ``approx_error_m`` off. The scenes follow a
+    geodesic, each view as a satellite takes it (``_triplet_states(satellite=True)``: the camera
+    pitched by its mounting angle off the platform's own vertical), so that a strip thousands of
+    kilometres long keeps its spacing and its geometry. Returns (job, truth).
     """
     if n_gcp < 1 or n_triplets < 1:
         raise ValueError("a strip needs a triplet and a control point")
@@ -569,7 +624,7 @@ def connected_strip_job(
     frame = LocalFrame.at(centre)
     lt = 0.00037
     cams = _block_cameras(lines, columns, 1, lt)
-    states = _triplet_states(rng, frame, n_triplets, spacing_m, lt * (lines - 1) / 2.0)
+    states = _triplet_states(rng, frame, n_triplets, spacing_m, lt * (lines - 1) / 2.0, satellite=True)
     # control: gcp k in triplet floor((k + 1/2) n / n_gcp), checks likewise, at random pixels
     ctrl_t = [int((k + 0.5) * n_triplets / n_gcp) for k in range(n_gcp)] + [int((k + 0.5) * n_triplets / n_check) for k in range(n_check)]
     ctrl_role = ["gcp"] * n_gcp + ["check"] * n_check
