@@ -70,14 +70,14 @@ def _all_pairs(job: Job, placement: dict[tuple[str, str], tuple[float, float]]) 
     return out
 
 
-def nominal_attitudes(problem: AdjustmentState, images: list[int], levelled: bool) -> None:
-    """Set the nominal attitude of position-rotation models (LGS axes) on ``images`` (in place):
-    from the platform's own geodetic vertical (``levelled``, as the adjustment's initial values
-    are without control, :func:`solver.blocks.platform_values.nominal_attitude`) or from the
-    LGS vertical of the scene centre. A plan may have been drawn either way, and the variant that
-    sees more planned points is kept per image (:func:`plan_observations`). Orbit-attitude and pass
-    models are relative to the orbital frame already; images with ``initial`` or
-    ``approx_state.attitude_deg`` angles, and models that hold an angle, are left alone."""
+def lgs_vertical_attitudes(problem: AdjustmentState, images: list[int]) -> None:
+    """Set the nominal attitude of position-rotation models on ``images`` along the LGS vertical
+    of the scene centre (in place), instead of the platform's own vertical that the initial
+    values take (:func:`solver.blocks.platform_values.nominal_attitude`): a plan may have been
+    drawn either way, and the variant that sees more planned points is kept per image
+    (:func:`plan_observations`). Orbit-attitude and pass models are relative to the orbital frame
+    already; images with ``initial`` or ``approx_state.attitude_deg`` angles, and models that
+    hold an angle (which keep the LGS vertical anyway), are left alone."""
     for i in images:
         img = problem.images[i]
         im_doc = problem.job.images[i]
@@ -89,8 +89,7 @@ def nominal_attitudes(problem: AdjustmentState, images: list[int], levelled: boo
         orders = img.model.effective_orders(img.options)
         if any(orders[ELEMENTS.index(e)] == HELD for e in ANGLES):
             continue
-        r = np.array(state.position_ecef_m, dtype=float) if levelled else None
-        angles = nominal_attitude(img, problem.frame, np.array(state.velocity_ecef_m_s, dtype=float), r)
+        angles = nominal_attitude(img, problem.frame, np.array(state.velocity_ecef_m_s, dtype=float))
         for e, v in zip(ANGLES, angles):
             img.base[coef_index(e, 0)] = v
         img.params[:] = img.base[img.free_idx]
@@ -110,7 +109,7 @@ def _projections(job: Job, level: bool) -> tuple[dict[tuple[str, str], tuple[flo
         problem = build_problem(doc)
         initialise(problem)  # levelled nominal attitudes (no control here: every point a check point)
         if not level:
-            nominal_attitudes(problem, list(range(len(problem.images))), levelled=False)
+            lgs_vertical_attitudes(problem, list(range(len(problem.images))))
         obs = problem.obs
         rows = np.arange(len(obs.pt))
         img_tab, cam_tab, img_p, cam_p = current_tables(problem)
@@ -159,8 +158,9 @@ def _line_samples(job: Job, n: int) -> tuple[list[dict[str, Any]], dict[str, lis
 def plan_observations(job: Job) -> tuple[list[dict[str, Any]], set[str], dict[str, list[dict[str, Any]]]]:
     """The image observations of the planned points: their projections with the initial
     orientation that fall inside the images (JSON-ready, ``sigma_px`` of ``options.preanalysis``),
-    the images whose nominal attitude was levelled (:func:`nominal_attitudes`: per
-    image, the variant that sees more planned points), and per control line its planned image
+    the images whose nominal attitude stays levelled to the platform's vertical (per image, the
+    variant that sees more planned points; the others take :func:`lgs_vertical_attitudes`), and
+    per control line its planned image
     observations (``options.preanalysis.line_points`` points evenly spaced between its
     endpoints, projected; an image sees the line where at least two of them fall inside)."""
     missing = planning_problems(job)
@@ -210,7 +210,7 @@ def preanalyse(job: Job) -> dict[str, Any]:
     flat = [
         im.index for im in problem.images if im.id not in levelled and not np.any(gcp & (problem.obs.img == im.index))
     ]
-    nominal_attitudes(problem, flat, levelled=False)
+    lgs_vertical_attitudes(problem, flat)
     if flat:
         from solver.engine.initialize import intersect_estimated_points
 
