@@ -90,15 +90,6 @@ def _wahba(obj_dirs: np.ndarray, cam_dirs: np.ndarray) -> np.ndarray:
     return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
 
 
-def matrix_from_angles(omega: float, phi: float, kappa: float) -> np.ndarray:
-    """M = Rx(omega) Ry(phi) Rz(kappa) (rad; the inverse of :func:`angles_from_matrix`)."""
-    co, so, cp, sp, ck, sk = math.cos(omega), math.sin(omega), math.cos(phi), math.sin(phi), math.cos(kappa), math.sin(kappa)
-    rx = np.array([[1, 0, 0], [0, co, -so], [0, so, co]])
-    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    rz = np.array([[ck, -sk, 0], [sk, ck, 0], [0, 0, 1]])
-    return rx @ ry @ rz
-
-
 def platform_level(frame, r_ecef: np.ndarray) -> np.ndarray:
     """The rotation T (3 x 3, LGS axes) that takes the LGS up to the geodetic up at the platform
     position ``r_ecef`` (ECEF m) by the smallest turn (Rodrigues): the axes of a level frame
@@ -134,9 +125,11 @@ def nominal_attitude(img: ImageState, frame, v_ecef: np.ndarray | None, r_ecef: 
     v = frame.vector_to_lgs(v_ecef)
     if r_ecef is None:
         return 0.0, pitch, math.atan2(-v[1], v[0])
+    from solver.kernels import rotation_and_derivatives  # the kernels' M(omega, phi, kappa)
+
     t = platform_level(frame, r_ecef)
     v = t.T @ v  # the velocity in the level frame's axes
-    return angles_from_matrix(matrix_from_angles(0.0, pitch, math.atan2(-v[1], v[0])) @ t.T)
+    return angles_from_matrix(rotation_and_derivatives(0.0, pitch, math.atan2(-v[1], v[0]))[0] @ t.T)
 
 
 def initial_platform_values(problem: AdjustmentState, states: dict[int, Any]) -> list[Problem]:

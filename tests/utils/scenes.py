@@ -80,17 +80,16 @@ def _state_for_pass(frame: LocalFrame, t_mid: float, pitch_deg: float, altitude_
     h = math.radians(heading_deg)
     speed = 7560.0 * (6378137.0 + 0.0) / (6378137.0 + altitude_m) * 1.0
     vdir = np.array([math.sin(h), math.cos(h), 0.0])  # east, north
-    if not satellite:
+    if satellite:
+        up = np.array([0.0, 0.0, 1.0])
+        radius = float(np.linalg.norm(frame.origin_ecef_m))
+        _incidence, arc = _view_arcs(frame, pitch_deg, altitude_m)
+        s_mid = (radius + altitude_m) * (-math.sin(arc) * vdir + math.cos(arc) * up) - radius * up + vdir * along_offset_m
+        v = speed * (math.cos(arc) * vdir + math.sin(arc) * up)
+    else:
         look_back = math.tan(math.radians(-pitch_deg)) * altitude_m  # backward camera is ahead
         s_mid = vdir * (look_back + along_offset_m) + np.array([0.0, 0.0, altitude_m])
         v = vdir * speed
-        s0 = s_mid - v * t_mid
-        return frame.to_ecef(s0), frame.vector_to_ecef(v)
-    up = np.array([0.0, 0.0, 1.0])
-    radius = float(np.linalg.norm(frame.origin_ecef_m))
-    _incidence, arc = _view_arcs(frame, pitch_deg, altitude_m)
-    s_mid = (radius + altitude_m) * (-math.sin(arc) * vdir + math.cos(arc) * up) - radius * up + vdir * along_offset_m
-    v = speed * (math.cos(arc) * vdir + math.sin(arc) * up)
     s0 = s_mid - v * t_mid
     return frame.to_ecef(s0), frame.vector_to_ecef(v)
 
@@ -376,7 +375,7 @@ def _triplet_states(rng: np.random.Generator, frame: LocalFrame, n_triplets: int
     (a long strip as a satellite images it)."""
     from pyproj import Geod
 
-    geod = Geod(ellps="WGS84")
+    geod = Geod(ellps="WGS84") if satellite else None
     lon0, lat0, _h = ecef_to_geodetic(frame.origin_ecef_m[None, :])[0]
     h = math.radians(190.0)
     vdir0 = np.array([math.sin(h), math.cos(h), 0.0])
