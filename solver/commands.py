@@ -38,6 +38,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "warmup", help="compile the numba kernels into their disk cache (first job fast)"
     )
+    p.add_argument(
+        "--jobs",
+        type=_positive_int,
+        metavar="N",
+        help="processes that compile at once: 2 or more warm the Python evaluation path in a second process beside the compiled one (default: 2 on a machine of two or more cores, else 1)",
+    )
     p.set_defaults(func=cmd_warmup)
 
     p = sub.add_parser(
@@ -333,11 +339,24 @@ def cmd_export_camera(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_warmup(args: argparse.Namespace) -> int:
-    """``pba warmup``: adjust the tiny warm-up jobs, printing each one's time."""
-    from solver.kernels.cache import cache_dir
-    from solver.warmup import compile_kernels
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text}")
+    return value
 
-    total = compile_kernels(say=print)
+
+def cmd_warmup(args: argparse.Namespace) -> int:
+    """``pba warmup``: adjust the tiny warm-up jobs, printing each one's time (``--jobs``: in
+    how many processes, :func:`solver.warmup.compile_kernels`)."""
+    from solver.kernels.cache import cache_dir
+    from solver.warmup import WarmupError, compile_kernels, default_processes
+
+    processes = args.jobs if args.jobs is not None else default_processes()
+    try:
+        total = compile_kernels(say=print, processes=processes)
+    except WarmupError as exc:
+        print(f"pba warmup: {exc}", file=sys.stderr)
+        return 1
     print(f"kernels compiled or loaded from the cache in {total:.1f} s ({cache_dir()})")
     return 0
