@@ -9,7 +9,8 @@ the passes' states (6 each, ECEF), then the estimated points (3 each, LGS).
 
 Normal matrix N = J^T J of the whitened residuals (a-priori sigma0 = 1) in block form
 [[A, B], [B^T, C]] with C block-diagonal (3 x 3 per point). The points are eliminated
-(S = A - B C^-1 B^T), S is inverted densely, and per point the 3 x 3 covariance
+(S = A - B C^-1 B^T), S is inverted (densely, or from its band's factor when it is a long
+strip's banded matrix: :mod:`solver.engine.banded`), and per point the 3 x 3 covariance
 C^-1 + C^-1 B_p^T S^-1 B_p C^-1 and the leverages h = u^T S^-1 u + b^T C^-1 b
 (u = a - B_p C^-1 b) of its observation rows are recovered. Scale by the a-posteriori variance
 factor where a report needs it.
@@ -27,7 +28,7 @@ from scipy.linalg import lapack
 
 import solver.kernels.cache  # noqa: F401  (cache keyed on the kernel sources: before any @njit)
 from solver.blocks import registry as blocks
-from solver.engine import dense_threads
+from solver.engine import banded, dense_threads
 from solver.engine.native import in_threads, thread_ranges
 from solver.engine.packed_tables import current_tables, records
 from solver.engine.terms import block_owner, family_terms
@@ -500,19 +501,27 @@ class SchurParts:
 @dataclass
 class ReducedFactor:
     """The Jacobi-scaled reduced matrix Sn = S / outer(d, d) (d = sqrt(diag S)) and its lower
-    Cholesky factor, or None when Sn is not positive definite to working precision."""
+    Cholesky factor, or None when Sn is not positive definite to working precision. ``band``:
+    the factor is in LAPACK's band storage (:mod:`solver.engine.banded`: a strip's banded S of
+    at least ``BAND_MIN_ROWS`` rows), else dense."""
 
     d: np.ndarray
     lower: np.ndarray | None
-    norm1: float  # the 1-norm of Sn, for LAPACK's condition estimate
+    norm1: float  # the 1-norm of Sn, for the condition estimate
+    band: bool = False
 
     @classmethod
     def of(cls, s: np.ndarray, overwrite: bool = False) -> "ReducedFactor":
-        """``overwrite``: scaled and factored in ``s``'s own memory (``s`` C-contiguous; garbage
-        afterwards, also when the factor fails)."""
+        """``overwrite``: the dense path scales and factors in ``s``'s own memory (``s``
+        C-contiguous; garbage afterwards, also when the factor fails). The band path leaves
+        ``s`` unchanged."""
         d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
         if s.size == 0 or (np.diag(s) <= 1e-300).any():
             return cls(d, None, 0.0)
+        b = banded.use_band(s)
+        if b is not None:
+            ab = banded.scaled_band(s, d, b)
+            return cls(d, banded.band_factor(ab), banded.band_norm1(ab), band=True)
         sn = _jacobi_scaled(s, d, overwrite)
         norm1 = max(float(np.abs(sn[:, k : k + STRIP]).sum(axis=0).max()) for k in range(0, sn.shape[1], STRIP))
         with dense_threads.for_matrix(len(d)):
@@ -520,16 +529,22 @@ class ReducedFactor:
         return cls(d, factor if info == 0 else None, norm1)
 
     def condition(self) -> float | None:
-        """LAPACK's estimate of the 1-norm condition of Sn from the factor (dpocon, O(n^2));
-        None when Sn is not positive definite."""
+        """An estimate of the 1-norm condition of Sn from the factor (LAPACK's dpocon, or for a
+        band the same estimator on its solves), O(n^2) or O(n b); None when Sn is not positive
+        definite."""
         if self.lower is None:
             return None
+        if self.band:
+            inverse_norm = banded.band_inverse_norm1(self.lower)
+            return float("inf") if not np.isfinite(inverse_norm) or inverse_norm <= 0.0 else self.norm1 * inverse_norm
         rcond, info = lapack.dpocon(self.lower, self.norm1, uplo="L")
         return float("inf") if info != 0 or rcond <= 0.0 else 1.0 / float(rcond)
 
     def solve(self, u: np.ndarray) -> np.ndarray:
         """S^-1 u (``u``: (n, k)); only when the factor exists."""
         assert self.lower is not None
+        if self.band:
+            return banded.band_solve(self.lower, u / self.d[:, None]) / self.d[:, None]
         x, _ = lapack.dpotrs(self.lower, u / self.d[:, None], lower=1)
         return x / self.d[:, None]
 
@@ -675,6 +690,9 @@ def positive_definite_inverse(s: np.ndarray, overwrite: bool = False) -> np.ndar
     if not np.all(np.isfinite(s)) or np.any(diag <= 0.0):
         raise np.linalg.LinAlgError("the normal matrix is not positive definite")
     d = np.sqrt(diag)
+    b = banded.use_band(s)
+    if b is not None:
+        return _inverse_from_band(s, d, b, overwrite)
     # the transpose of the symmetric, C-ordered scaled matrix is the same matrix in Fortran
     # order: LAPACK then works in place instead of on a copy
     work = _jacobi_scaled(s, d, overwrite and s.flags.c_contiguous).T
@@ -691,6 +709,25 @@ def positive_definite_inverse(s: np.ndarray, overwrite: bool = False) -> np.ndar
     _mirror_lower(inv)
     inv = inv.T  # symmetric: the C-ordered view of the same array
     return _divide_by_outer(inv, d, inv)
+
+
+def _inverse_from_band(s: np.ndarray, d: np.ndarray, b: int, overwrite: bool) -> np.ndarray:
+    """:func:`positive_definite_inverse` of a banded ``s`` (half-bandwidth ``b``): the band's
+    Cholesky factor and the inverse from it (:mod:`solver.engine.banded`), in ``s``'s own memory
+    with ``overwrite``. Symmetric exactly; positive semi-definite to rounding (the dense path's
+    Gram form is so by construction)."""
+    factor = banded.band_factor(banded.scaled_band(s, d, b))
+    if factor is None:
+        raise np.linalg.LinAlgError("the normal matrix is not positive definite")
+    if overwrite and s.flags.c_contiguous:
+        out = s
+    else:
+        out = np.empty_like(s, order="C")
+        out.fill(0.0)  # touched in order: first touches in the inverse's column strips cost seconds
+    with dense_threads.for_matrix(len(d)):
+        banded.inverse_from_band(factor, out)
+    _mirror_lower(out)
+    return _divide_by_outer(out, d, out)
 
 
 def covariance(lin: Linearisation, parts: SchurParts, problem: AdjustmentState) -> Covariance:

@@ -1,0 +1,143 @@
+"""The reduced normal matrix as a band: its Cholesky factor, condition estimate and inverse.
+
+The reduced matrix S of a strip (images listed along it, each point seen by neighbouring
+images) is banded: an image's parameters couple only with those of the images that share its
+points. A 1,515-image strip's S is 21,200 columns square with a half-bandwidth of about 130.
+Its dense Cholesky factor costs n^3/3 flops (43 s on one core) and the dense inverse twice
+that again; the band factor costs n b^2 (LAPACK's ``dpbtrf``, a fraction of a second) and the
+full inverse from it about n^2 b (:func:`inverse_from_band`, in blocks of BLAS-3 products).
+
+Used by :class:`solver.engine.linalg.ReducedFactor` and
+:func:`solver.engine.linalg.positive_definite_inverse` when :func:`use_band` says so (a matrix
+of at least :data:`BAND_MIN_ROWS` rows whose band is at most :data:`BAND_MAX_SHARE` of its
+width); every other matrix keeps the dense path. All matrices here are the Jacobi-scaled S
+(unit diagonal); the band is stored as LAPACK's lower band storage: ``ab[k, j] = A[j + k, j]``
+for ``0 <= k <= b``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import lapack, solve_triangular
+
+BAND_MIN_ROWS = 1500
+"""Rows from which the band is looked for (below, the dense factor and inverse take
+milliseconds and the band's bookkeeping gains nothing)."""
+
+BAND_MAX_SHARE = 0.2
+"""The half-bandwidth, as a share of the rows, up to which the band path is taken (the band
+inverse's n^2 b against the dense n^3: a clear gain below a fifth)."""
+
+ROW_STRIP = 512  # rows per strip of the bandwidth scan (a strip's comparison is 512 n bytes)
+
+
+def lower_bandwidth(s: np.ndarray) -> int:
+    """The largest ``i - j`` with ``s[i, j] != 0`` (``s`` square and symmetric: its half-bandwidth),
+    from the first nonzero entry of every row; in row strips, so no full-size temporary."""
+    n = s.shape[0]
+    b = 0
+    for k in range(0, n, ROW_STRIP):
+        rows = s[k : k + ROW_STRIP, : min(n, k + ROW_STRIP)]
+        nonzero = rows != 0.0
+        first = np.where(nonzero.any(axis=1), nonzero.argmax(axis=1), np.arange(k, k + rows.shape[0]))
+        b = max(b, int((np.arange(k, k + rows.shape[0]) - first).max(initial=0)))
+    return b
+
+
+def use_band(s: np.ndarray) -> int | None:
+    """The half-bandwidth of ``s`` when the band path is worth taking (see the module), else None."""
+    n = s.shape[0]
+    if n < BAND_MIN_ROWS:
+        return None
+    b = lower_bandwidth(s)
+    return b if b <= BAND_MAX_SHARE * n else None
+
+
+def scaled_band(s: np.ndarray, d: np.ndarray, b: int) -> np.ndarray:
+    """The lower band (``b`` subdiagonals) of ``s / outer(d, d)`` in LAPACK's band storage, (b + 1, n)."""
+    n = s.shape[0]
+    ab = np.zeros((b + 1, n))
+    for k in range(b + 1):
+        ab[k, : n - k] = np.diagonal(s, -k) / (d[k:] * d[: n - k])
+    return ab
+
+
+def band_norm1(ab: np.ndarray) -> float:
+    """The 1-norm (largest column sum of absolute values) of the symmetric matrix whose lower band is ``ab``."""
+    b1, n = ab.shape
+    col = np.abs(ab).sum(axis=0)  # the diagonal and below, per column j
+    for k in range(1, b1):  # above the diagonal of column j: row j's entries left of it, A[j, j - k]
+        col[k:] += np.abs(ab[k, : n - k])
+    return float(col.max(initial=0.0))
+
+
+def band_factor(ab: np.ndarray) -> np.ndarray | None:
+    """The lower Cholesky factor in band storage (``dpbtrf``), or None when the matrix is not
+    positive definite to working precision. ``ab`` is left unchanged."""
+    factor, info = lapack.dpbtrf(ab, lower=1)
+    return factor if info == 0 else None
+
+
+def band_solve(factor: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """A^-1 u from the band factor (``u``: (n,) or (n, k))."""
+    x, info = lapack.dpbtrs(factor, u, lower=1)
+    if info != 0:
+        raise ValueError(f"dpbtrs: illegal argument {-info}")
+    return x
+
+
+def band_inverse_norm1(factor: np.ndarray) -> float:
+    """An estimate of ||A^-1||_1 from the band factor: Higham's block 1-norm estimator (SciPy's
+    ``onenormest``, the algorithm of LAPACK's ``dlacn2`` that ``dpocon`` uses) on the solves with
+    the factor. Like LAPACK's it is a lower bound, in practice within a small factor."""
+    from scipy.sparse.linalg import LinearOperator, onenormest
+
+    n = factor.shape[1]
+
+    def apply(v: np.ndarray) -> np.ndarray:
+        return band_solve(factor, np.asarray(v, dtype=float))
+
+    op = LinearOperator((n, n), matvec=apply, rmatvec=apply, matmat=apply, rmatmat=apply, dtype=float)
+    return float(onenormest(op, t=min(2, n)))
+
+
+def _block_of_factor(factor: np.ndarray, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+    """``L[r0:r1, c0:c1]`` as a dense array, L the lower factor in band storage."""
+    b = factor.shape[0] - 1
+    rows = np.arange(r0, r1)[:, None]
+    cols = np.arange(c0, c1)[None, :]
+    k = rows - cols
+    inside = (k >= 0) & (k <= b)
+    return np.where(inside, factor[np.clip(k, 0, b), np.broadcast_to(cols, k.shape)], 0.0)
+
+
+def inverse_from_band(factor: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """The lower triangle of the inverse Z = L^-T L^-1 of A = L L^T (L in band storage,
+    half-bandwidth b) into ``out`` (n x n, C-ordered; its previous content is never read, its
+    upper triangle is left as it was except in the diagonal blocks: the caller mirrors it).
+
+    From Z L = L^-T, whose part below the diagonal is zero: for a block of columns J with the
+    columns K = [end of J, end of J + b) after it (the only ones L couples to J), the rows R
+    below J satisfy Z[R, J] L[J, J] = -Z[R, K] L[K, J], and the diagonal block
+    Z[J, J] = (L[J, J]^-T - Z[J, K] L[K, J]) L[J, J]^-1 (the diagonal blocks of L^-1 are the
+    inverses of L's). Taken from the last block to the first, Z[R, K] is known each time (K
+    lies in the next block, whose diagonal block is full and whose rows below are filled).
+    Work: about n^2 (b + block) flops in one matrix product per block, against the dense
+    inverse's n^3."""
+    b = factor.shape[0] - 1
+    n = factor.shape[1]
+    nb = max(b, 64)
+    for j0 in reversed(range(0, n, nb)):
+        j1 = min(j0 + nb, n)
+        k1 = min(n, j1 + b)
+        lower = _block_of_factor(factor, j0, k1, j0, j1)
+        l_jj, l_kj = lower[: j1 - j0], lower[j1 - j0 :]
+        inv_jj = solve_triangular(l_jj, np.eye(j1 - j0), lower=True, check_finite=False)
+        if j1 < n:
+            z_rj = out[j1:, j1:k1] @ (-(l_kj @ inv_jj))  # Z[R, J]
+            out[j1:, j0:j1] = z_rj
+            z_jj = (inv_jj.T - z_rj[: k1 - j1].T @ l_kj) @ inv_jj
+        else:
+            z_jj = inv_jj.T @ inv_jj
+        out[j0:j1, j0:j1] = 0.5 * (z_jj + z_jj.T)
+    return out

@@ -1,0 +1,194 @@
+"""The reduced matrix as a band (solver/engine/banded.py) against dense LAPACK and numpy.
+
+Independent evidence: numpy's dense inverse, solve and exact 1-norms of the same matrices, and on
+a connected strip the whole covariance (images, points, leverages) and the rank check of the
+dense path, which shares nothing with the band path but the elimination that builds S.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from utils.scenes import connected_strip_job
+
+import solver.engine.banded as banded
+from solver.adjust import prepare
+from solver.engine.linalg import (
+    ReducedFactor,
+    SchurParts,
+    _mirror_lower,
+    check_rank,
+    covariance,
+    linearise,
+    positive_definite_inverse,
+    schur,
+)
+from solver.schema.job import load_job
+
+# The test matrices are well conditioned (condition below 1e4 after scaling): two routes to the
+# inverse agree to a few hundred ulps of its largest entry; a wrong coupling term or block
+# boundary is off by the size of the entries.
+INVERSE_REL = 1e-11
+# The connected strip's S is ill-conditioned (pitch against along-track position, about 1e9 on
+# the correlation scale): the two routes agree on the correlation scale to cond * eps.
+STRIP_CORRELATION_ABS = 1e-6
+STRIP_LEVERAGE_ABS = 1e-6
+
+
+def _banded_spd(n: int, b: int, seed: int) -> np.ndarray:
+    """A random symmetric positive-definite matrix of half-bandwidth exactly ``b``, unequal scales."""
+    rng = np.random.default_rng(seed)
+    a = np.zeros((n, n))
+    for k in range(b + 1):
+        a[np.arange(k, n), np.arange(n - k)] = rng.normal(size=n - k) * (0.3 if k else 1.0)
+    s = a @ a.T + 0.5 * np.eye(n)
+    scale = np.exp(rng.uniform(-3, 3, n))  # parameters of unequal units: the Jacobi scaling matters
+    return s * np.outer(scale, scale)
+
+
+@pytest.mark.parametrize("n,b", [(40, 0), (200, 1), (300, 7), (257, 64), (300, 65), (500, 130), (150, 149)])
+def test_inverse_from_the_band_equals_the_dense_inverse(n, b):
+    """Block boundaries (the block is max(b, 64) columns), a last block shorter than the others,
+    a diagonal matrix and a band as wide as the matrix."""
+    s = _banded_spd(n, b, seed=n + b)
+    assert banded.lower_bandwidth(s) == b
+    d = np.sqrt(np.diag(s))
+    factor = banded.band_factor(banded.scaled_band(s, d, b))
+    z = banded.inverse_from_band(factor, np.full((n, n), np.nan))  # the previous content is never read
+    _mirror_lower(z)
+    ref = np.linalg.inv(s / np.outer(d, d))
+    assert np.abs(z - ref).max() <= INVERSE_REL * np.abs(ref).max()
+    assert np.array_equal(z, z.T)
+
+
+def test_bandwidth_of_a_matrix_with_empty_rows_and_one_far_entry():
+    s = np.diag(np.arange(1.0, 11.0))
+    s[3, 3] = 0.0  # a row without any entry
+    s[6, 4] = s[4, 6] = 0.1
+    assert banded.lower_bandwidth(s) == 2
+    s[9, 0] = s[0, 9] = 0.1
+    assert banded.lower_bandwidth(s) == 9
+
+
+def test_band_is_taken_only_when_narrow_and_large(monkeypatch):
+    s = _banded_spd(100, 5, seed=1)
+    assert banded.use_band(s) is None  # below BAND_MIN_ROWS
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 50)
+    assert banded.use_band(s) == 5
+    s[99, 0] = s[0, 99] = 1e-3  # one coupling across the matrix: dense
+    assert banded.use_band(s) is None
+
+
+def test_band_norm1_is_the_dense_norm1():
+    s = _banded_spd(120, 9, seed=2)
+    s[5, 7] = s[7, 5] = -s[5, 7]  # negative entries count by their absolute value
+    d = np.sqrt(np.diag(s))
+    sn = s / np.outer(d, d)
+    assert banded.band_norm1(banded.scaled_band(s, d, 9)) == pytest.approx(np.abs(sn).sum(axis=0).max(), rel=1e-13)
+
+
+def test_band_factor_solves_and_estimates_the_condition_as_the_dense_one(monkeypatch):
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 50)
+    s = _banded_spd(400, 20, seed=3)
+    band = ReducedFactor.of(s.copy())
+    assert band.band and band.lower is not None
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 10**9)
+    dense = ReducedFactor.of(s.copy())
+    assert not dense.band
+    u = np.random.default_rng(4).normal(size=(400, 3))
+    ref = np.linalg.solve(s, u)
+    assert np.abs(band.solve(u) - ref).max() <= INVERSE_REL * np.abs(ref).max()
+    d = np.sqrt(np.diag(s))
+    sn = s / np.outer(d, d)
+    exact = np.abs(sn).sum(axis=0).max() * np.abs(np.linalg.inv(sn)).sum(axis=0).max()
+    # both estimators are lower bounds of the exact 1-norm condition, in practice within a factor of a few
+    for est in (band.condition(), dense.condition()):
+        assert exact / 3 <= est <= exact * (1 + 1e-9)
+
+
+def test_band_factor_of_an_indefinite_matrix_is_none(monkeypatch):
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 50)
+    s = _banded_spd(100, 4, seed=5)
+    s[40, 41] = s[41, 40] = 1.5 * np.sqrt(s[40, 40] * s[41, 41])  # a 2 x 2 minor with |rho| > 1
+    f = ReducedFactor.of(s)
+    assert f.band and f.lower is None and f.condition() is None
+    with pytest.raises(np.linalg.LinAlgError):
+        positive_definite_inverse(s)
+
+
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_positive_definite_inverse_from_the_band(monkeypatch, overwrite):
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 50)
+    s = _banded_spd(300, 12, seed=6)
+    ref = np.linalg.inv(s)
+    inv = positive_definite_inverse(s if overwrite else s.copy(), overwrite=overwrite)
+    assert inv.flags.c_contiguous
+    d = np.sqrt(np.diag(ref))  # compared on the correlation scale: the parameters' units differ by e^12
+    assert np.abs(inv / np.outer(d, d) - ref / np.outer(d, d)).max() <= INVERSE_REL
+    if overwrite:
+        assert np.shares_memory(inv, s)
+
+
+@pytest.fixture(scope="module")
+def strip():
+    job, _ = connected_strip_job("P2", n_triplets=12, points_per_triplet=40, n_gcp=4, n_check=1, seed=8)
+    problem = prepare(load_job(job))
+    return problem, linearise(problem)
+
+
+def test_strip_covariance_from_the_band_equals_the_dense_one(monkeypatch, strip):
+    """The whole covariance of a connected strip (its 36 images' S is banded): images, points and
+    leverages through the band path equal the dense path's on the correlation scale."""
+    problem, lin = strip
+    calls = []
+    real = banded.inverse_from_band
+    monkeypatch.setattr(banded, "inverse_from_band", lambda f, out: calls.append(f.shape) or real(f, out))
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 10**9)
+    dense = covariance(lin, schur(lin, problem), problem)
+    assert calls == []
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 1)
+    parts = schur(lin, problem)
+    n = parts.s.shape[0]
+    b = banded.lower_bandwidth(parts.s)
+    assert 0 < b <= banded.BAND_MAX_SHARE * n  # a strip: banded, and narrow enough
+    band = covariance(lin, parts, problem)
+    assert calls == [(b + 1, n)]
+    sd = np.sqrt(np.diag(dense.images))
+    assert band.images.shape == dense.images.shape
+    assert np.abs((band.images - dense.images) / np.outer(sd, sd)).max() < STRIP_CORRELATION_ABS
+    for p, c in dense.points.items():
+        sp = np.sqrt(np.diag(c))
+        assert np.abs((band.points[p] - c) / np.outer(sp, sp)).max() < STRIP_CORRELATION_ABS
+    np.testing.assert_allclose(band.leverage, dense.leverage, rtol=0, atol=STRIP_LEVERAGE_ABS)
+
+
+def test_strip_rank_check_from_the_band(monkeypatch, strip):
+    """The fast rank check on the band factor: full rank, with a condition estimate within a
+    factor 3 of the dense LAPACK estimate. Made singular (a parameter's row and column copied
+    onto its neighbour's, inside the band), the band path fails the fast test as the dense one
+    does, and the eigen-analysis names the same two parameters."""
+    problem, lin = strip
+    from solver.procedures.single import parameter_names
+
+    names = parameter_names(problem)
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 10**9)
+    dense = check_rank(schur(lin, problem), names, fast=True)
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 1)
+    parts = schur(lin, problem)
+    assert parts.factor().band
+    band = check_rank(parts, names, fast=True)
+    assert not dense.deficient and not band.deficient
+    assert dense.condition / 3 <= band.condition <= dense.condition * 3
+
+    s = schur(lin, problem).s
+    s[20, :] = s[21, :]
+    s[:, 20] = s[:, 21]
+    singular = [SchurParts(s.copy(), np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool),
+                           np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64)) for _ in range(2)]
+    assert singular[0].factor().band
+    reports = [check_rank(singular[0], names, fast=True)]
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 10**9)
+    reports.append(check_rank(singular[1], names, fast=True))
+    for report in reports:
+        assert report.deficient
+        assert {names[20], names[21]} <= {n for n, _ in report.null_parameters}
