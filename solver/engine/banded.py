@@ -17,6 +17,8 @@ for ``0 <= k <= b``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.linalg import lapack, solve_triangular
 
@@ -44,22 +46,113 @@ def lower_bandwidth(s: np.ndarray) -> int:
     return b
 
 
-def use_band(s: np.ndarray) -> int | None:
-    """The half-bandwidth of ``s`` when the band path is worth taking (see the module), else None."""
+@dataclass(frozen=True)
+class Band:
+    """How to see a matrix as a band: its half-bandwidth ``b`` in the order ``perm`` (row and
+    column ``j`` of the band are ``perm[j]`` of the matrix; None: the matrix's own order)."""
+
+    b: int
+    perm: np.ndarray | None = None
+
+
+def use_band(s: np.ndarray) -> Band | None:
+    """The band of ``s`` when the band path is worth taking (see the module), else None: in the
+    matrix's own order when that band is narrow enough (a strip's images listed along it), else
+    in the reverse Cuthill-McKee order of its nonzero pattern when that one is (images listed in
+    any order, several strips side by side)."""
     n = s.shape[0]
     if n < BAND_MIN_ROWS:
         return None
+    limit = int(BAND_MAX_SHARE * n)
     b = lower_bandwidth(s)
-    return b if b <= BAND_MAX_SHARE * n else None
+    if b <= limit:
+        return Band(b)
+    return _reordered_band(s, limit)
 
 
-def scaled_band(s: np.ndarray, d: np.ndarray, b: int) -> np.ndarray:
-    """The lower band (``b`` subdiagonals) of ``s / outer(d, d)`` in LAPACK's band storage, (b + 1, n)."""
+def _reordered_band(s: np.ndarray, limit: int) -> Band | None:
+    """The reverse Cuthill-McKee order of the nonzero pattern of ``s`` and its half-bandwidth,
+    when that is at most ``limit``. The pattern is read in row strips and given up once it has
+    more nonzeros than any band of half-width ``limit`` holds (a dense matrix costs one strip)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
     n = s.shape[0]
-    ab = np.zeros((b + 1, n))
-    for k in range(b + 1):
-        ab[k, : n - k] = np.diagonal(s, -k) / (d[k:] * d[: n - k])
+    most = n * (2 * limit + 1)
+    rows, cols, nnz = [], [], 0
+    for k in range(0, n, ROW_STRIP):
+        r, c = np.nonzero(s[k : k + ROW_STRIP])
+        nnz += len(r)
+        if nnz > most:
+            return None
+        rows.append(r + k)
+        cols.append(c)
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    pattern = sp.csr_matrix((np.ones(len(r), dtype=np.int8), (r, c)), shape=(n, n))
+    perm = reverse_cuthill_mckee(pattern, symmetric_mode=True).astype(np.int64)
+    position = np.empty(n, dtype=np.int64)
+    position[perm] = np.arange(n)
+    b = int(np.abs(position[r] - position[c]).max(initial=0))
+    return Band(b, perm) if b <= limit else None
+
+
+def scaled_band(s: np.ndarray, d: np.ndarray, band: Band) -> np.ndarray:
+    """The lower band of ``s / outer(d, d)`` in the band's order, in LAPACK's band storage, (b + 1, n)."""
+    n = s.shape[0]
+    ab = np.zeros((band.b + 1, n))
+    if band.perm is None:
+        for k in range(band.b + 1):
+            ab[k, : n - k] = np.diagonal(s, -k) / (d[k:] * d[: n - k])
+        return ab
+    p = band.perm
+    for k in range(band.b + 1):
+        ab[k, : n - k] = s[p[k:], p[: n - k]] / (d[p[k:]] * d[p[: n - k]])
     return ab
+
+
+def to_band_order(band: Band, u: np.ndarray) -> np.ndarray:
+    """The rows of ``u`` in the band's order."""
+    return u if band.perm is None else u[band.perm]
+
+
+def from_band_order(band: Band, x: np.ndarray) -> np.ndarray:
+    """The rows of ``x`` (in the band's order) back in the matrix's order."""
+    if band.perm is None:
+        return x
+    out = np.empty_like(x)
+    out[band.perm] = x
+    return out
+
+
+def permute_back(band: Band, z: np.ndarray) -> np.ndarray:
+    """A symmetric ``z`` computed in the band's order put back in the matrix's order, in place:
+    ``z[perm[i], perm[j]]`` becomes what ``z[i, j]`` was (the rows moved along the cycles of the
+    permutation with one spare row, then each row's columns gathered)."""
+    if band.perm is None:
+        return z
+    p = band.perm
+    n = len(p)
+    spare = np.empty(n)
+    done = np.zeros(n, dtype=bool)
+    for start in range(n):  # row i goes to row p[i]: follow each cycle once
+        if done[start] or p[start] == start:
+            done[start] = True
+            continue
+        spare[:] = z[start]
+        i = start
+        while True:
+            done[i] = True
+            target = p[i]
+            if target == start:
+                z[start] = spare
+                break
+            z[target], spare = spare, z[target].copy()
+            i = target
+    position = np.empty(n, dtype=np.int64)
+    position[p] = np.arange(n)
+    for i in range(n):  # column j of the new row is column position[j] of the moved one
+        z[i] = z[i, position]
+    return z
 
 
 def band_norm1(ab: np.ndarray) -> float:

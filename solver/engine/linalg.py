@@ -502,13 +502,13 @@ class SchurParts:
 class ReducedFactor:
     """The Jacobi-scaled reduced matrix Sn = S / outer(d, d) (d = sqrt(diag S)) and its lower
     Cholesky factor, or None when Sn is not positive definite to working precision. ``band``:
-    the factor is in LAPACK's band storage (:mod:`solver.engine.banded`: a strip's banded S of
-    at least ``BAND_MIN_ROWS`` rows), else dense."""
+    the factor is of Sn in that band's order, in LAPACK's band storage (:mod:`solver.engine.banded`:
+    a banded S of at least ``BAND_MIN_ROWS`` rows), else None and the factor is dense."""
 
     d: np.ndarray
     lower: np.ndarray | None
     norm1: float  # the 1-norm of Sn, for the condition estimate
-    band: bool = False
+    band: banded.Band | None = None
 
     @classmethod
     def of(cls, s: np.ndarray, overwrite: bool = False) -> "ReducedFactor":
@@ -518,10 +518,10 @@ class ReducedFactor:
         d = np.sqrt(np.clip(np.diag(s), 1e-300, None))
         if s.size == 0 or (np.diag(s) <= 1e-300).any():
             return cls(d, None, 0.0)
-        b = banded.use_band(s)
-        if b is not None:
-            ab = banded.scaled_band(s, d, b)
-            return cls(d, banded.band_factor(ab), banded.band_norm1(ab), band=True)
+        band = banded.use_band(s)
+        if band is not None:
+            ab = banded.scaled_band(s, d, band)
+            return cls(d, banded.band_factor(ab), banded.band_norm1(ab), band=band)
         sn = _jacobi_scaled(s, d, overwrite)
         norm1 = max(float(np.abs(sn[:, k : k + STRIP]).sum(axis=0).max()) for k in range(0, sn.shape[1], STRIP))
         with dense_threads.for_matrix(len(d)):
@@ -534,7 +534,7 @@ class ReducedFactor:
         definite."""
         if self.lower is None:
             return None
-        if self.band:
+        if self.band is not None:
             inverse_norm = banded.band_inverse_norm1(self.lower)
             return float("inf") if not np.isfinite(inverse_norm) or inverse_norm <= 0.0 else self.norm1 * inverse_norm
         rcond, info = lapack.dpocon(self.lower, self.norm1, uplo="L")
@@ -543,8 +543,9 @@ class ReducedFactor:
     def solve(self, u: np.ndarray) -> np.ndarray:
         """S^-1 u (``u``: (n, k)); only when the factor exists."""
         assert self.lower is not None
-        if self.band:
-            return banded.band_solve(self.lower, u / self.d[:, None]) / self.d[:, None]
+        if self.band is not None:
+            x = banded.band_solve(self.lower, banded.to_band_order(self.band, u / self.d[:, None]))
+            return banded.from_band_order(self.band, x) / self.d[:, None]
         x, _ = lapack.dpotrs(self.lower, u / self.d[:, None], lower=1)
         return x / self.d[:, None]
 
@@ -690,9 +691,9 @@ def positive_definite_inverse(s: np.ndarray, overwrite: bool = False) -> np.ndar
     if not np.all(np.isfinite(s)) or np.any(diag <= 0.0):
         raise np.linalg.LinAlgError("the normal matrix is not positive definite")
     d = np.sqrt(diag)
-    b = banded.use_band(s)
-    if b is not None:
-        return _inverse_from_band(s, d, b, overwrite)
+    band = banded.use_band(s)
+    if band is not None:
+        return _inverse_from_band(s, d, band, overwrite)
     # the transpose of the symmetric, C-ordered scaled matrix is the same matrix in Fortran
     # order: LAPACK then works in place instead of on a copy
     work = _jacobi_scaled(s, d, overwrite and s.flags.c_contiguous).T
@@ -711,12 +712,12 @@ def positive_definite_inverse(s: np.ndarray, overwrite: bool = False) -> np.ndar
     return _divide_by_outer(inv, d, inv)
 
 
-def _inverse_from_band(s: np.ndarray, d: np.ndarray, b: int, overwrite: bool) -> np.ndarray:
-    """:func:`positive_definite_inverse` of a banded ``s`` (half-bandwidth ``b``): the band's
-    Cholesky factor and the inverse from it (:mod:`solver.engine.banded`), in ``s``'s own memory
-    with ``overwrite``. Symmetric exactly; positive semi-definite to rounding (the dense path's
-    Gram form is so by construction)."""
-    factor = banded.band_factor(banded.scaled_band(s, d, b))
+def _inverse_from_band(s: np.ndarray, d: np.ndarray, band: banded.Band, overwrite: bool) -> np.ndarray:
+    """:func:`positive_definite_inverse` of a banded ``s``: the band's Cholesky factor and the
+    inverse from it (:mod:`solver.engine.banded`), put back in ``s``'s order, in ``s``'s own
+    memory with ``overwrite``. Symmetric exactly; positive semi-definite to rounding (the dense
+    path's Gram form is so by construction)."""
+    factor = banded.band_factor(banded.scaled_band(s, d, band))
     if factor is None:
         raise np.linalg.LinAlgError("the normal matrix is not positive definite")
     if overwrite and s.flags.c_contiguous:
@@ -727,6 +728,7 @@ def _inverse_from_band(s: np.ndarray, d: np.ndarray, b: int, overwrite: bool) ->
     with dense_threads.for_matrix(len(d)):
         banded.inverse_from_band(factor, out)
     _mirror_lower(out)
+    banded.permute_back(band, out)
     return _divide_by_outer(out, d, out)
 
 

@@ -53,7 +53,7 @@ def test_inverse_from_the_band_equals_the_dense_inverse(n, b):
     s = _banded_spd(n, b, seed=n + b)
     assert banded.lower_bandwidth(s) == b
     d = np.sqrt(np.diag(s))
-    factor = banded.band_factor(banded.scaled_band(s, d, b))
+    factor = banded.band_factor(banded.scaled_band(s, d, banded.Band(b)))
     z = banded.inverse_from_band(factor, np.full((n, n), np.nan))  # the previous content is never read
     _mirror_lower(z)
     ref = np.linalg.inv(s / np.outer(d, d))
@@ -74,9 +74,53 @@ def test_band_is_taken_only_when_narrow_and_large(monkeypatch):
     s = _banded_spd(100, 5, seed=1)
     assert banded.use_band(s) is None  # below BAND_MIN_ROWS
     monkeypatch.setattr(banded, "BAND_MIN_ROWS", 50)
-    assert banded.use_band(s) == 5
-    s[99, 0] = s[0, 99] = 1e-3  # one coupling across the matrix: dense
-    assert banded.use_band(s) is None
+    assert banded.use_band(s) == banded.Band(5)
+    s[99, 0] = s[0, 99] = 1e-3  # one coupling across the matrix: a band again in another order
+    band = banded.use_band(s)
+    assert band is not None and band.perm is not None and band.b <= banded.BAND_MAX_SHARE * 100
+    dense = _banded_spd(100, 99, seed=2)  # every entry nonzero: no order makes it a band
+    assert banded.use_band(dense) is None
+
+
+def _shuffled(s: np.ndarray, seed: int) -> np.ndarray:
+    p = np.random.default_rng(seed).permutation(s.shape[0])
+    return s[np.ix_(p, p)]
+
+
+def test_a_shuffled_band_is_found_again():
+    """A banded matrix with its rows and columns in random order (images listed in any order):
+    reverse Cuthill-McKee finds a band of at most twice the original half-width."""
+    s = _shuffled(_banded_spd(600, 10, seed=7), seed=8)
+    assert banded.lower_bandwidth(s) > 300
+    band = banded._reordered_band(s, limit=120)
+    assert band is not None and band.b <= 20
+    assert sorted(band.perm) == list(range(600))
+
+
+def test_permute_back_puts_every_entry_in_its_place():
+    rng = np.random.default_rng(9)
+    n = 257
+    z = rng.normal(size=(n, n))
+    z = z + z.T
+    band = banded.Band(3, rng.permutation(n))
+    in_band_order = z[np.ix_(band.perm, band.perm)].copy()
+    assert np.array_equal(banded.permute_back(band, in_band_order), z)
+    u = rng.normal(size=(n, 2))
+    assert np.array_equal(banded.from_band_order(band, banded.to_band_order(band, u)), u)
+
+
+def test_shuffled_band_inverse_factor_and_solve(monkeypatch):
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 50)
+    s = _shuffled(_banded_spd(400, 12, seed=10), seed=11)
+    f = ReducedFactor.of(s.copy())
+    assert f.band is not None and f.band.perm is not None and f.lower is not None
+    u = np.random.default_rng(12).normal(size=(400, 2))
+    ref = np.linalg.solve(s, u)
+    assert np.abs(f.solve(u) - ref).max() <= INVERSE_REL * np.abs(ref).max()
+    inv = positive_definite_inverse(s.copy(), overwrite=True)
+    ref = np.linalg.inv(s)
+    d = np.sqrt(np.diag(ref))
+    assert np.abs((inv - ref) / np.outer(d, d)).max() <= INVERSE_REL
 
 
 def test_band_norm1_is_the_dense_norm1():
@@ -84,17 +128,17 @@ def test_band_norm1_is_the_dense_norm1():
     s[5, 7] = s[7, 5] = -s[5, 7]  # negative entries count by their absolute value
     d = np.sqrt(np.diag(s))
     sn = s / np.outer(d, d)
-    assert banded.band_norm1(banded.scaled_band(s, d, 9)) == pytest.approx(np.abs(sn).sum(axis=0).max(), rel=1e-13)
+    assert banded.band_norm1(banded.scaled_band(s, d, banded.Band(9))) == pytest.approx(np.abs(sn).sum(axis=0).max(), rel=1e-13)
 
 
 def test_band_factor_solves_and_estimates_the_condition_as_the_dense_one(monkeypatch):
     monkeypatch.setattr(banded, "BAND_MIN_ROWS", 50)
     s = _banded_spd(400, 20, seed=3)
     band = ReducedFactor.of(s.copy())
-    assert band.band and band.lower is not None
+    assert band.band is not None and band.lower is not None
     monkeypatch.setattr(banded, "BAND_MIN_ROWS", 10**9)
     dense = ReducedFactor.of(s.copy())
-    assert not dense.band
+    assert dense.band is None
     u = np.random.default_rng(4).normal(size=(400, 3))
     ref = np.linalg.solve(s, u)
     assert np.abs(band.solve(u) - ref).max() <= INVERSE_REL * np.abs(ref).max()
@@ -111,7 +155,7 @@ def test_band_factor_of_an_indefinite_matrix_is_none(monkeypatch):
     s = _banded_spd(100, 4, seed=5)
     s[40, 41] = s[41, 40] = 1.5 * np.sqrt(s[40, 40] * s[41, 41])  # a 2 x 2 minor with |rho| > 1
     f = ReducedFactor.of(s)
-    assert f.band and f.lower is None and f.condition() is None
+    assert f.band is not None and f.lower is None and f.condition() is None
     with pytest.raises(np.linalg.LinAlgError):
         positive_definite_inverse(s)
 
@@ -129,17 +173,25 @@ def test_positive_definite_inverse_from_the_band(monkeypatch, overwrite):
         assert np.shares_memory(inv, s)
 
 
-@pytest.fixture(scope="module")
-def strip():
+def _strip(shuffled: bool):
     job, _ = connected_strip_job("P2", n_triplets=12, points_per_triplet=40, n_gcp=4, n_check=1, seed=8)
+    if shuffled:  # the images listed in random order: S is banded only in another order
+        job["images"] = [job["images"][k] for k in np.random.default_rng(13).permutation(len(job["images"]))]
     problem = prepare(load_job(job))
     return problem, linearise(problem)
 
 
-def test_strip_covariance_from_the_band_equals_the_dense_one(monkeypatch, strip):
+@pytest.fixture(scope="module")
+def strip():
+    return _strip(shuffled=False)
+
+
+@pytest.mark.parametrize("shuffled", [False, True])
+def test_strip_covariance_from_the_band_equals_the_dense_one(monkeypatch, shuffled):
     """The whole covariance of a connected strip (its 36 images' S is banded): images, points and
-    leverages through the band path equal the dense path's on the correlation scale."""
-    problem, lin = strip
+    leverages through the band path equal the dense path's on the correlation scale; with the
+    images listed in random order, through the band of the reordered S."""
+    problem, lin = _strip(shuffled)
     calls = []
     real = banded.inverse_from_band
     monkeypatch.setattr(banded, "inverse_from_band", lambda f, out: calls.append(f.shape) or real(f, out))
@@ -149,10 +201,11 @@ def test_strip_covariance_from_the_band_equals_the_dense_one(monkeypatch, strip)
     monkeypatch.setattr(banded, "BAND_MIN_ROWS", 1)
     parts = schur(lin, problem)
     n = parts.s.shape[0]
-    b = banded.lower_bandwidth(parts.s)
-    assert 0 < b <= banded.BAND_MAX_SHARE * n  # a strip: banded, and narrow enough
+    found = banded.use_band(parts.s)
+    assert found is not None and 0 < found.b <= banded.BAND_MAX_SHARE * n  # a strip: banded, and narrow enough
+    assert (found.perm is not None) == shuffled
     band = covariance(lin, parts, problem)
-    assert calls == [(b + 1, n)]
+    assert calls == [(found.b + 1, n)]
     sd = np.sqrt(np.diag(dense.images))
     assert band.images.shape == dense.images.shape
     assert np.abs((band.images - dense.images) / np.outer(sd, sd)).max() < STRIP_CORRELATION_ABS
@@ -175,7 +228,7 @@ def test_strip_rank_check_from_the_band(monkeypatch, strip):
     dense = check_rank(schur(lin, problem), names, fast=True)
     monkeypatch.setattr(banded, "BAND_MIN_ROWS", 1)
     parts = schur(lin, problem)
-    assert parts.factor().band
+    assert parts.factor().band is not None
     band = check_rank(parts, names, fast=True)
     assert not dense.deficient and not band.deficient
     assert dense.condition / 3 <= band.condition <= dense.condition * 3
@@ -185,7 +238,7 @@ def test_strip_rank_check_from_the_band(monkeypatch, strip):
     s[:, 20] = s[:, 21]
     singular = [SchurParts(s.copy(), np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool),
                            np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64)) for _ in range(2)]
-    assert singular[0].factor().band
+    assert singular[0].factor().band is not None
     reports = [check_rank(singular[0], names, fast=True)]
     monkeypatch.setattr(banded, "BAND_MIN_ROWS", 10**9)
     reports.append(check_rank(singular[1], names, fast=True))
