@@ -7,10 +7,15 @@ Its dense Cholesky factor costs n^3/3 flops (43 s on one core) and the dense inv
 that again; the band factor costs n b^2 (LAPACK's ``dpbtrf``, a fraction of a second) and the
 full inverse from it about n^2 b (:func:`inverse_from_band`, in blocks of BLAS-3 products).
 
+Images listed in another order than along the strip, or several strips side by side, give a
+matrix that is a band only in another order: :func:`use_band` then tries the reverse
+Cuthill-McKee order of its nonzero pattern, the band is taken in that order and the inverse put
+back in the matrix's (:func:`permute_back`).
+
 Used by :class:`solver.engine.linalg.ReducedFactor` and
 :func:`solver.engine.linalg.positive_definite_inverse` when :func:`use_band` says so (a matrix
 of at least :data:`BAND_MIN_ROWS` rows whose band is at most :data:`BAND_MAX_SHARE` of its
-width); every other matrix keeps the dense path. All matrices here are the Jacobi-scaled S
+width, in either order); every other matrix keeps the dense path. All matrices here are the Jacobi-scaled S
 (unit diagonal); the band is stored as LAPACK's lower band storage: ``ab[k, j] = A[j + k, j]``
 for ``0 <= k <= b``.
 """
