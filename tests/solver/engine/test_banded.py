@@ -97,6 +97,20 @@ def test_a_shuffled_band_is_found_again():
     assert sorted(band.perm) == list(range(600))
 
 
+def test_reordering_gives_up_on_a_coupled_column_and_on_a_large_pattern(monkeypatch):
+    """A camera calibrated across every image couples one column with all (an arrow): no order
+    makes that a narrow band, and the pattern is given up at its first strip; a pattern larger
+    than PATTERN_MAX_NONZEROS is not read to its end."""
+    s = _shuffled(_banded_spd(600, 10, seed=7), seed=8)
+    assert banded._reordered_band(s, limit=120) is not None
+    arrow = s.copy()
+    arrow[:, 5] = arrow[5, :] = 0.01
+    arrow[5, 5] = 1e3
+    assert banded._reordered_band(arrow, limit=120) is None
+    monkeypatch.setattr(banded, "PATTERN_MAX_NONZEROS", 1000)
+    assert banded._reordered_band(s, limit=120) is None
+
+
 def test_permute_back_puts_every_entry_in_its_place():
     rng = np.random.default_rng(9)
     n = 257
