@@ -259,3 +259,52 @@ def test_strip_rank_check_from_the_band(monkeypatch, strip):
     for report in reports:
         assert report.deficient
         assert {names[20], names[21]} <= {n for n, _ in report.null_parameters}
+
+
+def _floats(x, path=""):
+    """Every float of a report, by its path (lists by index)."""
+    if isinstance(x, dict):
+        for k, v in x.items():
+            yield from _floats(v, f"{path}.{k}")
+    elif isinstance(x, list):
+        for i, v in enumerate(x):
+            yield from _floats(v, f"{path}[{i}]")
+    elif isinstance(x, float):
+        yield path, x
+
+
+# The whole report of a strip whose S (about 500 columns, cond ~1e9 on the correlation scale)
+# goes through the band path or the dense one; the solve is the same (one thread: the same sums).
+# The two inverses differ by about cond * eps on the correlation scale, so an entry of a weak
+# correlation differs by that over its own size: 5.4e-7 at most when measured (an image's
+# covariance entry of a weak correlation); the tolerance leaves a factor 18. A wrong entry (a
+# block misplaced, a coupling dropped) is off by far more.
+REPORT_REL = 1e-5
+
+
+def test_whole_report_through_the_band_equals_the_dense_one(monkeypatch):
+    """Every number of the default report (covariances, error ellipses, reliability, leave-one-out
+    check points, outlier tests, the datum analysis, correlation warnings) of a connected strip
+    with its images in random order: the band path (forced) against the dense path. Only the
+    timings may differ; every other float agrees to REPORT_REL of its own size or of 1e-9."""
+    import solver.engine.native as native
+    from solver.api import run
+
+    job, _ = connected_strip_job("P2", n_triplets=12, points_per_triplet=40, n_gcp=4, n_check=2, seed=8)
+    job["images"] = [job["images"][k] for k in np.random.default_rng(13).permutation(len(job["images"]))]
+    monkeypatch.setenv(native.THREADS_ENV, "1")
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 10**9)
+    dense = dict(_floats(run(job)))
+    calls = []
+    real = banded.inverse_from_band
+    monkeypatch.setattr(banded, "inverse_from_band", lambda f, out: calls.append(1) or real(f, out))
+    monkeypatch.setattr(banded, "BAND_MIN_ROWS", 1)
+    band = dict(_floats(run(job)))
+    assert calls  # the report's covariance (the outlier tests and reliability reuse its inverse)
+    assert band.keys() == dense.keys() and len(dense) > 10_000  # 31,010 numbers
+    worse = {
+        k: (dense[k], band[k])
+        for k in dense
+        if "time" not in k and not abs(band[k] - dense[k]) <= REPORT_REL * abs(dense[k]) + 1e-9
+    }
+    assert not worse, list(worse.items())[:10]
