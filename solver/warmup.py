@@ -103,8 +103,10 @@ class WarmupError(RuntimeError):
 
 
 def default_processes() -> int:
-    """``pba warmup``'s default ``--jobs``: 2 on a machine of two or more cores, else 1."""
-    return 2 if (os.cpu_count() or 1) >= 2 else 1
+    """``pba warmup``'s default ``--jobs``: 2 where this process may use two or more cores, else 1."""
+    from solver.engine.native import available_cores
+
+    return 2 if available_cores() >= 2 else 1
 
 
 def python_path_command() -> list[str]:

@@ -140,26 +140,25 @@ def from_band_order(band: Band, x: np.ndarray) -> np.ndarray:
 def permute_back(band: Band, z: np.ndarray) -> np.ndarray:
     """A symmetric ``z`` computed in the band's order put back in the matrix's order, in place:
     ``z[perm[i], perm[j]]`` becomes what ``z[i, j]`` was (the rows moved along the cycles of the
-    permutation with one spare row, then each row's columns gathered)."""
+    permutation with two spare rows, then each row's columns gathered)."""
     if band.perm is None:
         return z
     p = band.perm
     n = len(p)
-    spare = np.empty(n)
+    held, displaced = np.empty(n), np.empty(n)  # the row on its way, the row it replaces
     done = np.zeros(n, dtype=bool)
     for start in range(n):  # row i goes to row p[i]: follow each cycle once
         if done[start] or p[start] == start:
             done[start] = True
             continue
-        spare[:] = z[start]
+        held[:] = z[start]
         i = start
-        while True:
+        while not done[i]:
             done[i] = True
             target = p[i]
-            if target == start:
-                z[start] = spare
-                break
-            z[target], spare = spare, z[target].copy()
+            displaced[:] = z[target]
+            z[target] = held
+            held, displaced = displaced, held
             i = target
     position = np.empty(n, dtype=np.int64)
     position[p] = np.arange(n)
@@ -236,7 +235,7 @@ def _block_of_factor(factor: np.ndarray, r0: int, r1: int, c0: int, c1: int) -> 
     cols = np.arange(c0, c1)[None, :]
     k = rows - cols
     inside = (k >= 0) & (k <= b)
-    return np.where(inside, factor[np.clip(k, 0, b), np.broadcast_to(cols, k.shape)], 0.0)
+    return np.where(inside, factor[np.clip(k, 0, b), cols], 0.0)
 
 
 def inverse_from_band(factor: np.ndarray, out: np.ndarray) -> np.ndarray:

@@ -69,11 +69,9 @@ def match_threads() -> int:
         if n < 1:
             raise ValueError(f"{THREADS_ENV}={value!r}: expected a positive integer")
         return n
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(DEFAULT_THREADS, cores))
+    from solver.engine.native import available_cores
+
+    return min(DEFAULT_THREADS, available_cores())
 
 
 @contextmanager

@@ -126,6 +126,15 @@ def requested_quietly() -> str:
         return "python"
 
 
+def available_cores() -> int:
+    """The cores this process may use (its CPU affinity: a container's or ``taskset``'s share,
+    not the machine's count), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
 def solver_threads() -> int:
     """Threads of a compiled solve: ``PBA_SOLVER_THREADS`` or the cores this process may use."""
     value = os.environ.get(THREADS_ENV, "").strip()
@@ -134,10 +143,7 @@ def solver_threads() -> int:
             return max(1, int(value))
         except ValueError:
             raise ValueError(f"{THREADS_ENV}={value!r}: expected a positive integer") from None
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
+    return available_cores()
 
 
 PARALLEL_MIN_ROWS = 5_000
